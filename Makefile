@@ -1,0 +1,31 @@
+# Two entry points for a fresh machine: `make run` (default scene and its report) and `make test`.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: run test test-all bench validate clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e ".[test,report]"
+	touch $(STAMP)
+
+run: $(STAMP)
+	$(BIN)/lieseries run default --out reports/default
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+test-all: $(STAMP)
+	$(BIN)/python -m pytest -q -m ""
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/run_all.py
+
+validate: $(STAMP)
+	$(BIN)/python validation/run_all.py
+
+clean:
+	rm -rf $(VENV) reports .pytest_cache

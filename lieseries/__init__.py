@@ -1,0 +1,30 @@
+"""lieseries: high-order Taylor and Lie-series integration of Hamiltonian systems with non-canonical brackets.
+
+Public API (stable names)::
+
+    ls.EulerPoisson, ls.Sphere, ls.SphereDirac     models
+    ls.PoissonSystem                               write your own from a bracket and a Hamiltonian
+    ls.integrate                                   heyoka's adaptive Taylor method, any precision
+    ls.Solution, ls.Stats                          what integrators return
+"""
+
+from .models import EulerPoisson, Model, Sphere, SphereDirac
+from .poisson import PoissonSystem
+from .precision import Precision, resolve_precision
+from .solution import Solution, Stats
+from .taylor import integrate
+
+__all__ = [
+    "EulerPoisson",
+    "Model",
+    "Sphere",
+    "SphereDirac",
+    "PoissonSystem",
+    "Precision",
+    "resolve_precision",
+    "Solution",
+    "Stats",
+    "integrate",
+]
+
+__version__ = "0.1.0"

@@ -1,0 +1,124 @@
+"""What every model shares: its PoissonSystem, state validation, and conversion of states to mpmath."""
+
+from __future__ import annotations
+
+from fractions import Fraction
+
+import mpmath as mp
+import numpy as np
+
+from ..poisson import PoissonSystem
+from ..precision import Precision, precision_of_dtype, resolve_precision, to_fraction
+
+__all__ = ["Model", "state_fractions", "state_bits"]
+
+
+def state_fractions(y, n: int, argname: str = "y0") -> list:
+    """Validate a state (length ``n``, finite numbers) and return its exact values as Fractions.
+
+    Raises
+    ------
+    ValueError
+        Naming ``argname``: wrong shape, NaN or infinity (with the offending index).
+    """
+    if isinstance(y, (str, bytes)) or np.ndim(y) == 0 and not hasattr(y, "__len__"):
+        raise ValueError(f"`{argname}` must be a sequence of {n} numbers; got {type(y).__name__}")
+    arr = np.asarray(y, dtype=object) if not isinstance(y, np.ndarray) else y
+    if arr.ndim != 1 or arr.shape[0] != n:
+        raise ValueError(f"`{argname}` must be a 1-d sequence of {n} numbers; got shape {tuple(np.shape(arr))}")
+    out = []
+    for i, v in enumerate(arr):
+        try:
+            out.append(to_fraction(v, f"{argname}[{i}]"))
+        except ValueError as err:
+            raise ValueError(f"{err}: every entry of `{argname}` must be a finite number") from None
+    return out
+
+
+def state_bits(y) -> int:
+    """The precision (bits) a state is stored in: 53 for float64, 113 for quad, the ``real`` precision, ..."""
+    arr = np.asarray(y) if not isinstance(y, np.ndarray) else y
+    prec = precision_of_dtype(arr.dtype)
+    if prec is not None:
+        return prec.bits
+    flat = arr.ravel()
+    if len(flat) and hasattr(flat[0], "prec"):
+        p = flat[0].prec
+        return int(p() if callable(p) else p)
+    if len(flat) and isinstance(flat[0], mp.mpf):
+        return mp.prec
+    return 53
+
+
+class Model:
+    """Base of the built-in models: a PoissonSystem plus state helpers, invariants and input checks.
+
+    Subclasses set ``self.poisson`` and implement :meth:`invariants`; they may override :meth:`check_state`
+    (extra physical checks) and :meth:`events` (terminal events the integrator must watch).
+    """
+
+    poisson: PoissonSystem
+
+    @property
+    def dimension(self) -> int:
+        """Length of the state vector."""
+        return self.poisson.dimension
+
+    @property
+    def names(self) -> tuple:
+        """Names of the state variables, in order."""
+        return self.poisson.names
+
+    def check_state(self, y, argname: str = "y0") -> list:
+        """Validate a state and return it as exact Fractions (subclasses add physical checks)."""
+        return state_fractions(y, self.dimension, argname)
+
+    def events(self):
+        """Terminal events: a list of ``(expression, status, message)``; the run stops when an expression is 0."""
+        return []
+
+    def invariants(self, y) -> dict:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    # -- helpers -----------------------------------------------------------------------------------------------
+    def _rows(self, y, argname: str = "y"):
+        """(rows of exact Fractions, bits, was_1d) for a state or a 2-d array of states."""
+        arr = y if isinstance(y, np.ndarray) else np.asarray(y, dtype=object)
+        if arr.ndim == 1:
+            return [state_fractions(arr, self.dimension, argname)], state_bits(y), True
+        if arr.ndim == 2:
+            return [state_fractions(r, self.dimension, f"{argname}[{i}]") for i, r in enumerate(arr)], state_bits(
+                y
+            ), False
+        raise ValueError(f"`{argname}` must be a state (1-d) or one state per row (2-d); got {arr.ndim}-d")
+
+    @staticmethod
+    def _out_array(values_rows, bits: int, was_1d: bool, like):
+        """Round mpf/Fraction rows to the precision of ``like`` and return an array shaped like the input."""
+        arr = like if isinstance(like, np.ndarray) else np.asarray(like, dtype=object)
+        prec = precision_of_dtype(arr.dtype)
+        if prec is None and arr.dtype != object:
+            prec = resolve_precision(bits)
+        if prec is None:  # plain Python sequences: give float64
+            prec = resolve_precision("double")
+        rows = [prec.array([_exact(v) for v in r]) for r in values_rows]
+        return rows[0] if was_1d else np.stack(rows)
+
+    def _mp_rows(self, y, argname="y", guard: int = 16):
+        rows, bits, was_1d = self._rows(y, argname)
+        return rows, bits + guard, was_1d
+
+
+def _exact(v):
+    if isinstance(v, Fraction):
+        return v
+    if isinstance(v, mp.mpf):
+        return to_fraction(v)
+    return v
+
+
+def precision_for(y) -> Precision:
+    """The Precision matching a state's storage."""
+    return resolve_precision(state_bits(y)) if precision_of_dtype(np.asarray(y).dtype) is None else precision_of_dtype(
+        np.asarray(y).dtype
+    )

@@ -1,0 +1,301 @@
+"""The free asymmetric rigid body as a Hamiltonian system on the intermediate submanifold (Euler-Poisson equations).
+
+State (12 numbers): the matrix R row-major (R11, R12, ..., R33), then the body angular momentum M = I Omega.
+Hamiltonian H = 1/2 M . I^-1 M (paper, eq. 11.26). Two brackets:
+
+``"chetaev"`` (default, paper eq. 11.20.2)
+    {R_ij, R_ab} = 0, {M_i, M_j} = -eps_ijk M_k, {M_i, R_jk} = -eps_ikm R_jm.
+``"intermediate"`` (paper eq. 11.20)
+    {R_ij, R_ab} = 0, {M_i, M_j} = -eps_ijk ((R^T R)^-1 M)_k, {M_i, R_jk} = -eps_ikm (R^-T)_jm.
+
+Both give dR/dt = R hat(Omega), dM/dt = M x Omega on R^T R = 1 (paper eq. p26). Physical motions start from
+R(0) = identity (eq. 11.20.1); :meth:`EulerPoisson.initial_state` does that by default.
+
+The inertia tensor may be diagonal (three principal moments) or a full symmetric positive-definite matrix (a lab
+frame not aligned with the axes of inertia, the remark after eq. 11.26). The entries of I^-1 are heyoka runtime
+parameters, computed exactly (rational arithmetic) and rounded once to the working precision.
+"""
+
+from __future__ import annotations
+
+import warnings
+from fractions import Fraction
+
+import heyoka as hy
+import mpmath as mp
+import numpy as np
+
+from ..poisson import PoissonSystem
+from ..precision import resolve_precision, to_fraction
+from .base import Model
+
+__all__ = ["EulerPoisson", "levi_civita"]
+
+
+def levi_civita(i: int, j: int, k: int) -> int:
+    """The permutation symbol eps_ijk for indices in {0, 1, 2}."""
+    return (i - j) * (j - k) * (k - i) // 2
+
+
+def _parse_inertia(inertia):
+    """Exact 3x3 inertia tensor (Fractions) from three moments or a 3x3 matrix, validated."""
+    try:
+        arr = np.asarray(inertia, dtype=object)
+    except Exception:  # pragma: no cover - numpy refuses ragged input
+        raise ValueError("`inertia` must be three principal moments or a 3x3 matrix") from None
+    if arr.shape == (3,):
+        d = [to_fraction(v, f"inertia[{i}]") for i, v in enumerate(arr)]
+        if any(v <= 0 for v in d):
+            raise ValueError(
+                f"`inertia` principal moments must be positive; got {tuple(float(v) for v in d)}"
+            )
+        I = [[d[i] if i == j else Fraction(0) for j in range(3)] for i in range(3)]
+    elif arr.shape == (3, 3):
+        I = [[to_fraction(arr[i, j], f"inertia[{i}][{j}]") for j in range(3)] for i in range(3)]
+        scale = max(abs(v) for r in I for v in r)
+        asym = max(abs(I[i][j] - I[j][i]) for i in range(3) for j in range(3))
+        if asym > scale * Fraction(1, 10**12):
+            raise ValueError(
+                "`inertia` must be symmetric; the largest |I_ij - I_ji| is "
+                f"{float(asym):.3g} (relative {float(asym / scale):.3g}). Pass (I + I^T)/2 if that is what you mean."
+            )
+        # round-off asymmetry below 1e-12 relative: use the symmetric part, exactly
+        I = [[(I[i][j] + I[j][i]) / 2 for j in range(3)] for i in range(3)]
+    else:
+        raise ValueError(
+            f"`inertia` must be three principal moments or a 3x3 matrix; got shape {arr.shape}"
+        )
+    # Sylvester's criterion, exact
+    m1 = I[0][0]
+    m2 = I[0][0] * I[1][1] - I[0][1] * I[1][0]
+    m3 = _det3(I)
+    if not (m1 > 0 and m2 > 0 and m3 > 0):
+        eig = np.linalg.eigvalsh(np.array([[float(v) for v in r] for r in I]))
+        raise ValueError(
+            f"`inertia` must be positive-definite; got eigenvalues {tuple(float(e) for e in eig)}"
+        )
+    return I
+
+
+def _det3(A):
+    return (
+        A[0][0] * (A[1][1] * A[2][2] - A[1][2] * A[2][1])
+        - A[0][1] * (A[1][0] * A[2][2] - A[1][2] * A[2][0])
+        + A[0][2] * (A[1][0] * A[2][1] - A[1][1] * A[2][0])
+    )
+
+
+def _inverse3(A):
+    det = _det3(A)
+    C = _cofactors(A)
+    return [[C[j][i] / det for j in range(3)] for i in range(3)]
+
+
+def _cofactors(R):
+    """Cofactor matrix of a 3x3 matrix of expressions (cyclic-index form, signs built in)."""
+    return [
+        [
+            R[(i + 1) % 3][(j + 1) % 3] * R[(i + 2) % 3][(j + 2) % 3]
+            - R[(i + 1) % 3][(j + 2) % 3] * R[(i + 2) % 3][(j + 1) % 3]
+            for j in range(3)
+        ]
+        for i in range(3)
+    ]
+
+
+class EulerPoisson(Model):
+    """Free rigid body: R (3x3, row-major) and body angular momentum M; 12 variables.
+
+    Parameters
+    ----------
+    inertia : sequence of 3 numbers, or 3x3 nested sequence
+        Principal moments (I1, I2, I3), or a full symmetric positive-definite inertia tensor. Entries may be
+        int, str ("0.1" is exact), Fraction, float or mpf. Moments violating the triangle inequality
+        I_i + I_j >= I_k describe no physical body: the equations are still integrated, with a warning.
+    bracket : {"chetaev", "intermediate"}
+        The Poisson structure (module docstring). Both give the same motion on R^T R = 1.
+
+    Examples
+    --------
+    >>> import lieseries as ls
+    >>> body = ls.EulerPoisson(inertia=(1, 2, 3))
+    >>> y0 = body.initial_state(omega=(1.0, 0.1, 0.5))
+    >>> sol = ls.integrate(body, y0, t=20.0)
+    """
+
+    def __init__(self, inertia=(1, 2, 3), bracket: str = "chetaev"):
+        I = _parse_inertia(inertia)
+        self._I = I
+        self._Iinv = _inverse3(I)
+        self.diagonal = all(I[i][j] == 0 for i in range(3) for j in range(3) if i != j)
+        eig = sorted(np.linalg.eigvalsh(np.array([[float(v) for v in r] for r in I])))
+        self.principal_moments = tuple(float(e) for e in eig)
+        if eig[0] + eig[1] < eig[2] * (1 - 1e-12):
+            warnings.warn(
+                f"`inertia` principal moments {tuple(eig)} violate the triangle inequality I1 + I2 >= I3: no "
+                "physical body has them (the mass matrix g = tr(I)/2 - I has a negative entry). The equations are "
+                "integrated as given.",
+                UserWarning,
+                stacklevel=2,
+            )
+        if bracket not in ("chetaev", "intermediate"):
+            raise ValueError(f"`bracket` must be 'chetaev' or 'intermediate'; got {bracket!r}")
+        self.bracket = bracket
+        self.poisson = self._build()
+
+    # -- construction ------------------------------------------------------------------------------------------
+    def _build(self) -> PoissonSystem:
+        names = [f"R{i + 1}{j + 1}" for i in range(3) for j in range(3)] + ["M1", "M2", "M3"]
+        z = hy.make_vars(*names)
+        R = [[z[3 * i + j] for j in range(3)] for i in range(3)]
+        M = z[9:]
+        if self.diagonal:
+            params = {f"Iinv{i + 1}": self._Iinv[i][i] for i in range(3)}
+        else:
+            idx = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
+            params = {f"Iinv{a + 1}{b + 1}": self._Iinv[a][b] for a, b in idx}
+            pmap = {}
+            for n_, (a, b) in enumerate(idx):
+                pmap[(a, b)] = pmap[(b, a)] = hy.par[n_]
+        if self.diagonal:
+            H = 0.5 * hy.sum([hy.par[i] * M[i] ** 2 for i in range(3)])
+        else:
+            H = hy.sum(
+                [0.5 * pmap[(i, i)] * M[i] ** 2 for i in range(3)]
+                + [pmap[(i, j)] * M[i] * M[j] for i in range(3) for j in range(i + 1, 3)]
+            )
+
+        n = 12
+        P = [[0] * n for _ in range(n)]
+        if self.bracket == "chetaev":
+            Mvec = list(M)
+            Rm = R
+        else:
+            C = _cofactors(R)
+            det = hy.sum([R[0][m] * C[0][m] for m in range(3)])
+            Rm = [[C[j][m] / det for m in range(3)] for j in range(3)]  # R^-T
+            G = [[hy.sum([C[j][k] * C[j][l] for j in range(3)]) / det**2 for l in range(3)] for k in range(3)]
+            Mvec = [hy.sum([G[k][l] * M[l] for l in range(3)]) for k in range(3)]
+        for i in range(3):
+            for j in range(3):
+                if i == j:
+                    continue
+                k = 3 - i - j
+                P[9 + i][9 + j] = -Mvec[k] if levi_civita(i, j, k) > 0 else Mvec[k]
+        for i in range(3):
+            for k in range(3):
+                if i == k:
+                    continue
+                m = 3 - i - k
+                sign = -levi_civita(i, k, m)  # {M_i, R_jk} = -eps_ikm R_jm (one m survives)
+                for j in range(3):
+                    P[9 + i][3 * j + k] = Rm[j][m] if sign > 0 else -Rm[j][m]
+                    P[3 * j + k][9 + i] = -Rm[j][m] if sign > 0 else Rm[j][m]
+        return PoissonSystem(z, P, H, parameters=params, name=f"Euler-Poisson ({self.bracket})")
+
+    # -- state helpers -----------------------------------------------------------------------------------------
+    @property
+    def inertia(self) -> np.ndarray:
+        """The inertia tensor as a float64 3x3 array."""
+        return np.array([[float(v) for v in r] for r in self._I])
+
+    @property
+    def inertia_exact(self) -> list:
+        """The inertia tensor as exact Fractions."""
+        return [list(r) for r in self._I]
+
+    def initial_state(self, omega, R0=None, precision="double") -> np.ndarray:
+        """The 12-number state with R(0) = ``R0`` (identity by default) and M = I ``omega``.
+
+        Parameters
+        ----------
+        omega : sequence of 3 numbers
+            Initial angular velocity in the body frame (exact input such as "0.1" or Fraction stays exact).
+        R0 : 3x3, optional
+            Initial orientation; must be a rotation (orthogonal to 1e-12, det = +1).
+        precision : str or int
+            Precision of the returned array ('double', 'long double', 'quad' or bits). M = I omega is formed
+            exactly and rounded once.
+        """
+        prec = resolve_precision(precision)
+        om = np.asarray(omega, dtype=object)
+        if om.shape != (3,):
+            raise ValueError(f"`omega` must be three numbers; got shape {om.shape}")
+        w = [to_fraction(v, f"omega[{i}]") for i, v in enumerate(om)]
+        if R0 is None:
+            R = [[Fraction(int(i == j)) for j in range(3)] for i in range(3)]
+        else:
+            Ra = np.asarray(R0, dtype=object)
+            if Ra.shape != (3, 3):
+                raise ValueError(f"`R0` must be a 3x3 matrix; got shape {Ra.shape}")
+            R = [[to_fraction(Ra[i, j], f"R0[{i}][{j}]") for j in range(3)] for i in range(3)]
+            defect = max(
+                abs(sum(R[k][i] * R[k][j] for k in range(3)) - (i == j)) for i in range(3) for j in range(3)
+            )
+            if defect > Fraction(1, 10**12):
+                raise ValueError(
+                    f"`R0` must be a rotation matrix: max |R0^T R0 - 1| = {float(defect):.3g}. R R^T is conserved "
+                    "by the equations, so a non-orthogonal R0 never becomes a rigid motion. Orthonormalise it "
+                    "(e.g. scipy.spatial.transform.Rotation.from_matrix(R0).as_matrix())."
+                )
+            if _det3(R) < 0:
+                raise ValueError("`R0` must be a proper rotation (det R0 = +1); got a reflection (det R0 = -1)")
+        M = [sum(self._I[i][j] * w[j] for j in range(3)) for i in range(3)]
+        return prec.array([R[i][j] for i in range(3) for j in range(3)] + M)
+
+    def rotation(self, y) -> np.ndarray:
+        """R as a 3x3 array (one 3x3 per row for a 2-d array of states)."""
+        arr = np.asarray(y) if not isinstance(y, np.ndarray) else y
+        if arr.shape[-1] != 12:
+            raise ValueError(f"`y` must have 12 entries per state; got shape {arr.shape}")
+        return arr[..., :9].reshape(arr.shape[:-1] + (3, 3))
+
+    def angular_momentum(self, y) -> np.ndarray:
+        """Body angular momentum M."""
+        arr = np.asarray(y) if not isinstance(y, np.ndarray) else y
+        if arr.shape[-1] != 12:
+            raise ValueError(f"`y` must have 12 entries per state; got shape {arr.shape}")
+        return arr[..., 9:]
+
+    def angular_velocity(self, y) -> np.ndarray:
+        """Omega = I^-1 M, in the state's precision."""
+        rows, bits, was_1d = self._rows(y)
+        out = []
+        with mp.workprec(bits + 16):
+            Iinv = [[mp.mpf(v.numerator) / v.denominator for v in r] for r in self._Iinv]
+            for r in rows:
+                M = [mp.mpf(v.numerator) / v.denominator for v in r[9:]]
+                out.append([mp.fsum(Iinv[i][j] * M[j] for j in range(3)) for i in range(3)])
+        like = y if isinstance(y, np.ndarray) else np.asarray(y, dtype=object)
+        return self._out_array(out, bits, was_1d, like)
+
+    def invariants(self, y) -> dict:
+        """Conserved quantities, evaluated in mpmath a little above the state's precision.
+
+        Returns a dict of mpf (a dict of lists for a 2-d array of states): ``energy`` H, ``M2`` = |M|^2,
+        ``L1, L2, L3`` the lab angular momentum R M, ``orthogonality`` = max |R^T R - 1|, ``det_R``.
+        """
+        rows, bits, was_1d = self._rows(y)
+        keys = ("energy", "M2", "L1", "L2", "L3", "orthogonality", "det_R")
+        res = {k: [] for k in keys}
+        with mp.workprec(bits + 16):
+            Iinv = [[mp.mpf(v.numerator) / v.denominator for v in r] for r in self._Iinv]
+            for r in rows:
+                z = [mp.mpf(v.numerator) / v.denominator for v in r]
+                R = [z[3 * i: 3 * i + 3] for i in range(3)]
+                M = z[9:]
+                Om = [mp.fsum(Iinv[i][j] * M[j] for j in range(3)) for i in range(3)]
+                res["energy"].append(mp.fsum(M[i] * Om[i] for i in range(3)) / 2)
+                res["M2"].append(mp.fsum(m * m for m in M))
+                for i in range(3):
+                    res[f"L{i + 1}"].append(mp.fsum(R[i][j] * M[j] for j in range(3)))
+                res["orthogonality"].append(
+                    max(abs(mp.fsum(R[k][i] * R[k][j] for k in range(3)) - (i == j)) for i in range(3) for j in range(3))
+                )
+                res["det_R"].append(_det3(R))
+        return {k: v[0] for k, v in res.items()} if was_1d else res
+
+    def __repr__(self) -> str:
+        if self.diagonal:
+            return f"EulerPoisson(inertia={tuple(float(self._I[i][i]) for i in range(3))}, bracket={self.bracket!r})"
+        return f"EulerPoisson(inertia={self.inertia.tolist()}, bracket={self.bracket!r})"

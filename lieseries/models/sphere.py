@@ -1,0 +1,285 @@
+"""A particle on the sphere |x| = c: the paper's 5-dimensional intermediate coordinates, and the Dirac form.
+
+Intermediate coordinates (paper, section "toy model"), chart with dependent coordinate x3 (x3 != 0)::
+
+    z = (x1, x2, x3, pi1, pi2),   pi_a = p_a - x_a p3 / x3                      (dm3)
+    {x1, pi1} = 1, {x2, pi2} = 1, {x3, pi1} = -x1/x3, {x3, pi2} = -x2/x3           (dm5)
+    H = (1/2m) [pi1^2 + pi2^2 - (x1 pi1 + x2 pi2)^2 / |x|^2]                       (dm6, corrected: squared)
+
+|x|^2 is a Casimir (the symplectic leaves are the spheres). The chart ends on the equator x3 = 0, where
+{x3, pi_a} and pi_a blow up; the same construction with x1 or x2 as the dependent coordinate gives the other two
+charts of an atlas (``chart=0, 1, 2``). A run stops cleanly with status ``"chart_edge"`` when
+|x_dep| / |x| falls to ``edge``.
+
+:class:`SphereDirac` is the global 6-dimensional form on (x, p) with the Dirac bracket
+{x_i, x_j} = 0, {x_i, p_j} = delta_ij - x_i x_j/|x|^2, {p_i, p_j} = (p_i x_j - x_i p_j)/|x|^2, H = |p|^2/2m.
+"""
+
+from __future__ import annotations
+
+from fractions import Fraction
+
+import heyoka as hy
+import mpmath as mp
+import numpy as np
+
+from ..poisson import PoissonSystem
+from ..precision import resolve_precision, to_fraction
+from .base import Model
+
+__all__ = ["Sphere", "SphereDirac"]
+
+
+def _positive(value, argname):
+    v = to_fraction(value, argname)
+    if v <= 0:
+        raise ValueError(f"`{argname}` must be positive; got {float(v)}")
+    return v
+
+
+def _vec3(value, argname):
+    arr = np.asarray(value, dtype=object)
+    if arr.shape != (3,):
+        raise ValueError(f"`{argname}` must be three numbers; got shape {arr.shape}")
+    return [to_fraction(v, f"{argname}[{i}]") for i, v in enumerate(arr)]
+
+
+def _frac_sqrt_float(f: Fraction) -> float:
+    return float(f) ** 0.5
+
+
+class _SphereBase(Model):
+    def __init__(self, mass, radius, rtol):
+        self.mass_exact = _positive(mass, "mass")
+        self.radius_exact = _positive(radius, "radius")
+        rtol = float(rtol)
+        if not (0 < rtol < 1):
+            raise ValueError(f"`rtol` must lie in (0, 1); got {rtol}")
+        self.rtol = rtol
+
+    @property
+    def mass(self) -> float:
+        return float(self.mass_exact)
+
+    @property
+    def radius(self) -> float:
+        return float(self.radius_exact)
+
+    def _check_xv(self, x, v):
+        """Exact x, v after checking |x| = radius and x.v = 0 to ``rtol``."""
+        x = _vec3(x, "x")
+        v = _vec3(v, "v")
+        r = self.radius_exact
+        x2 = sum(c * c for c in x)
+        if abs(x2 - r * r) > 2 * self.rtol * r * r:
+            raise ValueError(
+                f"`x` must lie on the sphere |x| = {float(r)}; got |x| = {_frac_sqrt_float(x2):.17g} "
+                f"(relative error {float(abs(x2 - r * r) / (2 * r * r)):.3g} > rtol = {self.rtol:g}). "
+                "Scale x to the radius, or change `radius`."
+            )
+        xv = sum(a * b for a, b in zip(x, v))
+        vnorm = _frac_sqrt_float(sum(c * c for c in v))
+        if abs(float(xv)) > self.rtol * float(r) * max(vnorm, 1e-300) and xv != 0:
+            raise ValueError(
+                f"`v` must be tangent to the sphere (x . v = 0); got x . v = {float(xv):.3g} "
+                f"(relative {abs(float(xv)) / (float(r) * vnorm):.3g} > rtol = {self.rtol:g}). "
+                "Remove the radial part: v - x (x . v) / |x|^2."
+            )
+        return x, v
+
+    def _xp_rows(self, y, argname="y"):
+        raise NotImplementedError
+
+    def position(self, y) -> np.ndarray:
+        """The position x (three numbers per state), in the state's precision."""
+        rows, bits, was_1d = self._rows(y)
+        with mp.workprec(bits + 16):
+            out = [self._xp(r)[0] for r in rows]
+        return self._out_array(out, bits, was_1d, y if isinstance(y, np.ndarray) else np.asarray(y, dtype=object))
+
+    def velocity(self, y) -> np.ndarray:
+        """The velocity v = p / m (three numbers per state), in the state's precision."""
+        rows, bits, was_1d = self._rows(y)
+        with mp.workprec(bits + 16):
+            m = mp.mpf(self.mass_exact.numerator) / self.mass_exact.denominator
+            out = [[c / m for c in self._xp(r)[1]] for r in rows]
+        return self._out_array(out, bits, was_1d, y if isinstance(y, np.ndarray) else np.asarray(y, dtype=object))
+
+    def invariants(self, y) -> dict:
+        """``energy`` |p|^2/2m, ``x2`` = |x|^2 (the Casimir), ``L1, L2, L3`` = x cross p (mpf, in mpmath)."""
+        rows, bits, was_1d = self._rows(y)
+        keys = ("energy", "x2", "L1", "L2", "L3")
+        res = {k: [] for k in keys}
+        with mp.workprec(bits + 16):
+            m = mp.mpf(self.mass_exact.numerator) / self.mass_exact.denominator
+            for r in rows:
+                x, p = self._xp(r)
+                res["energy"].append(mp.fsum(c * c for c in p) / (2 * m))
+                res["x2"].append(mp.fsum(c * c for c in x))
+                res["L1"].append(x[1] * p[2] - x[2] * p[1])
+                res["L2"].append(x[2] * p[0] - x[0] * p[2])
+                res["L3"].append(x[0] * p[1] - x[1] * p[0])
+        return {k: v[0] for k, v in res.items()} if was_1d else res
+
+
+class Sphere(_SphereBase):
+    """A particle on the sphere in the paper's intermediate coordinates (x1, x2, x3, pi_a, pi_b).
+
+    Parameters
+    ----------
+    mass, radius : positive numbers (exact input stays exact)
+    chart : {0, 1, 2}
+        Index of the dependent coordinate (2, the paper's x3, by default); the momenta are those of the other two.
+    edge : float
+        The chart is left when |x_dep| <= edge * radius: states there are refused and runs stop there.
+    rtol : float
+        Tolerance of the checks |x| = radius and x . v = 0 in :meth:`initial_state`.
+    """
+
+    def __init__(self, mass=1, radius=1, *, chart: int = 2, edge: float = 0.05, rtol: float = 1e-12):
+        super().__init__(mass, radius, rtol)
+        if chart not in (0, 1, 2) or isinstance(chart, bool):
+            raise ValueError(f"`chart` must be 0, 1 or 2 (the index of the dependent coordinate); got {chart!r}")
+        edge = float(edge)
+        if not (0 < edge < 0.5):
+            raise ValueError(f"`edge` must lie in (0, 0.5) (a fraction of the radius); got {edge}")
+        self.chart = chart
+        self.edge = edge
+        self.free = tuple(i for i in range(3) if i != chart)
+        self.poisson = self._build()
+
+    def _build(self) -> PoissonSystem:
+        k = self.chart
+        a, b = self.free
+        names = ["x1", "x2", "x3", f"pi{a + 1}", f"pi{b + 1}"]
+        z = hy.make_vars(*names)
+        x = z[:3]
+        pia, pib = z[3], z[4]
+        P = [[0] * 5 for _ in range(5)]
+        # {x_a, pi_a} = 1, {x_b, pi_b} = 1, {x_k, pi_c} = -x_c / x_k
+        P[a][3], P[3][a] = 1, -1
+        P[b][4], P[4][b] = 1, -1
+        P[k][3] = -x[a] / x[k]
+        P[3][k] = x[a] / x[k]
+        P[k][4] = -x[b] / x[k]
+        P[4][k] = x[b] / x[k]
+        s = x[a] * pia + x[b] * pib
+        H = 0.5 * hy.par[0] * (pia**2 + pib**2 - s**2 / (x[0] ** 2 + x[1] ** 2 + x[2] ** 2))
+        return PoissonSystem(
+            z,
+            P,
+            H,
+            parameters={"inv_mass": 1 / self.mass_exact, "edge2": Fraction(self.edge) ** 2},
+            casimirs={"x2": x[0] ** 2 + x[1] ** 2 + x[2] ** 2},
+            name=f"sphere (intermediate, chart x{k + 1})",
+        )
+
+    def initial_state(self, x, v, precision="double") -> np.ndarray:
+        """State (x1, x2, x3, pi_a, pi_b) from a position on the sphere and a tangent velocity.
+
+        pi_c = m (v_c - x_c v_k / x_k) for the two free indices c (paper eq. dm3). Refuses x off the sphere,
+        x . v != 0, and positions on or near the chart edge (|x_k| <= edge * radius).
+        """
+        prec = resolve_precision(precision)
+        x, v = self._check_xv(x, v)
+        k = self.chart
+        if abs(float(x[k])) <= self.edge * self.radius:
+            raise ValueError(
+                f"`x` is at the edge of the chart x{k + 1} != 0: |x{k + 1}| = {abs(float(x[k])):.3g} <= "
+                f"edge * radius = {self.edge * self.radius:.3g}. Use `chart` = {int(np.argmax(np.abs([float(c) for c in x])))} "
+                "(the coordinate of largest magnitude), or the global form SphereDirac."
+            )
+        m = self.mass_exact
+        pis = [m * (v[c] - x[c] * v[k] / x[k]) for c in self.free]
+        return prec.array(list(x) + pis)
+
+    def check_state(self, y, argname="y0"):
+        z = super().check_state(y, argname)
+        k = self.chart
+        r2 = sum(c * c for c in z[:3])
+        if r2 == 0 or abs(float(z[k])) <= self.edge * float(r2) ** 0.5 * (1 - 1e-12):
+            raise ValueError(
+                f"`{argname}` is at the edge of the chart x{k + 1} != 0 (|x{k + 1}| <= {self.edge} |x|): the bracket "
+                f"{{x{k + 1}, pi}} = -x/x{k + 1} blows up there. Start in the chart of the largest coordinate."
+            )
+        return z
+
+    def events(self):
+        k = self.chart
+        xk = self.poisson.variables[k]
+        x = self.poisson.variables[:3]
+        # |x_k| = edge |x|, measured against the state's own |x| (a Casimir, so the radius of the leaf)
+        expr = xk**2 - hy.par[1] * (x[0] ** 2 + x[1] ** 2 + x[2] ** 2)
+        return [
+            (
+                expr,
+                "chart_edge",
+                f"the sphere chart x{k + 1} != 0 is ending (|x{k + 1}| reached {self.edge} * radius)",
+            )
+        ]
+
+    def _xp(self, r):
+        """(x, p) as mpf lists from an exact 5-number state (paper eq. dm4 with pi_3 = 0)."""
+        z = [mp.mpf(v.numerator) / v.denominator for v in r]
+        x = z[:3]
+        a, b = self.free
+        s = x[a] * z[3] + x[b] * z[4]
+        x2 = mp.fsum(c * c for c in x)
+        p = [None] * 3
+        p[a] = z[3] - x[a] * s / x2
+        p[b] = z[4] - x[b] * s / x2
+        p[self.chart] = -x[self.chart] * s / x2
+        return x, p
+
+    def __repr__(self):
+        return f"Sphere(mass={self.mass}, radius={self.radius}, chart={self.chart})"
+
+
+class SphereDirac(_SphereBase):
+    """A particle on the sphere in the global 6-dimensional Dirac form (x1, x2, x3, p1, p2, p3).
+
+    Both |x|^2 and x . p are Casimirs of the Dirac bracket; :meth:`initial_state` removes any radial part of
+    the velocity exactly so that x . p = 0 holds from the start.
+    """
+
+    def __init__(self, mass=1, radius=1, *, rtol: float = 1e-12):
+        super().__init__(mass, radius, rtol)
+        self.poisson = self._build()
+
+    def _build(self) -> PoissonSystem:
+        z = hy.make_vars("x1", "x2", "x3", "p1", "p2", "p3")
+        x, p = z[:3], z[3:]
+        r2 = x[0] ** 2 + x[1] ** 2 + x[2] ** 2
+        P = [[0] * 6 for _ in range(6)]
+        for i in range(3):
+            for j in range(3):
+                e = (1.0 if i == j else 0.0) - x[i] * x[j] / r2
+                P[i][3 + j] = e
+                P[3 + j][i] = -e
+                if i != j:
+                    P[3 + i][3 + j] = (p[i] * x[j] - x[i] * p[j]) / r2
+        H = 0.5 * hy.par[0] * (p[0] ** 2 + p[1] ** 2 + p[2] ** 2)
+        return PoissonSystem(
+            z,
+            P,
+            H,
+            parameters={"inv_mass": 1 / self.mass_exact},
+            casimirs={"x2": r2, "xp": x[0] * p[0] + x[1] * p[1] + x[2] * p[2]},
+            name="sphere (Dirac bracket)",
+        )
+
+    def initial_state(self, x, v, precision="double") -> np.ndarray:
+        """State (x, p) with p = m v, after checking |x| = radius and x . v = 0 (radial part removed exactly)."""
+        prec = resolve_precision(precision)
+        x, v = self._check_xv(x, v)
+        x2 = sum(c * c for c in x)
+        xv = sum(a * b for a, b in zip(x, v))
+        v = [v[i] - x[i] * xv / x2 for i in range(3)]
+        return prec.array(list(x) + [self.mass_exact * c for c in v])
+
+    def _xp(self, r):
+        z = [mp.mpf(v.numerator) / v.denominator for v in r]
+        return z[:3], z[3:]
+
+    def __repr__(self):
+        return f"SphereDirac(mass={self.mass}, radius={self.radius})"

@@ -1,0 +1,125 @@
+"""Solution: what every integrator returns (output times, states, statistics, status, dense output)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["Solution", "Stats", "STATUSES"]
+
+#: Every status a run can end with, and what it means.
+STATUSES = {
+    "success": "reached the final time",
+    "chart_edge": "stopped at the edge of a coordinate chart (a terminal event)",
+    "event": "stopped by a terminal event",
+    "non_finite": "the state became non-finite (NaN or infinity)",
+    "step_collapse": "the step size collapsed: finishing would exceed the step budget",
+    "step_budget": "the step budget (max_steps) ran out",
+    "time_budget": "the wall-time budget (max_time) ran out",
+    "divergent": "the Lie series diverges at the requested step (beyond its radius of convergence)",
+}
+
+
+@dataclass
+class Stats:
+    """Run statistics.
+
+    Attributes
+    ----------
+    method : str            "taylor (heyoka)" or "lie series (mpmath)"
+    precision : str         precision name ("double", "quad", "real237", "50 dps", ...)
+    tol : float             the tolerance the run was asked for
+    steps : int             number of steps taken
+    order : int             Taylor/Lie order (the largest used, for a variable-order run)
+    build_time : float      seconds spent compiling the integrator (0 when it came from the cache)
+    run_time : float        seconds spent integrating
+    cached : bool           the integrator came from the cache
+    min_step, max_step : float   smallest and largest step size taken
+    error_estimates : list  per-step error estimates (Lie-series runs)
+    """
+
+    method: str
+    precision: str
+    tol: float
+    steps: int = 0
+    order: int = 0
+    build_time: float = 0.0
+    run_time: float = 0.0
+    cached: bool = False
+    min_step: float = float("nan")
+    max_step: float = float("nan")
+    error_estimates: list = field(default_factory=list)
+    extra: dict = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        d = asdict(self)
+        d.pop("error_estimates")
+        return d
+
+
+class Solution:
+    """The result of :func:`lieseries.integrate` or :func:`lieseries.lie_integrate`.
+
+    Attributes
+    ----------
+    t : ndarray, shape (k,)
+        Output times actually reached (a run that stops early has fewer rows than asked for).
+    y : ndarray, shape (k, n)
+        The state at each output time, in the run's precision (float64, longdouble, real128 or real).
+    stats : Stats
+    status : str
+        One of :data:`STATUSES`; ``success`` is True only for ``"success"``.
+    message : str
+        What happened and, when the run stopped early, where and what to do.
+    t_reached : Fraction
+        The time the integration reached (exact).
+    y_reached : ndarray, shape (n,)
+        The state at ``t_reached``: for a run that stopped early, the last good state.
+    """
+
+    def __init__(self, t, y, stats: Stats, status: str, message: str, t_reached, dense: Callable | None = None,
+                 t_requested=None, y_reached=None):
+        if status not in STATUSES:  # pragma: no cover - programming error
+            raise ValueError(f"unknown status {status!r}")
+        self.t = t
+        self.y = y
+        self.stats = stats
+        self.status = status
+        self.message = message
+        self.t_reached = t_reached
+        self.t_requested = t_requested
+        self.y_reached = y_reached
+        self._dense = dense
+
+    @property
+    def success(self) -> bool:
+        return self.status == "success"
+
+    @property
+    def y_final(self):
+        """The last state reached."""
+        return self.y[-1]
+
+    def __call__(self, t):
+        """Dense output: the state at time(s) ``t`` inside the integrated interval."""
+        if self._dense is None:
+            raise RuntimeError(
+                "this solution has no dense output; run the integrator with `dense=True` to get sol(t)"
+            )
+        return self._dense(t)
+
+    def __repr__(self) -> str:
+        return (
+            f"Solution(status={self.status!r}, outputs={len(self.t)}, steps={self.stats.steps}, "
+            f"order={self.stats.order}, precision={self.stats.precision!r})"
+        )
+
+
+def as_float_array(values) -> np.ndarray:
+    """A float64 copy of an array in any precision (for plotting and tables)."""
+    arr = np.asarray(values)
+    if arr.dtype == np.float64:
+        return arr
+    return np.vectorize(float, otypes=[np.float64])(arr) if arr.size else arr.astype(np.float64)

@@ -1,0 +1,326 @@
+"""heyoka adapter: build (once) and run the adaptive Taylor integrator of a Poisson system, in any precision.
+
+Caching
+-------
+Compiling a heyoka integrator (LLVM) costs milliseconds to seconds; running a short orbit costs microseconds.
+Integrators are therefore cached by (system structure, precision, tolerance, events, options). Model parameters
+are heyoka runtime parameters, so two bodies with different inertia share one compiled integrator; only the
+parameter values are set per run.
+
+Guards
+------
+A run never hangs and never returns a silently wrong state. heyoka itself stops on a non-finite state
+(status ``non_finite``). A per-step guard stops when the wall-time budget ``max_time`` runs out
+(``time_budget``), when ``max_steps`` steps were taken (``step_budget``), and when the step size has collapsed
+so far that finishing at the current step size would need more than the remaining step budget
+(``step_collapse``: the symptom of a stiff problem for an explicit method, or of a singularity ahead).
+Terminal events of the model (e.g. the edge of a sphere chart) end the run with their own status.
+"""
+
+from __future__ import annotations
+
+import time as _time
+from fractions import Fraction
+
+import heyoka as hy
+import numpy as np
+
+from .models.base import Model, state_fractions
+from .poisson import as_poisson_system
+from .precision import Precision, resolve_precision, to_fraction
+from .solution import Solution, Stats
+from .timegrid import parse_times
+
+__all__ = ["integrate", "build_integrator", "clear_cache", "cache_info"]
+
+_CACHE: dict = {}
+_CACHE_MAX = 64
+DEFAULT_MAX_STEPS = 50_000_000
+
+
+def clear_cache() -> None:
+    """Forget every cached integrator."""
+    _CACHE.clear()
+
+
+def cache_info() -> dict:
+    """Number of cached integrators."""
+    return {"size": len(_CACHE)}
+
+
+def _tol_value(tol, prec: Precision) -> Fraction:
+    if tol is None:
+        return Fraction(1, 2 ** (prec.bits - 1))
+    f = to_fraction(tol, "tol")
+    if f <= 0:
+        raise ValueError(f"`tol` must be positive; got {float(f)}. Leave it out to use the precision's epsilon.")
+    if f >= 1:
+        raise ValueError(f"`tol` must be below 1 (it is a relative and absolute tolerance); got {float(f)}")
+    return f
+
+
+def build_integrator(system, precision="double", tol=None, *, events=True, compact_mode=None, high_accuracy=False):
+    """The heyoka ``taylor_adaptive`` object for ``system`` (from the cache when possible).
+
+    Returns
+    -------
+    ta : heyoka taylor_adaptive
+    build_time : float
+        Seconds spent building (0.0 on a cache hit).
+    cached : bool
+    event_info : list of (status, message) for the terminal events, in heyoka's event order.
+    """
+    ps = as_poisson_system(system)
+    prec = resolve_precision(precision)
+    tolf = _tol_value(tol, prec)
+    model = system if isinstance(system, Model) else None
+    evs = model.events() if (model is not None and events) else []
+    n = ps.dimension
+    if compact_mode is None:
+        # compact mode keeps compilation of large or high-precision systems fast
+        compact_mode = prec.is_real or n * 2 > 40
+    key = (ps.key, prec.name, tolf, tuple(str(e[0]) for e in evs), bool(compact_mode), bool(high_accuracy))
+    hit = _CACHE.get(key)
+    if hit is not None:
+        return hit[0], 0.0, True, hit[1]
+    state = prec.array([0] * n)
+    pars = prec.array(ps.parameter_values) if ps.parameter_values else None
+    kwargs = dict(tol=prec.to_native(tolf), compact_mode=compact_mode, high_accuracy=high_accuracy)
+    if prec.name != "double":
+        kwargs["fp_type"] = prec.fp_type
+    if prec.is_real:
+        kwargs["prec"] = prec.bits
+    if evs:
+        kwargs["t_events"] = [
+            hy.t_event(e[0], fp_type=prec.fp_type if prec.name != "double" else float) for e in evs
+        ]
+    if pars is not None:
+        kwargs["pars"] = pars
+    t0 = _time.perf_counter()
+    ta = hy.taylor_adaptive(ps.ode_system, state, **kwargs)
+    build = _time.perf_counter() - t0
+    info = [(e[1], e[2]) for e in evs]
+    if len(_CACHE) >= _CACHE_MAX:
+        _CACHE.pop(next(iter(_CACHE)))
+    _CACHE[key] = (ta, info)
+    return ta, build, False, info
+
+
+class _Guard:
+    """Per-step callback: wall-time budget, step budget and step-size collapse."""
+
+    def __init__(self, t_end: float, max_steps: int, max_time, min_step):
+        self.t_end = t_end
+        self.max_steps = max_steps
+        self.max_time = max_time
+        self.min_step = min_step
+        self.start = _time.perf_counter()
+        self.steps = 0
+        self.reason = None
+        self.where = None
+
+    def __call__(self, ta) -> bool:
+        self.steps += 1
+        h = abs(float(ta.last_h))
+        if self.max_time is not None and (self.steps & 63) == 0:
+            if _time.perf_counter() - self.start > self.max_time:
+                self.reason, self.where = "time_budget", (float(ta.time), h)
+                return False
+        left = abs(self.t_end - float(ta.time))
+        if left > 0 and h > 0:
+            if self.min_step is not None and h < self.min_step:
+                self.reason, self.where = "step_collapse", (float(ta.time), h)
+                return False
+            if self.steps > 16 and left / h > (self.max_steps - self.steps):
+                self.reason, self.where = "step_collapse", (float(ta.time), h)
+                return False
+        return True
+
+
+def integrate(
+    system,
+    y0,
+    t,
+    *,
+    tol=None,
+    precision="double",
+    t0=0,
+    dense: bool = True,
+    max_steps: int | None = None,
+    max_time: float | None = None,
+    min_step: float | None = None,
+    compact_mode: bool | None = None,
+    high_accuracy: bool = False,
+) -> Solution:
+    """Integrate ``dz/dt = X_H(z)`` with heyoka's adaptive Taylor method.
+
+    Parameters
+    ----------
+    system : model (EulerPoisson, Sphere, SphereDirac, ...) or PoissonSystem
+    y0 : sequence of n numbers
+        Initial state. Taken at its exact value (a float64 entry is its binary value; pass str/Fraction/mpf or an
+        array from ``model.initial_state(..., precision=...)`` for exact high-precision data).
+    t : float or increasing sequence
+        Final time (negative: backward integration) or output times (see :func:`lieseries.timegrid.parse_times`).
+    tol : float, optional
+        Relative and absolute tolerance; default: the precision's epsilon.
+    precision : "double" | "long double" | "quad" | int bits
+    t0 : float
+        Initial time.
+    dense : bool
+        Keep heyoka's continuous output so that ``sol(t)`` works anywhere in the interval. Memory grows with
+        the number of steps (order x n numbers per step): turn it off for very long runs.
+    max_steps : int, optional
+        Step budget (default 5e7). A run whose step size collapses so that it could not finish within the
+        budget stops early with status ``step_collapse``.
+    max_time : float, optional
+        Wall-time budget in seconds (status ``time_budget``).
+    min_step : float, optional
+        Stop with ``step_collapse`` when a step is smaller than this.
+
+    Returns
+    -------
+    Solution
+        ``sol.t``, ``sol.y`` (one row per output time reached), ``sol.stats``, ``sol.status``, ``sol.message``.
+    """
+    prec = resolve_precision(precision)
+    ps = as_poisson_system(system)
+    model = system if isinstance(system, Model) else None
+    z0 = model.check_state(y0, "y0") if model is not None else state_fractions(y0, ps.dimension, "y0")
+    grid, direction, t0f = parse_times(t, t0)
+    if max_steps is None:
+        max_steps = DEFAULT_MAX_STEPS
+    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise ValueError(f"`max_steps` must be a positive integer; got {max_steps!r}")
+    if max_time is not None and not (float(max_time) > 0):
+        raise ValueError(f"`max_time` must be a positive number of seconds; got {max_time!r}")
+    if min_step is not None and not (float(min_step) > 0):
+        raise ValueError(f"`min_step` must be positive; got {min_step!r}")
+
+    ta, build, cached, event_info = build_integrator(
+        system, prec, tol, compact_mode=compact_mode, high_accuracy=high_accuracy
+    )
+    tolf = _tol_value(tol, prec)
+    ta.time = prec.time(t0f)
+    ta.state[:] = prec.array(z0)
+    if ps.parameter_values:
+        ta.pars[:] = prec.array(ps.parameter_values)
+    if event_info:
+        ta.reset_cooldowns()
+
+    t_end = grid[-1]
+    guard = _Guard(float(t_end), int(max_steps), None if max_time is None else float(max_time),
+                   None if min_step is None else float(min_step))
+    stats = Stats(method="taylor (heyoka)", precision=prec.name, tol=float(tolf), order=int(ta.order),
+                  build_time=build, cached=cached)
+    start = _time.perf_counter()
+    c_out = None
+    outcome = None
+    rows_t, rows_y = [], []
+    y0_native = prec.array(z0)
+    if direction == 0:
+        nsteps, min_h, max_h = 0, float("nan"), float("nan")
+        rows_t = list(grid)
+        rows_y = [y0_native.copy() for _ in grid]
+    elif dense or len(grid) == 2 and grid[0] == t0f:
+        res = ta.propagate_until(prec.time(t_end), c_output=dense, callback=guard, max_steps=int(max_steps))
+        outcome, min_h, max_h, nsteps, c_out = res[0], res[1], res[2], res[3], res[4]
+        t_reached = to_fraction(ta.time)
+        for tk in grid:
+            if (tk - t0f) * direction <= (t_reached - t0f) * direction:
+                rows_t.append(tk)
+                if tk == t0f:
+                    rows_y.append(y0_native.copy())
+                elif tk == t_reached:
+                    rows_y.append(np.array(ta.state, copy=True))
+                else:
+                    rows_y.append(np.array(c_out(prec.time(tk)), copy=True))
+    else:
+        # a grid without dense output: heyoka's propagate_grid evaluates the Taylor polynomials at the grid points
+        first = grid[0]
+        if first != t0f:
+            res0 = ta.propagate_until(prec.time(first), callback=guard, max_steps=int(max_steps))
+            if str(res0[0]) != "taylor_outcome.time_limit":
+                outcome, min_h, max_h, nsteps = res0[0], res0[1], res0[2], res0[3]
+        if outcome is None:
+            gnat = prec.array(grid)
+            res = ta.propagate_grid(gnat, callback=guard, max_steps=int(max_steps))
+            outcome, min_h, max_h, nsteps, out = res[0], res[1], res[2], res[3], res[-1]
+            for k, tk in enumerate(grid):
+                if k < len(out) and np.all([_finite(v) for v in out[k]]):
+                    if (tk - t0f) * direction <= (to_fraction(ta.time) - t0f) * direction:
+                        rows_t.append(tk)
+                        rows_y.append(np.array(out[k], copy=True))
+    stats.run_time = _time.perf_counter() - start
+    if direction != 0:
+        stats.steps = int(guard.steps) if guard.steps else int(nsteps)
+        stats.min_step = float(min_h)
+        stats.max_step = float(max_h)
+    t_reached = to_fraction(ta.time) if direction != 0 else t0f
+    status, message = _status(outcome, guard, event_info, t_reached, t_end, ta, max_steps)
+    y = np.stack(rows_y) if rows_y else np.empty((0, ps.dimension), dtype=prec.numpy_dtype)
+    tarr = prec.array(rows_t) if rows_t else np.empty(0, dtype=prec.numpy_dtype)
+    dense_fn = _dense_output(c_out, prec) if c_out is not None else None
+    y_reached = np.array(ta.state, copy=True) if direction != 0 else y0_native
+    return Solution(tarr, y, stats, status, message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
+                    y_reached=y_reached)
+
+
+def _finite(v) -> bool:
+    try:
+        return bool(np.isfinite(float(v)))
+    except (TypeError, ValueError, OverflowError):
+        return False
+
+
+def _status(outcome, guard, event_info, t_reached, t_end, ta, max_steps):
+    h = abs(float(ta.last_h))
+    where = f"t = {float(t_reached):.17g} (last step size {h:.3g})"
+    if guard.reason == "time_budget":
+        return "time_budget", f"The wall-time budget ran out at {where}; raise `max_time` or lower the accuracy."
+    if guard.reason == "step_collapse":
+        left = abs(float(t_end - t_reached))
+        return "step_collapse", (
+            f"The step size collapsed near {where}: {left:.3g} time units remain, about {left / max(h, 1e-300):.3g} "
+            f"steps at this step size, more than the budget max_steps = {max_steps}. The problem is stiff or "
+            "singular there; an explicit Taylor method cannot cross it efficiently."
+        )
+    name = str(outcome)
+    if name.endswith("time_limit"):
+        return "success", f"Reached t = {float(t_end):.17g}."
+    if name.endswith("step_limit"):
+        return "step_budget", f"The step budget max_steps = {max_steps} ran out at {where}; raise `max_steps`."
+    if name.endswith("err_nf_state"):
+        return "non_finite", (
+            f"The state became non-finite (NaN or infinity) at {where}; the solution blows up or leaves the "
+            "domain of the equations there."
+        )
+    # a terminal event: heyoka's outcome value is the event index
+    # a terminal event: heyoka reports event i as outcome i, or -(i + 1) when it stopped the run
+    try:
+        idx = int(outcome.value)
+    except (AttributeError, TypeError, ValueError):
+        idx = len(event_info)
+    if -len(event_info) <= idx < 0:
+        idx = -idx - 1
+    if 0 <= idx < len(event_info):
+        status, msg = event_info[idx]
+        return status, f"Stopped at {where}: {msg}."
+    return "event", f"Stopped at {where} with heyoka outcome {name}."
+
+
+def _dense_output(c_out, prec: Precision):
+    lo, hi = sorted(float(b) for b in c_out.bounds)
+
+    def dense(t):
+        scalar = np.ndim(t) == 0
+        ts = [t] if scalar else list(np.asarray(t, dtype=object).ravel())
+        out = []
+        for i, tk in enumerate(ts):
+            tv = float(to_fraction(tk, "t"))
+            if not (lo - 1e-15 * max(1.0, abs(lo)) <= tv <= hi + 1e-15 * max(1.0, abs(hi))):
+                raise ValueError(f"`t` = {tv} is outside the integrated interval [{lo}, {hi}]")
+            out.append(np.array(c_out(prec.time(to_fraction(tk, "t"))), copy=True))
+        return out[0] if scalar else np.stack(out)
+
+    return dense

@@ -1,0 +1,84 @@
+from fractions import Fraction
+
+import heyoka as hy
+import mpmath as mp
+import numpy as np
+import pytest
+
+from lieseries.precision import bits_to_dps, dps_to_bits, resolve_precision, to_fraction, to_mpf
+
+
+@pytest.mark.parametrize(
+    "name,bits",
+    [("double", 53), ("long double", int(np.finfo(np.longdouble).nmant) + 1), ("quad", 113), (237, 237), (64, 64)],
+)
+def test_resolve_names_and_bits(name, bits):
+    p = resolve_precision(name)
+    assert p.bits == bits
+    assert p.eps == 2.0 ** (1 - bits)
+
+
+@pytest.mark.parametrize("bad", ["single", "float32", "", "doubles"])
+def test_unknown_precision_name(bad):
+    with pytest.raises(ValueError, match="`precision`"):
+        resolve_precision(bad)
+
+
+@pytest.mark.parametrize("bad", [1.5, None, True, [53]])
+def test_precision_wrong_type(bad):
+    with pytest.raises(TypeError, match="`precision`"):
+        resolve_precision(bad)
+
+
+def test_precision_bits_out_of_range():
+    with pytest.raises(ValueError, match="`precision`"):
+        resolve_precision(1)
+
+
+@pytest.mark.parametrize("prec", ["double", "long double", "quad", 237, 400])
+def test_correct_rounding_of_exact_input(prec):
+    """0.1 and 1/3 are rounded once, to within half an ulp of the exact rational."""
+    p = resolve_precision(prec)
+    for exact in (Fraction(1, 10), Fraction(-1, 3), Fraction(22, 7) * 10**5):
+        v = p.to_native(exact)
+        err = abs(to_fraction(v) - exact) / abs(exact)
+        assert err <= Fraction(1, 2 ** p.bits)  # half an ulp, relative
+        # the round trip native -> exact -> native is the identity
+        assert to_fraction(p.to_native(to_fraction(v))) == to_fraction(v)
+
+
+def test_to_fraction_kinds():
+    assert to_fraction("0.1") == Fraction(1, 10)
+    assert to_fraction(0.5) == Fraction(1, 2)
+    assert to_fraction(np.float64(0.1)) == Fraction(*0.1.as_integer_ratio())
+    assert to_fraction(mp.mpf(-0.75)) == Fraction(-3, 4)
+    assert to_fraction(hy.real("-0.75", 100)) == Fraction(-3, 4)
+    assert to_fraction(hy.real128("0.375")) == Fraction(3, 8)
+    with mp.workdps(50):
+        third = mp.mpf(1) / 3
+        assert abs(to_fraction(third) - Fraction(1, 3)) < Fraction(1, 10**49)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), "nan", mp.inf])
+def test_to_fraction_non_finite(bad):
+    with pytest.raises(ValueError, match="`x`"):
+        to_fraction(bad, "x")
+
+
+def test_to_fraction_not_a_number():
+    with pytest.raises(TypeError, match="`x`"):
+        to_fraction(object(), "x")
+    with pytest.raises(ValueError, match="`x`"):
+        to_fraction("abc", "x")
+
+
+def test_to_mpf_respects_working_precision():
+    with mp.workdps(60):
+        x = to_mpf("0.1")
+        assert abs(x - mp.mpf(1) / 10) < mp.mpf(10) ** -59
+    assert mp.mp.dps == 15  # nothing leaked
+
+
+def test_dps_bits_roundtrip():
+    for dps in (15, 30, 50, 70, 100):
+        assert bits_to_dps(dps_to_bits(dps)) >= dps
