@@ -77,8 +77,8 @@ def build_integrator(system, precision="double", tol=None, *, events=True, compa
     evs = model.events() if (model is not None and events) else []
     n = ps.dimension
     if compact_mode is None:
-        # compact mode keeps compilation of large or high-precision systems fast
-        compact_mode = prec.is_real or n * 2 > 40
+        # compact mode keeps compilation fast: LLVM is slow on unrolled long-double, quad and real code
+        compact_mode = prec.name != "double" or n > 20
     key = (ps.key, prec.name, tolf, tuple(str(e[0]) for e in evs), bool(compact_mode), bool(high_accuracy))
     hit = _CACHE.get(key)
     if hit is not None:
@@ -107,33 +107,45 @@ def build_integrator(system, precision="double", tol=None, *, events=True, compa
 
 
 class _Guard:
-    """Per-step callback: wall-time budget, step budget and step-size collapse."""
+    """Per-step callback: keeps the last good state, enforces the budgets, detects a collapsing step size.
 
-    def __init__(self, t_end: float, max_steps: int, max_time, min_step):
+    heyoka overwrites the state with NaN when a step goes non-finite, so the last accepted state is copied here
+    (one ``copyto`` per step, about 15% of a double-precision step of the rigid body). The budget checks run
+    every 8 steps.
+    """
+
+    def __init__(self, ta, t_end: float, max_steps: int, max_time, min_step):
+        self.state = ta.state
+        self.buf = np.array(ta.state, copy=True)
+        self.t_good = ta.time
         self.t_end = t_end
         self.max_steps = max_steps
         self.max_time = max_time
         self.min_step = min_step
         self.start = _time.perf_counter()
         self.steps = 0
+        self.h_max = 0.0
         self.reason = None
-        self.where = None
 
     def __call__(self, ta) -> bool:
+        np.copyto(self.buf, self.state)
+        self.t_good = ta.time
         self.steps += 1
+        if self.steps & 7 and self.steps > 1:
+            return True
         h = abs(float(ta.last_h))
-        if self.max_time is not None and (self.steps & 63) == 0:
-            if _time.perf_counter() - self.start > self.max_time:
-                self.reason, self.where = "time_budget", (float(ta.time), h)
-                return False
+        self.h_max = max(self.h_max, h)
+        if self.max_time is not None and _time.perf_counter() - self.start > self.max_time:
+            self.reason = "time_budget"
+            return False
+        if self.min_step is not None and h < self.min_step:
+            self.reason = "step_collapse"
+            return False
         left = abs(self.t_end - float(ta.time))
-        if left > 0 and h > 0:
-            if self.min_step is not None and h < self.min_step:
-                self.reason, self.where = "step_collapse", (float(ta.time), h)
-                return False
-            if self.steps > 16 and left / h > (self.max_steps - self.steps):
-                self.reason, self.where = "step_collapse", (float(ta.time), h)
-                return False
+        if self.steps > 16 and h > 0 and left / h > (self.max_steps - self.steps):
+            # finishing at this step size needs more steps than the budget has left
+            self.reason = "step_collapse" if h < 1e-2 * self.h_max else "step_budget"
+            return False
         return True
 
 
@@ -209,59 +221,53 @@ def integrate(
         ta.reset_cooldowns()
 
     t_end = grid[-1]
-    guard = _Guard(float(t_end), int(max_steps), None if max_time is None else float(max_time),
+    guard = _Guard(ta, float(t_end), int(max_steps), None if max_time is None else float(max_time),
                    None if min_step is None else float(min_step))
     stats = Stats(method="taylor (heyoka)", precision=prec.name, tol=float(tolf), order=int(ta.order),
                   build_time=build, cached=cached)
-    start = _time.perf_counter()
-    c_out = None
-    outcome = None
-    rows_t, rows_y = [], []
     y0_native = prec.array(z0)
-    if direction == 0:
-        nsteps, min_h, max_h = 0, float("nan"), float("nan")
-        rows_t = list(grid)
-        rows_y = [y0_native.copy() for _ in grid]
-    elif dense or len(grid) == 2 and grid[0] == t0f:
-        res = ta.propagate_until(prec.time(t_end), c_output=dense, callback=guard, max_steps=int(max_steps))
-        outcome, min_h, max_h, nsteps, c_out = res[0], res[1], res[2], res[3], res[4]
-        t_reached = to_fraction(ta.time)
-        for tk in grid:
-            if (tk - t0f) * direction <= (t_reached - t0f) * direction:
-                rows_t.append(tk)
-                if tk == t0f:
-                    rows_y.append(y0_native.copy())
-                elif tk == t_reached:
-                    rows_y.append(np.array(ta.state, copy=True))
-                else:
-                    rows_y.append(np.array(c_out(prec.time(tk)), copy=True))
-    else:
-        # a grid without dense output: heyoka's propagate_grid evaluates the Taylor polynomials at the grid points
-        first = grid[0]
-        if first != t0f:
-            res0 = ta.propagate_until(prec.time(first), callback=guard, max_steps=int(max_steps))
-            if str(res0[0]) != "taylor_outcome.time_limit":
-                outcome, min_h, max_h, nsteps = res0[0], res0[1], res0[2], res0[3]
-        if outcome is None:
-            gnat = prec.array(grid)
-            res = ta.propagate_grid(gnat, callback=guard, max_steps=int(max_steps))
-            outcome, min_h, max_h, nsteps, out = res[0], res[1], res[2], res[3], res[-1]
-            for k, tk in enumerate(grid):
-                if k < len(out) and np.all([_finite(v) for v in out[k]]):
-                    if (tk - t0f) * direction <= (to_fraction(ta.time) - t0f) * direction:
-                        rows_t.append(tk)
-                        rows_y.append(np.array(out[k], copy=True))
-    stats.run_time = _time.perf_counter() - start
+    c_out = outcome = out = None
+    nsteps, min_h, max_h = 0, float("nan"), float("nan")
+    start = _time.perf_counter()
     if direction != 0:
-        stats.steps = int(guard.steps) if guard.steps else int(nsteps)
-        stats.min_step = float(min_h)
-        stats.max_step = float(max_h)
-    t_reached = to_fraction(ta.time) if direction != 0 else t0f
+        if dense or grid == [t0f, t_end]:
+            res = ta.propagate_until(prec.time(t_end), c_output=dense, callback=guard, max_steps=int(max_steps))
+            outcome, min_h, max_h, nsteps, c_out = res[:5]
+        else:
+            # heyoka's grid propagation starts at the current time; t0 is added in front and dropped after
+            lead = grid[0] != t0f
+            res = ta.propagate_grid(prec.array([t0f] * lead + grid), callback=guard, max_steps=int(max_steps))
+            outcome, min_h, max_h, nsteps, out = res[0], res[1], res[2], res[3], res[-1][int(lead):]
+    stats.run_time = _time.perf_counter() - start
+    stats.steps = int(guard.steps or nsteps)
+    stats.min_step, stats.max_step = float(min_h), float(max_h)
+
+    if direction == 0:
+        t_reached, y_reached = t0f, y0_native
+    elif str(outcome).endswith("err_nf_state"):  # heyoka has written NaN into the state: use the last good one
+        t_reached, y_reached = to_fraction(guard.t_good), np.array(guard.buf, copy=True)
+    else:
+        t_reached, y_reached = to_fraction(ta.time), np.array(ta.state, copy=True)
+    rows_t, rows_y = [], []
+    for k, tk in enumerate(grid):
+        if (tk - t0f) * direction > (t_reached - t0f) * direction:
+            break
+        if tk == t0f:
+            yk = y0_native.copy()
+        elif tk == t_reached:
+            yk = y_reached.copy()
+        elif out is not None:
+            if k >= len(out):
+                break
+            yk = np.array(out[k], copy=True)
+        else:
+            yk = np.array(c_out(prec.time(tk)), copy=True)
+        rows_t.append(tk)
+        rows_y.append(yk)
     status, message = _status(outcome, guard, event_info, t_reached, t_end, ta, max_steps)
     y = np.stack(rows_y) if rows_y else np.empty((0, ps.dimension), dtype=prec.numpy_dtype)
     tarr = prec.array(rows_t) if rows_t else np.empty(0, dtype=prec.numpy_dtype)
     dense_fn = _dense_output(c_out, prec) if c_out is not None else None
-    y_reached = np.array(ta.state, copy=True) if direction != 0 else y0_native
     return Solution(tarr, y, stats, status, message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
                     y_reached=y_reached)
 
@@ -274,16 +280,22 @@ def _finite(v) -> bool:
 
 
 def _status(outcome, guard, event_info, t_reached, t_end, ta, max_steps):
-    h = abs(float(ta.last_h))
+    h = abs(float(ta.last_h)) if _finite(ta.last_h) else float("nan")
     where = f"t = {float(t_reached):.17g} (last step size {h:.3g})"
+    left = abs(float(t_end - t_reached))
+    need = f"{left:.3g} time units remain, about {left / h:.3g} steps at this step size" if h > 0 else ""
     if guard.reason == "time_budget":
         return "time_budget", f"The wall-time budget ran out at {where}; raise `max_time` or lower the accuracy."
     if guard.reason == "step_collapse":
-        left = abs(float(t_end - t_reached))
         return "step_collapse", (
-            f"The step size collapsed near {where}: {left:.3g} time units remain, about {left / max(h, 1e-300):.3g} "
-            f"steps at this step size, more than the budget max_steps = {max_steps}. The problem is stiff or "
-            "singular there; an explicit Taylor method cannot cross it efficiently."
+            f"The step size collapsed near {where}, from {guard.h_max:.3g} earlier: {need}, more than the budget "
+            f"max_steps = {max_steps} allows. The problem is stiff or singular there; an explicit Taylor method "
+            "cannot cross it efficiently."
+        )
+    if guard.reason == "step_budget":
+        return "step_budget", (
+            f"Stopped early at {where}: {need}, more than the budget max_steps = {max_steps}. Raise `max_steps` "
+            "(and consider `dense=False` for long runs)."
         )
     name = str(outcome)
     if name.endswith("time_limit"):
@@ -292,10 +304,9 @@ def _status(outcome, guard, event_info, t_reached, t_end, ta, max_steps):
         return "step_budget", f"The step budget max_steps = {max_steps} ran out at {where}; raise `max_steps`."
     if name.endswith("err_nf_state"):
         return "non_finite", (
-            f"The state became non-finite (NaN or infinity) at {where}; the solution blows up or leaves the "
-            "domain of the equations there."
+            f"The state became non-finite (NaN or infinity) in the step after t = {float(t_reached):.17g}; the "
+            "solution blows up or leaves the domain of the equations there. The last finite state is kept."
         )
-    # a terminal event: heyoka's outcome value is the event index
     # a terminal event: heyoka reports event i as outcome i, or -(i + 1) when it stopped the run
     try:
         idx = int(outcome.value)

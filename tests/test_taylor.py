@@ -1,0 +1,244 @@
+"""ls.integrate (heyoka): the sphere against the exact great circle in every precision; outcomes; bad input."""
+
+from fractions import Fraction
+
+import heyoka as hy
+import mpmath as mp
+import numpy as np
+import pytest
+
+import lieseries as ls
+from lieseries.precision import to_fraction
+from lieseries.taylor import build_integrator
+
+
+def mpf(q):
+    q = to_fraction(q)
+    return mp.mpf(q.numerator) / q.denominator
+
+
+def great_circle(x0, v0, t):
+    """Exact position on the great circle through x0 with velocity v0 (plain mpmath, current precision)."""
+    x = [mpf(c) for c in x0]
+    v = [mpf(c) for c in v0]
+    r = mp.sqrt(mp.fsum(c * c for c in x))
+    w = mp.sqrt(mp.fsum(c * c for c in v)) / r
+    t = mpf(t)
+    return [x[i] * mp.cos(w * t) + v[i] / w * mp.sin(w * t) for i in range(3)]
+
+
+@pytest.mark.parametrize("form", ["intermediate", "dirac"])
+def test_sphere_follows_great_circle(form, precision):
+    """Error at the level of the precision's epsilon, over a time that stays inside the chart x3 != 0."""
+    model = ls.Sphere(mass=2, radius="1.5") if form == "intermediate" else ls.SphereDirac(mass=2, radius="1.5")
+    x0, v0 = ("0.9", "0", "1.2"), ("0", "0.75", "0")
+    y0 = model.initial_state(x0, v0, precision=precision)
+    sol = ls.integrate(model, y0, t=[0.5, 1.0, 1.5, 2.0], precision=precision)
+    assert sol.success, sol.message
+    assert len(sol.t) == 4
+    eps = ls.resolve_precision(precision).eps
+    with mp.workdps(90):
+        err = max(
+            abs(mpf(a) - b)
+            for tk, yk in zip(sol.t, sol.y)
+            for a, b in zip(model.position(yk), great_circle(x0, v0, tk))
+        )
+        # and the Casimir |x|^2 stays on its leaf
+        drift = max(abs(mpf(c) - mpf("2.25")) for c in model.invariants(sol.y)["x2"])
+    assert err < 20 * eps * 1.5
+    assert drift < 20 * eps * 2.25
+
+
+def test_sphere_stops_cleanly_at_chart_edge():
+    """The 5-d chart ends on x3 = 0; the run stops there with a status, no NaN, and keeps what it computed."""
+    s = ls.Sphere()
+    y0 = s.initial_state((0.6, 0.0, 0.8), (0.0, 1.0, 0.0))
+    sol = ls.integrate(s, y0, t=np.linspace(0, 5, 11))
+    assert sol.status == "chart_edge"
+    assert "x3" in sol.message and "t = 1.50" in sol.message
+    # x3(t) = 0.8 cos t reaches edge * |x| = 0.05 at cos t = 1/16
+    assert float(sol.t_reached) == pytest.approx(np.arccos(0.05 / 0.8), rel=1e-12)
+    assert list(sol.t) == [0.0, 0.5, 1.0, 1.5]
+    assert np.all(np.isfinite(sol.y)) and np.all(np.isfinite(sol.y_reached))
+    assert abs(s.position(sol.y_reached)[2]) == pytest.approx(0.05, rel=1e-10)
+
+
+def test_backward_integration_retraces():
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state((1.0, 0.1, 0.5))
+    fwd = ls.integrate(body, y0, t=3.0)
+    back = ls.integrate(body, fwd.y[-1], t=-3.0, t0=0)
+    assert back.success
+    np.testing.assert_allclose(back.y[-1], y0, atol=1e-13)
+    grid = ls.integrate(body, y0, t=[-1.0, -2.0, -3.0])
+    assert grid.success and len(grid.t) == 3
+
+
+def test_dense_output_matches_grid_run():
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state((1.0, 0.1, 0.5))
+    sol = ls.integrate(body, y0, t=5.0)
+    grid = ls.integrate(body, y0, t=[1.3, 2.7], dense=False)
+    np.testing.assert_allclose(sol([1.3, 2.7]), grid.y, atol=1e-13)
+    with pytest.raises(ValueError, match="`t`"):
+        sol(6.0)
+    with pytest.raises(RuntimeError, match="dense"):
+        grid(1.0)
+
+
+def test_second_call_reuses_the_compiled_integrator():
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state((1.0, 0.1, 0.5))
+    ls.integrate(body, y0, t=1.0, tol=1e-12)
+    other = ls.EulerPoisson((2, 3, 4))  # same structure, other parameters: same integrator
+    sol = ls.integrate(other, other.initial_state((1.0, 0.1, 0.5)), t=1.0, tol=1e-12)
+    assert sol.stats.cached and sol.stats.build_time == 0.0
+    # and the parameters really are the new ones: energy of the new body is conserved
+    e = other.invariants(sol.y)["energy"]
+    assert abs(e[1] - e[0]) < 1e-13 and abs(e[0] - 0.5 * (2 + 3 * 0.01 + 4 * 0.25)) < 1e-15
+
+
+def test_non_finite_state_is_reported():
+    q, p = hy.make_vars("q", "p")
+    # dq/dt = dH/dp = log(q): non-finite as soon as q <= 0
+    sys = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p * hy.log(q), name="log")
+    sol = ls.integrate(sys, [-1.0, 0.0], t=1.0)
+    assert sol.status == "non_finite"
+    assert "after t = 0" in sol.message
+    assert not sol.success
+    np.testing.assert_array_equal(sol.y_reached, [-1.0, 0.0])  # the last finite state, not heyoka's NaN
+
+
+def test_non_finite_mid_run_keeps_good_part():
+    q, p = hy.make_vars("q", "p")
+    # q' = -1 from q = 1, p' = sqrt(q): a step that lands past q = 0 (t = 1) turns the state into NaN
+    sys = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], -p - (2.0 / 3.0) * q * hy.sqrt(q), name="sqrt")
+    for dense in (True, False):
+        sol = ls.integrate(sys, [1.0, 0.0], t=np.linspace(0, 2, 5), dense=dense)
+        assert sol.status == "non_finite", sol.message
+        assert list(sol.t) == [0.0, 0.5, 1.0][: len(sol.t)] and len(sol.t) >= 2
+        assert 0.5 < float(sol.t_reached) <= 1.0 + 1e-9
+        assert np.all(np.isfinite(sol.y)) and np.all(np.isfinite(sol.y_reached))
+        # exact: p(t) = 2/3 (1 - (1 - t)^(3/2))
+        assert sol.y[1][1] == pytest.approx(2 / 3 * (1 - 0.5**1.5), rel=1e-13)
+
+
+def test_step_collapse_is_diagnosed_not_hung():
+    """dq/dt = q^2 blows up at t = 1/q0: the step size collapses; the run stops with where and how small."""
+    q, p = hy.make_vars("q", "p")
+    sys = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p * q**2, name="blow-up")
+    sol = ls.integrate(sys, [1.0, 0.0], t=2.0, max_steps=10_000)
+    assert sol.status == "step_collapse"
+    # near the pole heyoka's step is a fixed fraction of the distance 1 - t to it: with 10^4 steps left the guard
+    # gives up once 1 - t is ~1e-4 of the remaining interval
+    assert 1 - 1e-2 < float(sol.t_reached) < 1.0
+    assert sol.stats.steps < 10_000
+    assert "collapsed" in sol.message and "step size" in sol.message
+    assert np.all(np.isfinite(sol.y_reached))
+
+
+def test_time_budget_stops_a_long_run():
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state((1.0, 0.1, 0.5))
+    sol = ls.integrate(body, y0, t=1e6, max_time=0.05, dense=False)
+    assert sol.status == "time_budget"
+    assert "max_time" in sol.message
+    assert 0 < float(sol.t_reached) < 1e6
+
+
+def test_hopeless_step_budget_stops_early():
+    """Asking for 1e9 time units (~2e9 steps) with the default budget stops at once and says why."""
+    body = ls.EulerPoisson((1, 2, 3))
+    sol = ls.integrate(body, body.initial_state((1.0, 0.1, 0.5)), t=1e9, dense=False, max_steps=10**6)
+    assert sol.status == "step_budget"
+    assert sol.stats.steps < 100 and "max_steps" in sol.message
+
+
+def test_step_budget():
+    body = ls.EulerPoisson((1, 2, 3))
+    sol = ls.integrate(body, body.initial_state((1.0, 0.1, 0.5)), t=1e4, max_steps=100, dense=False)
+    assert sol.status in ("step_budget", "step_collapse")
+    assert sol.stats.steps <= 100
+
+
+def test_user_defined_system_harmonic_oscillator(precision):
+    """A new model from a bracket and a Hamiltonian alone; exact solution cos/sin."""
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], 0.5 * hy.par[0] * p**2 + 0.5 * q**2,
+                           parameters={"inv_mass": Fraction(1, 4)})
+    sol = ls.integrate(osc, ["1", "0"], t=3, precision=precision)
+    prec = ls.resolve_precision(precision)
+    with mp.workprec(prec.bits + 30):
+        w = mp.mpf(1) / 2  # sqrt(k/m), m = 4
+        err = abs(mpf(sol.y[-1][0]) - mp.cos(3 * w))
+    assert err < 20 * prec.eps
+
+
+# -- bad input --------------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def body():
+    return ls.EulerPoisson((1, 2, 3))
+
+
+@pytest.mark.parametrize(
+    "y0,match",
+    [
+        (np.zeros(11), "`y0` must be a 1-d sequence of 12"),
+        (np.zeros((2, 12)), "`y0` must be a 1-d"),
+        (np.r_[np.eye(3).ravel(), 1.0, np.nan, 0.0], r"`y0\[10\]` must be finite"),
+        (np.r_[np.eye(3).ravel(), 1.0, np.inf, 0.0], r"`y0\[10\]`"),
+    ],
+)
+def test_bad_state(body, y0, match):
+    with pytest.raises(ValueError, match=match):
+        ls.integrate(body, y0, t=1.0)
+
+
+@pytest.mark.parametrize(
+    "t,match",
+    [
+        ([0.0, 2.0, 1.0], "strictly increasing"),
+        ([-1.0, 0.5, 1.0], "starts before t0"),
+        ([], "empty"),
+        ([[1.0, 2.0]], "1-d"),
+        (float("nan"), "`t` must be finite"),
+    ],
+)
+def test_bad_times(body, t, match):
+    with pytest.raises(ValueError, match=match):
+        ls.integrate(body, body.initial_state((1, 0, 0)), t=t)
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        (dict(precision="single"), "`precision`"),
+        (dict(tol=0.0), "`tol` must be positive"),
+        (dict(tol=-1e-10), "`tol` must be positive"),
+        (dict(tol=2.0), "`tol` must be below 1"),
+        (dict(max_steps=0), "`max_steps`"),
+        (dict(max_time=-1), "`max_time`"),
+    ],
+)
+def test_bad_options(body, kwargs, match):
+    with pytest.raises((ValueError, TypeError), match=match):
+        ls.integrate(body, body.initial_state((1, 0, 0)), t=1.0, **kwargs)
+
+
+def test_not_a_system():
+    with pytest.raises(TypeError, match="`system`"):
+        ls.integrate("body", [0, 1], t=1.0)
+
+
+def test_sphere_state_at_chart_edge_is_refused():
+    s = ls.Sphere()
+    with pytest.raises(ValueError, match="edge of the chart"):
+        ls.integrate(s, [1.0, 0.0, 0.0, 0.0, 1.0], t=1.0)
+
+
+def test_build_integrator_cache_key_separates_precisions():
+    body = ls.EulerPoisson((1, 2, 3))
+    a = build_integrator(body, "double", 1e-10)[0]
+    b = build_integrator(body, "long double", 1e-10)[0]
+    assert a is not b
+    assert build_integrator(body, "double", 1e-10)[0] is a
