@@ -77,8 +77,8 @@ def test_backward_integration_retraces():
 def test_dense_output_matches_grid_run():
     body = ls.EulerPoisson((1, 2, 3))
     y0 = body.initial_state((1.0, 0.1, 0.5))
-    sol = ls.integrate(body, y0, t=5.0)
-    grid = ls.integrate(body, y0, t=[1.3, 2.7], dense=False)
+    sol = ls.integrate(body, y0, t=5.0, dense=True)
+    grid = ls.integrate(body, y0, t=[1.3, 2.7])
     np.testing.assert_allclose(sol([1.3, 2.7]), grid.y, atol=1e-13)
     with pytest.raises(ValueError, match="`t`"):
         sol(6.0)
