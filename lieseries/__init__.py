@@ -8,13 +8,14 @@ Public API (stable names)::
     ls.Solution, ls.Stats                          what integrators return
 """
 
-from .models import EulerPoisson, Model, Sphere, SphereDirac
+from .models import DampedEulerPoisson, EulerPoisson, Model, Sphere, SphereDirac
 from .poisson import PoissonSystem
 from .precision import Precision, resolve_precision
 from .solution import Solution, Stats
 from .taylor import integrate
 
 __all__ = [
+    "DampedEulerPoisson",
     "EulerPoisson",
     "Model",
     "Sphere",

@@ -76,6 +76,9 @@ class PoissonSystem:
         Values of ``hy.par[0], hy.par[1], ...``; int, str, Fraction, float or mpf, all kept exact.
     casimirs : mapping name -> expression, optional
         Functions expected to Poisson-commute with every coordinate; see :meth:`casimir_residual`.
+    extra_field : sequence of n expressions, optional
+        A non-Hamiltonian term added to ``X_H`` (e.g. a dissipative torque): the motion is then
+        ``dz/dt = P grad H + extra_field``. The bracket and its checks ignore it.
     name : str
         A label used in messages and reports.
     """
@@ -88,6 +91,7 @@ class PoissonSystem:
         *,
         parameters: Mapping | Sequence | None = None,
         casimirs: Mapping | None = None,
+        extra_field: Sequence | None = None,
         name: str = "system",
     ):
         if isinstance(variables, (str, bytes)) or not hasattr(variables, "__len__"):
@@ -130,7 +134,11 @@ class PoissonSystem:
             pnames = tuple(f"p{i}" for i in range(len(pvals)))
         self._param_names = pnames
         self._param_values = tuple(to_fraction(v, f"parameters[{k!r}]") for k, v in zip(pnames, pvals))
-        used = hy.get_params([self._hamiltonian] + [e for r in self._tensor for e in r if e is not None])
+        used = hy.get_params(
+            [self._hamiltonian]
+            + [e for r in self._tensor for e in r if e is not None]
+            + [e for e in (extra_field or []) if isinstance(e, hy.expression)]
+        )
         npar_used = 1 + max((int(str(p)[1:]) for p in used), default=-1)
         if npar_used > len(self._param_values):
             raise ValueError(
@@ -138,6 +146,11 @@ class PoissonSystem:
                 f"`parameters` gives {len(self._param_values)} values"
             )
         self._casimirs = {str(k): _as_expr(c, f"casimirs[{k!r}]") for k, c in (casimirs or {}).items()}
+        if extra_field is not None:
+            if len(extra_field) != n:
+                raise ValueError(f"`extra_field` must have {n} entries, one per variable; got {len(extra_field)}")
+            extra_field = [None if _is_zero(e) else _as_expr(e, f"extra_field[{i}]") for i, e in enumerate(extra_field)]
+        self._extra = extra_field
         self.name = str(name)
         self._field = None
         self._key = None
@@ -180,18 +193,25 @@ class PoissonSystem:
         return self._param_values
 
     @property
+    def is_hamiltonian(self) -> bool:
+        """False when a non-Hamiltonian ``extra_field`` is part of the motion."""
+        return self._extra is None or all(e is None for e in self._extra)
+
+    @property
     def casimirs(self) -> dict:
         """Declared Casimir functions, name -> expression."""
         return dict(self._casimirs)
 
     @property
     def vector_field(self) -> list:
-        """``X_H = P grad H``: one heyoka expression per variable (computed once)."""
+        """``X_H = P grad H`` (plus ``extra_field``): one heyoka expression per variable (computed once)."""
         if self._field is None:
             grad = [hy.diff(self._hamiltonian, v) for v in self._variables]
             field = []
-            for row in self._tensor:
+            for i, row in enumerate(self._tensor):
                 terms = [e * g for e, g in zip(row, grad) if e is not None]
+                if self._extra is not None and self._extra[i] is not None:
+                    terms.append(self._extra[i])
                 field.append(hy.sum(terms) if terms else hy.expression(0.0))
             self._field = field
         return list(self._field)

@@ -13,7 +13,10 @@ A run never hangs and never returns a silently wrong state. heyoka itself stops 
 (status ``non_finite``). A per-step guard stops when the wall-time budget ``max_time`` runs out
 (``time_budget``), when ``max_steps`` steps were taken (``step_budget``), and when the step size has collapsed
 so far that finishing at the current step size would need more than the remaining step budget
-(``step_collapse``: the symptom of a stiff problem for an explicit method, or of a singularity ahead).
+(``step_collapse``: the symptom of a stiff problem for an explicit method, or of a singularity ahead). A run is
+called stiff when its steps are tiny (finishing needs more than 1e5 steps with the default budget, or more than
+``max_steps`` when given) while the state changes by less than 1e-3 per step: the step is then limited by
+stability, not accuracy, and the run stops with ``step_collapse`` and a message that says so.
 Terminal events of the model (e.g. the edge of a sphere chart) end the run with their own status.
 """
 
@@ -36,6 +39,8 @@ __all__ = ["integrate", "build_integrator", "clear_cache", "cache_info"]
 _CACHE: dict = {}
 _CACHE_MAX = 64
 DEFAULT_MAX_STEPS = 50_000_000
+#: With the default budget, a stiff run (module docstring) is stopped once it would need more steps than this.
+STIFF_STEPS = 100_000
 
 
 def clear_cache() -> None:
@@ -114,7 +119,7 @@ class _Guard:
     every 8 steps.
     """
 
-    def __init__(self, ta, t_end: float, max_steps: int, max_time, min_step):
+    def __init__(self, ta, t_end: float, max_steps: int, max_time, min_step, stiff_steps: int):
         self.state = ta.state
         self.buf = np.array(ta.state, copy=True)
         self.t_good = ta.time
@@ -122,17 +127,22 @@ class _Guard:
         self.max_steps = max_steps
         self.max_time = max_time
         self.min_step = min_step
+        self.stiff_steps = stiff_steps
         self.start = _time.perf_counter()
         self.steps = 0
         self.h_max = 0.0
+        self.change = float("nan")
         self.reason = None
 
     def __call__(self, ta) -> bool:
-        np.copyto(self.buf, self.state)
-        self.t_good = ta.time
         self.steps += 1
         if self.steps & 7 and self.steps > 1:
+            np.copyto(self.buf, self.state)
+            self.t_good = ta.time
             return True
+        self.change = _relative_change(self.state, self.buf)
+        np.copyto(self.buf, self.state)
+        self.t_good = ta.time
         h = abs(float(ta.last_h))
         self.h_max = max(self.h_max, h)
         if self.max_time is not None and _time.perf_counter() - self.start > self.max_time:
@@ -142,7 +152,16 @@ class _Guard:
             self.reason = "step_collapse"
             return False
         left = abs(self.t_end - float(ta.time))
-        if self.steps > 16 and h > 0 and left / h > (self.max_steps - self.steps):
+        if self.steps <= 16 or h == 0:
+            return True
+        need = left / h
+        if need > self.stiff_steps and h < 1e-2 * self.h_max:
+            self.reason = "step_collapse"  # shrinking towards a singularity
+            return False
+        if need > self.stiff_steps and self.change < 1e-3 and h < 1e-2 * left:
+            self.reason = "stiff"  # tiny steps over which the state hardly changes: stability-limited
+            return False
+        if need > (self.max_steps - self.steps):
             # finishing at this step size needs more steps than the budget has left
             self.reason = "step_collapse" if h < 1e-2 * self.h_max else "step_budget"
             return False
@@ -185,7 +204,8 @@ def integrate(
         memory (order x n numbers per step).
     max_steps : int, optional
         Step budget (default 5e7). A run whose step size collapses so that it could not finish within the
-        budget stops early with status ``step_collapse``.
+        budget stops early with status ``step_collapse``; a stiff run (module docstring) stops once it would need
+        more than 1e5 steps, or more than ``max_steps`` when you give it.
     max_time : float, optional
         Wall-time budget in seconds (status ``time_budget``).
     min_step : float, optional
@@ -201,7 +221,8 @@ def integrate(
     model = system if isinstance(system, Model) else None
     z0 = model.check_state(y0, "y0") if model is not None else state_fractions(y0, ps.dimension, "y0")
     grid, direction, t0f = parse_times(t, t0)
-    if max_steps is None:
+    default_budget = max_steps is None
+    if default_budget:
         max_steps = DEFAULT_MAX_STEPS
     if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
         raise ValueError(f"`max_steps` must be a positive integer; got {max_steps!r}")
@@ -223,7 +244,8 @@ def integrate(
 
     t_end = grid[-1]
     guard = _Guard(ta, float(t_end), int(max_steps), None if max_time is None else float(max_time),
-                   None if min_step is None else float(min_step))
+                   None if min_step is None else float(min_step),
+                   stiff_steps=min(int(max_steps), STIFF_STEPS) if default_budget else int(max_steps))
     stats = Stats(method="taylor (heyoka)", precision=prec.name, tol=float(tolf), order=int(ta.order),
                   build_time=build, cached=cached)
     y0_native = prec.array(z0)
@@ -273,6 +295,17 @@ def integrate(
                     y_reached=y_reached)
 
 
+def _relative_change(a, b) -> float:
+    """max |a - b| / max(1, max |a|) in double (for the stiffness diagnosis)."""
+    try:
+        fa = np.asarray(a, dtype=np.float64)
+        fb = np.asarray(b, dtype=np.float64)
+    except (TypeError, ValueError):
+        fa = np.array([float(v) for v in a])
+        fb = np.array([float(v) for v in b])
+    return float(np.max(np.abs(fa - fb)) / max(1.0, float(np.max(np.abs(fa)))))
+
+
 def _finite(v) -> bool:
     try:
         return bool(np.isfinite(float(v)))
@@ -289,9 +322,16 @@ def _status(outcome, guard, event_info, t_reached, t_end, ta, max_steps):
         return "time_budget", f"The wall-time budget ran out at {where}; raise `max_time` or lower the accuracy."
     if guard.reason == "step_collapse":
         return "step_collapse", (
-            f"The step size collapsed near {where}, from {guard.h_max:.3g} earlier: {need}, more than the budget "
-            f"max_steps = {max_steps} allows. The problem is stiff or singular there; an explicit Taylor method "
+            f"The step size collapsed near {where}, from {guard.h_max:.3g} earlier: {need}, more than the "
+            f"{guard.stiff_steps} steps allowed for it (pass `max_steps` to allow more). The problem is stiff or singular there; an explicit Taylor method "
             "cannot cross it efficiently."
+        )
+    if guard.reason == "stiff":
+        return "step_collapse", (
+            f"The problem is stiff: near {where} the step size is limited by stability, not accuracy -- the state "
+            f"changes by only {guard.change:.1e} (relative) per step. {need}, more than the {guard.stiff_steps} steps "
+            "allowed for a stiff run (pass `max_steps` to allow more). An explicit Taylor method cannot integrate this efficiently: reduce the stiffness "
+            "(e.g. the damping) or use an implicit method for this part of the motion."
         )
     if guard.reason == "step_budget":
         return "step_budget", (

@@ -114,7 +114,7 @@ def test_non_finite_mid_run_keeps_good_part():
     # q' = -1 from q = 1, p' = sqrt(q): a step that lands past q = 0 (t = 1) turns the state into NaN
     sys = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], -p - (2.0 / 3.0) * q * hy.sqrt(q), name="sqrt")
     for dense in (True, False):
-        sol = ls.integrate(sys, [1.0, 0.0], t=np.linspace(0, 2, 5), dense=dense)
+        sol = ls.integrate(sys, [1.0, 0.0], t=np.linspace(0, 2, 5), dense=dense, max_steps=10**9)
         assert sol.status == "non_finite", sol.message
         assert list(sol.t) == [0.0, 0.5, 1.0][: len(sol.t)] and len(sol.t) >= 2
         assert 0.5 < float(sol.t_reached) <= 1.0 + 1e-9
@@ -242,3 +242,30 @@ def test_build_integrator_cache_key_separates_precisions():
     b = build_integrator(body, "long double", 1e-10)[0]
     assert a is not b
     assert build_integrator(body, "double", 1e-10)[0] is a
+
+
+def test_sqrt_branch_point_is_a_collapse_with_the_default_budget():
+    q, p = hy.make_vars("q", "p")
+    sys = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], -p - (2.0 / 3.0) * q * hy.sqrt(q), name="sqrt")
+    sol = ls.integrate(sys, [1.0, 0.0], t=2.0)
+    assert sol.status in ("step_collapse", "non_finite")
+    assert float(sol.t_reached) == pytest.approx(1.0, abs=1e-3)
+
+
+def test_stiff_damped_body_is_diagnosed():
+    """A large internal damping makes the body stiff: the run stops at once, says 'stiff', where, and the step."""
+    body = ls.DampedEulerPoisson((1, 2, 3), damping=1e5)
+    sol = ls.integrate(body, body.initial_state((1.0, 0.1, 0.5)), t=20.0)
+    assert sol.status == "step_collapse"
+    assert "stiff" in sol.message and "step size" in sol.message
+    assert float(sol.t_reached) < 1e-2 and sol.stats.steps < 1000
+    assert np.all(np.isfinite(sol.y_reached))
+    # the same body with mild damping relaxes to rotation about the axis of largest inertia, |M| kept
+    mild = ls.DampedEulerPoisson((1, 2, 3), damping=10)
+    y0 = mild.initial_state((1.0, 0.1, 0.5))
+    sol = ls.integrate(mild, y0, t=20.0)
+    assert sol.success
+    om = mild.angular_velocity(sol.y[-1])
+    M2 = float(mild.invariants(y0)["M2"])
+    assert abs(om[0]) < 1e-12 and abs(om[1]) < 1e-12
+    assert om[2] == pytest.approx(np.sqrt(M2) / 3, rel=1e-12)

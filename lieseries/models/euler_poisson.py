@@ -29,7 +29,7 @@ from ..poisson import PoissonSystem
 from ..precision import resolve_precision, to_fraction
 from .base import Model
 
-__all__ = ["EulerPoisson", "levi_civita"]
+__all__ = ["EulerPoisson", "DampedEulerPoisson", "levi_civita"]
 
 
 def levi_civita(i: int, j: int, k: int) -> int:
@@ -299,3 +299,45 @@ class EulerPoisson(Model):
         if self.diagonal:
             return f"EulerPoisson(inertia={tuple(float(self._I[i][i]) for i in range(3))}, bracket={self.bracket!r})"
         return f"EulerPoisson(inertia={self.inertia.tolist()}, bracket={self.bracket!r})"
+
+
+class DampedEulerPoisson(EulerPoisson):
+    """The rigid body with an internal dissipative torque: a stiff test case for explicit methods.
+
+    dM/dt = M x Omega + damping * M x (M x Omega),  dR/dt = R hat(Omega).
+
+    The torque keeps |M|^2 and R R^T but not the lab angular momentum R M, and dissipates energy,
+    dE/dt = -damping |M x Omega|^2, driving the body to steady rotation about its axis of largest inertia on the
+    relaxation time scale ~ 1 / (damping |M|^2 (1/I_min - 1/I_max)). A large ``damping`` makes the problem stiff:
+    an explicit (Taylor) method needs steps of that size for the whole run, which the engine detects and reports.
+    """
+
+    def __init__(self, inertia=(1, 2, 3), damping=1, bracket: str = "chetaev"):
+        d = to_fraction(damping, "damping")
+        if d < 0:
+            raise ValueError(f"`damping` must be >= 0 (a negative value pumps energy in); got {float(d)}")
+        self.damping = d
+        super().__init__(inertia, bracket)
+
+    def _build(self) -> PoissonSystem:
+        base = super()._build()
+        z = base.variables
+        M = z[9:]
+        Om = [hy.diff(base.hamiltonian, M[i]) for i in range(3)]
+        k = hy.par[len(base.parameter_values)]
+
+        def cross(a, b):
+            return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+        MxO = cross(M, Om)
+        torque = [k * c for c in cross(M, MxO)]
+        params = dict(zip(base.parameter_names, base.parameter_values))
+        params["damping"] = self.damping
+        return PoissonSystem(
+            z, base.tensor, base.hamiltonian, parameters=params, extra_field=[0] * 9 + torque,
+            name=f"damped Euler-Poisson ({self.bracket})",
+        )
+
+    def __repr__(self) -> str:
+        return super().__repr__().replace("EulerPoisson(", "DampedEulerPoisson(", 1)[:-1] + \
+            f", damping={float(self.damping)})"
