@@ -14,6 +14,7 @@ Precision names
 
 from __future__ import annotations
 
+import decimal
 import math
 import numbers
 from dataclasses import dataclass
@@ -24,6 +25,9 @@ import mpmath as mp
 import numpy as np
 
 __all__ = [
+    "MIN_DPS",
+    "check_dps",
+    "check_order",
     "Precision",
     "resolve_precision",
     "to_fraction",
@@ -42,6 +46,28 @@ _ALIASES = {
     "binary128": "quad",
     "real128": "quad",
 }
+
+
+#: Fewest decimal digits an mpmath computation (Lie series, references) accepts.
+MIN_DPS = 5
+
+
+def check_dps(dps, argname: str = "dps") -> int:
+    """Validate a number of decimal digits (an integer >= MIN_DPS) and return it as an int."""
+    if isinstance(dps, bool) or not isinstance(dps, numbers.Integral):
+        raise TypeError(f"`{argname}` must be an integer number of decimal digits >= {MIN_DPS}; got {dps!r}")
+    if dps < MIN_DPS:
+        raise ValueError(f"`{argname}` must be at least {MIN_DPS} decimal digits; got {dps}")
+    return int(dps)
+
+
+def check_order(order, argname: str = "order") -> int:
+    """Validate a series order (an integer >= 1) and return it as an int."""
+    if isinstance(order, bool) or not isinstance(order, numbers.Integral):
+        raise TypeError(f"`{argname}` must be an integer >= 1; got {type(order).__name__} {order!r}")
+    if order < 1:
+        raise ValueError(f"`{argname}` must be an integer >= 1; got {order}")
+    return int(order)
 
 
 def dps_to_bits(dps: int) -> int:
@@ -211,8 +237,9 @@ def precision_of_dtype(dtype) -> Precision | None:
 def to_fraction(value, argname: str = "value") -> Fraction:
     """The exact rational value of a number.
 
-    Accepts int, :class:`fractions.Fraction`, a decimal string ("0.1" is exactly 1/10), float and numpy floats
-    (their exact binary value), :class:`mpmath.mpf`, ``heyoka.real`` and ``heyoka.real128``.
+    Accepts int, :class:`fractions.Fraction`, a decimal or "p/q" string ("0.1" is exactly 1/10),
+    :class:`decimal.Decimal`, float and numpy floats (their exact binary value), :class:`mpmath.mpf`,
+    sympy Rational/Float, ``heyoka.real`` and ``heyoka.real128``.
 
     Raises
     ------
@@ -237,6 +264,12 @@ def to_fraction(value, argname: str = "value") -> Fraction:
                 raise ValueError(f"`{argname}` must be a number; could not read the string {value!r}") from None
             except OverflowError:
                 raise ValueError(f"`{argname}` must be finite; got {value!r}") from None
+    if isinstance(value, decimal.Decimal):
+        if not value.is_finite():
+            raise ValueError(f"`{argname}` must be finite; got {value}")
+        return Fraction(value)
+    if type(value).__module__.startswith("sympy"):
+        return _sympy_to_fraction(value, argname)
     if isinstance(value, mp.mpf):
         if not mp.isfinite(value):
             raise ValueError(f"`{argname}` must be finite; got {value}")
@@ -263,8 +296,24 @@ def to_fraction(value, argname: str = "value") -> Fraction:
     raise TypeError(f"`{argname}` must be a real number; got {type(value).__name__} {value!r}")
 
 
+def _sympy_to_fraction(value, argname):
+    import sympy
+
+    if isinstance(value, sympy.Rational):
+        return Fraction(int(value.p), int(value.q))
+    if isinstance(value, sympy.Float):
+        return to_fraction(mp.mpf(value._mpf_), argname)
+    raise TypeError(f"`{argname}` must be an exact number; got the sympy expression {value!r}")
+
+
 def to_mpf(value, argname: str = "value") -> mp.mpf:
     """``value`` as an mpf rounded once to the current mpmath working precision."""
+    if isinstance(value, decimal.Decimal):
+        if not value.is_finite():
+            raise ValueError(f"`{argname}` must be finite; got {value}")
+        return Fraction(value)
+    if type(value).__module__.startswith("sympy"):
+        return _sympy_to_fraction(value, argname)
     if isinstance(value, mp.mpf):
         if not mp.isfinite(value):
             raise ValueError(f"`{argname}` must be finite; got {value}")

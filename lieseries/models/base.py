@@ -46,7 +46,7 @@ def state_bits(y) -> int:
         p = flat[0].prec
         return int(p() if callable(p) else p)
     if len(flat) and isinstance(flat[0], mp.mpf):
-        return mp.prec
+        return mp.mp.prec
     return 53
 
 
