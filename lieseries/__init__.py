@@ -5,6 +5,8 @@ Public API (stable names)::
     ls.EulerPoisson, ls.Sphere, ls.SphereDirac     models
     ls.PoissonSystem                               write your own from a bracket and a Hamiltonian
     ls.integrate                                   heyoka's adaptive Taylor method, any precision
+    ls.lie_series, ls.LieSeries                    the truncated operator exp(t X_H) at a point, in mpmath
+    ls.lie_integrate                               adaptive Lie-series stepping, same Solution type
     ls.Solution, ls.Stats                          what integrators return
 """
 
@@ -12,6 +14,8 @@ from .models import DampedEulerPoisson, EulerPoisson, Model, Sphere, SphereDirac
 from .poisson import PoissonSystem
 from .precision import Precision, resolve_precision
 from .solution import Solution, Stats
+from .lie.integrator import lie_integrate
+from .lie.operator import LieSeries, lie_series
 from .taylor import integrate
 
 __all__ = [
@@ -26,6 +30,9 @@ __all__ = [
     "Solution",
     "Stats",
     "integrate",
+    "lie_series",
+    "LieSeries",
+    "lie_integrate",
 ]
 
 __version__ = "0.1.0"

@@ -1,0 +1,167 @@
+"""The Lie-series operator and integrator against closed forms, heyoka at 256 bits and the matrix exponential."""
+
+from fractions import Fraction
+
+import heyoka as hy
+import mpmath as mp
+import numpy as np
+import pytest
+
+import lieseries as ls
+from lieseries import exact
+from lieseries.precision import to_fraction
+
+OMEGA = (1, "0.1", "0.5")
+
+
+def mpf(q):
+    q = to_fraction(q)
+    return mp.mpf(q.numerator) / q.denominator
+
+
+@pytest.fixture(scope="module")
+def body():
+    return ls.EulerPoisson((1, 2, 3))
+
+
+@pytest.fixture(scope="module")
+def y0(body):
+    return body.initial_state(OMEGA, precision=400)
+
+
+def test_lie_integrate_50_digits_matches_closed_form_and_heyoka(body, y0):
+    """At 50 digits over 10 time units: < 1e-45 from the elliptic-function solution and from heyoka at 256 bits."""
+    sol = ls.lie_integrate(body, y0, t=[5, 10], dps=50)
+    assert sol.success, sol.message
+    ref = exact.euler_poisson_many((1, 2, 3), OMEGA, [5, 10], dps=70)
+    hey = ls.integrate(body, body.initial_state(OMEGA, precision=256), t=[5, 10], precision=256)
+    with mp.workdps(70):
+        err_exact = max(abs(a - b) for row, r in zip(sol.y, ref) for a, b in zip(row, r))
+        err_heyoka = max(abs(a - mpf(b)) for row, r in zip(sol.y, hey.y) for a, b in zip(row, r))
+    assert err_exact < 1e-45
+    assert err_heyoka < 1e-45
+    # every step's own error estimate stays at the tolerance
+    assert max(sol.stats.error_estimates) <= 1e-50 * 10
+
+
+def test_lie_integrate_sphere_follows_great_circle():
+    s = ls.Sphere(mass=2, radius="1.5")
+    x0, v0 = ("0.9", "0", "1.2"), ("0", "0.75", "0")
+    y0 = s.initial_state(x0, v0, precision=300)
+    sol = ls.lie_integrate(s, y0, t=[1, 2], dps=40)
+    assert sol.success, sol.message
+    with mp.workdps(60):
+        for tk, row in zip([1, 2], sol.y):
+            xe, ve = exact.sphere("1.5", x0, v0, tk, dps=60)
+            z = [to_fraction(v) for v in row]
+            x, p = s._xp(z)
+            assert max(abs(a - b) for a, b in zip(x, xe)) < 1e-36
+            assert max(abs(a / 2 - b) for a, b in zip(p, ve)) < 1e-36
+
+
+def test_lie_integrate_backward_and_dense(body, y0):
+    sol = ls.lie_integrate(body, y0, t=-2, dps=30, dense=True)
+    ref = exact.euler_poisson((1, 2, 3), OMEGA, -2, dps=40)
+    ref1 = exact.euler_poisson((1, 2, 3), OMEGA, "-0.7", dps=40)
+    with mp.workdps(40):
+        assert max(abs(a - b) for a, b in zip(sol.y[-1], ref)) < 1e-27
+        assert max(abs(a - b) for a, b in zip(sol("-0.7"), ref1)) < 1e-27
+    with pytest.raises(ValueError, match="`t`"):
+        sol(1.0)
+
+
+def test_linear_field_reproduces_matrix_exponential():
+    """A harmonic oscillator written as a Poisson system: z(t) = expm(t A) z0 at 40 digits."""
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], 0.5 * hy.par[0] * p**2 + 0.5 * hy.par[1] * q**2,
+                           parameters={"inv_m": Fraction(1, 3), "k": Fraction(5, 2)})
+    series = ls.lie_series(osc, ["1", "0.5"], order=60, dps=40)
+    sol = ls.lie_integrate(osc, ["1", "0.5"], t=7, dps=40)
+    with mp.workdps(60):
+        A = mp.matrix([[0, mp.mpf(1) / 3], [-mp.mpf(5) / 2, 0]])
+        for t, got in (("0.8", series("0.8")), (7, list(sol.y[-1]))):
+            want = mp.expm(mpf(t) * A) * mp.matrix([1, mp.mpf("0.5")])
+            assert max(abs(got[i] - want[i]) for i in range(2)) < 1e-37
+    # an entire solution: the radius estimate grows with the order and is far beyond the step
+    assert series.radius() > 20
+
+
+def test_series_error_estimate_and_radius(body, y0):
+    series = ls.lie_series(body, y0, order=40, dps=50)
+    theory = exact.rigid_body_constants((1, 2, 3), OMEGA, dps=30).pole_distance
+    assert abs(series.radius() / theory - 1) < 0.05
+    for t in ("0.25", "0.5", "1"):
+        ref = exact.euler_poisson((1, 2, 3), OMEGA, t, dps=60)
+        with mp.workdps(60):
+            err = max(abs(a - b) for a, b in zip(series(t), ref))
+        est = series.error_estimate(t)
+        assert est / 30 < err < est * 30 or err < 1e-48  # within a factor 30, both ways
+    # beyond the radius the series diverges and says so
+    assert series.error_estimate(4) == mp.inf
+    assert not series.converges(4)
+    assert series.converges("0.5")
+
+
+def test_first_coefficients_by_hand(body, y0):
+    """c_1 = (R hat(Omega0), M0 x Omega0) at R0 = 1, from the vector field by hand."""
+    series = ls.lie_series(body, y0, order=3, dps=30)
+    with mp.workdps(40):
+        om = [mp.mpf(1), mp.mpf("0.1"), mp.mpf("0.5")]
+        M = [om[0], 2 * om[1], 3 * om[2]]
+        hat = [[0, -om[2], om[1]], [om[2], 0, -om[0]], [-om[1], om[0], 0]]
+        cross = [M[1] * om[2] - M[2] * om[1], M[2] * om[0] - M[0] * om[2], M[0] * om[1] - M[1] * om[0]]
+        want = [hat[i][j] for i in range(3) for j in range(3)] + cross
+        assert max(abs(a - b) for a, b in zip(series.coefficients[1], want)) < 1e-28
+    with mp.workdps(30):
+        assert series.coefficients[0] == [+mpf(v) for v in y0]
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        (dict(order=0), "`order` must be an integer >= 1"),
+        (dict(order=2.5), "`order`"),
+        (dict(dps=3), "`dps` must be at least"),
+    ],
+)
+def test_lie_series_bad_input(body, y0, kwargs, match):
+    with pytest.raises((ValueError, TypeError), match=match):
+        ls.lie_series(body, y0, **kwargs)
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        (dict(tol=0), "`tol` must be positive"),
+        (dict(tol=-1e-20), "`tol` must be positive"),
+        (dict(tol=1e-60, dps=20), "raise `dps`"),
+        (dict(order=0), "`order`"),
+        (dict(dps=2), "`dps`"),
+        (dict(max_steps=0), "`max_steps`"),
+    ],
+)
+def test_lie_integrate_bad_input(body, y0, kwargs, match):
+    with pytest.raises((ValueError, TypeError), match=match):
+        ls.lie_integrate(body, y0, t=1, **kwargs)
+
+
+def test_lie_integrate_bad_state_and_times(body):
+    with pytest.raises(ValueError, match="`y0`"):
+        ls.lie_integrate(body, [1, 2, 3], t=1)
+    with pytest.raises(ValueError, match="strictly increasing"):
+        ls.lie_integrate(body, body.initial_state((1, 0, 0)), t=[0.5, 1, 0.7])
+
+
+def test_lie_integrate_stops_at_chart_edge():
+    s = ls.Sphere()
+    sol = ls.lie_integrate(s, s.initial_state((0.6, 0, 0.8), (0, 1, 0)), t=5, dps=20)
+    assert sol.status == "chart_edge"
+    assert float(sol.t_reached) < 1.6
+    assert all(mp.isfinite(v) for v in sol.y_reached)
+
+
+def test_step_budget_keeps_what_was_computed(body, y0):
+    sol = ls.lie_integrate(body, y0, t=50, dps=20, max_steps=3)
+    assert sol.status == "step_budget"
+    assert 0 < float(sol.t_reached) < 50
+    assert sol.stats.steps == 3
