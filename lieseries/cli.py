@@ -1,0 +1,96 @@
+"""Command line: ``lieseries scenes`` and ``lieseries run SCENE [--out DIR] [--quick] [--no-progress]``.
+
+User errors (an unknown scene, an invalid scene file, a bad option) print one line naming the problem and exit
+with status 2, without a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+__all__ = ["main", "build_parser"]
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but usage errors raise instead of exiting (main turns them into status 2)."""
+
+    def error(self, message):
+        raise _UsageError(f"{self.prog}: {message}")
+
+
+class _UsageError(Exception):
+    pass
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="lieseries", description="Run lieseries scenes and write their reports.")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.add_parser("scenes", help="list the built-in scenes")
+    r = sub.add_parser("run", help="run a scene and write its report")
+    r.add_argument("scene", metavar="SCENE", help="a built-in scene name (see `lieseries scenes`) or a .toml path")
+    r.add_argument("--out", metavar="DIR", help="report folder (default: reports/<scene name>)")
+    r.add_argument("--quick", action="store_true", help="scale the studies down (fewer orders, samples, tolerances)")
+    r.add_argument("--no-progress", action="store_true", help="no progress bars on stderr")
+    return p
+
+
+def _cmd_scenes(out) -> int:
+    from .scenes import builtin_scenes, scenes_dir
+
+    items = builtin_scenes()
+    if not items:
+        print(f"lieseries: no built-in scenes found in {scenes_dir()}", file=sys.stderr)
+        return 2
+    width = max(len(n) for n, _ in items)
+    for name, title in items:
+        print(f"{name.ljust(width)}  {title}", file=out)
+    return 0
+
+
+def _cmd_run(args, out) -> int:
+    from .report import summary_text
+    from .scenes import load_scene, run_scene
+
+    scene = load_scene(args.scene)
+    out_dir = Path(args.out) if args.out else Path("reports") / scene.name
+    result = run_scene(scene, out_dir=out_dir, quick=args.quick, progress=not args.no_progress)
+    print(summary_text(result), file=out)
+    print(f"report: {result.report_path}  ({result.wall_time:.1f} s)", file=out)
+    return 0
+
+
+def main(argv=None) -> int:
+    """Entry point; returns the exit status (0 success, 2 user error, 1 unexpected failure)."""
+    from .scenes import SceneError
+
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except _UsageError as err:
+        print(str(err), file=sys.stderr)
+        return 2
+    except SystemExit as err:  # --help
+        return int(err.code or 0)
+    out = sys.stdout
+    try:
+        if args.command == "scenes":
+            return _cmd_scenes(out)
+        if args.command == "run":
+            return _cmd_run(args, out)
+        parser.print_help(sys.stderr)
+        return 2
+    except SceneError as err:
+        print(f"lieseries: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("lieseries: interrupted", file=sys.stderr)
+        return 130
+    except OSError as err:  # e.g. the report folder cannot be written
+        print(f"lieseries: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

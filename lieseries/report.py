@@ -1,0 +1,550 @@
+"""Reports: Markdown tables, PNG plots and raw data of a scene run. The only module that writes files or draws.
+
+``write_report(result, out_dir)`` writes::
+
+    out_dir/report.md            title, description, the scene as given, one section per run/study
+    out_dir/data.json            everything computed (SceneResult.to_dict())
+    out_dir/<table>.csv          one CSV per table
+    out_dir/<plot>.png           the plots the scene asks for (trajectory, error_vs_order, work_precision, drift)
+
+Numbers in the report are the ones computed in that run. Errors are printed in scientific notation with three
+significant digits; times in seconds.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+__all__ = ["write_report", "markdown_table", "summary_text", "fmt_sci", "SECTION_TITLES"]
+
+#: The H2 headings of the report, by section.
+SECTION_TITLES = {
+    "scene": "Scene",
+    "run": "Run",
+    "trajectory": "Trajectory",
+    "error_vs_order": "Error vs order",
+    "work_precision": "Work-precision",
+    "drift": "Invariant drift",
+    "notes": "Notes",
+    "environment": "Environment",
+}
+
+
+# -- formatting ------------------------------------------------------------------------------------------------
+def fmt_sci(x, digits: int = 3) -> str:
+    """Scientific notation with ``digits`` significant digits ("" for None, "0" for zero)."""
+    if x is None:
+        return ""
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return str(x)
+    if math.isnan(x):
+        return "nan"
+    if math.isinf(x):
+        return "inf" if x > 0 else "-inf"
+    if x == 0:
+        return "0"
+    return f"{x:.{digits - 1}e}"
+
+
+def fmt_int(x) -> str:
+    return "" if x is None else f"{int(x):d}"
+
+
+def fmt_num(x) -> str:
+    """A plain number for parameters (times, fractions): up to 6 significant digits."""
+    if x is None:
+        return ""
+    try:
+        return f"{float(x):.6g}"
+    except (TypeError, ValueError):
+        return str(x)
+
+
+def _is_numeric(cell: str) -> bool:
+    s = cell.strip()
+    if not s:
+        return False
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return s in ("nan", "inf", "-inf")
+
+
+def markdown_table(headers, rows) -> str:
+    """A Markdown table with padded columns; columns of numbers are right-aligned."""
+    headers = [str(h) for h in headers]
+    rows = [[("" if c is None else str(c)).replace("|", "\\|") for c in r] for r in rows]
+    ncol = len(headers)
+    widths = [max([len(headers[j])] + [len(r[j]) for r in rows] + [3]) for j in range(ncol)]
+    blank = ("", "none", "n/a")
+    numeric = [bool(rows) and all(_is_numeric(r[j]) or r[j].strip() in blank for r in rows)
+               and any(_is_numeric(r[j]) for r in rows) for j in range(ncol)]
+
+    def line(cells):
+        out = []
+        for j, c in enumerate(cells):
+            out.append(c.rjust(widths[j]) if numeric[j] else c.ljust(widths[j]))
+        return "| " + " | ".join(out) + " |"
+
+    sep = "| " + " | ".join(("-" * (widths[j] - 1) + ":") if numeric[j] else "-" * widths[j]
+                            for j in range(ncol)) + " |"
+    return "\n".join([line(headers), sep] + [line(r) for r in rows])
+
+
+def _write_csv(path: Path, headers, rows) -> None:
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(headers)
+        for r in rows:
+            w.writerow(["" if c is None else c for c in r])
+
+
+def _json_default(o):
+    try:
+        return float(o)
+    except (TypeError, ValueError):
+        return str(o)
+
+
+# -- plots -----------------------------------------------------------------------------------------------------
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+_MARKERS = ["o", "s", "^", "D", "v", "P", "X", "*", "<", ">"]
+
+
+def _positive(values):
+    return [v if (v is not None and v > 0 and math.isfinite(v)) else float("nan") for v in values]
+
+
+def plot_trajectory(result, path: Path) -> None:
+    plt = _pyplot()
+    trajs = result.trajectories
+    n = len(trajs)
+    fig, axes = plt.subplots(2, n, figsize=(6.5 * n, 7), squeeze=False, sharex="col")
+    for j, (mlabel, tr) in enumerate(trajs.items()):
+        ax = axes[0][j]
+        times = tr["times"]
+        vals = tr["values"]
+        for i, name in enumerate(tr["names"]):
+            ax.plot(times, [v[i] for v in vals], label=name)
+        ax.set_ylabel(tr["quantity"])
+        ax.set_title(f"{mlabel}: reference solution")
+        ax.legend(loc="best", fontsize=8)
+        ax.grid(alpha=0.3)
+        ax2 = axes[1][j]
+        for k, (lab, errs) in enumerate(tr["errors"].items()):
+            ax2.semilogy(tr["error_times"][lab], _positive(errs), marker=_MARKERS[k % len(_MARKERS)],
+                         markersize=3, linewidth=1, label=lab)
+        ax2.set_xlabel("time t")
+        ax2.set_ylabel("max-abs error against the reference")
+        ax2.set_title(f"{mlabel}: error along the run")
+        if tr["errors"]:
+            ax2.legend(loc="best", fontsize=8)
+        ax2.grid(alpha=0.3, which="both")
+    fig.suptitle(_wrap(result.scene.title, 60 * n), fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_error_vs_order(result, path: Path) -> None:
+    plt = _pyplot()
+    items = result.studies["error_vs_order"]
+    fig, ax = plt.subplots(figsize=(7.5, 5.5))
+    for k, (mlabel, ev) in enumerate(items):
+        color = f"C{k}"
+        ax.semilogy(ev.orders, _positive(ev.errors), marker=_MARKERS[k % len(_MARKERS)], linestyle="none",
+                    color=color, markersize=4, label=f"{mlabel}: truncation error at t = {ev.t:.4g}")
+        if ev.rate is not None and ev.fit_orders:
+            xs = [min(ev.fit_orders), max(ev.fit_orders)]
+            ax.semilogy(xs, [10 ** (ev.intercept + ev.rate * x) for x in xs], "-", color=color, linewidth=1,
+                        label=f"fit: rho = {ev.radius_measured:.4g}")
+            if ev.radius_theory:
+                slope = math.log10(abs(ev.t) / ev.radius_theory)
+                mid = 0.5 * (xs[0] + xs[1])
+                anchor = ev.intercept + ev.rate * mid
+                ax.semilogy(xs, [10 ** (anchor + slope * (x - mid)) for x in xs], ":", color="k", linewidth=1.2,
+                            label=f"theory: (t / rho)^N, rho = {ev.radius_theory:.4g}")
+    floor = min(ev.floor for _, ev in items)
+    smallest = min((e for _, ev in items for e in ev.errors if e and e > 0), default=floor)
+    if floor > smallest * 1e-4:  # drawn when the data come near it (it would only stretch the axis otherwise)
+        ax.axhline(floor, color="grey", linestyle="--", linewidth=0.8, label=f"precision floor {floor:.0e}")
+    ax.set_xlabel("truncation order N")
+    ax.set_ylabel("max-abs error of the truncated Lie series")
+    ax.set_title("Lie series: error against order (slope gives the radius of convergence)", fontsize=10)
+    ax.legend(loc="best", fontsize=8)
+    ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_work_precision(result, path: Path) -> None:
+    plt = _pyplot()
+    items = result.studies["work_precision"]
+    fig, ax = plt.subplots(figsize=(8.5, 6))
+    series = {}
+    for mlabel, wp in items:
+        for r in wp.rows:
+            if r.error is None or r.run_time is None:
+                continue
+            key = r.label if len(items) == 1 else f"{mlabel}: {r.label}"
+            series.setdefault(key, []).append(r)
+    shown_build = False
+    for k, (key, rows) in enumerate(series.items()):
+        color = f"C{k % 10}"
+        marker = _MARKERS[k % len(_MARKERS)]
+        xs = [r.run_time for r in rows]
+        ys = [max(r.error, 1e-300) for r in rows]
+        ax.loglog(xs, ys, marker=marker, color=color, linewidth=1, markersize=6, label=key)
+        if rows[0].method == "taylor":
+            bx = [r.run_time + (r.build_time or 0.0) for r in rows if r.build_time]
+            by = [max(r.error, 1e-300) for r in rows if r.build_time]
+            if bx:
+                ax.loglog(bx, by, marker=marker, color=color, markerfacecolor="none", linestyle="none",
+                          markersize=6, label=None if shown_build else "hollow: run + build time (heyoka)")
+                shown_build = True
+    ax.set_xlabel("run time [s] (best of repeats; build time apart)")
+    ax.set_ylabel("max-abs error at the final time")
+    t = items[0][1].t if items else 0
+    ax.set_title(f"Work-precision diagram, t = {t:.4g}", fontsize=10)
+    ax.legend(loc="best", fontsize=7)
+    ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_drift(result, path: Path) -> None:
+    plt = _pyplot()
+    items = result.studies["drift"]
+    n = len(items)
+    fig, axes = plt.subplots(1, n, figsize=(7.5 * n, 5.5), squeeze=False)
+    for j, (mlabel, dr) in enumerate(items):
+        ax = axes[0][j]
+        for k, name in enumerate(dr.errors):
+            ax.loglog(dr.times, _positive(dr.errors[name]), linewidth=1, color=f"C{k}",
+                      label=f"{name} (p = {_fmt_p(dr.exponents.get(name))})")
+        ref = "energy" if "energy" in dr.errors else next(iter(dr.errors), None)
+        if ref is not None:
+            scale = dr.scales.get(ref, 1.0)
+            ax.loglog(dr.times, [dr.eps * math.sqrt(max(s, 1e-300)) * scale for s in dr.steps], "k--", linewidth=1.5,
+                      label=f"Brouwer: eps sqrt(steps) |{ref}(0)|")
+            ax.loglog(dr.times, [dr.eps * s * scale for s in dr.steps], color="grey", linestyle=":", linewidth=1.5,
+                      label=f"linear: eps steps |{ref}(0)|")
+        ax.set_xlabel(f"time t ({dr.total_steps} steps in all, ~{dr.total_steps / dr.times[-1]:.3g} per unit)"
+                      if dr.times else "time t")
+        ylab = "|I(t) - I(0)|" + (f", RMS over {dr.ensemble} runs" if dr.ensemble > 1 else "")
+        ax.set_ylabel(ylab)
+        ax.set_title(f"{mlabel}: invariant drift, heyoka {dr.precision}", fontsize=10)
+        ax.legend(loc="best", fontsize=7)
+        ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _wrap(text: str, width: int) -> str:
+    import textwrap
+
+    return "\n".join(textwrap.wrap(text, width))
+
+
+def _fmt_p(p):
+    return "n/a" if p is None else f"{p:.2f}"
+
+
+_CSV_NAMES = ("run.csv", "run_invariants.csv", "error_vs_order.csv", "error_vs_order_fit.csv", "work_precision.csv",
+              "drift.csv")
+
+_PLOTTERS = {
+    "trajectory": plot_trajectory,
+    "error_vs_order": plot_error_vs_order,
+    "work_precision": plot_work_precision,
+    "drift": plot_drift,
+}
+
+
+# -- tables ----------------------------------------------------------------------------------------------------
+def run_tables(result):
+    """(final-state table, invariant-drift table) as (headers, rows) pairs."""
+    run = result.run
+    multi = len({r.model for r in run["rows"]}) > 1
+    h1 = (["model"] if multi else []) + ["method", "precision", "setting", "t reached", "final error",
+                                         "max error", "steps", "order", "build time [s]", "run time [s]", "status"]
+    rows1 = []
+    for r in run["rows"]:
+        rows1.append(([r.model] if multi else []) + [
+            r.label, r.precision, r.setting, fmt_num(r.t), fmt_sci(r.error), fmt_sci(r.max_error),
+            fmt_int(r.steps), fmt_int(r.order), fmt_sci(r.build_time), fmt_sci(r.run_time), r.status,
+        ])
+    invs = run["invariants"]
+    h2 = (["model"] if multi else []) + ["method"] + invs
+    rows2 = [([r.model] if multi else []) + [r.label] + [fmt_sci(r.drift.get(k)) for k in invs]
+             for r in run["rows"]]
+    return (h1, rows1), (h2, rows2)
+
+
+def _verdict(p):
+    if p is None:
+        return "too few points"
+    if p < 0.75:
+        return "~ steps^0.5 (Brouwer)" if p > 0.25 else "flat (bounded)"
+    return "~ steps^1 (linear)"
+
+
+def _section_run(result, lines, csvs):
+    run = result.run
+    lines += [f"## {SECTION_TITLES['run']}", ""]
+    lines.append(f"Final time t = {fmt_num(run['t'])}, {run['samples'] - 1} output times. Reference: "
+                 f"{run['reference']}. *final error*: max-abs error at the final time; *max error*: the largest "
+                 "over the output times (when a trajectory is asked for). Errors compare the state (rigid body) "
+                 "or position and velocity (sphere).")
+    lines.append("")
+    (h1, r1), (h2, r2) = run_tables(result)
+    lines += [markdown_table(h1, r1), ""]
+    csvs.append(("run.csv", h1, r1))
+    lines.append("Invariant drift: max |I(t) - I(0)| over the output times, I(0) of the exact initial state "
+                 "(so the rounding of the initial state into each precision is included).")
+    lines += ["", markdown_table(h2, r2), ""]
+    csvs.append(("run_invariants.csv", h2, r2))
+    bad = [r for r in run["rows"] if r.status != "success"]
+    for r in bad:
+        lines.append(f"- **{r.label}** ({r.model}): {r.status}: {r.message}")
+    if bad:
+        lines.append("")
+
+
+def _section_trajectory(result, lines):
+    lines += [f"## {SECTION_TITLES['trajectory']}", ""]
+    lines.append("Top: the reference solution at the output times. Bottom: the error of each run along the way.")
+    lines += ["", "![trajectory](trajectory.png)", ""]
+
+
+def _section_error_vs_order(result, lines, csvs, plotted):
+    items = result.studies.get("error_vs_order", [])
+    lines += [f"## {SECTION_TITLES['error_vs_order']}", ""]
+    if not items:
+        lines += ["Not computed (see the notes).", ""]
+        return
+    lines.append("Error of the Lie series truncated at order N, at a fixed time t. Inside the disc of convergence "
+                 "error_N ~ C (|t| / rho)^N: the least-squares slope of log10(error) against N (over the orders "
+                 "listed, above the precision floor 100 x 10^-dps; by default the upper half of them, since low "
+                 "orders can be pre-asymptotic) gives rho = |t| 10^(-slope), compared with the distance to the "
+                 "nearest singularity of the exact solution.")
+    lines.append("")
+    h = ["model", "t", "dps", "fitted slope [log10/order]", "rho measured", "rho theory", "measured / theory",
+         "orders fitted"]
+    rows = []
+    for mlabel, ev in items:
+        fit = f"{min(ev.fit_orders)}-{max(ev.fit_orders)}" if ev.fit_orders else ""
+        rows.append([mlabel, fmt_num(ev.t), str(ev.dps), fmt_sci(ev.rate, 4), fmt_sci(ev.radius_measured, 4),
+                     fmt_sci(ev.radius_theory, 4) if ev.radius_theory else "none",
+                     f"{ev.radius_ratio:.4f}" if ev.radius_ratio else "", fit])
+    lines += [markdown_table(h, rows), ""]
+    csvs.append(("error_vs_order_fit.csv", h, rows))
+    orders = sorted({o for _, ev in items for o in ev.orders})
+    h2 = ["order"] + [f"error ({m})" if len(items) > 1 else "error" for m, _ in items]
+    maps = [dict(zip(ev.orders, ev.errors)) for _, ev in items]
+    rows2 = [[str(o)] + [fmt_sci(mp.get(o)) for mp in maps] for o in orders]
+    csvs.append(("error_vs_order.csv", h2, rows2))
+    for mlabel, ev in items:
+        if ev.radius_theory is None:
+            lines.append(f"- {mlabel}: no finite theoretical radius (no singularity at finite complex time), so "
+                         "the fitted 'radius' only describes the orders shown; an entire series falls faster than "
+                         "any geometric rate.")
+    lines.append(f"- Reference: {items[0][1].reference}. Full error table: `error_vs_order.csv`.")
+    lines.append("")
+    lines += ["<details><summary>Error against order</summary>", "", markdown_table(h2, rows2), "", "</details>", ""]
+    if "error_vs_order" in plotted:
+        lines += ["![error vs order](error_vs_order.png)", ""]
+
+
+def _section_work_precision(result, lines, csvs, plotted):
+    items = result.studies.get("work_precision", [])
+    lines += [f"## {SECTION_TITLES['work_precision']}", ""]
+    lines.append("Error of the final state against run time (wall time of the call, best of the repeats, measured "
+                 "in this run on this machine: compare rows with each other). heyoka's compile time is shown apart "
+                 "as *build time* (0 when the integrator came from the cache); for scipy it is the compile time "
+                 "of the right-hand side (heyoka cfunc). mpmath's odefun is capped to short spans: see *t*.")
+    lines.append("")
+    multi = len(items) > 1
+    h = (["model"] if multi else []) + ["method", "precision", "setting", "t", "error", "run time [s]",
+                                        "build time [s]", "steps", "rhs evals", "order", "status"]
+    rows = []
+    for mlabel, wp in items:
+        for r in wp.rows:
+            rows.append(([mlabel] if multi else []) + [
+                r.label, r.precision, r.setting, fmt_num(r.t), fmt_sci(r.error), fmt_sci(r.run_time),
+                fmt_sci(r.build_time), fmt_int(r.steps), fmt_int(r.nfev), fmt_int(r.order), r.status])
+    lines += [markdown_table(h, rows), ""]
+    csvs.append(("work_precision.csv", h, rows))
+    for mlabel, wp in items:
+        lines.append(f"- Reference ({mlabel}): {wp.reference}.")
+        for note in wp.notes:
+            lines.append(f"- {note}")
+        for r in wp.rows:
+            if r.status not in ("success",):
+                lines.append(f"- {r.label} {r.setting}: {r.status}: {r.message}")
+    lines.append("")
+    if "work_precision" in plotted:
+        lines += ["![work-precision diagram](work_precision.png)", ""]
+
+
+def _section_drift(result, lines, csvs, plotted):
+    items = result.studies.get("drift", [])
+    lines += [f"## {SECTION_TITLES['drift']}", ""]
+    lines.append("Drift |I(t) - I(0)| of each invariant over a long heyoka run at tolerance eps (truncation error "
+                 "below round-off), at log-spaced sample times. Round-off that behaves like a random walk grows "
+                 "like eps sqrt(steps) (Brouwer's law); a biased error grows like eps steps. *p* is the fitted "
+                 "exponent of drift ~ steps^p (log-log slope of the running maximum over the second half of the "
+                 "samples).")
+    lines.append("")
+    for mlabel, dr in items:
+        ens = f", RMS over an ensemble of {dr.ensemble} runs" if dr.ensemble > 1 else ""
+        t_end = fmt_num(dr.times[-1]) if dr.times else ""
+        lines.append(f"**{mlabel}**: heyoka {dr.precision}, tol {fmt_sci(dr.tol)}, t = {t_end}, "
+                     f"{dr.total_steps} steps, order {dr.order}, run time {fmt_sci(dr.run_time)} s{ens}; "
+                     f"status {dr.status}.")
+        lines.append("")
+        h = ["invariant", "I(0)", "final drift", "max drift", "Brouwer eps sqrt(N) |I(0)|", "exponent p",
+             "growth"]
+        rows = []
+        for name, errs in dr.errors.items():
+            p = dr.exponents.get(name)
+            rows.append([name, fmt_sci(dr.initial.get(name), 6), fmt_sci(errs[-1] if errs else None),
+                         fmt_sci(max(errs) if errs else None),
+                         fmt_sci(dr.brouwer[name][-1] if dr.brouwer[name] else None), _fmt_p(p), _verdict(p)])
+        lines += [markdown_table(h, rows), ""]
+        tag = "" if len(items) == 1 else "_" + "".join(c if c.isalnum() else "_" for c in mlabel)
+        csvs.append((f"drift_summary{tag}.csv", h, rows))
+        h2 = ["t", "steps"] + [f"drift {k}" for k in dr.errors]
+        rows2 = [[repr(t), f"{s:.6g}"] + [repr(dr.errors[k][i]) for k in dr.errors]
+                 for i, (t, s) in enumerate(zip(dr.times, dr.steps))]
+        csvs.append((f"drift{tag}.csv", h2, rows2))
+    if "drift" in plotted:
+        lines += ["![invariant drift](drift.png)", ""]
+
+
+# -- the report ------------------------------------------------------------------------------------------------
+def write_report(result, out_dir) -> Path:
+    """Write ``report.md``, the plots, ``data.json`` and CSV tables of ``result`` into ``out_dir``.
+
+    Returns
+    -------
+    Path
+        The path of ``report.md``.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    scene = result.scene
+    # drop the files an earlier report wrote here (a plot this scene no longer asks for must not linger)
+    stale = [out / f"{p}.png" for p in _PLOTTERS] + [out / n for n in _CSV_NAMES]
+    stale += list(out.glob("drift_*.csv"))
+    for old in stale:
+        if old.is_file():
+            old.unlink()
+    plotted = []
+    for name in scene.plots:
+        if name == "trajectory" and not result.trajectories:
+            continue
+        if name in result.studies and not result.studies[name]:
+            continue
+        _PLOTTERS[name](result, out / f"{name}.png")
+        plotted.append(name)
+
+    lines = [f"# {scene.title}", ""]
+    if scene.description:
+        lines += [scene.description, ""]
+    mode = (" (quick mode: studies scaled down for CI; run without `--quick` for the full report)"
+            if result.quick else "")
+    lines.append(f"Scene `{scene.name}`{mode}. Generated {result.created} in {result.wall_time:.1f} s.")
+    lines.append("")
+    lines += [f"## {SECTION_TITLES['scene']}", ""]
+    if scene.source:
+        lines += ["```toml", scene.source.strip(), "```", ""]
+    else:
+        lines += ["```json", json.dumps(scene.to_dict(), indent=2, default=_json_default), "```", ""]
+    csvs = []
+    if result.run is not None:
+        _section_run(result, lines, csvs)
+    if "trajectory" in plotted:
+        _section_trajectory(result, lines)
+    if "error_vs_order" in result.studies:
+        _section_error_vs_order(result, lines, csvs, plotted)
+    if "work_precision" in result.studies:
+        _section_work_precision(result, lines, csvs, plotted)
+    if "drift" in result.studies:
+        _section_drift(result, lines, csvs, plotted)
+    if result.notes:
+        lines += [f"## {SECTION_TITLES['notes']}", ""] + [f"- {n}" for n in result.notes] + [""]
+    env = result.environment
+    lines += [f"## {SECTION_TITLES['environment']}", ""]
+    lines.append(", ".join(f"{k} {v}" for k, v in env.items()) + ".")
+    lines += ["", "Raw data: `data.json`" + (", tables: " + ", ".join(f"`{c[0]}`" for c in csvs) if csvs else "")
+              + ".", ""]
+    for name, h, rows in csvs:
+        _write_csv(out / name, h, rows)
+    with open(out / "data.json", "w", encoding="utf-8") as f:
+        json.dump(result.to_dict(), f, indent=1, default=_json_default)
+    path = out / "report.md"
+    path.write_text("\n".join(lines), encoding="utf-8")
+    return path
+
+
+def summary_text(result) -> str:
+    """A short plain-text summary for the terminal."""
+    lines = [f"{result.scene.title}"]
+    if result.run is not None:
+        run = result.run
+        multi = len({r.model for r in run["rows"]}) > 1
+        h = (["model"] if multi else []) + ["method", "final error", "max invariant drift", "steps", "order",
+                                            "build [s]", "run [s]", "status"]
+        rows = [([r.model] if multi else []) + [r.label, fmt_sci(r.error), fmt_sci(r.max_drift), fmt_int(r.steps),
+                                                fmt_int(r.order), fmt_sci(r.build_time), fmt_sci(r.run_time),
+                                                r.status] for r in run["rows"]]
+        lines.append(_plain_table(h, rows))
+        first = next((r for r in run["rows"] if r.final_state is not None), None)
+        if first is not None:
+            vals = " ".join(f"{v:.12g}" for v in first.final_state)
+            lines.append(f"final state at t = {run['t']:g} ({first.label}): {vals}")
+    for mlabel, ev in result.studies.get("error_vs_order", []):
+        th = f", theory {ev.radius_theory:.4g}" if ev.radius_theory else ""
+        rm = "n/a" if ev.radius_measured is None else f"{ev.radius_measured:.4g}"
+        lines.append(f"error vs order ({mlabel}): radius measured {rm}{th}")
+    for mlabel, wp in result.studies.get("work_precision", []):
+        ok = [r for r in wp.rows if r.error is not None]
+        best = min(ok, key=lambda r: r.error) if ok else None
+        lines.append(f"work-precision ({mlabel}): {len(wp.rows)} runs" + (
+            f", smallest error {fmt_sci(best.error)} ({best.label} {best.setting})" if best else ""))
+    for mlabel, dr in result.studies.get("drift", []):
+        p = dr.exponents.get("energy")
+        energy = dr.errors.get("energy") or []
+        final = fmt_sci(energy[-1]) if energy else "n/a"
+        lines.append(f"drift ({mlabel}): {dr.total_steps} steps, energy drift {final}, "
+                     f"exponent {_fmt_p(p)} ({_verdict(p)})")
+    for n in result.notes:
+        lines.append(f"note: {n}")
+    return "\n".join(lines)
+
+
+def _plain_table(headers, rows) -> str:
+    widths = [max([len(str(h))] + [len(str(r[j])) for r in rows]) for j, h in enumerate(headers)]
+    out = ["  ".join(str(h).ljust(widths[j]) for j, h in enumerate(headers))]
+    out.append("  ".join("-" * w for w in widths))
+    for r in rows:
+        out.append("  ".join(str(c).ljust(widths[j]) for j, c in enumerate(r)))
+    return "\n".join(out)

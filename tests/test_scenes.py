@@ -1,0 +1,244 @@
+"""Scenes: strict validation naming the field; every built-in scene runs (quick) and its report holds what the
+scene asks for and nothing else."""
+
+import json
+import re
+
+import pytest
+
+import lieseries as ls
+from lieseries.report import SECTION_TITLES, markdown_table
+from lieseries.scenes import (
+    SceneError,
+    builtin_scenes,
+    effective_plan,
+    load_scene,
+    parse_scene,
+    run_scene,
+)
+
+HAS_LIE_SERIES = hasattr(ls, "lie_series")
+BUILTINS = [name for name, _ in builtin_scenes()]
+
+RIGID = """
+name = "t"
+title = "test"
+[model]
+kind = "euler_poisson"
+inertia = [1, 2, 3]
+[initial]
+omega = [1, "0.1", "0.5"]
+[run]
+t = 2
+samples = 11
+methods = [{ method = "taylor", precision = "double" }, { method = "taylor", precision = "quad" }]
+"""
+
+
+def scene_error(text, fragment):
+    with pytest.raises(SceneError) as info:
+        parse_scene(text)
+    msg = str(info.value)
+    assert fragment in msg, msg
+    return msg
+
+
+# -- validation ------------------------------------------------------------------------------------------------
+def test_minimal_scene_parses_with_defaults():
+    sc = parse_scene(RIGID)
+    assert sc.name == "t" and sc.models[0].kind == "euler_poisson"
+    assert sc.models[0].params["bracket"] == "chetaev"
+    assert sc.run["repeat"] == 3 and sc.studies == {} and sc.plots == []
+
+
+def test_unknown_model_kind():
+    msg = scene_error(RIGID.replace('"euler_poisson"', '"pendulum"'), "`model.kind`")
+    assert "'pendulum'" in msg and "euler_poisson" in msg
+
+
+def test_missing_required_field():
+    scene_error(RIGID.replace("inertia = [1, 2, 3]\n", ""), "missing required field `model.inertia`")
+    scene_error(RIGID.replace('title = "test"\n', ""), "missing required field `title`")
+    scene_error(RIGID.replace("t = 2\n", ""), "missing required field `run.t`")
+
+
+def test_wrong_type():
+    msg = scene_error(RIGID.replace("inertia = [1, 2, 3]", 'inertia = "abc"'), "`model.inertia` must be a list of 3 "
+                                                                          "numbers or a 3x3 list")
+    assert "'abc'" in msg
+    scene_error(RIGID.replace('omega = [1, "0.1", "0.5"]', 'omega = [1, "x", 2]'), "`initial.omega[1]`")
+    scene_error(RIGID.replace("samples = 11", "samples = 1.5"), "`run.samples` must be an integer")
+
+
+def test_unknown_field_and_suggestion():
+    text = RIGID + "[studies.drift]\nt = 100\nsmaples = 10\n"
+    msg = scene_error(text, "unknown field `studies.drift.smaples`")
+    assert "did you mean `samples`" in msg and "known:" in msg
+    scene_error(RIGID + "[studies.drfit]\nt = 1\n", "unknown field `studies.drfit`")
+    scene_error(RIGID.replace("[initial]", "colour = 1\n[initial]"), "unknown field `model.colour`")
+
+
+def test_method_fields():
+    msg = scene_error(RIGID.replace('precision = "quad"', 'precision = "single"'), "`run.methods[1].precision`")
+    assert "unknown precision 'single'" in msg
+    scene_error(RIGID.replace('method = "taylor", precision = "quad"', 'method = "euler"'), "`run.methods[1].method`")
+    scene_error(RIGID.replace('precision = "quad"', 'precision = "quad", rtol = 1e-9'),
+                "unknown field `run.methods[1].rtol`")
+    scene_error(RIGID.replace('precision = "quad"', 'precision = "quad", tol = 2'), "`run.methods[1].tol`")
+
+
+def test_physics_errors_name_the_table():
+    scene_error(RIGID.replace("inertia = [1, 2, 3]", "inertia = [1, -2, 3]"), "`model`")
+    sphere = """
+name = "s"
+title = "s"
+[model]
+kind = "sphere"
+[initial]
+x = [1, 1, 0]
+v = [0, 0, 1]
+[run]
+t = 1
+methods = [{ method = "taylor" }]
+"""
+    msg = scene_error(sphere, "`initial`")
+    assert "sphere" in msg
+
+
+def test_plots_must_have_their_study():
+    scene_error(RIGID + '[report]\nplots = ["drift"]\n', "`report.plots[0]` asks for 'drift'")
+    scene_error(RIGID + '[report]\nplots = ["histogram"]\n', "`report.plots[0]`: unknown plot")
+    sc = parse_scene(RIGID + "[studies.drift]\nt = 100\n")
+    assert sc.plots == ["drift"]  # default: one plot per study present
+
+
+def test_error_vs_order_options():
+    scene_error(RIGID + "[studies.error_vs_order]\nmax_order = 10\n", "`studies.error_vs_order`")
+    scene_error(RIGID + "[studies.error_vs_order]\nt = 1\nt_fraction = 0.5\n", "got both")
+    scene_error(RIGID + "[studies.error_vs_order]\nt_fraction = 1.5\n", "`studies.error_vs_order.t_fraction`")
+
+
+def test_models_array_and_mixed_families():
+    text = RIGID.replace("[model]\nkind = \"euler_poisson\"\ninertia = [1, 2, 3]",
+                         '[[models]]\nlabel = "a"\nkind = "euler_poisson"\ninertia = [1, 2, 3]\n'
+                         '[[models]]\nlabel = "b"\nkind = "euler_poisson"\ninertia = [1, 2, 3]\n'
+                         'bracket = "intermediate"')
+    sc = parse_scene(text)
+    assert [m.label for m in sc.models] == ["a", "b"]
+    bad = text.replace('label = "b"\nkind = "euler_poisson"\ninertia = [1, 2, 3]\nbracket = "intermediate"',
+                       'label = "b"\nkind = "sphere"')
+    scene_error(bad, "share the initial data")
+
+
+def test_invalid_toml_and_unknown_scene(tmp_path):
+    scene_error("name = ", "not valid TOML")
+    with pytest.raises(SceneError, match="unknown scene 'defualt' \\(did you mean 'default'\\?\\)"):
+        load_scene("defualt")
+    with pytest.raises(SceneError, match="not found"):
+        load_scene(str(tmp_path / "missing.toml"))
+
+
+def test_scene_folder_override(tmp_path, monkeypatch):
+    (tmp_path / "mine.toml").write_text(RIGID.replace('name = "t"', 'name = "mine"'))
+    monkeypatch.setenv("LIESERIES_SCENES", str(tmp_path))
+    assert builtin_scenes() == [("mine", "test")]
+    assert load_scene("mine").name == "mine"
+
+
+def test_builtin_scenes_are_listed_and_valid():
+    assert BUILTINS[0] == "default"
+    assert {"default", "asymmetric-body", "tennis-racket", "sphere-great-circle", "sphere-forms"} <= set(BUILTINS)
+    for name in BUILTINS:
+        sc = load_scene(name)
+        assert sc.name == name and sc.title and sc.description
+
+
+def test_quick_plan_scales_studies_down():
+    sc = load_scene("asymmetric-body")
+    run, studies = effective_plan(sc, quick=True)
+    full_run, full = effective_plan(sc, quick=False)
+    assert max(studies["error_vs_order"]["orders"]) <= 30 < full["error_vs_order"]["max_order"]
+    assert studies["drift"]["t"] == pytest.approx(float(full["drift"]["t"]) / 10)
+    assert studies["drift"]["samples"] <= 60 and studies["work_precision"]["repeat"] == 1
+    for m in studies["work_precision"]["methods"]:
+        for key in ("tol", "rtol"):
+            if isinstance(m.get(key), list):
+                assert len(m[key]) <= 3
+    assert run["samples"] <= 41 and full_run["samples"] == 101
+    assert sc.studies["drift"]["samples"] == 200  # the scene itself is untouched
+
+
+# -- running scenes --------------------------------------------------------------------------------------------
+def headings(md: str) -> set:
+    return set(re.findall(r"^## (.+)$", md, flags=re.M))
+
+
+@pytest.mark.parametrize("name", BUILTINS)
+def test_builtin_scene_quick_report_has_what_it_asks_for(name, tmp_path):
+    scene = load_scene(name)
+    res = run_scene(scene, out_dir=tmp_path, quick=True, progress=False)
+    md = (tmp_path / "report.md").read_text()
+    heads = headings(md)
+    assert SECTION_TITLES["scene"] in heads
+    assert (SECTION_TITLES["run"] in heads) == (scene.run is not None)
+    for study in ("error_vs_order", "work_precision", "drift"):
+        assert (SECTION_TITLES[study] in heads) == (study in scene.studies), study
+        assert (study in res.studies) == (study in scene.studies)
+    for plot in ("trajectory", "error_vs_order", "work_precision", "drift"):
+        expected = plot in scene.plots and (plot != "error_vs_order" or HAS_LIE_SERIES)
+        assert (tmp_path / f"{plot}.png").is_file() == expected, plot
+        assert (f"({plot}.png)" in md) == expected, plot
+    data = json.loads((tmp_path / "data.json").read_text())
+    assert set(data["studies"]) == set(scene.studies)
+    assert data["quick"] is True
+    if scene.run is not None:
+        rows = res.run["rows"]
+        assert rows and all(r.status == "success" for r in rows), [(r.label, r.message) for r in rows]
+        assert (tmp_path / "run.csv").is_file()
+        # every heyoka run is at the accuracy of its precision against the exact solution
+        for r in rows:
+            if r.method == "taylor":
+                eps = ls.resolve_precision(r.precision if not r.precision.startswith("real")
+                                           else int(r.precision[4:])).eps
+                assert r.error < 1e4 * eps, (r.label, r.error)
+        # the numbers in the table are the ones computed
+        assert f"{rows[0].error:.2e}" in md
+    if "error_vs_order" in scene.studies and HAS_LIE_SERIES:
+        for _, ev in res.studies["error_vs_order"]:
+            if ev.radius_theory:
+                assert abs(ev.radius_measured / ev.radius_theory - 1) < 0.15
+
+
+def test_scene_without_drift_never_runs_drift(tmp_path, monkeypatch):
+    import sys
+
+    import lieseries.studies
+
+    def boom(*a, **k):  # pragma: no cover - must not be called
+        raise AssertionError("drift was run for a scene that does not ask for it")
+
+    # (the package re-exports the function under the module's name: patch both)
+    monkeypatch.setattr(sys.modules["lieseries.studies.drift"], "drift", boom)
+    monkeypatch.setattr(lieseries.studies, "drift", boom)
+    res = run_scene(parse_scene(RIGID), out_dir=tmp_path, progress=False)
+    md = (tmp_path / "report.md").read_text()
+    assert "drift" not in res.studies
+    assert SECTION_TITLES["drift"] not in headings(md)
+    assert not list(tmp_path.glob("*.png"))  # no plots asked for
+
+
+def test_report_drops_plots_of_an_earlier_run(tmp_path):
+    (tmp_path / "drift.png").write_bytes(b"old")
+    (tmp_path / "notes.txt").write_text("mine")
+    run_scene(parse_scene(RIGID + '[report]\nplots = ["trajectory"]\n'), out_dir=tmp_path, progress=False)
+    assert not (tmp_path / "drift.png").exists()
+    assert (tmp_path / "trajectory.png").is_file()
+    assert (tmp_path / "notes.txt").read_text() == "mine"  # files the report did not write are left alone
+
+
+def test_markdown_table_aligns_numbers():
+    md = markdown_table(["method", "error"], [["a", "1.00e-03"], ["longer name", "2.50e-16"]])
+    lines = md.splitlines()
+    assert lines[1].endswith("-: |")
+    assert len({len(line) for line in lines}) == 1
+    assert lines[2].index("1.00e-03") == lines[3].index("2.50e-16")

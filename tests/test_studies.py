@@ -1,0 +1,243 @@
+"""Studies: error vs order measures the radius of convergence; work-precision errors follow the tolerance;
+drift follows Brouwer's law. Every number is checked against an independent reference (closed forms, heyoka at
+256 bits, heyoka's own Taylor coefficients)."""
+
+from types import SimpleNamespace
+
+import heyoka as hy
+import mpmath as mp
+import numpy as np
+import pytest
+
+import lieseries as ls
+from lieseries import exact
+from lieseries.precision import to_fraction
+from lieseries.studies import (
+    drift,
+    error_vs_order,
+    reference_solution,
+    state_error,
+    theoretical_radius,
+    work_precision,
+)
+from lieseries.studies.convergence import fit_geometric_rate
+from lieseries.studies.drift import growth_exponent
+
+HAS_LIE_SERIES = hasattr(ls, "lie_series")
+HAS_LIE_INTEGRATE = hasattr(ls, "lie_integrate")
+
+#: Two rigid-body motions on the two elliptic branches: (omega, branch)
+RIGID_CASES = [((1, "0.1", "0.5"), "below"), (("0.5", "0.1", 1), "above")]
+
+
+def mpf(q):
+    q = to_fraction(q)
+    return mp.mpf(q.numerator) / q.denominator
+
+
+def heyoka_series(system, y0, order, dps):
+    """Stand-in for ls.lie_series built from an independent source: the Taylor coefficients heyoka computes
+    at t = 0 in 256-bit arithmetic (order ~88 at tolerance 2^-250)."""
+    ps = system.poisson
+    prec = ls.resolve_precision(256)
+    npar = len(hy.get_params([e for _, e in ps.ode_system]))
+    ta = hy.taylor_adaptive(ps.ode_system, prec.array([to_fraction(v) for v in y0]), tol=hy.real(2.0**-250, 256),
+                            fp_type=hy.real, prec=256, pars=prec.array(ps.parameter_values[:npar]),
+                            compact_mode=True)
+    assert ta.order >= order
+    ta.step(hy.real(1e-30, 256), write_tc=True)
+    tc = ta.tc
+    with mp.workdps(dps):
+        coeffs = [[+mpf(tc[i, k]) for i in range(tc.shape[0])] for k in range(order + 1)]
+    return SimpleNamespace(coefficients=coeffs)
+
+
+# -- references ----------------------------------------------------------------------------------------------
+def test_rigid_reference_with_rotated_start_matches_256_bit_run():
+    """R(t) = R0 R_id(t): the closed form composed with a general R0, against heyoka at 256 bits."""
+    body = ls.EulerPoisson((1, 2, 3))
+    R0 = [[1, 0, 0], [0, "0.6", "-0.8"], [0, "0.8", "0.6"]]  # an exact rotation about x
+    y0 = body.initial_state((1, "0.1", "0.5"), R0=R0, precision=256)
+    ref = reference_solution(body, y0, 3, dps=60)
+    assert ref.kind == "exact"
+    sol = ls.integrate(body, y0, t=3, precision=256, tol=2.0**-240)
+    with mp.workdps(70):
+        err = max(abs(mpf(a) - b) for a, b in zip(sol.y[-1], ref.values))
+    assert err < 1e-60
+
+
+@pytest.mark.parametrize("form", ["intermediate", "dirac"])
+def test_sphere_reference_compares_position_and_velocity(form):
+    """The great-circle reference in (x, v), against heyoka at 256 bits, for both forms."""
+    model = ls.Sphere(mass=2, radius="1.5") if form == "intermediate" else ls.SphereDirac(mass=2, radius="1.5")
+    y0 = model.initial_state(("0.9", 0, "1.2"), (0, "0.75", 0), precision=256)
+    ref = reference_solution(model, y0, 2, dps=60)
+    assert ref.names == ("x1", "x2", "x3", "v1", "v2", "v3")
+    sol = ls.integrate(model, y0, t=2, precision=256, tol=2.0**-240)
+    assert state_error(model, sol.y[-1], ref) < 1e-60
+    # a double run is at double accuracy against it, and the error grows with a wrong final time
+    y0d = model.initial_state(("0.9", 0, "1.2"), (0, "0.75", 0))
+    assert state_error(model, ls.integrate(model, y0d, t=2).y[-1], ref) < 1e-14
+    assert state_error(model, ls.integrate(model, y0d, t="2.001").y[-1], ref) > 1e-4
+
+
+def test_theoretical_radius_sources():
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state((1, "0.1", "0.5"), precision=256)
+    rho = theoretical_radius(body, y0)
+    assert float(rho) == pytest.approx(float(exact.rigid_body_constants((1, 2, 3), (1, "0.1", "0.5")).pole_distance))
+    sphere = ls.Sphere()
+    ys = sphere.initial_state(("0.6", 0, "0.8"), (0, 1, 0), precision=256)
+    assert float(theoretical_radius(sphere, ys)) == pytest.approx(np.pi / 2, rel=1e-12)
+    assert theoretical_radius(ls.SphereDirac(), ls.SphereDirac().initial_state(("0.6", 0, "0.8"), (0, 1, 0))) is None
+
+
+# -- error vs order ------------------------------------------------------------------------------------------
+def test_fit_geometric_rate_recovers_slope_and_skips_floor():
+    orders = list(range(0, 40))
+    errors = [3.0 * 0.5**n if 3.0 * 0.5**n > 1e-9 else 1e-12 for n in orders]
+    slope, intercept, used = fit_geometric_rate(orders, errors, floor=1e-10, min_order=5)
+    assert slope == pytest.approx(np.log10(0.5), rel=1e-12)
+    assert intercept == pytest.approx(np.log10(3.0), rel=1e-12)
+    assert min(used) == 5 and max(used) == 31  # 3 * 0.5**31 = 1.4e-9 is the last point above the floor
+
+
+@pytest.mark.parametrize("omega,branch", RIGID_CASES, ids=[b for _, b in RIGID_CASES])
+def test_error_vs_order_radius_with_heyoka_coefficients(monkeypatch, omega, branch):
+    """The study's partial sums and fit, fed the Taylor coefficients of heyoka (256 bits): the measured radius is
+    the pole distance of the elliptic functions within 10% (observed: 0.3%)."""
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega, precision=256)
+    const = exact.rigid_body_constants((1, 2, 3), omega)
+    assert const.branch == branch
+    monkeypatch.setattr(ls, "lie_series", lambda s, y, order, dps: heyoka_series(s, y, order, dps), raising=False)
+    t = 0.6 * float(const.pole_distance)
+    res = error_vs_order(body, y0, t, orders=range(1, 51), dps=60)
+    assert res.radius_theory == pytest.approx(float(const.pole_distance), rel=1e-12)
+    assert abs(res.radius_measured / res.radius_theory - 1) < 0.1
+    # the errors really fall: 0.6^50 ~ 8e-12 below the first ones
+    assert res.errors[-1] < 1e-9 * res.errors[0]
+    assert len(res.fit_orders) >= 20  # the upper half of the 50 orders
+    d = res.to_dict()
+    assert d["radius_ratio"] == pytest.approx(res.radius_measured / res.radius_theory)
+
+
+def test_error_vs_order_sphere_chart_radius_with_heyoka_coefficients(monkeypatch):
+    """5-d chart: the series converges only up to the zero of x3 at t = pi/2."""
+    sphere = ls.Sphere()
+    y0 = sphere.initial_state(("0.6", 0, "0.8"), (0, 1, 0), precision=256)
+    monkeypatch.setattr(ls, "lie_series", lambda s, y, order, dps: heyoka_series(s, y, order, dps), raising=False)
+    res = error_vs_order(sphere, y0, 0.6 * np.pi / 2, orders=range(1, 51), dps=60)
+    assert res.radius_theory == pytest.approx(np.pi / 2, rel=1e-12)
+    assert abs(res.radius_measured / res.radius_theory - 1) < 0.1
+
+
+@pytest.mark.skipif(not HAS_LIE_SERIES, reason="ls.lie_series is not available yet")
+@pytest.mark.parametrize("omega,branch", RIGID_CASES, ids=[b for _, b in RIGID_CASES])
+def test_lie_series_radius_matches_pole_distance(omega, branch):
+    """The real Lie series of the rigid body: measured radius within 10% of the pole distance, on both branches."""
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega, precision=256)
+    rho = float(exact.rigid_body_constants((1, 2, 3), omega).pole_distance)
+    res = error_vs_order(body, y0, 0.6 * rho, orders=range(1, 46), dps=60)
+    assert abs(res.radius_measured / rho - 1) < 0.1, res.to_dict()
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not HAS_LIE_SERIES, reason="ls.lie_series is not available yet")
+@pytest.mark.parametrize("fraction", [0.5, 0.8])
+def test_lie_series_radius_high_order(fraction):
+    """Orders up to 80 at 100 digits, closer to and further from the radius."""
+    body = ls.EulerPoisson((1, 2, 3))
+    omega = ("0.01", 1, "0.01")  # near the separatrix, m = 0.9998
+    y0 = body.initial_state(omega, precision=400)
+    rho = float(exact.rigid_body_constants((1, 2, 3), omega).pole_distance)
+    res = error_vs_order(body, y0, fraction * rho, orders=range(1, 81), dps=100)
+    assert abs(res.radius_measured / rho - 1) < 0.05, res.to_dict()
+
+
+# -- work-precision ------------------------------------------------------------------------------------------
+def test_work_precision_errors_follow_the_tolerance():
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state((1, "0.1", "0.5"), precision=256)
+    methods = [
+        {"method": "taylor", "precision": "double", "tol": [1e-6, 1e-8, 1e-10, 1e-12]},
+        {"method": "taylor", "precision": "quad", "tol": [1e-15, 1e-25]},
+        {"method": "scipy", "rtol": [1e-5, 1e-8, 1e-11]},
+        {"method": "mpmath", "dps": 15, "t_max": "0.5"},
+        {"method": "lie", "dps": 30, "tol": 1e-20},
+    ]
+    wp = work_precision(body, y0, 10, methods=methods, repeat=1)
+    assert "closed form" in wp.reference
+    by = {}
+    for r in wp.rows:
+        by.setdefault(r.label, []).append(r)
+        assert r.status == "success", (r.label, r.message)
+        assert r.run_time > 0
+    for label in ("heyoka double", "heyoka quad", "scipy DOP853"):
+        errs = [r.error for r in by[label]]
+        assert all(b < a for a, b in zip(errs, errs[1:])), (label, errs)
+    dbl = by["heyoka double"]
+    for r, tol in zip(dbl, [1e-6, 1e-8, 1e-10, 1e-12]):
+        assert r.error < 1000 * tol  # error at T = 10 is a modest multiple of the tolerance
+        assert r.build_time is not None and r.steps > 0 and r.order > 0
+    assert by["heyoka quad"][-1].error < 1e-22
+    odefun = by["mpmath odefun 15 dps"][0]
+    assert odefun.t == 0.5 and odefun.error < 1e-12  # capped span, measured at the time it reached
+    if HAS_LIE_INTEGRATE:
+        assert by["Lie series 30 dps"][0].error < 1e-15
+    else:
+        assert any("lie_integrate" in n for n in wp.notes)
+        assert "Lie series 30 dps" not in by
+
+
+def test_work_precision_numerical_reference_for_a_plain_poisson_system():
+    """A system without a closed form is measured against heyoka at 256 bits (the pendulum)."""
+    q, p = hy.make_vars("q", "p")
+    pend = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 - hy.par[0] * hy.cos(q), parameters={"g": 1},
+                            name="pendulum")
+    wp = work_precision(pend, ["0.5", 0], 5, methods=[{"method": "taylor", "tol": [1e-6, 1e-12]}], repeat=1)
+    assert "256 bits" in wp.reference
+    e = [r.error for r in wp.rows]
+    assert e[1] < e[0] < 1e-4 and e[1] < 1e-11
+
+
+# -- drift -------------------------------------------------------------------------------------------------------
+def test_growth_exponent_of_synthetic_curves():
+    steps = np.geomspace(10, 1e5, 100)
+    assert growth_exponent(steps, 1e-16 * np.sqrt(steps)) == pytest.approx(0.5, abs=1e-9)
+    assert growth_exponent(steps, 1e-16 * steps) == pytest.approx(1.0, abs=1e-9)
+
+
+def test_drift_energy_follows_brouwer_not_linear():
+    """Rigid body, double, 10^4 time units (~2.4e4 steps), ensemble of 8: the RMS energy drift grows like
+    steps^p with p well below 1 (observed 0.57) and stays within a small factor of eps sqrt(steps) |E|."""
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state((1, "0.1", "0.5"), precision=256)
+    dr = drift(body, y0, 1e4, precision="double", samples=100, ensemble=8)
+    assert dr.status == "success"
+    assert dr.total_steps > 20000
+    assert set(dr.errors) == {"energy", "M2", "L1", "L2", "L3", "orthogonality", "det_R"}
+    p = dr.exponents["energy"]
+    assert 0.2 < p < 0.8, p
+    E0 = dr.initial["energy"]
+    assert E0 == pytest.approx(0.5 * (1 + 2 * 0.01 + 3 * 0.25))
+    eps = 2.0**-52
+    assert dr.brouwer["energy"][-1] == pytest.approx(eps * np.sqrt(dr.steps[-1]) * abs(E0))
+    final = dr.errors["energy"][-1]
+    assert 0.02 * dr.brouwer["energy"][-1] < final < 20 * dr.brouwer["energy"][-1]
+    # the cumulative step estimate ends at the run's total
+    assert dr.steps[-1] == pytest.approx(dr.total_steps)
+    # R stays a rotation: the perturbed ensemble members change only M
+    assert max(dr.errors["orthogonality"]) < 1e-13
+
+
+def test_drift_checks_arguments():
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state((1, "0.1", "0.5"))
+    with pytest.raises(ValueError, match="`t`"):
+        drift(body, y0, -1.0)
+    with pytest.raises(ValueError, match="`samples`"):
+        drift(body, y0, 10.0, samples=3)
+    with pytest.raises(ValueError, match="`ensemble`"):
+        drift(body, y0, 10.0, ensemble=0)
