@@ -7,6 +7,7 @@ Public API (stable names)::
     ls.integrate                                   heyoka's adaptive Taylor method, any precision
     ls.lie_series, ls.LieSeries                    the truncated operator exp(t X_H) at a point, in mpmath
     ls.lie_integrate                               adaptive Lie-series stepping, same Solution type
+    ls.rigid_body_series                           R(t) from R0 = 1 as an exact series in t (paper, dt61)
     ls.Solution, ls.Stats                          what integrators return
 """
 
@@ -16,6 +17,7 @@ from .precision import Precision, resolve_precision
 from .solution import Solution, Stats
 from .lie.integrator import lie_integrate
 from .lie.operator import LieSeries, lie_series
+from .lie.symbolic import rigid_body_series
 from .taylor import integrate
 
 __all__ = [
@@ -33,6 +35,7 @@ __all__ = [
     "lie_series",
     "LieSeries",
     "lie_integrate",
+    "rigid_body_series",
 ]
 
 __version__ = "0.1.0"

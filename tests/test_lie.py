@@ -165,3 +165,34 @@ def test_step_budget_keeps_what_was_computed(body, y0):
     assert sol.status == "step_budget"
     assert 0 < float(sol.t_reached) < 50
     assert sol.stats.steps == 3
+
+
+def test_rigid_body_series_dt61(body):
+    """R(t) = sum C_k t^k from R0 = 1 (paper dt61): C_1, C_2 by hand; exact C_k equal the numeric jets."""
+    import sympy
+
+    C = ls.rigid_body_series(body, 6)
+    w = sympy.symbols("Omega1 Omega2 Omega3", real=True)
+    hat = lambda v: sympy.Matrix([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])  # noqa: E731
+    M = [w[0], 2 * w[1], 3 * w[2]]
+    dw = [(M[1] * w[2] - M[2] * w[1]) / 1, (M[2] * w[0] - M[0] * w[2]) / 2, (M[0] * w[1] - M[1] * w[0]) / 3]
+    assert sympy.simplify(C[0] - sympy.eye(3)) == sympy.zeros(3)
+    assert sympy.simplify(C[1] - hat(w)) == sympy.zeros(3)
+    assert sympy.simplify(C[2] - (hat(w) ** 2 + hat(dw)) / 2) == sympy.zeros(3)
+    exact_C = ls.rigid_body_series(body, 6, omega=OMEGA)
+    series = ls.lie_series(body, body.initial_state(OMEGA, precision=300), order=6, dps=40)
+    with mp.workdps(40):
+        for k in range(7):
+            num = series.coefficients[k][:9]
+            sym = [mp.mpf(int(c.p)) / int(c.q) for c in exact_C[k]]
+            assert max(abs(a - b) for a, b in zip(num, sym)) < 1e-38
+            # the symbolic matrices, evaluated at the sample Omega0, are the same exact rationals
+            at = C[k].subs({w[0]: 1, w[1]: sympy.Rational(1, 10), w[2]: sympy.Rational(1, 2)})
+            assert sympy.simplify(at - exact_C[k]) == sympy.zeros(3)
+
+
+def test_rigid_body_series_bad_input():
+    with pytest.raises(TypeError, match="`body`"):
+        ls.rigid_body_series(ls.Sphere(), 3)
+    with pytest.raises(ValueError, match="`order`"):
+        ls.rigid_body_series(ls.EulerPoisson((1, 2, 3)), 0)
