@@ -77,6 +77,8 @@ class Solution:
         The time the integration reached (exact).
     y_reached : ndarray, shape (n,)
         The state at ``t_reached``: for a run that stopped early, the last good state.
+    charts : ndarray of int or None
+        For a run across an atlas (``atlas=True``): the chart each row of ``y`` is written in.
     """
 
     def __init__(self, t, y, stats: Stats, status: str, message: str, t_reached, dense: Callable | None = None,
@@ -91,6 +93,8 @@ class Solution:
         self.t_reached = t_reached
         self.t_requested = t_requested
         self.y_reached = y_reached
+        #: For an atlas run: the chart each output row is written in (else None).
+        self.charts = None
         self._dense = dense
 
     @property

@@ -182,6 +182,7 @@ def integrate(
     min_step: float | None = None,
     compact_mode: bool | None = None,
     high_accuracy: bool = False,
+    atlas: bool = False,
 ) -> Solution:
     """Integrate ``dz/dt = X_H(z)`` with heyoka's adaptive Taylor method.
 
@@ -210,6 +211,10 @@ def integrate(
         Wall-time budget in seconds (status ``time_budget``).
     min_step : float, optional
         Stop with ``step_collapse`` when a step is smaller than this.
+    atlas : bool
+        For a model with charts (:class:`~lieseries.Sphere`): switch charts when the current one is ending and
+        go on (:mod:`lieseries.atlas`); ``sol.charts`` tells the chart of each output row. Budgets apply to each
+        chart segment.
 
     Returns
     -------
@@ -217,6 +222,12 @@ def integrate(
         ``sol.t``, ``sol.y`` (one row per output time reached), ``sol.stats``, ``sol.status``, ``sol.message``.
     """
     prec = resolve_precision(precision)
+    if atlas:
+        from .atlas import run_atlas
+
+        return run_atlas(integrate, system, y0, t, t0=t0, bits=prec.bits, dense=dense, tol=tol,
+                         precision=prec, max_steps=max_steps, max_time=max_time, min_step=min_step,
+                         compact_mode=compact_mode, high_accuracy=high_accuracy)
     ps = as_poisson_system(system)
     model = system if isinstance(system, Model) else None
     z0 = model.check_state(y0, "y0") if model is not None else state_fractions(y0, ps.dimension, "y0")

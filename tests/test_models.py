@@ -173,7 +173,7 @@ def test_bad_sphere_state(x, v, match):
 
 
 @pytest.mark.parametrize("kwargs,match", [(dict(mass=0), "`mass`"), (dict(radius=-1), "`radius`"),
-                                          (dict(chart=3), "`chart`"), (dict(edge=0.7), "`edge`")])
+                                          (dict(chart=3), "`chart`"), (dict(edge=0.6), "`edge`")])
 def test_bad_sphere_model(kwargs, match):
     with pytest.raises(ValueError, match=match):
         ls.Sphere(**kwargs)

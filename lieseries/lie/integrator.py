@@ -64,6 +64,7 @@ def lie_integrate(
     max_time: float | None = None,
     guard: int = GUARD_DIGITS,
     progress=None,
+    atlas: bool = False,
 ) -> Solution:
     """Integrate with composed truncated Lie series exp(h X_H), in mpmath at ``dps`` digits.
 
@@ -85,15 +86,27 @@ def lie_integrate(
         Budgets; the run stops with status ``step_budget`` / ``time_budget`` and keeps what it computed.
     progress : callable, optional
         Called as ``progress(fraction_done)`` after each step.
+    atlas : bool
+        For a model with charts (Sphere): switch charts at the end of the step where the current one is
+        ending and go on (:mod:`lieseries.atlas`); ``sol.charts`` tells the chart of each output row.
 
     Returns
     -------
     Solution
-        ``y`` rows are numpy object arrays of mpf; ``stats.error_estimates`` has one estimate per step.
+        ``y`` rows are numpy object arrays of mpf; ``stats.error_estimates`` has one estimate per step;
+        ``stats.extra["max_step_over_radius"]`` is the largest step over the estimated radius of convergence
+        (at most 1/2 by construction).
     """
     from .jets import taylor_coefficients
 
     dps = check_dps(dps)
+    if atlas:
+        from ..atlas import run_atlas
+        from ..precision import dps_to_bits
+
+        return run_atlas(lie_integrate, system, y0, t, t0=t0, bits=dps_to_bits(dps + guard), dense=dense,
+                         dps=dps, tol=tol, order=order, max_steps=max_steps, max_time=max_time, guard=guard,
+                         progress=progress)
     if isinstance(guard, bool) or not isinstance(guard, int) or guard < 0:
         raise ValueError(f"`guard` must be a non-negative number of digits; got {guard!r}")
     wdps = dps + guard
@@ -189,6 +202,8 @@ def lie_integrate(
             if segments is not None:
                 segments.append((tcur, tnew, coeffs))
             stats.error_estimates.append(float(err))
+            ratio = float(h / rho) if rho != mp.inf else 0.0
+            stats.extra["max_step_over_radius"] = max(stats.extra.get("max_step_over_radius", 0.0), ratio)
             hmin, hmax = min(hmin, h), max(hmax, h)
             nsteps += 1
             z, tcur = znew, tnew

@@ -8,7 +8,7 @@ import mpmath as mp
 import numpy as np
 
 from ..poisson import PoissonSystem
-from ..precision import Precision, precision_of_dtype, resolve_precision, to_fraction
+from ..precision import precision_of_dtype, resolve_precision, to_fraction
 
 __all__ = ["Model", "state_fractions", "state_bits"]
 
@@ -46,7 +46,8 @@ def state_bits(y) -> int:
         p = flat[0].prec
         return int(p() if callable(p) else p)
     if len(flat) and isinstance(flat[0], mp.mpf):
-        return mp.mp.prec
+        # mpf carries no precision of its own: use the longest significand in the state
+        return max([53] + [int(v._mpf_[3]) for v in flat if isinstance(v, mp.mpf)])
     return 53
 
 
@@ -99,14 +100,20 @@ class Model:
         prec = precision_of_dtype(arr.dtype)
         if prec is None and arr.dtype != object:
             prec = resolve_precision(bits)
+        if prec is None and arr.size and isinstance(arr.ravel()[0], mp.mpf):  # mpf in, mpf out
+            with mp.workprec(bits):
+                rows = [np.array([+mp.mpf(v) if isinstance(v, mp.mpf) else _to_mpf(v) for v in r], dtype=object)
+                        for r in values_rows]
+            return rows[0] if was_1d else np.stack(rows)
         if prec is None:  # plain Python sequences: give float64
             prec = resolve_precision("double")
         rows = [prec.array([_exact(v) for v in r]) for r in values_rows]
         return rows[0] if was_1d else np.stack(rows)
 
-    def _mp_rows(self, y, argname="y", guard: int = 16):
-        rows, bits, was_1d = self._rows(y, argname)
-        return rows, bits + guard, was_1d
+
+def _to_mpf(v):
+    f = to_fraction(v)
+    return mp.mpf(f.numerator) / f.denominator
 
 
 def _exact(v):
@@ -116,9 +123,3 @@ def _exact(v):
         return to_fraction(v)
     return v
 
-
-def precision_for(y) -> Precision:
-    """The Precision matching a state's storage."""
-    return resolve_precision(state_bits(y)) if precision_of_dtype(np.asarray(y).dtype) is None else precision_of_dtype(
-        np.asarray(y).dtype
-    )

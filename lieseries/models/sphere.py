@@ -87,33 +87,49 @@ class _SphereBase(Model):
             )
         return x, v
 
-    def _xp_rows(self, y, argname="y"):
-        raise NotImplementedError
+    def _chart_model(self, chart):
+        """The model that reads a state of chart ``chart`` (self for the Dirac form and for its own chart)."""
+        return self
 
-    def position(self, y) -> np.ndarray:
-        """The position x (three numbers per state), in the state's precision."""
+    def _xp_of_rows(self, rows, chart):
+        """(x, p) per row; ``chart`` None, one int, or one chart per row."""
+        if chart is None or isinstance(chart, (int, np.integer)):
+            m = self._chart_model(chart)
+            return [m._xp(r) for r in rows]
+        charts = list(chart)
+        if len(charts) != len(rows):
+            raise ValueError(f"`chart` must give one chart per row ({len(rows)}); got {len(charts)}")
+        return [self._chart_model(c)._xp(r) for c, r in zip(charts, rows)]
+
+    def position(self, y, chart=None) -> np.ndarray:
+        """The position x (three numbers per state), in the state's precision.
+
+        ``chart``: the chart a :class:`Sphere` state is written in (default: the model's own); an int, or one
+        chart per row for a 2-d array (e.g. ``sol.charts`` of an atlas run).
+        """
         rows, bits, was_1d = self._rows(y)
         with mp.workprec(bits + 16):
-            out = [self._xp(r)[0] for r in rows]
+            out = [xp[0] for xp in self._xp_of_rows(rows, chart)]
         return self._out_array(out, bits, was_1d, y if isinstance(y, np.ndarray) else np.asarray(y, dtype=object))
 
-    def velocity(self, y) -> np.ndarray:
-        """The velocity v = p / m (three numbers per state), in the state's precision."""
+    def velocity(self, y, chart=None) -> np.ndarray:
+        """The velocity v = p / m (three numbers per state), in the state's precision; ``chart`` as in
+        :meth:`position`."""
         rows, bits, was_1d = self._rows(y)
         with mp.workprec(bits + 16):
             m = mp.mpf(self.mass_exact.numerator) / self.mass_exact.denominator
-            out = [[c / m for c in self._xp(r)[1]] for r in rows]
+            out = [[c / m for c in xp[1]] for xp in self._xp_of_rows(rows, chart)]
         return self._out_array(out, bits, was_1d, y if isinstance(y, np.ndarray) else np.asarray(y, dtype=object))
 
-    def invariants(self, y) -> dict:
-        """``energy`` |p|^2/2m, ``x2`` = |x|^2 (the Casimir), ``L1, L2, L3`` = x cross p (mpf, in mpmath)."""
+    def invariants(self, y, chart=None) -> dict:
+        """``energy`` |p|^2/2m, ``x2`` = |x|^2 (the Casimir), ``L1, L2, L3`` = x cross p (mpf, in mpmath);
+        ``chart`` as in :meth:`position`."""
         rows, bits, was_1d = self._rows(y)
         keys = ("energy", "x2", "L1", "L2", "L3")
         res = {k: [] for k in keys}
         with mp.workprec(bits + 16):
             m = mp.mpf(self.mass_exact.numerator) / self.mass_exact.denominator
-            for r in rows:
-                x, p = self._xp(r)
+            for x, p in self._xp_of_rows(rows, chart):
                 res["energy"].append(mp.fsum(c * c for c in p) / (2 * m))
                 res["x2"].append(mp.fsum(c * c for c in x))
                 res["L1"].append(x[1] * p[2] - x[2] * p[1])
@@ -141,8 +157,11 @@ class Sphere(_SphereBase):
         if chart not in (0, 1, 2) or isinstance(chart, bool):
             raise ValueError(f"`chart` must be 0, 1 or 2 (the index of the dependent coordinate); got {chart!r}")
         edge = float(edge)
-        if not (0 < edge < 0.5):
-            raise ValueError(f"`edge` must lie in (0, 0.5) (a fraction of the radius); got {edge}")
+        if not (0 < edge < 3**-0.5):
+            raise ValueError(
+                f"`edge` must lie in (0, 1/sqrt(3)) (a fraction of |x|: the largest coordinate is always at least "
+                f"|x|/sqrt(3)); got {edge}"
+            )
         self.chart = chart
         self.edge = edge
         self.free = tuple(i for i in range(3) if i != chart)
@@ -217,6 +236,51 @@ class Sphere(_SphereBase):
                 f"the sphere chart x{k + 1} != 0 is ending (|x{k + 1}| reached {self.edge} * radius)",
             )
         ]
+
+    # -- atlas ---------------------------------------------------------------------------------------------------
+    #: |x_dep| / |x| at which an atlas run leaves a chart; the coordinate of largest magnitude always has
+    #: |x_k| / |x| >= 1/sqrt(3) = 0.577, so the next chart starts well inside.
+    ATLAS_SWITCH = 0.5
+
+    def _chart_model(self, chart):
+        if chart is None or chart == self.chart:
+            return self
+        return self.for_chart(int(chart))
+
+    def for_chart(self, chart: int, edge: float | None = None) -> "Sphere":
+        """The same sphere in the chart whose dependent coordinate is ``chart`` (cached)."""
+        edge = self.edge if edge is None else edge
+        cache = self.__dict__.setdefault("_charts", {})
+        key = (int(chart), float(edge))
+        if key not in cache:
+            if key == (self.chart, self.edge):
+                cache[key] = self
+            else:
+                cache[key] = Sphere(self.mass_exact, self.radius_exact, chart=int(chart), edge=edge, rtol=self.rtol)
+        return cache[key]
+
+    def best_chart(self, y) -> int:
+        """Index of the coordinate of largest magnitude of the state's position: the best chart for it."""
+        z = [to_fraction(v, "y") for v in np.asarray(y, dtype=object)[:3]]
+        return int(np.argmax([abs(float(c)) for c in z]))
+
+    def change_chart(self, y, chart: int, bits: int = 53) -> list:
+        """The same point (x, p) written in chart ``chart``: pi_c = p_c - x_c p_k / x_k (paper eq. dm3).
+
+        Computed with ``bits`` + 32 bits from the state's exact value and returned as mpf at that precision, so
+        that the caller rounds once to its working precision.
+        """
+        if chart not in (0, 1, 2) or isinstance(chart, bool):
+            raise ValueError(f"`chart` must be 0, 1 or 2; got {chart!r}")
+        r = [to_fraction(v, f"y[{i}]") for i, v in enumerate(np.asarray(y, dtype=object))]
+        if len(r) != 5:
+            raise ValueError(f"`y` must be a 5-number sphere state; got {len(r)} numbers")
+        with mp.workprec(int(bits) + 32):
+            x, p = self._xp(r)
+            if x[chart] == 0:
+                raise ValueError(f"`chart` x{chart + 1} != 0 cannot hold a point with x{chart + 1} = 0")
+            pis = [p[c] - x[c] * p[chart] / x[chart] for c in range(3) if c != chart]
+            return [+v for v in list(x) + pis]
 
     def _xp(self, r):
         """(x, p) as mpf lists from an exact 5-number state (paper eq. dm4 with pi_3 = 0)."""

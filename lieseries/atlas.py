@@ -1,0 +1,120 @@
+"""Runs across an atlas of charts: integrate in one chart, switch when it is ending, continue.
+
+The sphere's intermediate coordinates (x1, x2, x3, pi_a, pi_b) hold only in a chart x_k != 0, and almost every
+great circle crosses each equator. An atlas run uses the chart of the largest coordinate; a terminal event (heyoka)
+or an end-of-step check (Lie series) fires when |x_k| falls to half of |x|, the point is rewritten exactly in the
+chart of the now-largest coordinate (|x_j| >= |x| / sqrt 3) and the run continues from there. Output rows carry
+the chart they are written in: ``sol.charts``.
+
+The driver is shared by both integrators: it calls the integrator on each chart segment with ``atlas=False``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .precision import to_fraction
+from .solution import Solution, Stats
+from .timegrid import parse_times
+
+__all__ = ["run_atlas", "MAX_SWITCHES"]
+
+#: A run that switches charts this many times without finishing stops (it would be cycling).
+MAX_SWITCHES = 100_000
+
+
+def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, **kwargs) -> Solution:
+    """Integrate ``model`` (a chart-aware model such as :class:`lieseries.Sphere`) across its atlas.
+
+    Parameters
+    ----------
+    integrator : callable
+        :func:`lieseries.integrate` or :func:`lieseries.lie_integrate`.
+    model : Sphere
+        ``y0`` is written in ``model.chart``.
+    bits : int
+        Precision of the run, for the exact chart changes.
+    kwargs :
+        Passed to the integrator on every segment.
+    """
+    if not hasattr(model, "for_chart"):
+        raise ValueError(
+            f"`atlas` needs a model with an atlas of charts (Sphere); {type(model).__name__} has one global chart"
+        )
+    if dense:
+        raise ValueError("`dense` output is not available with `atlas=True`; pass the output times as `t` instead")
+    z0 = model.check_state(y0, "y0")
+    grid, direction, t0f = parse_times(t, t0)
+    switch = model.ATLAS_SWITCH
+    # start in the best chart for y0
+    chart = model.best_chart(z0)
+    if chart != model.chart:
+        z = model.change_chart(z0, chart, bits)
+    else:
+        z = list(z0)
+    current = model.for_chart(chart, edge=switch)
+
+    rows_t, rows_y, rows_c = [], [], []
+    if grid[0] == t0f:
+        rows_t.append(grid[0])
+        rows_y.append(np.array(y0, copy=True) if isinstance(y0, np.ndarray) else np.asarray(y0, dtype=object))
+        rows_c.append(model.chart)
+    tcur = t0f
+    stats = None
+    switches = 0
+    sol = None
+    while True:
+        remaining = [g for g in grid if (g - tcur) * direction > 0] if direction else []
+        if not remaining:
+            status, message = "success", f"Reached t = {float(grid[-1]):.17g}."
+            break
+        sol = integrator(current, z, t=remaining, t0=tcur, **kwargs)
+        stats = _merge(stats, sol.stats)
+        rows_t.extend(to_fraction(v) for v in sol.t)
+        rows_y.extend(sol.y)
+        rows_c.extend([current.chart] * len(sol.t))
+        if sol.status != "chart_edge":
+            status, message = sol.status, sol.message
+            break
+        if sol.t_reached == tcur or switches >= MAX_SWITCHES:
+            status = "event"
+            message = f"The atlas run made no progress at t = {float(tcur):.17g} after {switches} chart switches."
+            break
+        tcur = sol.t_reached
+        chart = model.best_chart(sol.y_reached)
+        z = current.change_chart(sol.y_reached, chart, bits)
+        current = model.for_chart(chart, edge=switch)
+        switches += 1
+    if stats is None:
+        stats = Stats(method="atlas", precision="", tol=math.nan)
+    stats.extra["chart_switches"] = switches
+    y = np.stack(rows_y) if rows_y else np.empty((0, model.dimension))
+    tarr = np.array([float(v) for v in rows_t])
+    y_reached = sol.y_reached if sol is not None else rows_y[-1]
+    res = Solution(tarr, y, stats, status, f"{message} ({switches} chart switches)", t_reached=tcur if sol is None
+                   else sol.t_reached, t_requested=grid, y_reached=y_reached)
+    res.charts = np.array(rows_c, dtype=int)
+    res.chart_reached = current.chart
+    return res
+
+
+def _merge(total: Stats | None, part: Stats) -> Stats:
+    if total is None:
+        part.error_estimates = list(part.error_estimates)
+        return part
+    total.steps += part.steps
+    total.order = max(total.order, part.order)
+    total.build_time += part.build_time
+    total.run_time += part.run_time
+    total.cached = total.cached and part.cached
+    total.min_step = np.nanmin([total.min_step, part.min_step])
+    total.max_step = np.nanmax([total.max_step, part.max_step])
+    total.error_estimates.extend(part.error_estimates)
+    for k, v in part.extra.items():
+        if isinstance(v, (int, float)) and isinstance(total.extra.get(k), (int, float)):
+            total.extra[k] = max(total.extra[k], v)
+        else:
+            total.extra.setdefault(k, v)
+    return total

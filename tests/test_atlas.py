@@ -1,0 +1,105 @@
+"""The sphere's atlas: runs switch charts where x_k -> 0 and follow the exact great circle over many revolutions."""
+
+import math
+
+import mpmath as mp
+import numpy as np
+import pytest
+
+import lieseries as ls
+from lieseries import exact
+from lieseries.precision import to_fraction
+
+X0, V0 = ("0.6", "0", "0.8"), ("0", "1", "0")  # |x| = 1 exactly; a great circle through both poles' equators
+
+
+def mpf(q):
+    q = to_fraction(q)
+    return mp.mpf(q.numerator) / q.denominator
+
+
+def position_errors(model, sol, times, dps):
+    X = model.position(sol.y, chart=sol.charts)
+    out = []
+    with mp.workdps(dps):
+        for tk, xk in zip(times, X):
+            xe, _ = exact.sphere(1, X0, V0, tk, dps=dps)
+            out.append(max(abs(mpf(a) - b) for a, b in zip(xk, xe)))
+    return out
+
+
+@pytest.mark.parametrize("precision", ["double", "quad"])
+def test_heyoka_atlas_follows_great_circle_over_20_revolutions(precision):
+    s = ls.Sphere()
+    y0 = s.initial_state(X0, V0, precision=precision)
+    times = [5 * k for k in range(1, 26)]  # up to t = 125: 20 revolutions
+    sol = ls.integrate(s, y0, t=times, precision=precision, atlas=True)
+    assert sol.success, sol.message
+    # x1 and x3 each cross zero twice per revolution: ~4 switches per revolution
+    assert sol.stats.extra["chart_switches"] >= 60
+    assert set(sol.charts.tolist()) <= {0, 1, 2} and len(set(sol.charts.tolist())) >= 2
+    eps = ls.resolve_precision(precision).eps
+    revolutions = 125 / (2 * math.pi)
+    errs = position_errors(s, sol, times, 80)
+    assert max(errs) < 100 * eps * revolutions
+    # the Casimir |x|^2 stays on its leaf across every chart change
+    x2 = s.invariants(sol.y, chart=sol.charts)["x2"]
+    assert max(abs(v - 1) for v in x2) < 50 * eps * revolutions
+
+
+def test_atlas_error_is_that_of_the_global_dirac_form():
+    """Chart changes cost nothing visible: the atlas run is as accurate as the 6-d Dirac form, same tolerance."""
+    times = [20, 60, 100]
+    s, d = ls.Sphere(), ls.SphereDirac()
+    sa = ls.integrate(s, s.initial_state(X0, V0), t=times, atlas=True)
+    sd = ls.integrate(d, d.initial_state(X0, V0), t=times)
+    ea = max(position_errors(s, sa, times, 40))
+    Xd = d.position(sd.y)
+    with mp.workdps(40):
+        ed = max(max(abs(mpf(a) - b) for a, b in zip(xk, exact.sphere(1, X0, V0, tk, dps=40)[0]))
+                 for tk, xk in zip(times, Xd))
+    assert ea < 10 * max(ed, 1e-15)
+
+
+def test_lie_atlas_follows_great_circle():
+    s = ls.Sphere()
+    y0 = s.initial_state(X0, V0, precision=200)
+    sol = ls.lie_integrate(s, y0, t=[10, 20], dps=30, atlas=True)
+    assert sol.success, sol.message
+    assert sol.stats.extra["chart_switches"] >= 8
+    assert max(position_errors(s, sol, [10, 20], 50)) < 1e-27
+    assert sol.stats.extra["max_step_over_radius"] <= 0.5
+
+
+def test_atlas_starts_in_the_best_chart_and_reports_the_given_one():
+    """y0 may be given in a poor chart (|x3| small but inside it): the run moves to the best chart at once."""
+    s = ls.Sphere(chart=2, edge=0.01)
+    x, v = (math.sqrt(1 - 0.02**2), 0.0, 0.02), (0.0, 1.0, 0.0)
+    y0 = s.initial_state(x, v)
+    sol = ls.integrate(s, y0, t=[0, 1.0], atlas=True)
+    assert sol.charts[0] == 2 and sol.charts[1] == 0
+    xe, _ = exact.sphere(s.radius, x, v, 1.0, dps=30)
+    got = s.position(sol.y[1], chart=sol.charts[1])
+    np.testing.assert_allclose(got, [float(c) for c in xe], atol=1e-14)
+
+
+def test_change_chart_is_the_same_point():
+    s = ls.Sphere()
+    y = s.initial_state(("0.36", "0.48", "0.8"), ("0.8", "-0.6", "0"), precision=200)
+    for k in (0, 1, 2):
+        z = s.change_chart(y, k, bits=200)
+        with mp.workprec(230):
+            x0, p0 = s._xp([to_fraction(v) for v in y])
+            x1, p1 = s.for_chart(k)._xp([to_fraction(v) for v in z])
+            assert max(abs(a - b) for a, b in zip(x0 + p0, x1 + p1)) < mp.mpf(2) ** -195
+
+
+def test_atlas_bad_input():
+    body = ls.EulerPoisson((1, 2, 3))
+    with pytest.raises(ValueError, match="`atlas` needs a model with an atlas"):
+        ls.integrate(body, body.initial_state((1, 0, 0)), t=1, atlas=True)
+    s = ls.Sphere()
+    with pytest.raises(ValueError, match="`dense`"):
+        ls.integrate(s, s.initial_state(X0, V0), t=1, atlas=True, dense=True)
+    with pytest.raises(ValueError, match="`chart`"):
+        s.change_chart(s.initial_state(X0, V0), 5)
