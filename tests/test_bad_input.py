@@ -1,0 +1,92 @@
+"""Bad input at every public entry point: an error that names the argument (and says what to do)."""
+
+import numpy as np
+import pytest
+
+import lieseries as ls
+from lieseries import exact, studies
+from lieseries.scenes import SceneError, load_scene
+
+BODY = ls.EulerPoisson((1, 2, 3))
+Y0 = BODY.initial_state((1, 0.1, 0.5))
+NAN_STATE = np.r_[Y0[:11], np.nan]
+SPHERE = ls.Sphere()
+S0 = SPHERE.initial_state((0.6, 0, 0.8), (0, 1, 0))
+
+CASES = {
+    # wrong shapes
+    "integrate: short state": (lambda: ls.integrate(BODY, Y0[:5], t=1), ValueError, "`y0`"),
+    "integrate: state is a string": (lambda: ls.integrate(BODY, "abc", t=1), ValueError, "`y0`"),
+    "lie_series: 2-d state": (lambda: ls.lie_series(BODY, np.stack([Y0, Y0])), ValueError, "`y0`"),
+    "lie_integrate: short state": (lambda: ls.lie_integrate(BODY, Y0[:3], t=1), ValueError, "`y0`"),
+    "rotation: wrong length": (lambda: BODY.rotation(np.zeros(5)), ValueError, "`y`"),
+    # NaN / inf
+    "integrate: NaN state": (lambda: ls.integrate(BODY, NAN_STATE, t=1), ValueError, r"`y0\[11\]`"),
+    "lie_series: NaN state": (lambda: ls.lie_series(BODY, NAN_STATE), ValueError, r"`y0\[11\]`"),
+    "lie_integrate: inf time": (lambda: ls.lie_integrate(BODY, Y0, t=float("inf")), ValueError, "`t`"),
+    "initial_state: NaN omega": (lambda: BODY.initial_state((1, np.nan, 0)), ValueError, "`omega"),
+    "Sphere: inf mass": (lambda: ls.Sphere(mass=np.inf), ValueError, "`mass`"),
+    # inertia: non-SPD, non-symmetric
+    "inertia: not positive-definite": (lambda: ls.EulerPoisson([[1, 2, 0], [2, 1, 0], [0, 0, 1]]), ValueError,
+                                       "`inertia` must be positive-definite"),
+    "inertia: not symmetric": (lambda: ls.EulerPoisson([[1, 0.5, 0], [0, 1, 0], [0, 0, 1]]), ValueError,
+                               "`inertia` must be symmetric"),
+    "inertia: negative moment": (lambda: ls.EulerPoisson((1, -2, 3)), ValueError, "`inertia`"),
+    # R0 not orthogonal: refused (R R^T is conserved, so it would never become a rigid motion)
+    "R0 not orthogonal": (lambda: BODY.initial_state((1, 0, 0), R0=np.diag([1, 2, 1])), ValueError, "`R0`"),
+    # sphere state off the sphere, or with x . v != 0
+    "sphere: off the sphere": (lambda: SPHERE.initial_state((0.6, 0, 0.9), (0, 1, 0)), ValueError, "`x`"),
+    "sphere: x.v != 0": (lambda: SPHERE.initial_state((0.6, 0, 0.8), (0.8, 0, -0.5)), ValueError, "`v`"),
+    "Dirac: off the sphere": (lambda: ls.SphereDirac().initial_state((2, 0, 0), (0, 1, 0)), ValueError, "`x`"),
+    "exact.sphere: x.v != 0": (lambda: exact.sphere(1, (1, 0, 0), (1, 0, 0), 1), ValueError, "`v`"),
+    # order < 1, dps too small, tol <= 0
+    "lie_series: order 0": (lambda: ls.lie_series(BODY, Y0, order=0), ValueError, "`order`"),
+    "lie_integrate: order -1": (lambda: ls.lie_integrate(BODY, Y0, t=1, order=-1), ValueError, "`order`"),
+    "lie_series: dps 3": (lambda: ls.lie_series(BODY, Y0, dps=3), ValueError, "`dps`"),
+    "lie_integrate: dps 2.5": (lambda: ls.lie_integrate(BODY, Y0, t=1, dps=2.5), TypeError, "`dps`"),
+    "exact: dps 2": (lambda: exact.euler_poisson((1, 2, 3), (1, 0, 0), 1, dps=2), ValueError, "`dps`"),
+    "error_vs_order: dps 2": (lambda: studies.error_vs_order(BODY, Y0, 0.5, [1, 3], dps=2), ValueError, "`dps`"),
+    "integrate: tol 0": (lambda: ls.integrate(BODY, Y0, t=1, tol=0), ValueError, "`tol`"),
+    "integrate: tol -1e-9": (lambda: ls.integrate(BODY, Y0, t=1, tol=-1e-9), ValueError, "`tol`"),
+    "lie_integrate: tol 0": (lambda: ls.lie_integrate(BODY, Y0, t=1, tol=0), ValueError, "`tol`"),
+    "lie_integrate: tol below dps": (lambda: ls.lie_integrate(BODY, Y0, t=1, dps=10, tol=1e-40), ValueError,
+                                     "raise `dps`"),
+    # unknown names
+    "integrate: unknown precision": (lambda: ls.integrate(BODY, Y0, t=1, precision="half"), ValueError,
+                                     "`precision`"),
+    "EulerPoisson: unknown bracket": (lambda: ls.EulerPoisson((1, 2, 3), bracket="lie"), ValueError, "`bracket`"),
+    "work_precision: unknown method": (lambda: studies.work_precision(BODY, Y0, 1, methods=[{"method": "rk4"}]),
+                                       ValueError, "`methods\\[0\\].method`"),
+    "load_scene: unknown scene": (lambda: load_scene("no-such-scene"), SceneError, "unknown scene"),
+    # budgets and options
+    "integrate: max_steps 0": (lambda: ls.integrate(BODY, Y0, t=1, max_steps=0), ValueError, "`max_steps`"),
+    "lie_integrate: max_time -1": (lambda: ls.lie_integrate(BODY, Y0, t=1, max_time=-1), ValueError, "`max_time`"),
+    "DampedEulerPoisson: negative damping": (lambda: ls.DampedEulerPoisson((1, 2, 3), damping=-1), ValueError,
+                                             "`damping`"),
+    "atlas on a global model": (lambda: ls.integrate(BODY, Y0, t=1, atlas=True), ValueError, "`atlas`"),
+    "not a model": (lambda: ls.lie_series({"a": 1}, Y0), TypeError, "`system`"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_bad_input_names_the_argument(name):
+    call, exc, match = CASES[name]
+    with pytest.raises(exc, match=match):
+        call()
+
+
+def test_unknown_scene_field_is_named(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text(
+        'name = "x"\ntitle = "x"\ndescription = "x"\n[model]\nkind = "euler_poisson"\ninertia = [1, 2, 3]\n'
+        'colour = "red"\n[initial]\nomega = [1, 0, 0]\n[run]\nt = 1\nmethods = [{ method = "taylor" }]\n'
+    )
+    with pytest.raises(SceneError, match="`model.colour`"):
+        load_scene(str(p))
+
+
+def test_nonphysical_inertia_warns_and_is_documented():
+    """Moments violating I1 + I2 >= I3 describe no body: integrated anyway, with a warning (documented)."""
+    with pytest.warns(UserWarning, match="triangle inequality"):
+        ls.EulerPoisson((1, 1, 5))
+    assert "triangle inequality" in ls.EulerPoisson.__doc__
