@@ -9,8 +9,11 @@ Public API (stable names)::
     ls.lie_integrate                               adaptive Lie-series stepping, same Solution type
     ls.rigid_body_series                           R(t) from R0 = 1 as an exact series in t (paper, dt61)
     ls.Solution, ls.Stats                          what integrators return
+    ls.exact                                       closed-form references in mpmath
+    ls.studies                                     error vs order, work-precision, drift (plain data)
 """
 
+from . import exact, studies
 from .models import DampedEulerPoisson, EulerPoisson, Model, Sphere, SphereDirac
 from .poisson import PoissonSystem
 from .precision import Precision, resolve_precision
@@ -21,6 +24,8 @@ from .lie.symbolic import rigid_body_series
 from .taylor import integrate
 
 __all__ = [
+    "exact",
+    "studies",
     "DampedEulerPoisson",
     "EulerPoisson",
     "Model",
