@@ -308,12 +308,6 @@ def _sympy_to_fraction(value, argname):
 
 def to_mpf(value, argname: str = "value") -> mp.mpf:
     """``value`` as an mpf rounded once to the current mpmath working precision."""
-    if isinstance(value, decimal.Decimal):
-        if not value.is_finite():
-            raise ValueError(f"`{argname}` must be finite; got {value}")
-        return Fraction(value)
-    if type(value).__module__.startswith("sympy"):
-        return _sympy_to_fraction(value, argname)
     if isinstance(value, mp.mpf):
         if not mp.isfinite(value):
             raise ValueError(f"`{argname}` must be finite; got {value}")

@@ -82,3 +82,14 @@ def test_to_mpf_respects_working_precision():
 def test_dps_bits_roundtrip():
     for dps in (15, 30, 50, 70, 100):
         assert bits_to_dps(dps_to_bits(dps)) >= dps
+
+
+def test_to_mpf_of_every_kind_is_an_mpf():
+    import decimal
+
+    import sympy
+
+    with mp.workdps(40):
+        for v in (decimal.Decimal("0.1"), sympy.Rational(1, 10), "0.1", Fraction(1, 10)):
+            x = to_mpf(v)
+            assert isinstance(x, mp.mpf) and abs(x - mp.mpf(1) / 10) < mp.mpf(10) ** -39
