@@ -7,15 +7,18 @@ A scene is a TOML file::
     description = "..."
 
     [model]                      # or several [[models]] with a `label` each, sharing [initial]
-    kind = "euler_poisson"       # "euler_poisson" | "sphere" | "sphere_dirac"
+    kind = "euler_poisson"       # "euler_poisson" | "damped_euler_poisson" | "sphere" | "sphere_dirac"
     inertia = [1, 2, 3]          # euler_poisson: 3 moments or a 3x3 list; bracket = "chetaev" | "intermediate"
-                                 # sphere: mass, radius, chart (0, 1, 2), edge;  sphere_dirac: mass, radius
+                                 # damped_euler_poisson: the same and `damping` (>= 0)
+                                 # sphere: mass, radius, chart (0, 1, 2), edge, atlas (true: runs switch charts,
+                                 #   ls.integrate(..., atlas=True));  sphere_dirac: mass, radius
     [initial]
     omega = [1, "0.1", "0.5"]    # euler_poisson: omega, optional R0 (3x3);  spheres: x, v
                                  # numbers may be strings: "0.1" is exactly 1/10
     [run]
     t = 20
     samples = 101                # output times (invariant drift and the trajectory plot)
+    quick_t = 2                  # optional: the final time in quick mode (default: t)
     methods = [
       { method = "taylor", precision = "double" },            # tol optional
       { method = "lie", dps = 30 },                           # tol, order optional
@@ -30,6 +33,17 @@ A scene is a TOML file::
 
     [report]
     plots = ["trajectory", "error_vs_order", "work_precision", "drift"]   # default: one per study present
+
+    [stability]                  # optional: how the stability study (lieseries.studies.stability) reads the scene
+    analysis = "saddle"          # "none" | "saddle" | "scaled" | "drift" | "stiff" | "divergence" | "atlas"
+    headline = "heyoka double"   # the method (label) of the case's row in the one-row-per-case table
+    expect = "success"           # the status that row should end with; expect_message: a text its message holds
+                                 # invariants: the ones whose drift the row reports (default: all of the model's)
+                                 # saddle: threshold; divergence: beyond, inside, orders, dps (see studies.stability)
+
+Scenes with a [stability] table are the extreme and stiff cases. They live in ``validation/scenes/extreme/``
+(:func:`extreme_scenes`), apart from the built-in scenes whose runs must all succeed; :func:`load_scene` finds them
+by name too.
 
 Validation is strict: an unknown model kind, a missing required field, a field of the wrong type or an unknown
 field raises :class:`SceneError` naming the field by its dotted path (``run.methods[1].precision``).
@@ -63,6 +77,7 @@ __all__ = [
     "load_scene",
     "parse_scene",
     "builtin_scenes",
+    "extreme_scenes",
     "scenes_dir",
     "run_scene",
     "MODEL_KINDS",
@@ -70,10 +85,15 @@ __all__ = [
     "STUDIES",
 ]
 
-MODEL_KINDS = ("euler_poisson", "sphere", "sphere_dirac")
+MODEL_KINDS = ("euler_poisson", "damped_euler_poisson", "sphere", "sphere_dirac")
 STUDIES = ("error_vs_order", "work_precision", "drift")
 PLOTS = ("trajectory", "error_vs_order", "work_precision", "drift")
-_FAMILY = {"euler_poisson": "rigid_body", "sphere": "sphere", "sphere_dirac": "sphere"}
+_FAMILY = {"euler_poisson": "rigid_body", "damped_euler_poisson": "rigid_body", "sphere": "sphere",
+           "sphere_dirac": "sphere"}
+#: Sub-folder of the scenes folder holding the extreme and stiff cases (scenes with a [stability] table).
+EXTREME_FOLDER = "extreme"
+#: What the stability study computes for a scene ([stability].analysis).
+ANALYSES = ("none", "saddle", "scaled", "drift", "stiff", "divergence", "atlas")
 
 #: Bits of the initial state handed to every method (each rounds it once to its own precision).
 INITIAL_BITS = 256
@@ -113,6 +133,13 @@ def _positive(value, path):
     return _number(value, path, positive=True)
 
 
+def _nonnegative(value, path):
+    _number(value, path)
+    if to_fraction(value, path) < 0:
+        _fail(path, "a number >= 0", value)
+    return value
+
+
 def _fraction01(value, path):
     return _number(value, path, below_one=True)
 
@@ -132,6 +159,12 @@ def _integer(lo=None, hi=None):
         return value
 
     return check
+
+
+def _boolean(value, path):
+    if not isinstance(value, bool):
+        _fail(path, "true or false", value)
+    return value
 
 
 def _string(value, path):
@@ -256,8 +289,10 @@ def _table(data, path: str, spec: dict, what: str = "a table") -> dict:
 # -- schema ----------------------------------------------------------------------------------------------------
 _MODEL_FIELDS = {
     "euler_poisson": {"inertia": (_inertia, _REQUIRED), "bracket": (_choice("chetaev", "intermediate"), "chetaev")},
+    "damped_euler_poisson": {"inertia": (_inertia, _REQUIRED), "damping": (_nonnegative, _REQUIRED),
+                             "bracket": (_choice("chetaev", "intermediate"), "chetaev")},
     "sphere": {"mass": (_positive, 1), "radius": (_positive, 1), "chart": (_integer(0, 2), 2),
-               "edge": (_fraction01, 0.05)},
+               "edge": (_fraction01, 0.05), "atlas": (_boolean, False)},
     "sphere_dirac": {"mass": (_positive, 1), "radius": (_positive, 1)},
 }
 _INITIAL_FIELDS = {
@@ -309,7 +344,33 @@ _RUN_FIELDS = {
     "methods": (_methods(False), _REQUIRED),
     "samples": (_integer(2, 100_000), 101),
     "repeat": (_integer(1, 100), 3),
+    "quick_t": (lambda v, p: _number(v, p, nonzero=True), None),
 }
+
+
+def _statuses():
+    from .solution import STATUSES
+
+    return tuple(STATUSES)
+
+
+def _stability_fields() -> dict:
+    return {
+        "analysis": (_choice(*ANALYSES), "none"),
+        "headline": (_string, None),
+        "headline_model": (_string, None),
+        "expect": (_choice(*_statuses()), "success"),
+        "expect_message": (_string, None),
+        "threshold": (_positive, 1e-3),
+        "beyond": (_positive, 1.5),
+        "inside": (_fraction01, 0.5),
+        "orders": (_orders, None),
+        "dps": (_integer(15, 1000), 40),
+        "invariants": (_list_of(_string, allow_scalar=False), None),
+        "note": (_string, ""),
+    }
+
+
 _STUDY_FIELDS = {
     "error_vs_order": {
         "t": (lambda v, p: _number(v, p, nonzero=True), None),
@@ -348,10 +409,13 @@ class ModelSpec:
     params: dict
 
     def build(self):
-        from .models import EulerPoisson, Sphere, SphereDirac
+        from .models import DampedEulerPoisson, EulerPoisson, Sphere, SphereDirac
 
         if self.kind == "euler_poisson":
             return EulerPoisson(self.params["inertia"], bracket=self.params["bracket"])
+        if self.kind == "damped_euler_poisson":
+            return DampedEulerPoisson(self.params["inertia"], damping=self.params["damping"],
+                                      bracket=self.params["bracket"])
         if self.kind == "sphere":
             p = self.params
             return Sphere(mass=p["mass"], radius=p["radius"], chart=p["chart"], edge=float(to_fraction(p["edge"])))
@@ -375,6 +439,7 @@ class Scene:
     plots : list of str          the plots the report draws
     source : str                 the TOML text as given
     path : str or None
+    stability : dict or None     the [stability] table with defaults (extreme and stiff cases), else None
     """
 
     name: str
@@ -387,6 +452,7 @@ class Scene:
     plots: list
     source: str = ""
     path: str | None = None
+    stability: dict | None = None
 
     @property
     def family(self) -> str:
@@ -414,6 +480,7 @@ class Scene:
             "studies": _jsonable(self.studies),
             "plots": list(self.plots),
             "path": self.path,
+            **({"stability": _jsonable(self.stability)} if self.stability is not None else {}),
         }
 
 
@@ -438,8 +505,8 @@ def _model_spec(data, path, label_required=False) -> ModelSpec:
     spec = {"kind": (None, _REQUIRED), "label": (_string, _REQUIRED if label_required else None)}
     spec.update(_MODEL_FIELDS[kind])
     out = _table(data, path, spec)
-    label = out.pop("label") or {"euler_poisson": "rigid body", "sphere": "sphere (5-d chart)",
-                                 "sphere_dirac": "sphere (Dirac)"}[kind]
+    label = out.pop("label") or {"euler_poisson": "rigid body", "damped_euler_poisson": "damped rigid body",
+                                 "sphere": "sphere (5-d chart)", "sphere_dirac": "sphere (Dirac)"}[kind]
     out.pop("kind")
     return ModelSpec(label=label, kind=kind, params=out)
 
@@ -471,6 +538,7 @@ def parse_scene(data, source: str = "<scene>", path: str | None = None) -> Scene
         "run": (None, None),
         "studies": (None, None),
         "report": (None, None),
+        "stability": (None, None),
     }
     d = _table(data, "", top)
     # models
@@ -514,9 +582,13 @@ def parse_scene(data, source: str = "<scene>", path: str | None = None) -> Scene
     if run is None and not studies:
         raise SceneError("the scene asks for nothing: add a [run] table or a [studies.*] table")
     _check_studies(studies, run, models)
+    stability = None
+    if d["stability"] is not None:
+        stability = _table(d["stability"], "stability", _stability_fields())
+        _check_stability(stability, run, studies, plots, models)
     scene = Scene(
         name=d["name"], title=d["title"], description=d["description"].strip(), models=models, initial=initial,
-        run=run, studies=studies, plots=list(dict.fromkeys(plots)), source=text, path=path,
+        run=run, studies=studies, plots=list(dict.fromkeys(plots)), source=text, path=path, stability=stability,
     )
     _check_physics(scene, "model" if d["model"] is not None else "models")
     return scene
@@ -540,6 +612,52 @@ def _check_studies(studies, run, models):
         if run is None:
             raise SceneError("missing required field `studies.work_precision.t` (there is no [run] to take it from)")
         wp["t"] = run["t"]
+
+
+def _check_stability(st, run, studies, plots, models):
+    """The [stability] table must match what the scene computes (its headline is a run of the scene, ...)."""
+    from .studies.work_precision import method_label, normalize_method
+
+    if run is None:
+        raise SceneError("`stability` needs a [run] table: the stability row of a case is one of its runs")
+    labels = [method_label(normalize_method(m, f"run.methods[{i}]")) for i, m in enumerate(run["methods"])]
+    if st["headline"] is None:
+        st["headline"] = labels[0]
+    elif st["headline"] not in labels:
+        raise SceneError(f"`stability.headline` must be the label of one of the run's methods ({', '.join(labels)}); "
+                         f"got {_show(st['headline'])}")
+    mlabels = [m.label for m in models]
+    if st["headline_model"] is None:
+        st["headline_model"] = mlabels[0]
+    elif st["headline_model"] not in mlabels:
+        raise SceneError(f"`stability.headline_model` must be one of the model labels ({', '.join(mlabels)}); got "
+                         f"{_show(st['headline_model'])}")
+    if st["invariants"] is not None:
+        known = {"euler_poisson": ("energy", "M2", "L1", "L2", "L3", "orthogonality", "det_R"),
+                 "damped_euler_poisson": ("energy", "M2", "L1", "L2", "L3", "orthogonality", "det_R"),
+                 "sphere": ("energy", "x2", "L1", "L2", "L3"), "sphere_dirac": ("energy", "x2", "L1", "L2", "L3")}
+        for i, name in enumerate(st["invariants"]):
+            if any(name not in known[m.kind] for m in models):
+                raise SceneError(f"`stability.invariants[{i}]`: unknown invariant {_show(name)}; known: "
+                                 f"{', '.join(known[models[0].kind])}")
+    analysis = st["analysis"]
+    if analysis == "saddle":
+        if "trajectory" not in plots:
+            raise SceneError("`stability.analysis` = 'saddle' reads the errors along the run: add 'trajectory' to "
+                             "`report.plots`")
+        if any(m.kind not in ("euler_poisson",) for m in models):
+            raise SceneError("`stability.analysis` = 'saddle' is for the free rigid body (kind 'euler_poisson')")
+    if analysis == "drift" and "drift" not in studies:
+        raise SceneError("`stability.analysis` = 'drift' needs a [studies.drift] table")
+    if analysis == "divergence":
+        if "error_vs_order" not in studies:
+            raise SceneError("`stability.analysis` = 'divergence' needs a [studies.error_vs_order] table (the error "
+                             "of the truncated series beyond the radius)")
+        if any(m.kind not in ("euler_poisson", "sphere") for m in models):
+            raise SceneError("`stability.analysis` = 'divergence' needs a model with a known radius of convergence "
+                             "(kind 'euler_poisson' or 'sphere')")
+    if analysis == "atlas" and not any(m.kind == "sphere" for m in models):
+        raise SceneError("`stability.analysis` = 'atlas' needs a model of kind 'sphere'")
 
 
 def _check_physics(scene: Scene, where: str):
@@ -581,8 +699,22 @@ def builtin_scenes() -> list:
     return out
 
 
+def extreme_scenes() -> list:
+    """[(name, title)] of the extreme and stiff cases (``validation/scenes/extreme/*.toml``), sorted by name."""
+    folder = scenes_dir() / EXTREME_FOLDER
+    out = []
+    if folder.is_dir():
+        for p in sorted(folder.glob("*.toml")):
+            try:
+                data = tomllib.loads(p.read_text(encoding="utf-8"))
+                out.append((p.stem, str(data.get("title", ""))))
+            except (OSError, tomllib.TOMLDecodeError):
+                out.append((p.stem, "(unreadable scene file)"))
+    return out
+
+
 def load_scene(name_or_path) -> Scene:
-    """A built-in scene by name, or a scene file by path.
+    """A built-in scene (or an extreme case, see :func:`extreme_scenes`) by name, or a scene file by path.
 
     Raises
     ------
@@ -596,10 +728,13 @@ def load_scene(name_or_path) -> Scene:
     looks_like_path = s.endswith(".toml") or os.sep in s or "/" in s
     if not looks_like_path:
         cand = scenes_dir() / f"{s}.toml"
+        extreme = scenes_dir() / EXTREME_FOLDER / f"{s}.toml"
         if cand.is_file():
             p = cand
+        elif extreme.is_file():
+            p = extreme
         else:
-            names = [n for n, _ in builtin_scenes()]
+            names = [n for n, _ in builtin_scenes()] + [n for n, _ in extreme_scenes()]
             near = difflib.get_close_matches(s, names, n=1)
             hint = f" (did you mean '{near[0]}'?)" if near else ""
             known = ", ".join(names) or f"none found in {scenes_dir()}"
@@ -624,9 +759,10 @@ def _thin(values, keep=3):
 def effective_plan(scene: Scene, quick: bool = False):
     """(run, studies) tables as they will be run: ``quick`` scales the studies down for CI.
 
-    Quick mode: at most 41 output times in the run; error vs order up to half the largest order (at least 12)
-    and at most 40 digits; work-precision with at most three values per setting, one repeat and mpmath capped
-    at t = 0.5; drift over a tenth of the time, at most 60 samples and 4 ensemble members.
+    Quick mode: at most 41 output times in the run, which ends at ``run.quick_t`` when the scene gives one; error
+    vs order up to half the largest order (at least 12) and at most 40 digits; work-precision with at most three
+    values per setting, one repeat and mpmath capped at t = 0.5; drift over a tenth of the time, at most 60
+    samples and 4 ensemble members.
     """
     run = copy.deepcopy(scene.run)
     studies = copy.deepcopy(scene.studies)
@@ -635,6 +771,8 @@ def effective_plan(scene: Scene, quick: bool = False):
     if run is not None:
         run["samples"] = min(run["samples"], 41)
         run["repeat"] = 1
+        if run.get("quick_t") is not None:
+            run["t"] = run["quick_t"]
         for m in run["methods"]:
             if m["method"] == "mpmath":
                 m["t_max"] = min(float(to_fraction(m["t_max"])), 0.5)
@@ -695,6 +833,8 @@ class RunRow:
     status: str
     message: str
     final_state: list | None = None
+    scaled_error: float | None = None
+    extra: dict = field(default_factory=dict)
 
     @property
     def max_drift(self) -> float | None:
@@ -707,7 +847,7 @@ class RunRow:
             "setting": self.setting, "t": self.t, "error": self.error, "max_error": self.max_error,
             "drift": dict(self.drift), "max_drift": self.max_drift, "steps": self.steps, "order": self.order,
             "build_time": self.build_time, "run_time": self.run_time, "status": self.status,
-            "message": self.message,
+            "message": self.message, "scaled_error": self.scaled_error, "extra": dict(self.extra),
         }
 
 
@@ -843,8 +983,142 @@ def _plot_values(model, ref_rows):
     return [[float(v) for v in row[:3]] for row in ref_rows]
 
 
+def _has_closed_form(model) -> bool:
+    """True when the studies' closed-form references describe ``model`` (the damped body has none: it is an
+    EulerPoisson subclass, but its motion is not the free body's)."""
+    from .models import DampedEulerPoisson
+    from .studies import has_exact_solution
+
+    return has_exact_solution(model) and not isinstance(model, DampedEulerPoisson)
+
+
+def _numerical_reference(model, y0, t, dps, bits):
+    """The studies' numerical reference (heyoka, >= 256 bits, tol 2^-250) at ``t``, as a Reference."""
+    from .studies import (NUMERICAL_REFERENCE_BITS, NUMERICAL_REFERENCE_TOL, Reference, observable_names,
+                          observables)
+    from .taylor import integrate
+
+    bits = max(NUMERICAL_REFERENCE_BITS, bits)
+    sol = integrate(model, y0, t=t, precision=bits, tol=NUMERICAL_REFERENCE_TOL)
+    if not sol.success:
+        raise RuntimeError(f"the numerical reference (heyoka, {bits} bits) did not reach t = {float(t)}: "
+                           f"{sol.message}")
+    return Reference(float(t), observables(model, sol.y[-1], dps), observable_names(model), "numerical",
+                     f"heyoka, {bits} bits, tol 2^-250", dps)
+
+
+def _reference_at(model, y0, t, dps, bits):
+    from .studies import reference_solution
+
+    if _has_closed_form(model):
+        return reference_solution(model, y0, t, dps=dps)
+    return _numerical_reference(model, y0, t, dps, bits)
+
+
+def _error_groups(model, n):
+    """[(indices, kind)] of the compared quantities, for errors relative to their natural scale."""
+    from .models import EulerPoisson, Sphere, SphereDirac
+
+    if isinstance(model, EulerPoisson):
+        return [(range(0, 9), "unit"), (range(9, 12), "norm")]  # R (a rotation), M (scale |M|)
+    if isinstance(model, (Sphere, SphereDirac)):
+        return [(range(0, 3), "norm"), (range(3, 6), "norm")]  # x (scale |x|), v (scale |v|)
+    return [(range(n), "norm")]
+
+
+def scaled_error(model, values, reference) -> float:
+    """Largest error relative to the natural scale of each compared quantity.
+
+    Rigid body: R against 1 (a rotation), M against |M_ref|. Sphere: x against |x_ref|, v against |v_ref|. Other
+    systems: the state against its max-norm (1 when it vanishes). ``values`` and ``reference`` are the
+    :func:`lieseries.studies.observables` of a run and of the reference (mpf).
+    """
+    worst = mp.mpf(0)
+    for idx, kind in _error_groups(model, len(values)):
+        idx = list(idx)
+        err = max(abs(values[i] - reference[i]) for i in idx)
+        scale = mp.mpf(1) if kind == "unit" else mp.sqrt(mp.fsum(reference[i] ** 2 for i in idx))
+        if scale == 0:
+            scale = mp.mpf(1)
+        worst = max(worst, err / scale)
+    return float(worst)
+
+
+def _dirac_twin(sphere):
+    """The Dirac form of the same sphere: atlas rows are compared and measured as (x, p) states of it."""
+    from .models import SphereDirac
+
+    return SphereDirac(mass=sphere.mass_exact, radius=sphere.radius_exact, rtol=sphere.rtol)
+
+
+def _as_dirac_state(sphere, row, chart, bits):
+    """A sphere state written in ``chart``, as the (x, p) state of the Dirac form (``bits`` bits)."""
+    from .models.base import state_fractions
+
+    prec = resolve_precision(bits)
+    arr = prec.array(state_fractions(row, sphere.dimension, "y"))
+    x = sphere.position(arr, chart=int(chart))
+    v = sphere.velocity(arr, chart=int(chart))
+    m = sphere.mass_exact
+    return prec.array([to_fraction(c) for c in x] + [m * to_fraction(c) for c in v])
+
+
+def _run_atlas_method(sphere, y0, tf, spec, grid, repeat, bits):
+    """One method across the sphere's atlas (``atlas=True``): a MethodRun whose states are the Dirac (x, p) of
+    each output row (rows of an atlas run are written in different charts), with the chart of each row and the
+    number of switches in ``extra``."""
+    import lieseries as ls
+
+    from .studies.work_precision import MethodRun, _best_of, _precision_name, _setting, method_label
+
+    m = spec["method"]
+    label = method_label(spec)
+    if m == "taylor":
+        prec = resolve_precision(spec["precision"])
+
+        def call():
+            return ls.integrate(sphere, y0, t=grid, tol=spec["tol"], precision=prec, atlas=True)
+    elif m == "lie":
+        kwargs = {"dps": int(spec["dps"])}
+        if spec.get("tol") is not None:
+            kwargs["tol"] = spec["tol"]
+        if spec.get("order") is not None:
+            kwargs["order"] = int(spec["order"])
+
+        def call():
+            return ls.lie_integrate(sphere, y0, grid, atlas=True, **kwargs)
+    else:
+        return MethodRun(m, label, _precision_name(spec), _setting(spec), float(tf), float(tf), status="skipped",
+                         message=f"method {m!r} has no atlas runs (use taylor or lie)"), None
+    try:
+        sol, walls = _best_of(call, repeat)
+    except Exception as err:  # a failing method is a row, not the end of the run
+        return MethodRun(m, label, _precision_name(spec), _setting(spec), float(tf), float(tf), status="error",
+                         message=f"{type(err).__name__}: {err}"), None
+    times = [to_fraction(v) for v in sol.t]
+    rows = list(sol.y)
+    charts = [int(c) for c in sol.charts]
+    if sol.y_reached is not None and (not times or times[-1] != to_fraction(sol.t_reached)):
+        times.append(to_fraction(sol.t_reached))
+        rows.append(sol.y_reached)
+        charts.append(int(getattr(sol, "chart_reached", charts[-1] if charts else sphere.chart)))
+    states = [_as_dirac_state(sphere, r, c, bits) for r, c in zip(rows, charts)]
+    st = sol.stats
+    build = float(st.build_time or 0.0)
+    run = MethodRun(
+        m, label, _precision_name(spec), _setting(spec), float(times[-1]), float(tf), t_exact=times[-1],
+        times=[float(v) for v in times], states=states, steps=int(st.steps), order=int(st.order) if st.order else None,
+        build_time=build if m == "taylor" else None, run_time=float(min([walls[0] - build] + walls[1:])),
+        core_time=float(st.run_time), status=sol.status, message=sol.message,
+    )
+    extra = {"chart_switches": int(st.extra.get("chart_switches", 0)), "charts": charts}
+    if "max_step_over_radius" in st.extra:
+        extra["max_step_over_radius"] = float(st.extra["max_step_over_radius"])
+    return run, extra
+
+
 def _do_run(scene, runp, built, bar, notes):
-    from .studies import observables, reference_solution, reference_solutions, state_error
+    from .studies import observables, reference_solutions
     from .studies.work_precision import method_label, normalize_method, reference_dps, run_method
 
     tf = to_fraction(runp["t"], "run.t")
@@ -859,14 +1133,30 @@ def _do_run(scene, runp, built, bar, notes):
     done = 0
     inv_names = None
     ref_label = ""
+    initial_invariants = {}
+    atlas_of = {m.label: bool(m.params.get("atlas", False)) for m in scene.models}
     for mlabel, model in built:
         y0 = scene.initial_state(model, precision=bits)
         bar(done, total, f"{mlabel}: reference")
-        ref_final = reference_solution(model, y0, tf, dps=dps)
-        ref_label = f"{ref_final.label}, {dps} digits"
+        refs = {}
+        atlas = atlas_of.get(mlabel, False)
+        # an atlas run's rows are in several charts: they are measured as (x, p) states of the Dirac form
+        measured = _dirac_twin(model) if atlas else model
+
+        def ref_at(time_, _model=model, _y0=y0, _refs=refs):
+            # computed when a run needs it: a run that stops early is measured where it stopped, and a
+            # numerical reference is not asked to cross the stiff part a run could not cross
+            if time_ not in _refs:
+                _refs[time_] = _reference_at(_model, _y0, time_, dps, bits)
+            return _refs[time_]
+
+        if _has_closed_form(model):
+            ref_label = f"{ref_at(tf).label}, {dps} digits"
+        else:
+            ref_label = f"heyoka, {max(256, bits)} bits, tol 2^-250, {dps} digits"
         refs_grid = None
         if want_traj:
-            refs_grid = reference_solutions(model, y0, grid, dps=dps)
+            refs_grid = reference_solutions(model, y0, grid, dps=dps) if _has_closed_form(model) else None
             if refs_grid is None:  # no closed form: heyoka at 256+ bits on the grid
                 from .taylor import integrate
 
@@ -875,6 +1165,7 @@ def _do_run(scene, runp, built, bar, notes):
         done += 1
         inv0 = model.invariants(y0)
         inv_names = list(inv0)
+        initial_invariants[mlabel] = {k: float(v) for k, v in inv0.items()}
         traj = None
         if want_traj:
             qname, names = _trajectory_quantity(model, mlabel)
@@ -883,50 +1174,64 @@ def _do_run(scene, runp, built, bar, notes):
                     "values": [], "errors": {}, "error_times": {}}
         for spec in specs:
             bar(done, total, f"{mlabel}: {method_label(spec)}")
-            run = run_method(model, y0, tf, spec, times=grid, repeat=runp["repeat"])
+            extra = {}
+            if atlas:
+                run, extra = _run_atlas_method(model, y0, tf, spec, grid, runp["repeat"], bits)
+                extra = extra or {}
+            else:
+                run = run_method(model, y0, tf, spec, times=grid, repeat=runp["repeat"])
             done += 1
             if run.status == "skipped":
                 note = f"run: {run.label} skipped ({run.message})."
                 if note not in notes:
                     notes.append(note)
                 continue
-            err = max_err = None
+            err = max_err = scaled = None
             drift = {k: None for k in inv_names}
             if run.ok:
-                ref = ref_final if run.t_exact == tf else reference_solution(model, y0, run.t_exact, dps=dps)
-                err = state_error(model, run.y_final, ref)
+                ref = ref_at(run.t_exact)
+                obs = observables(measured, run.y_final, ref.dps)
+                with mp.workdps(ref.dps):
+                    err = float(max(abs(a - b) for a, b in zip(obs, ref.values)))
+                    scaled = scaled_error(model, obs, ref.values)
                 digits = int(spec.get("dps", 16)) if run.method in ("lie", "mpmath") else 40
-                inv = _invariants_of(model, run.states, digits)
+                inv = _invariants_of(measured, run.states, digits)
                 if inv is not None:
                     with mp.workdps(max(dps, digits) + 10):
                         drift = {k: float(max(abs(v - inv0[k]) for v in inv[k])) for k in inv_names}
                 if refs_grid is not None:
-                    errs, etimes = [], []
+                    errs, etimes, echarts = [], [], []
+                    charts = extra.get("charts")
                     # the k-th output of a run is at grid[k] (a run that stopped early has fewer outputs,
                     # plus the state where it stopped, which is not on the grid)
                     for k, (tk, yk) in enumerate(zip(run.times, run.states)):
                         if k >= len(grid) or abs(tk - float(grid[k])) > 1e-9 * (1 + abs(tk)):
                             continue
-                        obs = observables(model, yk, dps)
+                        obs = observables(measured, yk, dps)
                         with mp.workdps(dps):
                             errs.append(float(max(abs(a - b) for a, b in zip(obs, refs_grid[k]))))
                         etimes.append(float(grid[k]))
+                        if charts is not None:
+                            echarts.append(charts[k])
                     if errs:
                         max_err = max(errs)
                         traj["errors"][run.label] = errs
                         traj["error_times"][run.label] = etimes
+                        if charts is not None:
+                            traj.setdefault("charts", {})[run.label] = echarts
             rows.append(RunRow(
                 model=mlabel, method=run.method, label=run.label, precision=run.precision, setting=run.setting,
                 t=run.t, error=err, max_error=max_err, drift=drift, steps=run.steps, order=run.order,
                 build_time=run.build_time, run_time=run.run_time, status=run.status, message=run.message,
                 final_state=[float(to_fraction(v)) for v in run.y_final] if run.ok else None,
+                scaled_error=scaled, extra={k: v for k, v in extra.items() if k != "charts"},
             ))
         if traj is not None:
             traj["values"] = _plot_values(model, [observables(model, y0, dps)] + list(refs_grid))
             trajectories[mlabel] = traj
     bar(total, total, "run done")
     return {"t": float(tf), "samples": n_out, "reference": ref_label, "invariants": inv_names or [],
-            "rows": rows}, trajectories
+            "initial_invariants": initial_invariants, "rows": rows}, trajectories
 
 
 def _study_error_vs_order(opts, built, scene, bar, notes):

@@ -277,16 +277,19 @@ def integrate(
     stats.min_step, stats.max_step = float(min_h), float(max_h)
 
     if direction == 0:
-        t_reached, y_reached = t0f, y0_native
+        t_reached, y_reached = to_fraction(prec.time(t0f)), y0_native
     elif str(outcome).endswith("err_nf_state"):  # heyoka has written NaN into the state: use the last good one
         t_reached, y_reached = to_fraction(guard.t_good), np.array(guard.buf, copy=True)
     else:
         t_reached, y_reached = to_fraction(ta.time), np.array(ta.state, copy=True)
     rows_t, rows_y = [], []
+    # heyoka's clock runs in the working precision: compare output times as rounded there ("0.1" is not a double)
+    t0n = to_fraction(prec.time(t0f))
     for k, tk in enumerate(grid):
-        if (tk - t0f) * direction > (t_reached - t0f) * direction:
+        tk = to_fraction(prec.time(tk))
+        if (tk - t0n) * direction > (t_reached - t0n) * direction:
             break
-        if tk == t0f:
+        if tk == t0n:
             yk = y0_native.copy()
         elif tk == t_reached:
             yk = y_reached.copy()

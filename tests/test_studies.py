@@ -241,3 +241,17 @@ def test_drift_checks_arguments():
         drift(body, y0, 10.0, samples=3)
     with pytest.raises(ValueError, match="`ensemble`"):
         drift(body, y0, 10.0, ensemble=0)
+
+
+def test_damped_body_is_measured_against_a_numerical_reference():
+    """The damped body has no closed form: its reference is heyoka at 256 bits, never the free body's formula."""
+    from lieseries.studies import has_exact_solution
+
+    damped = ls.DampedEulerPoisson((1, 2, 3), damping="0.1")
+    y0 = damped.initial_state((1, "0.1", "0.5"))
+    assert not has_exact_solution(damped) and has_exact_solution(ls.EulerPoisson((1, 2, 3)))
+    ref = reference_solution(damped, y0, 2, dps=30)
+    assert ref.kind == "numerical"
+    free = reference_solution(ls.EulerPoisson((1, 2, 3)), y0, 2, dps=30)
+    assert max(abs(a - b) for a, b in zip(ref.values, free.values)) > 1e-3
+    assert theoretical_radius(damped, y0) is None

@@ -269,3 +269,15 @@ def test_stiff_damped_body_is_diagnosed():
     M2 = float(mild.invariants(y0)["M2"])
     assert abs(om[0]) < 1e-12 and abs(om[1]) < 1e-12
     assert om[2] == pytest.approx(np.sqrt(M2) / 3, rel=1e-12)
+
+
+@pytest.mark.parametrize("precision", ["double", "quad"])
+def test_output_times_not_representable_in_the_precision(precision):
+    """'0.1' is not a binary number: the run ends at its rounding and still returns every requested row."""
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state((1, "0.1", "0.5"), precision=precision)
+    sol = ls.integrate(body, y0, t="0.1", precision=precision)
+    assert sol.success and len(sol.t) == 2
+    grid = ls.integrate(body, y0, t=["0.1", "0.3"], precision=precision)
+    assert grid.success and len(grid.t) == 2
+    np.testing.assert_array_equal(np.asarray(grid.y[0], dtype=float), np.asarray(sol.y[-1], dtype=float))

@@ -216,10 +216,11 @@ def lie_integrate(
                 break
         if status == "success":
             message = f"Reached t = {mp.nstr(tend, 17)}."
+        # y_reached keeps the guard digits: a run continued from it (an atlas chart change) loses nothing
+        y_reached = np.array(list(z), dtype=object)
+        t_reached = to_fraction(tcur)
         with mp.workdps(dps):
             y_rows = [np.array([+v for v in row], dtype=object) for row in out_y]
-            y_reached = np.array([+v for v in z], dtype=object)
-            t_reached = to_fraction(+tcur)
     stats.steps = nsteps
     stats.run_time = _time.perf_counter() - start
     stats.min_step = float(hmin) if nsteps else float("nan")

@@ -204,6 +204,11 @@ class EulerPoisson(Model):
         """The inertia tensor as exact Fractions."""
         return [list(r) for r in self._I]
 
+    @property
+    def inverse_inertia_exact(self) -> list:
+        """I^-1 as exact Fractions."""
+        return [list(r) for r in self._Iinv]
+
     def initial_state(self, omega, R0=None, precision="double") -> np.ndarray:
         """The 12-number state with R(0) = ``R0`` (identity by default) and M = I ``omega``.
 

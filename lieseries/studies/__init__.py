@@ -3,42 +3,38 @@
 Every study returns a dataclass with a ``to_dict()`` (JSON-ready: floats, ints, strings, lists, dicts); the
 report layer (:mod:`lieseries.report`) turns it into tables and plots.
 
-This module also holds what the studies share: the reference solution a run is measured against
-(:func:`reference_solution`), the quantities compared (:func:`observables`) and the error measure
-(:func:`state_error`).
-
-What is compared
-----------------
-Rigid body (:class:`~lieseries.EulerPoisson`)
-    The 12-number state (R row-major, then M), against the closed form of :func:`lieseries.exact.euler_poisson`.
-    That formula starts from R(0) = 1; a general R0 is handled by R(t) = R0 R_id(t) (the equation
-    dR/dt = R hat(Omega) is linear in R), M unchanged, with Omega(0) = I^-1 M0.
-Particle on the sphere (:class:`~lieseries.Sphere`, :class:`~lieseries.SphereDirac`)
-    Position and velocity (x1, x2, x3, v1, v2, v3), against the great circle of :func:`lieseries.exact.sphere`
-    on the sphere of radius |x(0)| (|x|^2 is a Casimir: the motion stays on the leaf it starts on). Comparing
-    (x, v) instead of the chart coordinates makes the 5-dimensional and the Dirac form directly comparable and
-    needs no chart at the final time.
-Any other system
-    The state, against heyoka in 256-bit arithmetic with tolerance 2^-250 (a numerical reference, labelled so).
+What the studies share (reference solutions, the quantities compared, the error measure) lives in
+:mod:`lieseries.studies.reference` and is re-exported here.
 """
 
-from __future__ import annotations
-
-import math
-from dataclasses import dataclass
-from fractions import Fraction
-
-import mpmath as mp
-import numpy as np
-
-from .. import exact
-from ..models.base import state_fractions
-from ..models.euler_poisson import EulerPoisson
-from ..models.sphere import Sphere, SphereDirac
-from ..poisson import as_poisson_system
-from ..precision import dps_to_bits, to_fraction
+from .reference import (  # noqa: F401
+    NUMERICAL_REFERENCE_BITS,
+    NUMERICAL_REFERENCE_TOL,
+    Reference,
+    has_exact_solution,
+    loglog_slope,
+    observable_names,
+    observables,
+    reference_solution,
+    reference_solutions,
+    state_error,
+    theoretical_radius,
+)
+from .convergence import ErrorVsOrder, error_vs_order
+from .drift import Drift, drift
+from .work_precision import (
+    MethodRun,
+    WorkPrecision,
+    WorkPrecisionRow,
+    default_methods,
+    run_method,
+    work_precision,
+)
+from .stability import Stability, StabilityCase, StabilityRow, stability
 
 __all__ = [
+    "NUMERICAL_REFERENCE_BITS",
+    "NUMERICAL_REFERENCE_TOL",
     "Reference",
     "reference_solution",
     "reference_solutions",
@@ -58,287 +54,8 @@ __all__ = [
     "default_methods",
     "Drift",
     "drift",
+    "Stability",
+    "StabilityCase",
+    "StabilityRow",
+    "stability",
 ]
-
-#: Precision (bits) and tolerance of the numerical reference used when a system has no closed form.
-NUMERICAL_REFERENCE_BITS = 256
-NUMERICAL_REFERENCE_TOL = Fraction(1, 2**250)
-
-
-def _mpf(q: Fraction) -> mp.mpf:
-    return mp.mpf(q.numerator) / q.denominator
-
-
-def _to_float(x) -> float:
-    """A float from an mpf (0.0 only when it underflows)."""
-    try:
-        return float(x)
-    except (TypeError, ValueError, OverflowError):  # pragma: no cover - defensive
-        return float("nan")
-
-
-# -- what is compared ------------------------------------------------------------------------------------------
-def observable_names(system) -> tuple:
-    """Names of the quantities :func:`observables` returns for ``system``."""
-    if isinstance(system, (Sphere, SphereDirac)):
-        return ("x1", "x2", "x3", "v1", "v2", "v3")
-    return tuple(as_poisson_system(system).names)
-
-
-def _inverse3_exact(A):
-    det = (
-        A[0][0] * (A[1][1] * A[2][2] - A[1][2] * A[2][1])
-        - A[0][1] * (A[1][0] * A[2][2] - A[1][2] * A[2][0])
-        + A[0][2] * (A[1][0] * A[2][1] - A[1][1] * A[2][0])
-    )
-    C = [
-        [
-            A[(i + 1) % 3][(j + 1) % 3] * A[(i + 2) % 3][(j + 2) % 3]
-            - A[(i + 1) % 3][(j + 2) % 3] * A[(i + 2) % 3][(j + 1) % 3]
-            for j in range(3)
-        ]
-        for i in range(3)
-    ]
-    return [[C[j][i] / det for j in range(3)] for i in range(3)]
-
-
-def _sphere_xv(model, fracs, bits: int):
-    """(x, v) as mpf at ``bits`` from an exact state, through the model's own conversion."""
-    from ..precision import resolve_precision
-
-    prec = resolve_precision(bits)
-    arr = prec.array(fracs)
-    x = model.position(arr)
-    v = model.velocity(arr)
-    with mp.workprec(bits):
-        return [_mpf(to_fraction(c)) for c in x], [_mpf(to_fraction(c)) for c in v]
-
-
-def observables(system, y, dps: int = 40) -> list:
-    """The quantities compared against the reference, as mpf with ``dps`` digits.
-
-    Parameters
-    ----------
-    system : model or PoissonSystem
-    y : sequence of n numbers
-        A state in any precision (float64, longdouble, real128, heyoka real, mpf, Fraction, str).
-    dps : int
-        Working digits of the conversion.
-
-    Returns
-    -------
-    list of mpf
-        The state itself; for the sphere models position and velocity (see the module docstring).
-    """
-    n = as_poisson_system(system).dimension
-    fr = state_fractions(y, n, "y")
-    if isinstance(system, (Sphere, SphereDirac)):
-        bits = dps_to_bits(dps) + 16
-        x, v = _sphere_xv(system, fr, bits)
-        with mp.workdps(dps):
-            return [+c for c in x + v]
-    with mp.workdps(dps):
-        return [_mpf(q) for q in fr]
-
-
-@dataclass
-class Reference:
-    """A reference solution at one time.
-
-    Attributes
-    ----------
-    t : float
-        The time of the reference state.
-    values : list of mpf
-        The reference :func:`observables` at ``t``.
-    names : tuple of str
-        Their names.
-    kind : str
-        ``"exact"`` (closed form), ``"numerical"`` (heyoka at 256 bits) or ``"given"`` (passed by the user).
-    label : str
-        A description for reports.
-    dps : int
-        Digits carried by ``values``.
-    """
-
-    t: float
-    values: list
-    names: tuple
-    kind: str
-    label: str
-    dps: int
-
-    def to_dict(self) -> dict:
-        return {"t": self.t, "kind": self.kind, "label": self.label, "dps": self.dps, "names": list(self.names),
-                "values": [mp.nstr(v, min(self.dps, 30)) for v in self.values]}
-
-
-def has_exact_solution(system) -> bool:
-    """True when :func:`reference_solution` uses a closed form for ``system``."""
-    return isinstance(system, (EulerPoisson, Sphere, SphereDirac))
-
-
-def _rigid_exact(body: EulerPoisson, fr, t, dps):
-    I = body.inertia_exact
-    inertia = [I[i][i] for i in range(3)] if body.diagonal else I
-    Iinv = _inverse3_exact(I)
-    M0 = fr[9:]
-    omega = [sum(Iinv[i][j] * M0[j] for j in range(3)) for i in range(3)]
-    st = exact.euler_poisson(inertia, omega, to_fraction(t, "t"), dps=dps)
-    with mp.workdps(dps + 10):
-        R0 = [[_mpf(fr[3 * i + j]) for j in range(3)] for i in range(3)]
-        Rid = [[st[3 * i + j] for j in range(3)] for i in range(3)]
-        R = [mp.fsum(R0[i][k] * Rid[k][j] for k in range(3)) for i in range(3) for j in range(3)]
-    with mp.workdps(dps):
-        return [+v for v in R] + [+v for v in st[9:]]
-
-
-def _sphere_leaf(model, fr, dps):
-    """Radius |x0|, x0 and the tangent part of v0 (mpf, at dps + 10) from an exact state."""
-    bits = dps_to_bits(dps + 10) + 16
-    x, v = _sphere_xv(model, fr, bits)
-    with mp.workdps(dps + 10):
-        r2 = mp.fsum(c * c for c in x)
-        xv = mp.fsum(a * b for a, b in zip(x, v))
-        v = [v[i] - x[i] * xv / r2 for i in range(3)]  # x.v = 0 up to the state's own rounding
-        return mp.sqrt(r2), x, v
-
-
-def reference_solution(system, y0, t, dps: int = 40, reference=None) -> Reference:
-    """The reference :func:`observables` at time ``t`` for a run from ``y0``.
-
-    Parameters
-    ----------
-    system : model or PoissonSystem
-    y0 : sequence of n numbers
-        Initial state (its exact value is used).
-    t : number
-        Final time.
-    dps : int
-        Digits of the reference (pick ~10 more than the most accurate run to be measured).
-    reference : sequence of n numbers, optional
-        A state at ``t`` supplied by the caller; used instead of computing one.
-
-    Returns
-    -------
-    Reference
-    """
-    if isinstance(dps, bool) or not isinstance(dps, int) or dps < 5:
-        raise ValueError(f"`dps` must be an integer >= 5; got {dps!r}")
-    ps = as_poisson_system(system)
-    fr = state_fractions(y0, ps.dimension, "y0")
-    tf = to_fraction(t, "t")
-    names = observable_names(system)
-    if reference is not None:
-        vals = observables(system, reference, dps)
-        return Reference(float(tf), vals, names, "given", "reference state given by the caller", dps)
-    if isinstance(system, EulerPoisson):
-        vals = _rigid_exact(system, fr, tf, dps)
-        return Reference(float(tf), vals, names, "exact", "closed form (Jacobi elliptic functions)", dps)
-    if isinstance(system, (Sphere, SphereDirac)):
-        r, x, v = _sphere_leaf(system, fr, dps)
-        xt, vt = exact.sphere(r, x, v, tf, dps=dps)
-        return Reference(float(tf), list(xt) + list(vt), names, "exact", "closed form (great circle)", dps)
-    from ..taylor import integrate
-
-    bits = max(NUMERICAL_REFERENCE_BITS, dps_to_bits(dps) + 16)
-    sol = integrate(system, fr, t=tf, precision=bits, tol=NUMERICAL_REFERENCE_TOL)
-    if not sol.success:
-        raise RuntimeError(f"the numerical reference (heyoka, {bits} bits) did not reach t = {float(tf)}: "
-                           f"{sol.message}")
-    vals = observables(system, sol.y[-1], dps)
-    return Reference(float(tf), vals, names, "numerical", f"heyoka, {bits} bits, tol 2^-250", dps)
-
-
-def reference_solutions(system, y0, ts, dps: int = 30) -> list:
-    """Reference :func:`observables` at several times (list of lists of mpf), or None without a closed form.
-
-    One set-up for all times (rigid body: :func:`lieseries.exact.euler_poisson_many`).
-    """
-    ps = as_poisson_system(system)
-    fr = state_fractions(y0, ps.dimension, "y0")
-    times = [to_fraction(v, "ts") for v in ts]
-    if isinstance(system, EulerPoisson):
-        I = system.inertia_exact
-        inertia = [I[i][i] for i in range(3)] if system.diagonal else I
-        Iinv = _inverse3_exact(I)
-        omega = [sum(Iinv[i][j] * fr[9 + j] for j in range(3)) for i in range(3)]
-        states = exact.euler_poisson_many(inertia, omega, times, dps=dps)
-        out = []
-        with mp.workdps(dps + 10):
-            R0 = [[_mpf(fr[3 * i + j]) for j in range(3)] for i in range(3)]
-            for st in states:
-                R = [mp.fsum(R0[i][k] * st[3 * k + j] for k in range(3)) for i in range(3) for j in range(3)]
-                out.append(R + list(st[9:]))
-        with mp.workdps(dps):
-            return [[+v for v in row] for row in out]
-    if isinstance(system, (Sphere, SphereDirac)):
-        r, x, v = _sphere_leaf(system, fr, dps)
-        out = []
-        for tk in times:
-            xt, vt = exact.sphere(r, x, v, tk, dps=dps)
-            out.append(list(xt) + list(vt))
-        return out
-    return None
-
-
-def state_error(system, y, reference: Reference) -> float:
-    """Largest absolute difference between the :func:`observables` of ``y`` and ``reference``."""
-    obs = observables(system, y, reference.dps)
-    with mp.workdps(reference.dps):
-        return _to_float(max(abs(a - b) for a, b in zip(obs, reference.values)))
-
-
-def theoretical_radius(system, y0, dps: int = 30):
-    """Radius of convergence (in time) of the Lie series at ``y0``, where known; else None.
-
-    Rigid body: the distance from t = 0 to the nearest complex-time pole of Omega(t)
-    (:func:`lieseries.exact.rigid_body_constants`). Sphere, 5-dimensional form: the distance to the nearest
-    complex zero of the dependent coordinate x_chart(t) (:func:`lieseries.exact.sphere_pole_distance`).
-    The Dirac form has no singularity on the sphere: None. Infinite radii are returned as None.
-    """
-    ps = as_poisson_system(system)
-    fr = state_fractions(y0, ps.dimension, "y0")
-    if isinstance(system, EulerPoisson):
-        I = system.inertia_exact
-        Iinv = _inverse3_exact(I)
-        omega = [sum(Iinv[i][j] * fr[9 + j] for j in range(3)) for i in range(3)]
-        inertia = [I[i][i] for i in range(3)] if system.diagonal else I
-        rho = exact.rigid_body_constants(inertia, omega, dps=dps).pole_distance
-    elif isinstance(system, Sphere):
-        r, x, v = _sphere_leaf(system, fr, dps)
-        rho = exact.sphere_pole_distance(r, x, v, axis=system.chart, dps=dps)
-    else:
-        return None
-    if not mp.isfinite(rho):
-        return None
-    return rho
-
-
-def loglog_slope(x, y):
-    """Least-squares slope of log(y) against log(x) over the points where both are positive (None if < 3)."""
-    x = np.asarray(x, dtype=float)
-    y = np.asarray(y, dtype=float)
-    m = (x > 0) & (y > 0) & np.isfinite(x) & np.isfinite(y)
-    if m.sum() < 3:
-        return None
-    return float(np.polyfit(np.log(x[m]), np.log(y[m]), 1)[0])
-
-
-def _finite_or_none(v):
-    if v is None:
-        return None
-    v = float(v)
-    return v if math.isfinite(v) else None
-
-
-from .convergence import ErrorVsOrder, error_vs_order  # noqa: E402
-from .drift import Drift, drift  # noqa: E402
-from .work_precision import (  # noqa: E402
-    MethodRun,
-    WorkPrecision,
-    WorkPrecisionRow,
-    default_methods,
-    run_method,
-    work_precision,
-)

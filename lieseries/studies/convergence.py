@@ -19,7 +19,7 @@ import numpy as np
 
 from ..poisson import as_poisson_system
 from ..precision import to_fraction
-from . import _finite_or_none, _to_float, observable_names, observables, reference_solution, theoretical_radius
+from .reference import _finite_or_none, _to_float, observable_names, observables, reference_solution, theoretical_radius
 
 __all__ = ["ErrorVsOrder", "error_vs_order", "fit_geometric_rate"]
 

@@ -27,7 +27,7 @@ import numpy as np
 from ..models.base import state_fractions
 from ..poisson import as_poisson_system
 from ..precision import resolve_precision, to_fraction
-from . import loglog_slope
+from .reference import loglog_slope
 
 __all__ = ["Drift", "drift", "growth_exponent"]
 

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..poisson import as_poisson_system
 from ..precision import bits_to_dps, resolve_precision, to_fraction
-from . import reference_solution, state_error
+from .reference import reference_solution, state_error
 
 __all__ = [
     "MethodRun",
