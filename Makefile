@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-all bench validate clean
+.PHONY: run test test-all bench validate stability clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -26,6 +26,9 @@ bench: $(STAMP)
 
 validate: $(STAMP)
 	$(BIN)/python validation/run_all.py
+
+stability: $(STAMP)
+	$(BIN)/python validation/stability.py
 
 clean:
 	rm -rf $(VENV) reports .pytest_cache

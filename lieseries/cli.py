@@ -37,15 +37,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_scenes(out) -> int:
-    from .scenes import builtin_scenes, scenes_dir
+    from .scenes import builtin_scenes, extreme_scenes, scenes_dir
 
     items = builtin_scenes()
+    extreme = extreme_scenes()
     if not items:
         print(f"lieseries: no built-in scenes found in {scenes_dir()}", file=sys.stderr)
         return 2
-    width = max(len(n) for n, _ in items)
+    width = max(len(n) for n, _ in items + extreme)
     for name, title in items:
         print(f"{name.ljust(width)}  {title}", file=out)
+    if extreme:
+        print("\nextreme and stiff cases (validation/stability.py runs them all):", file=out)
+        for name, title in extreme:
+            print(f"{name.ljust(width)}  {title}", file=out)
     return 0
 
 

@@ -4,7 +4,6 @@ from fractions import Fraction
 
 import heyoka as hy
 import mpmath as mp
-import numpy as np
 import pytest
 
 import lieseries as ls

@@ -40,7 +40,6 @@ All numeric work uses mpmath's raw representation (``mpmath.libmp`` tuples
 
 from __future__ import annotations
 
-import decimal
 import numbers
 import re
 from collections import OrderedDict, namedtuple
@@ -78,7 +77,7 @@ from mpmath.libmp import (
     mpf_tanh,
 )
 
-from ..precision import MIN_DPS, check_dps, check_order, to_fraction  # noqa: F401  (re-used by jets, literal)
+from ..precision import check_dps, to_fraction
 
 __all__ = [
     "Program",

@@ -53,6 +53,7 @@ from mpmath.libmp import (
 )
 
 from . import expr as _expr
+from ..precision import check_dps, check_order
 from .expr import RND, Constant, Node, Program, eval_nodes, POINTWISE
 
 __all__ = ["taylor_coefficients", "taylor_coefficients_raw", "jet_guard_bits"]
@@ -690,8 +691,8 @@ def taylor_coefficients(program_or_system, y0, pars, order, dps):
     (12 ms at 100 digits, 30 ms at order 60 and 60 digits), pure Python.
     """
     program = _resolve_program(program_or_system)
-    order = _expr.check_order(order)
-    dps = _expr.check_dps(dps)
+    order = check_order(order)
+    dps = check_dps(dps)
     with mpmath.mp.workdps(dps):
         wp = mpmath.mp.prec + jet_guard_bits(order)
         y0r = _expr.convert_vector(y0, program.nvars, wp, "y0")

@@ -54,6 +54,7 @@ from sympy.polys.polyerrors import ExactQuotientFailed
 from sympy.polys.rings import PolyRing
 
 from . import expr as _expr
+from ..precision import check_dps, check_order, to_fraction
 from .expr import RND
 
 __all__ = [
@@ -103,10 +104,10 @@ def _exact_sympy(value, name):
     """An exact sympy number (or a sympy expression passed through)."""
     if isinstance(value, sympy.Basic):
         if isinstance(value, sympy.Float):
-            fr = _expr.to_fraction(value, name)
+            fr = to_fraction(value, name)
             return sympy.Rational(fr.numerator, fr.denominator)
         return value
-    fr = _expr.to_fraction(value, name)
+    fr = to_fraction(value, name)
     return sympy.Rational(fr.numerator, fr.denominator)
 
 
@@ -187,7 +188,7 @@ def lie_derivatives(variables, rhs, f, order):
         ``out[k][j] = L^k f_j``.
     """
     names, rhs = _check_system(variables, rhs)
-    order = _expr.check_order(order)
+    order = check_order(order)
     single = isinstance(f, hy.expression) or isinstance(f, numbers.Real)
     fs = [f] if single else list(f)
     fs = [_expr.as_expression(g, "f") for g in fs]
@@ -360,7 +361,6 @@ class RationalLieOperator:
 
     def iterate(self, order, funcs=None):
         """``[[L^k f_i as (P, e)] for k in 0..order]``; default f = the state."""
-        R = self.ring
         cur = [(z, [0] * len(self.factors)) for z in (funcs or self.zgens)]
         out = [cur]
         for _ in range(order):
@@ -396,9 +396,8 @@ def _rational_operator(names, rhs, pars_sym):
 
 
 def _literal_exact_values(names, rhs, y0, pars, order, dps):
-    n = len(names)
-    y0f = [_expr.to_fraction(v, f"y0[{i}]") for i, v in enumerate(y0)]
-    pf = [_expr.to_fraction(v, f"pars[{j}]") for j, v in enumerate(pars)]
+    y0f = [to_fraction(v, f"y0[{i}]") for i, v in enumerate(y0)]
+    pf = [to_fraction(v, f"pars[{j}]") for j, v in enumerate(pars)]
     op = _rational_operator(names, rhs, [sympy.Rational(p.numerator, p.denominator) for p in pf])
     point = [QQ(v.numerator, v.denominator) for v in y0f]
     qvals = []
@@ -521,8 +520,8 @@ def literal_coefficients(variables, rhs, y0, pars, order, dps, method="auto"):
         ``c[k][i] = L^k z_i (y0) / k!`` for ``k = 0 .. order``.
     """
     names, rhs = _check_system(variables, rhs)
-    order = _expr.check_order(order)
-    dps = _expr.check_dps(dps)
+    order = check_order(order)
+    dps = check_dps(dps)
     method = _check_method(method)
     n = len(names)
     if isinstance(y0, (str, bytes)) or not hasattr(y0, "__len__"):
@@ -592,7 +591,7 @@ def literal_series_symbolic(variables, rhs, order, substitute=None, pars=None, m
     (about x4 per order for the rigid body) and is practical to order ~6-8.
     """
     names, rhs = _check_system(variables, rhs)
-    order = _expr.check_order(order)
+    order = check_order(order)
     method = _check_method(method)
     smap = _subs_map(substitute, names)
     pars_sym = None

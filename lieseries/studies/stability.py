@@ -673,7 +673,8 @@ def stability(cases=None, quick: bool = False, progress=None, on_case=None) -> S
     Stability
         A case whose scene raised is kept, with the error in its notes and no rows.
     """
-    from ..scenes import _environment, extreme_scenes, load_scene
+    from ..runner import _environment
+    from ..scenes import extreme_scenes, load_scene
 
     if cases is None:
         cases = [name for name, _ in extreme_scenes()]

@@ -283,26 +283,13 @@ def _mpmath_rhs(system):
     hit = _RHS_CACHE.get(key)
     if hit is not None:
         return hit
-    fn = None
-    try:
-        from ..lie.expr import compile_expressions  # the engine's own evaluator, when present
+    from ..lie.expr import compile_expressions  # the engine's own mpmath evaluator
 
-        prog = compile_expressions(ps.variables, ps.vector_field, len(ps.parameter_values))
+    prog = compile_expressions(ps.variables, ps.vector_field, len(ps.parameter_values))
 
-        def fn(values, pars, _prog=prog):
-            return list(_prog.evaluate(values, pars, mp.mp.dps))
-    except ImportError:
-        import heyoka as hy
-        import sympy
+    def fn(values, pars, _prog=prog):
+        return list(_prog.evaluate(values, pars, mp.mp.dps))
 
-        exprs = [hy.to_sympy(e) for e in ps.vector_field]
-        free = {s.name: s for e in exprs for s in e.free_symbols}
-        syms = [free.get(nm, sympy.Dummy(nm)) for nm in ps.names]
-        pars = [free.get(f"par[{i}]", sympy.Dummy(f"par{i}")) for i in range(len(ps.parameter_values))]
-        lam = sympy.lambdify([syms, pars], exprs, modules="mpmath", dummify=True)
-
-        def fn(values, pars, _lam=lam):
-            return list(_lam(list(values), list(pars)))
     _RHS_CACHE[key] = fn
     return fn
 
