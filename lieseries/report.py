@@ -129,6 +129,13 @@ def _pyplot():
 _MARKERS = ["o", "s", "^", "D", "v", "P", "X", "*", "<", ">"]
 
 
+def _save(plt, fig, path) -> None:
+    """Lay out, write (PNG, 110 dpi) and close a figure."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def _positive(values):
     return [v if (v is not None and v > 0 and math.isfinite(v)) else float("nan") for v in values]
 
@@ -159,9 +166,7 @@ def plot_trajectory(result, path: Path) -> None:
             ax2.legend(loc="best", fontsize=8)
         ax2.grid(alpha=0.3, which="both")
     fig.suptitle(_wrap(result.scene.title, 60 * n), fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def plot_error_vs_order(result, path: Path) -> None:
@@ -191,9 +196,7 @@ def plot_error_vs_order(result, path: Path) -> None:
     ax.set_title("Lie series: error against order (slope gives the radius of convergence)", fontsize=10)
     ax.legend(loc="best", fontsize=8)
     ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def plot_work_precision(result, path: Path) -> None:
@@ -213,6 +216,10 @@ def plot_work_precision(result, path: Path) -> None:
         marker = _MARKERS[k % len(_MARKERS)]
         xs = [r.run_time for r in rows]
         ys = [max(r.error, 1e-300) for r in rows]
+        t_study = items[0][1].t
+        span = {r.t for r in rows}
+        if span and all(abs(ts - t_study) > 1e-12 * max(1.0, abs(t_study)) for ts in span):
+            key = f"{key} (to t = {max(span):.3g} only)"  # a capped method (odefun) must say so on the plot
         ax.loglog(xs, ys, marker=marker, color=color, linewidth=1, markersize=6, label=key)
         if rows[0].method == "taylor":
             bx = [r.run_time + (r.build_time or 0.0) for r in rows if r.build_time]
@@ -227,9 +234,7 @@ def plot_work_precision(result, path: Path) -> None:
     ax.set_title(f"Work-precision diagram, t = {t:.4g}", fontsize=10)
     ax.legend(loc="best", fontsize=7)
     ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def plot_drift(result, path: Path) -> None:
@@ -256,9 +261,7 @@ def plot_drift(result, path: Path) -> None:
         ax.set_title(f"{mlabel}: invariant drift, heyoka {dr.precision}", fontsize=10)
         ax.legend(loc="best", fontsize=7)
         ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def _wrap(text: str, width: int) -> str:
@@ -605,9 +608,7 @@ def plot_stability_overview(stab, path: Path) -> None:
     ax.set_title("Every run of every case (hollow: the run did not reach the final time)", fontsize=10)
     ax.legend(loc="best", fontsize=7)
     ax.grid(alpha=0.3, which="both", axis="y")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def plot_stability_error_growth(stab, path: Path) -> None:
@@ -653,15 +654,19 @@ def plot_stability_error_growth(stab, path: Path) -> None:
         axes[j // cols][j % cols].axis("off")
     fig.suptitle("Near the unstable axis round-off grows like e^(lambda t): error along the run; dotted: departure",
                  fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, path)
+
+
+def _case_row(stab, analysis: str, key: str):
+    """A row of panels, one per stability case of ``analysis`` that has ``details[key]``."""
+    plt = _pyplot()
+    cases = [c for c in stab.cases if c.analysis == analysis and c.details.get(key)]
+    fig, axes = plt.subplots(1, len(cases), figsize=(7.5 * len(cases), 5.5), squeeze=False)
+    return plt, cases, fig, axes
 
 
 def plot_stability_drift(stab, path: Path) -> None:
-    plt = _pyplot()
-    cases = [c for c in stab.cases if c.analysis == "drift" and c.details.get("errors")]
-    fig, axes = plt.subplots(1, len(cases), figsize=(7.5 * len(cases), 5.5), squeeze=False)
+    plt, cases, fig, axes = _case_row(stab, "drift", "errors")
     for j, c in enumerate(cases):
         ax = axes[0][j]
         d = c.details
@@ -681,15 +686,11 @@ def plot_stability_drift(stab, path: Path) -> None:
         ax.set_title(f"{c.name}: {d['total_steps']} steps in double", fontsize=10)
         ax.legend(loc="best", fontsize=7)
         ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def plot_stability_divergence(stab, path: Path) -> None:
-    plt = _pyplot()
-    cases = [c for c in stab.cases if c.analysis == "divergence" and c.details.get("orders")]
-    fig, axes = plt.subplots(1, len(cases), figsize=(7.5 * len(cases), 5.5), squeeze=False)
+    plt, cases, fig, axes = _case_row(stab, "divergence", "orders")
     for j, c in enumerate(cases):
         ax = axes[0][j]
         d = c.details
@@ -706,9 +707,7 @@ def plot_stability_divergence(stab, path: Path) -> None:
                      fontsize=9)
         ax.legend(loc="best", fontsize=8)
         ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 def plot_stability_atlas(stab, path: Path) -> None:
@@ -735,9 +734,7 @@ def plot_stability_atlas(stab, path: Path) -> None:
         ax2.set_ylabel("error in (x, v) against the great circle")
         ax2.legend(loc="best", fontsize=7)
         ax2.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(plt, fig, path)
 
 
 _STABILITY_PLOTTERS = {
