@@ -15,78 +15,14 @@ from lieseries.lie.literal import (
     literal_series_symbolic,
 )
 
-# --------------------------------------------------------------------------
-# Test systems (as in test_jets.py)
-# --------------------------------------------------------------------------
+from _systems import SPHERE_M, max_rel, nonlinear, rigid_body, sphere, sphere_initial  # test systems
 
+# the rigid body's data as exact Fractions (test_jets uses decimal strings for the same numbers)
 RB_INERTIA = (1, 2, 3)
 RB_PARS = [Fraction(1, i) for i in RB_INERTIA]
 RB_OMEGA = (Fraction(1), Fraction(1, 10), Fraction(1, 2))
 RB_M0 = [i * w for i, w in zip(RB_INERTIA, RB_OMEGA)]
 RB_Y0 = [1, 0, 0, 0, 1, 0, 0, 0, 1] + RB_M0
-
-
-def rigid_body():
-    """Euler-Poisson: dR/dt = R hat(Omega), dM/dt = M x Omega, Omega_i = par[i] M_i."""
-    R = hy.make_vars(*[f"R{i}{j}" for i in range(1, 4) for j in range(1, 4)])
-    M = hy.make_vars("M1", "M2", "M3")
-    om = [hy.par[i] * M[i] for i in range(3)]
-    hat = [[None, -om[2], om[1]], [om[2], None, -om[0]], [-om[1], om[0], None]]
-    dR = []
-    for i in range(3):
-        for j in range(3):
-            dR.append(hy.sum([R[3 * i + k] * hat[k][j] for k in range(3) if hat[k][j] is not None]))
-    dM = [M[1] * om[2] - M[2] * om[1], M[2] * om[0] - M[0] * om[2], M[0] * om[1] - M[1] * om[0]]
-    return list(R) + list(M), dR + dM
-
-
-SPHERE_M = Fraction(3, 2)
-
-
-def sphere():
-    """Particle on a sphere in intermediate coordinates (x1, x2, x3, pi1, pi2), par[0] = m."""
-    x1, x2, x3, p1, p2 = z = hy.make_vars("x1", "x2", "x3", "pi1", "pi2")
-    m = hy.par[0]
-    H = (p1**2 + p2**2 - (x1 * p1 + x2 * p2) ** 2 / (x1**2 + x2**2 + x3**2)) / (2 * m)
-    B = [[None] * 5 for _ in range(5)]
-    for a, b, v in [(0, 3, hy.expression(1.0)), (1, 4, hy.expression(1.0)),
-                    (2, 3, -x1 / x3), (2, 4, -x2 / x3)]:
-        B[a][b], B[b][a] = v, -v
-    dH = [hy.diff(H, zi) for zi in z]
-    rhs = [hy.sum([B[a][b] * dH[b] for b in range(5) if B[a][b] is not None]) for a in range(5)]
-    return list(z), rhs
-
-
-def sphere_initial(m):
-    x = [Fraction(3, 5), Fraction(0), Fraction(4, 5)]
-    p = [Fraction(0), m, Fraction(0)]
-    return x + [p[a] - x[a] * p[2] / x[2] for a in range(2)]
-
-
-def nonlinear():
-    """Exercises exp, log, sin, cos, sqrt, x**1.5, x**-2, division and parameters."""
-    x, y, z = v = hy.make_vars("x", "y", "z")
-    p = hy.par[0]
-    rhs = [hy.sin(y) * hy.exp(-x) + hy.sqrt(z),
-           hy.log(z) - x**1.5 / (1.0 + y * y) + p,
-           hy.cos(x * y) - z**-2.0 * p]
-    return list(v), rhs
-
-
-def max_rel(a, b):
-    """Largest difference relative to the size of orders k-1..k+1 (see test_jets)."""
-    with mp.workdps(150):
-        return _max_rel(a, b)
-
-
-def _max_rel(a, b):
-    norms = [max(abs(mp.mpf(x)) for x in row) for row in b]
-    worst = mp.mpf(0)
-    for k, (ra, rb) in enumerate(zip(a, b)):
-        scale = max(norms[max(0, k - 1):k + 2])
-        if scale:
-            worst = max(worst, max(abs(mp.mpf(x) - mp.mpf(y)) for x, y in zip(ra, rb)) / scale)
-    return worst
 
 
 # --------------------------------------------------------------------------
