@@ -119,7 +119,7 @@ class _Guard:
     every 8 steps.
     """
 
-    def __init__(self, ta, t_end: float, max_steps: int, max_time, min_step, stiff_steps: int):
+    def __init__(self, ta, t_end: float, max_steps: int, max_time, min_step, stiff_steps: int, progress=None):
         self.state = ta.state
         self.buf = np.array(ta.state, copy=True)
         self.t_good = ta.time
@@ -128,6 +128,9 @@ class _Guard:
         self.max_time = max_time
         self.min_step = min_step
         self.stiff_steps = stiff_steps
+        self.progress = progress
+        self.t_start = float(ta.time)
+        self.last_report = 0.0
         self.start = _time.perf_counter()
         self.steps = 0
         self.h_max = 0.0
@@ -145,6 +148,12 @@ class _Guard:
         self.t_good = ta.time
         h = abs(float(ta.last_h))
         self.h_max = max(self.h_max, h)
+        if self.progress is not None:
+            now = _time.perf_counter()
+            if now - self.last_report > 0.1:
+                self.last_report = now
+                span = self.t_end - self.t_start
+                self.progress((float(ta.time) - self.t_start) / span if span else 1.0)
         if self.max_time is not None and _time.perf_counter() - self.start > self.max_time:
             self.reason = "time_budget"
             return False
@@ -183,6 +192,7 @@ def integrate(
     compact_mode: bool | None = None,
     high_accuracy: bool = False,
     atlas: bool = False,
+    progress=None,
 ) -> Solution:
     """Integrate ``dz/dt = X_H(z)`` with heyoka's adaptive Taylor method.
 
@@ -215,6 +225,9 @@ def integrate(
         For a model with charts (:class:`~lieseries.Sphere`): switch charts when the current one is ending and
         go on (:mod:`lieseries.atlas`); ``sol.charts`` tells the chart of each output row. Budgets apply to each
         chart segment.
+    progress : callable, optional
+        Called as ``progress(fraction_done)`` at most ten times a second during the run, for long runs
+        (with a :class:`lieseries.progress.ProgressBar` ``bar``: ``progress=lambda f: bar(f, 1)``).
 
     Returns
     -------
@@ -227,7 +240,7 @@ def integrate(
 
         return run_atlas(integrate, system, y0, t, t0=t0, bits=prec.bits, dense=dense, tol=tol,
                          precision=prec, max_steps=max_steps, max_time=max_time, min_step=min_step,
-                         compact_mode=compact_mode, high_accuracy=high_accuracy)
+                         compact_mode=compact_mode, high_accuracy=high_accuracy, progress=progress)
     ps = as_poisson_system(system)
     model = system if isinstance(system, Model) else None
     z0 = model.check_state(y0, "y0") if model is not None else state_fractions(y0, ps.dimension, "y0")
@@ -256,7 +269,8 @@ def integrate(
     t_end = grid[-1]
     guard = _Guard(ta, float(t_end), int(max_steps), None if max_time is None else float(max_time),
                    None if min_step is None else float(min_step),
-                   stiff_steps=min(int(max_steps), STIFF_STEPS) if default_budget else int(max_steps))
+                   stiff_steps=min(int(max_steps), STIFF_STEPS) if default_budget else int(max_steps),
+                   progress=progress)
     stats = Stats(method="taylor (heyoka)", precision=prec.name, tol=float(tolf), order=int(ta.order),
                   build_time=build, cached=cached)
     y0_native = prec.array(z0)

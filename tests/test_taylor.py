@@ -281,3 +281,11 @@ def test_output_times_not_representable_in_the_precision(precision):
     grid = ls.integrate(body, y0, t=["0.1", "0.3"], precision=precision)
     assert grid.success and len(grid.t) == 2
     np.testing.assert_array_equal(np.asarray(grid.y[0], dtype=float), np.asarray(sol.y[-1], dtype=float))
+
+
+def test_progress_is_reported_on_a_long_run():
+    body = ls.EulerPoisson((1, 2, 3))
+    seen = []
+    sol = ls.integrate(body, body.initial_state((1.0, 0.1, 0.5)), t=2e5, progress=seen.append)
+    assert sol.success
+    assert len(seen) >= 2 and all(0 <= a <= b <= 1 for a, b in zip(seen, seen[1:]))
