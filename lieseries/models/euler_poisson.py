@@ -132,7 +132,8 @@ class EulerPoisson(Model):
         self.principal_moments = tuple(float(e) for e in eig)
         if eig[0] + eig[1] < eig[2] * (1 - 1e-12):
             warnings.warn(
-                f"`inertia` principal moments {tuple(eig)} violate the triangle inequality I1 + I2 >= I3: no "
+                f"`inertia` principal moments ({', '.join(f'{e:.6g}' for e in eig)}) violate the triangle "
+                "inequality I1 + I2 >= I3: no "
                 "physical body has them (the mass matrix g = tr(I)/2 - I has a negative entry). The equations are "
                 "integrated as given.",
                 UserWarning,
