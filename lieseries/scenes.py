@@ -681,22 +681,18 @@ def scenes_dir() -> Path:
 
 def builtin_scenes() -> list:
     """[(name, title)] of the built-in scenes, sorted by name (``default`` first)."""
-    folder = scenes_dir()
-    out = []
-    if folder.is_dir():
-        for p in sorted(folder.glob("*.toml")):
-            try:
-                data = tomllib.loads(p.read_text(encoding="utf-8"))
-                out.append((p.stem, str(data.get("title", ""))))
-            except (OSError, tomllib.TOMLDecodeError):
-                out.append((p.stem, "(unreadable scene file)"))
+    out = _titles(scenes_dir())
     out.sort(key=lambda nt: (nt[0] != "default", nt[0]))
     return out
 
 
 def extreme_scenes() -> list:
     """[(name, title)] of the extreme and stiff cases (``validation/scenes/extreme/*.toml``), sorted by name."""
-    folder = scenes_dir() / EXTREME_FOLDER
+    return _titles(scenes_dir() / EXTREME_FOLDER)
+
+
+def _titles(folder: Path) -> list:
+    """[(name, title)] of the scene files in ``folder``, sorted by name."""
     out = []
     if folder.is_dir():
         for p in sorted(folder.glob("*.toml")):

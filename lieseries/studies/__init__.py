@@ -7,6 +7,7 @@ What the studies share (reference solutions, the quantities compared, the error 
 :mod:`lieseries.studies.reference` and is re-exported here.
 """
 
+from . import reference
 from .reference import (  # noqa: F401
     NUMERICAL_REFERENCE_BITS,
     NUMERICAL_REFERENCE_TOL,
@@ -32,18 +33,7 @@ from .work_precision import (
 )
 from .stability import Stability, StabilityCase, StabilityRow, stability
 
-__all__ = [
-    "NUMERICAL_REFERENCE_BITS",
-    "NUMERICAL_REFERENCE_TOL",
-    "Reference",
-    "reference_solution",
-    "reference_solutions",
-    "has_exact_solution",
-    "observables",
-    "observable_names",
-    "state_error",
-    "theoretical_radius",
-    "loglog_slope",
+__all__ = reference.__all__ + [
     "ErrorVsOrder",
     "error_vs_order",
     "WorkPrecision",
