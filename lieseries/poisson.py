@@ -38,6 +38,9 @@ from .precision import to_fraction
 
 __all__ = ["PoissonSystem", "as_poisson_system"]
 
+#: Compiled mpmath programs of vector fields, by structural key (shared by equal structures).
+_PROGRAMS: dict = {}
+
 
 def _is_zero(e) -> bool:
     if isinstance(e, (int, float, Fraction)):
@@ -242,9 +245,20 @@ class PoissonSystem:
         ]
         return hy.sum(terms) if terms else hy.expression(0.0)
 
+    @property
+    def program(self):
+        """The vector field compiled to an mpmath :class:`~lieseries.expr.Program` (once per structure)."""
+        prog = _PROGRAMS.get(self.key)
+        if prog is None:
+            from .expr import compile_expressions
+
+            prog = compile_expressions(self._variables, self.vector_field, len(self._param_values))
+            _PROGRAMS[self.key] = prog
+        return prog
+
     # -- numerical checks of the structure ---------------------------------------------------------------------
     def _evaluate(self, exprs, points, dps):
-        from .lie.expr import compile_expressions
+        from .expr import compile_expressions
 
         prog = compile_expressions(self._variables, exprs, len(self._param_values))
         out = []

@@ -1,4 +1,4 @@
-"""Taylor-mode jets (lieseries.lie.jets) and the expression compiler (lieseries.lie.expr).
+"""Taylor-mode jets (lieseries.lie.jets) and the expression compiler (lieseries.expr).
 
 References are independent of the jet recurrences: closed forms, mpmath's own
 ``mp.taylor`` (numerical differentiation), and heyoka's Taylor coefficients
@@ -15,7 +15,7 @@ import pytest
 import sympy
 
 from lieseries.lie import compile_expressions, compile_system, taylor_coefficients
-from lieseries.lie.expr import Program
+from lieseries.expr import Program
 
 from _systems import RB_PARS, RB_Y0, SPHERE_M, max_rel, rigid_body, sphere, sphere_initial  # test systems
 

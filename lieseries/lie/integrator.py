@@ -28,13 +28,11 @@ import time as _time
 import mpmath as mp
 import numpy as np
 
-from ..precision import check_dps, check_order, to_fraction
+from ..precision import check_dps, check_order, to_fraction, to_mpf
 from ..solution import Solution, Stats
 from ..timegrid import parse_times
 from .operator import (
     GUARD_DIGITS,
-    _mpf,
-    _program,
     estimate_radius,
     horner,
     norms,
@@ -121,7 +119,7 @@ def lie_integrate(
                 raise ValueError(f"`tol` must be positive; got {float(tf)}")
             if tf >= 1:
                 raise ValueError(f"`tol` must be below 1; got {float(tf)}")
-            tolm = _mpf(tf)
+            tolm = to_mpf(tf)
             if tolm < mp.mpf(10) ** (-(dps + guard)):
                 raise ValueError(
                     f"`tol` = {mp.nstr(tolm, 3)} is below what {dps} digits (+{guard} guard) can resolve; "
@@ -133,18 +131,18 @@ def lie_integrate(
     if max_time is not None and not (float(max_time) > 0):
         raise ValueError(f"`max_time` must be a positive number of seconds; got {max_time!r}")
 
-    prog = _program(ps)
+    prog = ps.program
     start = _time.perf_counter()
     stats = Stats(method="lie series (mpmath)", precision=f"{dps} dps", tol=float(tolm), order=N)
     events = _event_checks(model, ps, wdps)
 
     with mp.workdps(wdps):
-        z = [_mpf(v) for v in z0]
-        tcur = _mpf(t0f)
-        tend = _mpf(grid[-1])
+        z = [to_mpf(v) for v in z0]
+        tcur = to_mpf(t0f)
+        tend = to_mpf(grid[-1])
         sgn = 1 if direction >= 0 else -1
         out_t, out_y = [], []
-        pending = [(_mpf(tk), tk) for tk in grid]
+        pending = [(to_mpf(tk), tk) for tk in grid]
         segments = [] if dense else None
         status, message = "success", ""
         hmin, hmax = mp.inf, mp.mpf(0)
@@ -208,7 +206,7 @@ def lie_integrate(
             nsteps += 1
             z, tcur = znew, tnew
             if progress is not None:
-                progress(float((tcur - _mpf(t0f)) / (tend - _mpf(t0f))))
+                progress(float((tcur - to_mpf(t0f)) / (tend - to_mpf(t0f))))
             hit = _check_events(events, z)
             if hit is not None:
                 status, msg = hit
@@ -241,7 +239,7 @@ def _dense(segments, dps, sgn):
             lo = segments[0][0] if segments else None
             hi = segments[-1][1] if segments else None
             for tk in ts:
-                tv = _mpf(tk)
+                tv = to_mpf(tk)
                 seg = next(
                     (s for s in segments if (tv - s[0]) * sgn >= 0 and (s[1] - tv) * sgn >= 0), None
                 )
@@ -262,7 +260,7 @@ def _event_checks(model, ps, wdps):
     evs = model.events()
     if not evs:
         return []
-    from .expr import compile_expressions
+    from ..expr import compile_expressions
 
     prog = compile_expressions(ps.variables, [e[0] for e in evs], len(ps.parameter_values))
     return [(prog, [e[1] for e in evs], [e[2] for e in evs], list(ps.parameter_values), [None])]

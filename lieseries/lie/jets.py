@@ -3,7 +3,7 @@
 For ``dz/dt = rhs(z)``, ``z(0) = y0`` the normalised Taylor coefficients
 ``c_k = z^(k)(0) / k!`` are built by the classic recurrence: the jets of the
 state variables start as ``[y0]``; for ``k = 0 .. order-1`` every node of the
-compiled right-hand side (:class:`lieseries.lie.expr.Program`) gets its k-th
+compiled right-hand side (:class:`lieseries.expr.Program`) gets its k-th
 coefficient from the coefficients ``0 .. k`` of its arguments, and then the
 state gets ``c_{k+1} = rhs_k / (k+1)``.  Coefficients are computed
 incrementally (nothing is recomputed), each node costs O(k) per new
@@ -52,9 +52,9 @@ from mpmath.libmp import (
     mpf_sum,
 )
 
-from . import expr as _expr
+from .. import expr as _expr
 from ..precision import check_dps, check_order
-from .expr import RND, Constant, Node, Program, eval_nodes, POINTWISE
+from ..expr import RND, Constant, Node, Program, eval_nodes, POINTWISE
 
 __all__ = ["taylor_coefficients", "taylor_coefficients_raw", "jet_guard_bits"]
 
@@ -654,8 +654,8 @@ def taylor_coefficients(program_or_system, y0, pars, order, dps):
     Parameters
     ----------
     program_or_system : Program or list of (variable, expression) pairs
-        The vector field: a :class:`~lieseries.lie.expr.Program` from
-        :func:`~lieseries.lie.expr.compile_system` (preferred when calling
+        The vector field: a :class:`~lieseries.expr.Program` from
+        :func:`~lieseries.expr.compile_system` (preferred when calling
         repeatedly), or a heyoka-style system ``[(z_1, rhs_1), ...]`` (compiled
         on first use and cached).
     y0 : sequence of numbers

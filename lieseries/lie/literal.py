@@ -11,7 +11,7 @@ Two symbolic routes are provided.
 ``"heyoka"``
     ``L^{k+1} f = sum_i rhs_i * hy.diff(L^k f, z_i)`` on heyoka expressions
     (:func:`lie_derivatives`), then compiled with
-    :func:`lieseries.lie.expr.compile_expressions` and evaluated in mpmath.
+    :func:`lieseries.expr.compile_expressions` and evaluated in mpmath.
     Works for every vector field the compiler supports, but the size of
     ``L^k f`` grows geometrically with k (no simplification happens): for
     the 12-dimensional rigid body about x4 per order, about 1 s at k = 8
@@ -53,9 +53,9 @@ from sympy import QQ
 from sympy.polys.polyerrors import ExactQuotientFailed
 from sympy.polys.rings import PolyRing
 
-from . import expr as _expr
+from .. import expr as _expr
 from ..precision import check_dps, check_order, to_fraction
-from .expr import RND
+from ..expr import RND
 
 __all__ = [
     "lie_derivatives",
@@ -510,7 +510,7 @@ def literal_coefficients(variables, rhs, y0, pars, order, dps, method="auto"):
         ``"exact"``: exact rational arithmetic (rational vector fields only;
         the inputs are taken as exact rationals and each result is correctly
         rounded); ``"heyoka"``: :func:`lie_derivatives` compiled with
-        :mod:`~lieseries.lie.expr` and evaluated in mpmath (any supported
+        :mod:`~lieseries.expr` and evaluated in mpmath (any supported
         vector field; cost grows geometrically with `order`); ``"auto"``:
         ``"exact"`` when possible.
 

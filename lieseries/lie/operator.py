@@ -25,7 +25,7 @@ import mpmath as mp
 
 from ..models.base import Model, state_fractions
 from ..poisson import as_poisson_system
-from ..precision import check_dps, check_order, to_fraction
+from ..precision import check_dps, check_order, to_mpf
 
 __all__ = ["LieSeries", "lie_series"]
 #: Guard digits carried above the requested precision inside the operator.
@@ -38,11 +38,6 @@ def prepare(system, y0, argname="y0"):
     model = system if isinstance(system, Model) else None
     z0 = model.check_state(y0, argname) if model is not None else state_fractions(y0, ps.dimension, argname)
     return ps, model, z0, list(ps.parameter_values)
-
-
-def _mpf(q):
-    q = to_fraction(q)
-    return mp.mpf(q.numerator) / q.denominator
 
 
 def horner(coefficients, t, order=None):
@@ -134,7 +129,7 @@ class LieSeries:
         if order > self.order:
             raise ValueError(f"`order` must be at most the series order {self.order}; got {order}")
         with mp.workdps(self.dps + GUARD_DIGITS):
-            vals = horner(self.coefficients, _mpf(t), order)
+            vals = horner(self.coefficients, to_mpf(t, "t"), order)
         with mp.workdps(self.dps):
             return [+v for v in vals]
 
@@ -146,13 +141,13 @@ class LieSeries:
     def error_estimate(self, t) -> mp.mpf:
         """Estimated truncation error at ``t``; ``inf`` where the series diverges (|t| >= radius)."""
         with mp.workdps(self.dps + GUARD_DIGITS):
-            e = tail_estimate(self._norms, _mpf(t), self._radius)
+            e = tail_estimate(self._norms, to_mpf(t, "t"), self._radius)
         with mp.workdps(self.dps):
             return +e
 
     def converges(self, t) -> bool:
         """False where |t| is at or beyond the estimated radius of convergence."""
-        return abs(_mpf(t)) < self._radius
+        return abs(to_mpf(t, "t")) < self._radius
 
     def __repr__(self) -> str:
         return f"LieSeries(order={self.order}, dps={self.dps}, radius~{mp.nstr(self._radius, 5)})"
@@ -184,21 +179,8 @@ def lie_series(system, y0, order: int = 20, dps: int = 30) -> LieSeries:
     dps = check_dps(dps)
     ps, _model, z0, pars = prepare(system, y0)
     with mp.workdps(dps + GUARD_DIGITS):
-        coeffs = taylor_coefficients(_program(ps), z0, pars, order, dps + GUARD_DIGITS)
+        coeffs = taylor_coefficients(ps.program, z0, pars, order, dps + GUARD_DIGITS)
     with mp.workdps(dps):
         coeffs = [[+c for c in ck] for ck in coeffs]
     return LieSeries(coeffs, order, dps, ps.names)
 
-
-_PROGRAMS: dict = {}
-
-
-def _program(ps):
-    """The compiled mpmath program of a system's vector field (compiled once per structure)."""
-    from .expr import compile_expressions
-
-    prog = _PROGRAMS.get(ps.key)
-    if prog is None:
-        prog = compile_expressions(ps.variables, ps.vector_field, len(ps.parameter_values))
-        _PROGRAMS[ps.key] = prog
-    return prog

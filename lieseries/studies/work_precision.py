@@ -283,7 +283,7 @@ def _mpmath_rhs(system):
     hit = _RHS_CACHE.get(key)
     if hit is not None:
         return hit
-    from ..lie.expr import compile_expressions  # the engine's own mpmath evaluator
+    from ..expr import compile_expressions  # the engine's own mpmath evaluator
 
     prog = compile_expressions(ps.variables, ps.vector_field, len(ps.parameter_values))
 

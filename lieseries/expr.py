@@ -77,7 +77,7 @@ from mpmath.libmp import (
     mpf_tanh,
 )
 
-from ..precision import check_dps, to_fraction
+from .precision import check_dps, to_fraction
 
 __all__ = [
     "Program",
