@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from .precision import to_fraction
-from .solution import Solution, Stats
+from .solution import ChartRows, Solution, Stats
 from .timegrid import parse_times
 
 __all__ = ["run_atlas", "MAX_SWITCHES"]
@@ -50,27 +50,25 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, **kwarg
     switch = model.ATLAS_SWITCH
     # start in the best chart for y0
     chart = model.best_chart(z0)
-    if chart != model.chart:
-        z = model.change_chart(z0, chart, bits)
-    else:
-        z = list(z0)
+    z = model.change_chart(z0, chart, bits) if chart != model.chart else list(z0)
     current = model.for_chart(chart, edge=switch)
 
     rows_t, rows_y, rows_c = [], [], []
-    if grid[0] == t0f:
-        rows_t.append(grid[0])
-        rows_y.append(np.array(y0, copy=True) if isinstance(y0, np.ndarray) else np.asarray(y0, dtype=object))
-        rows_c.append(model.chart)
     tcur = t0f
     stats = None
     switches = 0
     sol = None
+    first = True
     while True:
-        remaining = [g for g in grid if (g - tcur) * direction > 0] if direction else []
-        if not remaining:
+        if direction == 0:
+            remaining = t
+        else:
+            remaining = [g for g in grid if (g - tcur) * direction > 0 or (first and g == tcur)]
+        if direction != 0 and not remaining:
             status, message = "success", f"Reached t = {float(grid[-1]):.17g}."
             break
-        sol = integrator(current, z, t=remaining, t0=tcur, **kwargs)
+        sol = integrator(current, z, t=remaining, t0=tcur, atlas=False, **kwargs)
+        first = False
         stats = _merge(stats, sol.stats)
         rows_t.extend(to_fraction(v) for v in sol.t)
         rows_y.extend(sol.y)
@@ -87,17 +85,12 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, **kwarg
         z = current.change_chart(sol.y_reached, chart, bits)
         current = model.for_chart(chart, edge=switch)
         switches += 1
-    if stats is None:
-        stats = Stats(method="atlas", precision="", tol=math.nan)
     stats.extra["chart_switches"] = switches
-    y = np.stack(rows_y) if rows_y else np.empty((0, model.dimension))
+    y = np.stack(rows_y) if rows_y else np.empty((0, model.dimension), dtype=sol.y.dtype)
     tarr = np.array([float(v) for v in rows_t])
-    y_reached = sol.y_reached if sol is not None else rows_y[-1]
-    res = Solution(tarr, y, stats, status, f"{message} ({switches} chart switches)", t_reached=tcur if sol is None
-                   else sol.t_reached, t_requested=grid, y_reached=y_reached)
-    res.charts = np.array(rows_c, dtype=int)
-    res.chart_reached = current.chart
-    return res
+    return Solution(tarr, ChartRows(y, rows_c), stats, status, f"{message} ({switches} chart switches)",
+                    t_reached=sol.t_reached, t_requested=grid, y_reached=ChartRows(sol.y_reached, current.chart),
+                    charts=np.array(rows_c, dtype=int), chart_reached=current.chart)
 
 
 def _merge(total: Stats | None, part: Stats) -> Stats:

@@ -96,7 +96,11 @@ import numbers
 from dataclasses import dataclass
 from typing import Optional
 
-from mpmath import mp
+import dataclasses
+import functools
+
+from .precision import check_dps, export_mpf, mp_context, to_mpf
+from .precision import thread_mp as mp
 
 __all__ = [
     "sphere",
@@ -124,25 +128,60 @@ CLASSIFY_DIGITS = 15
 
 def _fmt(x):
     """Short text for a number in an error message (integers without '.0')."""
-    if isinstance(x, mp.mpf) and mp.isint(x) and abs(x) < 10 ** 15:
+    if hasattr(x, "_mpf_") and mp.isint(x) and abs(x) < 10 ** 15:
         return str(int(x))
     return mp.nstr(x, 15)
 
 
 def _check_dps(dps):
-    if isinstance(dps, bool) or not isinstance(dps, numbers.Integral):
-        raise TypeError(f"`dps` must be an integer number of decimal digits; got {dps!r}")
-    dps = int(dps)
-    if dps < 5:
-        raise ValueError(f"`dps` must be at least 5; got {dps}")
-    return dps
+    return check_dps(dps)
+
+
+def _public(fn):
+    """Results leave in mpmath's global types (their values unchanged): the work is done in this thread's private
+    mpmath context, so that calls from several threads never change each other's precision."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        res = fn(*args, **kwargs)
+        if dataclasses.is_dataclass(res):
+            return dataclasses.replace(res, **{f.name: export_mpf(getattr(res, f.name))
+                                               for f in dataclasses.fields(res)})
+        return export_mpf(res)
+
+    return wrapper
+
+
+def _time_digits(ts) -> int:
+    """Extra working digits that times as large as ``ts`` need: the argument reduction of the periodic and
+    elliptic functions loses about log10 |t| digits."""
+    big = 0
+    for t in ts:
+        try:
+            a = abs(t)
+        except TypeError:
+            continue
+        if hasattr(a, "_mpf_") or isinstance(a, (int, float, fractions.Fraction)):
+            if a > 1:
+                big = max(big, int(mp.log10(a)) + 1 if hasattr(a, "_mpf_") else len(str(int(a))))
+    return big
+
+
+def _magnitude(t):
+    """|t| for sizing the working precision, or 0 for input that the real conversion will refuse by name."""
+    try:
+        return abs(_to_time(t, "t", allow_complex=True))
+    except (TypeError, ValueError):
+        return 0
 
 
 def _to_mpf(x, name):
     """Convert one real scalar exactly (at the current working precision)."""
     if isinstance(x, bool):
         raise TypeError(f"`{name}` must contain real numbers, not booleans; got {x!r}")
-    if isinstance(x, mp.mpf):
+    if isinstance(x, (str, float, decimal.Decimal, fractions.Fraction, numbers.Integral)) or hasattr(x, "_mpf_"):
+        return to_mpf(x, name, ctx=mp_context())
+    if hasattr(x, "_mpf_"):
         return +x
     if isinstance(x, numbers.Integral):
         return mp.mpf(int(x))
@@ -177,8 +216,11 @@ def _to_mpf(x, name):
 
 
 def _to_time(t, name, allow_complex=False):
-    if allow_complex and isinstance(t, (complex, mp.mpc)) and not isinstance(t, bool):
-        return mp.mpc(t)
+    if allow_complex and (isinstance(t, complex) or hasattr(t, "_mpc_")) and not isinstance(t, bool):
+        z = mp.mpc(t)
+        if not (mp.isfinite(z.real) and mp.isfinite(z.imag)):
+            raise ValueError(f"`{name}` must be finite; got {t!r}")
+        return z
     return _to_mpf(t, name)
 
 
@@ -291,6 +333,7 @@ def _sphere_setup(radius, x, v, dps):
     return r, x0, v0, nv
 
 
+@_public
 def sphere(radius, x, v, t, dps=30):
     """Free motion on the sphere ``|x| = radius``: a great circle.
 
@@ -332,7 +375,7 @@ def sphere(radius, x, v, t, dps=30):
     tolerance the formula is still the exact solution of ``x'' = -w^2 x``.
     """
     dps = _check_dps(dps)
-    with mp.workdps(dps + GUARD_DIGITS):
+    with mp.workdps(dps + GUARD_DIGITS + _time_digits([to_mpf(t, "t", ctx=mp_context())])):
         r, x0, v0, nv = _sphere_setup(radius, x, v, dps)
         tt = _to_mpf(t, "t")
         if nv == 0:
@@ -347,6 +390,7 @@ def sphere(radius, x, v, t, dps=30):
         return tuple(+a for a in xt), tuple(+a for a in vt)
 
 
+@_public
 def sphere_pole_distance(radius, x, v, axis=2, dps=30):
     """Distance in complex time to the chart boundary ``x[axis] = 0``.
 
@@ -890,6 +934,7 @@ def _check_psi_method(psi_method):
 # rigid body: public API
 # ----------------------------------------------------------------------------
 
+@_public
 def rigid_body_constants(inertia, omega, dps=30):
     """Invariants, regime and singularity data of the free rigid body.
 
@@ -929,6 +974,7 @@ def rigid_body_constants(inertia, omega, dps=30):
     return _RigidBody(inertia, omega, dps).constants()
 
 
+@_public
 def euler_poisson(inertia, omega, t, dps=30, psi_method="elliptic"):
     """Closed-form state of the free rigid body at time `t`, from ``R(0) = 1``.
 
@@ -979,6 +1025,7 @@ def euler_poisson(inertia, omega, t, dps=30, psi_method="elliptic"):
     return euler_poisson_many(inertia, omega, [t], dps, psi_method)[0]
 
 
+@_public
 def euler_poisson_many(inertia, omega, ts, dps=30, psi_method="elliptic"):
     """Closed-form states of the free rigid body at several times.
 
@@ -1001,7 +1048,9 @@ def euler_poisson_many(inertia, omega, ts, dps=30, psi_method="elliptic"):
     _check_psi_method(psi_method)
     if not _is_sequence(ts):
         raise TypeError(f"`ts` must be a sequence of real times; got {type(ts).__name__}")
-    body = _RigidBody(inertia, omega, dps)
+    with mp.workdps(15):
+        extra = _time_digits([_magnitude(t) for t in ts])
+    body = _RigidBody(inertia, omega, dps + extra) if extra else _RigidBody(inertia, omega, dps)
     out = []
     with mp.workdps(body.wp):
         raw = [body.state(_to_mpf(t, "t"), psi_method) for t in ts]
@@ -1011,6 +1060,7 @@ def euler_poisson_many(inertia, omega, ts, dps=30, psi_method="elliptic"):
     return out
 
 
+@_public
 def angular_velocity(inertia, omega, t, dps=30):
     """Body angular velocity ``Omega(t)`` in closed form, for real or complex `t`.
 
@@ -1028,7 +1078,10 @@ def angular_velocity(inertia, omega, t, dps=30):
         ``Omega(t)`` in the user's body frame.
     """
     dps = _check_dps(dps)
-    body = _RigidBody(inertia, omega, dps)
+    with mp.workdps(15):
+        tt = _to_time(t, "t", allow_complex=True)
+        extra = _time_digits([abs(tt)])
+    body = _RigidBody(inertia, omega, dps + extra)
     with mp.workdps(body.wp):
         tt = _to_time(t, "t", allow_complex=True)
         w = body.angular_velocity(tt)

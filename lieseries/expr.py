@@ -117,6 +117,12 @@ _PAR_RE = re.compile(r"^par\[(\d+)\]$")
 # Argument checking and conversion of user numbers
 # --------------------------------------------------------------------------
 
+def rounded_mpf(prec, raw, ctx=None):
+    """An mpf of context ``ctx`` (mpmath's global one by default) holding the raw value ``raw`` rounded to
+    ``prec`` bits; no context's working precision is involved."""
+    return (ctx or mpmath.mp).make_mpf(mpf_pos(raw, prec, RND))
+
+
 def dps_to_prec(dps):
     """Binary precision mpmath uses for `dps` decimal digits."""
     return libmp.dps_to_prec(dps)
@@ -442,7 +448,7 @@ class Program:
 
     # -- public --------------------------------------------------------------
 
-    def evaluate(self, values, pars, dps):
+    def evaluate(self, values, pars, dps, ctx=None):
         """Evaluate the compiled expressions at a point, in mpmath.
 
         Parameters
@@ -462,14 +468,13 @@ class Program:
             One value per compiled expression, rounded to `dps` digits.
         """
         dps = check_dps(dps)
-        with mpmath.mp.workdps(dps):
-            prec = mpmath.mp.prec
-            wp = prec + EVAL_GUARD_BITS
-            vr = convert_vector(values, self.nvars, wp, "values")
-            pr = convert_vector(pars, self.npars, wp, "pars")
-            out = self.evaluate_raw(vr, pr, wp)
-            make = mpmath.mp.make_mpf
-            return [+make(r) for r in out]
+        # explicit precision: mpmath's global context is never touched
+        prec = libmp.dps_to_prec(dps)
+        wp = prec + EVAL_GUARD_BITS
+        vr = convert_vector(values, self.nvars, wp, "values")
+        pr = convert_vector(pars, self.npars, wp, "pars")
+        out = self.evaluate_raw(vr, pr, wp)
+        return [rounded_mpf(prec, r, ctx) for r in out]
 
 
 # --------------------------------------------------------------------------

@@ -34,7 +34,7 @@ from typing import Mapping, Sequence
 import heyoka as hy
 import mpmath as mp
 
-from .precision import to_fraction
+from .precision import carried_bits, to_fraction
 
 __all__ = ["PoissonSystem", "as_poisson_system"]
 
@@ -84,6 +84,9 @@ class PoissonSystem:
         ``dz/dt = P grad H + extra_field``. The bracket and its checks ignore it.
     name : str
         A label used in messages and reports.
+    input_bits : mapping name -> bits, optional
+        For models: the precision carried by the data the model was built from (e.g. ``{"inertia": 53}`` for
+        moments given as binary floats such as 1.1), reported by :meth:`coarse_data`.
     """
 
     def __init__(
@@ -96,6 +99,7 @@ class PoissonSystem:
         casimirs: Mapping | None = None,
         extra_field: Sequence | None = None,
         name: str = "system",
+        input_bits: Mapping | None = None,
     ):
         if isinstance(variables, (str, bytes)) or not hasattr(variables, "__len__"):
             raise TypeError("`variables` must be a sequence of names or heyoka variables")
@@ -137,6 +141,12 @@ class PoissonSystem:
             pnames = tuple(f"p{i}" for i in range(len(pvals)))
         self._param_names = pnames
         self._param_values = tuple(to_fraction(v, f"parameters[{k!r}]") for k, v in zip(pnames, pvals))
+        self._coarse = {f"parameters[{k!r}]": b for k, b in ((k, carried_bits(v)) for k, v in zip(pnames, pvals))
+                        if b is not None}
+        for k, b in (input_bits or {}).items():
+            if b is not None:
+                self._coarse[str(k)] = int(b)
+        self._constants_checked = False
         used = hy.get_params(
             [self._hamiltonian]
             + [e for r in self._tensor for e in r if e is not None]
@@ -244,6 +254,22 @@ class PoissonSystem:
             if e is not None
         ]
         return hy.sum(terms) if terms else hy.expression(0.0)
+
+    def coarse_data(self) -> dict:
+        """What in the system carries a finite precision: ``{argument: bits}``.
+
+        Parameters given as long binary floats (1.1 as a double carries 53 bits), the model's inputs (see
+        ``input_bits``), and float constants inside the expressions that are not short dyadic numbers (heyoka
+        stores ``0.05 * q**2`` with the double nearest 0.05). Empty when every number is exact.
+        """
+        if not self._constants_checked:
+            for _slot, c in self.program.constants:
+                if c.kind == "binary" and c.value[1]:
+                    if carried_bits(mp.libmp.to_float(c.value)) is not None:
+                        key = f"the constant {mp.nstr(mp.make_mpf(c.value), 8)} in the expressions"
+                        self._coarse[key] = 53
+            self._constants_checked = True
+        return dict(self._coarse)
 
     @property
     def program(self):

@@ -17,6 +17,9 @@ from __future__ import annotations
 import decimal
 import math
 import numbers
+import re
+import threading
+import warnings
 from dataclasses import dataclass
 from fractions import Fraction
 
@@ -26,6 +29,17 @@ import numpy as np
 
 __all__ = [
     "MIN_DPS",
+    "MAX_DPS",
+    "MAX_BITS",
+    "MAX_ORDER",
+    "MAX_EXPONENT",
+    "EXACT_BITS",
+    "PrecisionWarning",
+    "carried_bits",
+    "warn_if_coarse",
+    "mp_context",
+    "thread_mp",
+    "export_mpf",
     "check_dps",
     "check_order",
     "Precision",
@@ -48,26 +62,85 @@ _ALIASES = {
 }
 
 
-#: Fewest decimal digits an mpmath computation (Lie series, references) accepts.
-MIN_DPS = 5
+#: Fewest decimal digits an mpmath computation (Lie series, references) accepts: below double's 15 digits an
+#: mpmath run has nothing to offer over heyoka in double.
+MIN_DPS = 15
+#: Most decimal digits an mpmath computation accepts (about 33,000 bits).
+MAX_DPS = 10_000
+#: Most bits heyoka's arbitrary precision is used with: its Taylor order grows like 0.35 bits, and compiling an
+#: order-350 integrator of the rigid body already takes seconds (docs/api.md, "Limits").
+MAX_BITS = 1024
+#: Highest series order the Lie engine computes (the cost grows like order^2 per node of the field).
+MAX_ORDER = 2000
+#: Largest decimal exponent of an input number (|x| < 10**MAX_EXPONENT, nonzero |x| > 10**-MAX_EXPONENT).
+MAX_EXPONENT = 4000
+#: A binary number whose significand has at most this many significant bits (0.5, 1.25, 3.0, 0.375, ...) is taken
+#: as exact: it is what was meant. Anything longer (0.1 as a double) carries its format's precision only.
+EXACT_BITS = 32
+
+
+class PrecisionWarning(UserWarning):
+    """A run at a higher precision than its input data carry (binary floats where exact values were meant)."""
 
 
 def check_dps(dps, argname: str = "dps") -> int:
-    """Validate a number of decimal digits (an integer >= MIN_DPS) and return it as an int."""
+    """Validate a number of decimal digits (an integer in [MIN_DPS, MAX_DPS]) and return it as an int."""
     if isinstance(dps, bool) or not isinstance(dps, numbers.Integral):
-        raise TypeError(f"`{argname}` must be an integer number of decimal digits >= {MIN_DPS}; got {dps!r}")
+        raise TypeError(
+            f"`{argname}` must be an integer number of decimal digits in [{MIN_DPS}, {MAX_DPS}]; got {dps!r}"
+        )
     if dps < MIN_DPS:
-        raise ValueError(f"`{argname}` must be at least {MIN_DPS} decimal digits; got {dps}")
+        raise ValueError(
+            f"`{argname}` must be at least {MIN_DPS} decimal digits; got {dps}. For fewer digits use "
+            "`lieseries.integrate` in double."
+        )
+    if dps > MAX_DPS:
+        raise ValueError(f"`{argname}` must be at most {MAX_DPS} decimal digits; got {dps}")
     return int(dps)
 
 
 def check_order(order, argname: str = "order") -> int:
-    """Validate a series order (an integer >= 1) and return it as an int."""
+    """Validate a series order (an integer in [1, MAX_ORDER]) and return it as an int."""
     if isinstance(order, bool) or not isinstance(order, numbers.Integral):
         raise TypeError(f"`{argname}` must be an integer >= 1; got {type(order).__name__} {order!r}")
     if order < 1:
         raise ValueError(f"`{argname}` must be an integer >= 1; got {order}")
+    if order > MAX_ORDER:
+        raise ValueError(
+            f"`{argname}` must be at most {MAX_ORDER} (the cost grows like order^2); got {order}. Shorter steps "
+            "with a lower order reach the same accuracy."
+        )
     return int(order)
+
+
+def check_count(value, argname: str, *, low: int = 1, high: int | None = None) -> int:
+    """Validate an integer count (numpy integers accepted) in [low, high] and return it as an int."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"`{argname}` must be an integer >= {low}; got {type(value).__name__} {value!r}")
+    value = int(value)
+    if value < low or (high is not None and value > high):
+        bound = f"in [{low}, {high}]" if high is not None else f">= {low}"
+        raise ValueError(f"`{argname}` must be an integer {bound}; got {value}")
+    return value
+
+
+def check_seconds(value, argname: str):
+    """Validate an optional positive, finite number of seconds (None passes through) and return a float."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"`{argname}` must be a positive number of seconds; got {type(value).__name__} {value!r}")
+    v = float(value)
+    if not (v > 0 and math.isfinite(v)):
+        raise ValueError(f"`{argname}` must be a positive, finite number of seconds; got {value!r}")
+    return v
+
+
+def check_callable(value, argname: str):
+    """Validate an optional callable (None passes through)."""
+    if value is not None and not callable(value):
+        raise TypeError(f"`{argname}` must be callable (or None); got {type(value).__name__} {value!r}")
+    return value
 
 
 def dps_to_bits(dps: int) -> int:
@@ -138,37 +211,54 @@ class Precision:
         return np.dtype(hy.real)
 
     # -- conversions -------------------------------------------------------------------------------------------
-    def to_native(self, value):
-        """Round ``value`` (exact input of any supported kind) once, correctly, to this precision."""
-        frac = value if isinstance(value, Fraction) else to_fraction(value, "value")
-        if self.name == "double":
-            return float(frac)  # Fraction -> float is correctly rounded
-        with mp.workprec(self.bits):
-            x = mp.mpf(frac.numerator) / frac.denominator  # correctly rounded to `bits`
-        return self._mpf_to_native(x)
+    @property
+    def max_exponent(self) -> int:
+        """Binary exponent of the largest finite number of this format (MPFR's range for ``real``)."""
+        return {"double": 1024, "long double": 16384, "quad": 16384}.get(self.name, 1 << 30)
 
-    def _mpf_to_native(self, x: mp.mpf):
+    def to_native(self, value, argname: str = "value"):
+        """Round ``value`` (exact input of any supported kind) once, correctly, to this precision.
+
+        Raises ValueError, naming ``argname``, when the value overflows the format (or underflows to zero).
+        """
+        frac = value if isinstance(value, Fraction) else to_fraction(value, argname)
+        if frac == 0:
+            return self._raw_to_native(mp.libmp.fzero)
+        raw = mp.libmp.from_rational(frac.numerator, frac.denominator, self.bits, mp.libmp.round_nearest)
+        exp = raw[2] + raw[3]  # |x| < 2**exp
+        if exp > self.max_exponent:
+            raise ValueError(
+                f"`{argname}` = {_short(frac)} overflows {self.name} (largest about 2**{self.max_exponent}); "
+                "rescale the problem or use a wider precision"
+            )
+        if exp < -self.max_exponent - self.bits + 2:
+            raise ValueError(
+                f"`{argname}` = {_short(frac)} underflows to zero in {self.name}; rescale the problem or use a "
+                "wider precision"
+            )
+        return self._raw_to_native(raw)
+
+    def _raw_to_native(self, raw):
+        """A native number from a raw mpf (sign, man, exp, bc) already rounded to this precision."""
+        sign, man, exp, _ = raw
         if self.name == "double":
-            return float(x)
+            return mp.libmp.to_float(raw)
         if self.name == "long double":
-            if not mp.isfinite(x):
-                return np.longdouble(float(x))
-            sign, man, exp, _ = x._mpf_
             # split the (<= 64-bit) significand so that each piece converts to long double exactly
             hi, lo = divmod(int(man), 1 << 32)
             v = np.ldexp(np.longdouble(hi), 32) + np.longdouble(lo)
             v = np.ldexp(v, int(exp))
             return -v if sign else v
-        digits = bits_to_dps(self.bits) + 10
-        s = mp.nstr(x, digits, strip_zeros=False, min_fixed=1, max_fixed=0) if mp.isfinite(x) else str(float(x))
+        text = mp.libmp.to_str(raw, bits_to_dps(self.bits) + 10)
         if self.name == "quad":
-            return hy.real128(s)
-        return hy.real(s, self.bits)
+            return hy.real128(text)
+        return hy.real(text, self.bits)
 
-    def array(self, values) -> np.ndarray:
+    def array(self, values, argname: str = "value") -> np.ndarray:
         """A 1-d (or n-d) numpy array of ``values`` rounded to this precision."""
-        arr = np.asarray(values, dtype=object)
-        out = [self.to_native(v) for v in arr.ravel()]
+        exact = getattr(values, "exact", None)
+        arr = np.asarray(exact if exact is not None else values, dtype=object)
+        out = [self.to_native(v, argname) for v in arr.ravel()]
         if self.is_real:
             res = np.empty(len(out), dtype=hy.real)
             for i, v in enumerate(out):
@@ -179,7 +269,7 @@ class Precision:
 
     def time(self, t):
         """A time value in this precision (what heyoka's propagate functions take)."""
-        return self.to_native(t)
+        return self.to_native(t, "t")
 
     def __str__(self) -> str:  # pragma: no cover - trivial
         return self.name
@@ -215,9 +305,12 @@ def resolve_precision(precision, argname: str = "precision") -> Precision:
             f"got {type(precision).__name__} {precision!r}"
         )
     bits = int(precision)
-    lo, hi = hy.real_prec_min(), min(hy.real_prec_max(), 1 << 20)
-    if bits < 2 or bits < lo or bits > hi:
-        raise ValueError(f"`{argname}` as a number of bits must lie in [{max(2, lo)}, {hi}]; got {bits}")
+    lo = max(2, hy.real_prec_min())
+    if bits < lo or bits > MAX_BITS:
+        raise ValueError(
+            f"`{argname}` as a number of bits must lie in [{lo}, {MAX_BITS}]; got {bits}. Above {MAX_BITS} bits "
+            "use the Lie-series engine (`lieseries.lie_integrate(..., dps=...)`)."
+        )
     return Precision(f"real{bits}", bits)
 
 
@@ -248,6 +341,64 @@ def to_fraction(value, argname: str = "value") -> Fraction:
     ValueError
         When ``value`` is NaN or infinite, naming ``argname``.
     """
+    return _bounded(_exact_value(value, argname), argname)
+
+
+def _short(f: Fraction) -> str:
+    """A short decimal rendering of a possibly huge exact value (for messages)."""
+    if f == 0:
+        return "0"
+    e = _log10_abs(f)
+    if abs(e) < 300:
+        return f"{float(f):.6g}"
+    return f"{'-' if f < 0 else ''}~1e{int(round(e))}"
+
+
+def _log10_abs(f: Fraction) -> float:
+    n, d = abs(f.numerator), f.denominator
+    return (n.bit_length() - d.bit_length()) * math.log10(2)
+
+
+def _bounded(f: Fraction, argname: str) -> Fraction:
+    if f != 0 and abs(_log10_abs(f)) > MAX_EXPONENT + 1:
+        raise ValueError(
+            f"`{argname}` = {_short(f)} is out of range: numbers must lie within 1e-{MAX_EXPONENT} .. "
+            f"1e{MAX_EXPONENT} in magnitude (or be 0)"
+        )
+    return f
+
+
+_DECIMAL = re.compile(r"^\s*[+-]?(\d+\.?\d*|\.\d+)([eE]([+-]?\d+))?\s*$")
+_RATIO = re.compile(r"^\s*[+-]?\d+\s*/\s*[+-]?\d+\s*$")
+
+
+def _string_fraction(value: str, argname: str) -> Fraction:
+    text = value.strip()
+    m = _DECIMAL.match(text)
+    if m:
+        if m.group(3) is not None and abs(int(m.group(3))) > MAX_EXPONENT + len(m.group(1)):
+            raise ValueError(
+                f"`{argname}` = {value!r} is out of range: numbers must lie within 1e-{MAX_EXPONENT} .. "
+                f"1e{MAX_EXPONENT} in magnitude (or be 0)"
+            )
+        return Fraction(text)
+    if _RATIO.match(text):
+        if len(text) > 2 * MAX_EXPONENT:
+            raise ValueError(f"`{argname}` = {value[:40]!r}... is too long a ratio")
+        num, den = (int(part) for part in text.split("/"))
+        if den == 0:
+            raise ValueError(f"`{argname}` = {value!r} divides by zero")
+        return Fraction(num, den)
+    lowered = text.lower()
+    if lowered.lstrip("+-") in ("inf", "infinity", "nan"):
+        raise ValueError(f"`{argname}` must be finite; got {value!r}")
+    raise ValueError(
+        f"`{argname}` must be a number; could not read the string {value!r} (use decimals like '0.1', "
+        "'1e-3' or ratios like '1/3')"
+    )
+
+
+def _exact_value(value, argname: str) -> Fraction:
     if isinstance(value, Fraction):
         return value
     if isinstance(value, bool):
@@ -255,27 +406,27 @@ def to_fraction(value, argname: str = "value") -> Fraction:
     if isinstance(value, numbers.Integral):
         return Fraction(int(value))
     if isinstance(value, str):
-        try:
-            return Fraction(value.strip())
-        except ValueError:
-            try:
-                return Fraction(float(value))
-            except ValueError:
-                raise ValueError(f"`{argname}` must be a number; could not read the string {value!r}") from None
-            except OverflowError:
-                raise ValueError(f"`{argname}` must be finite; got {value!r}") from None
+        return _string_fraction(value, argname)
     if isinstance(value, decimal.Decimal):
         if not value.is_finite():
             raise ValueError(f"`{argname}` must be finite; got {value}")
+        if abs(value.adjusted()) > MAX_EXPONENT + 1:
+            raise ValueError(f"`{argname}` = {value} is out of range (|exponent| > {MAX_EXPONENT})")
         return Fraction(value)
     if type(value).__module__.startswith("sympy"):
         return _sympy_to_fraction(value, argname)
-    if isinstance(value, mp.mpf):
-        if not mp.isfinite(value):
-            raise ValueError(f"`{argname}` must be finite; got {value}")
+    if hasattr(value, "_mpf_"):  # an mpf of any mpmath context
         sign, man, exp, _ = value._mpf_  # (mpf.man_exp drops the sign)
-        f = Fraction(int(man)) * (Fraction(2) ** int(exp))
+        if not man:
+            if exp:
+                raise ValueError(f"`{argname}` must be finite; got {value}")
+            return Fraction(0)
+        if abs(exp) > 4 * MAX_EXPONENT:
+            raise ValueError(f"`{argname}` = {value} is out of range (|x| beyond 1e{MAX_EXPONENT})")
+        f = Fraction(int(man) << exp) if exp >= 0 else Fraction(int(man), 1 << -exp)
         return -f if sign else f
+    if hasattr(value, "_mpc_"):
+        raise TypeError(f"`{argname}` must be a real number; got the complex {value}")
     if isinstance(value, (float, np.floating)):
         if not np.isfinite(value):
             raise ValueError(f"`{argname}` must be finite; got {value}")
@@ -286,13 +437,16 @@ def to_fraction(value, argname: str = "value") -> Fraction:
         if any(c in s.lower() for c in ("nan", "inf")):
             raise ValueError(f"`{argname}` must be finite; got {s}")
         bits = value.prec if isinstance(value, hy.real) else 113
+        if bits > 4 * MAX_DPS:
+            raise ValueError(f"`{argname}` is a {bits}-bit number; lieseries takes numbers of at most {4 * MAX_DPS} bits")
         # the printed digits identify the binary value uniquely; round them back to its precision exactly
-        with mp.workprec(bits + 64):
-            approx = mp.mpf(s)
-        with mp.workprec(bits):
-            return to_fraction(+approx, argname)
+        raw = mp.libmp.from_str(s, bits + 64, mp.libmp.round_nearest)
+        raw = mp.libmp.mpf_pos(raw, bits, mp.libmp.round_nearest)
+        return _exact_value(mp.make_mpf(raw), argname)
     if isinstance(value, np.ndarray) and value.ndim == 0:
-        return to_fraction(value.item() if value.dtype != object else value[()], argname)
+        return _exact_value(value.item() if value.dtype != object else value[()], argname)
+    if isinstance(value, complex) or (isinstance(value, np.generic) and np.iscomplexobj(value)):
+        raise TypeError(f"`{argname}` must be a real number; got the complex {value}")
     raise TypeError(f"`{argname}` must be a real number; got {type(value).__name__} {value!r}")
 
 
@@ -302,15 +456,136 @@ def _sympy_to_fraction(value, argname):
     if isinstance(value, sympy.Rational):
         return Fraction(int(value.p), int(value.q))
     if isinstance(value, sympy.Float):
-        return to_fraction(mp.mpf(value._mpf_), argname)
+        return _exact_value(mp.make_mpf(value._mpf_), argname)
     raise TypeError(f"`{argname}` must be an exact number; got the sympy expression {value!r}")
 
 
-def to_mpf(value, argname: str = "value") -> mp.mpf:
-    """``value`` as an mpf rounded once to the current mpmath working precision."""
-    if isinstance(value, mp.mpf):
-        if not mp.isfinite(value):
+def to_mpf(value, argname: str = "value", ctx=None) -> mp.mpf:
+    """``value`` as an mpf of context ``ctx`` (mpmath's global one by default; the engines pass their thread's
+    :func:`mp_context`), rounded once to that context's working precision."""
+    ctx = mp.mp if ctx is None else ctx
+    if hasattr(value, "_mpf_"):
+        if not ctx.isfinite(value):
             raise ValueError(f"`{argname}` must be finite; got {value}")
-        return +value
+        return ctx.make_mpf(mp.libmp.mpf_pos(value._mpf_, ctx.prec, mp.libmp.round_nearest))
     f = to_fraction(value, argname)
-    return mp.mpf(f.numerator) / f.denominator
+    return ctx.make_mpf(mp.libmp.from_rational(f.numerator, f.denominator, ctx.prec, mp.libmp.round_nearest))
+
+
+# -- precision carried by data ---------------------------------------------------------------------------------------
+def carried_bits(value):
+    """The precision (bits) a number carries, or None for an exact value.
+
+    Exact: int, Fraction, decimal strings, Decimal, sympy numbers, mpmath mpf (it has no format of its own: its
+    value is what the user computed), and binary numbers whose significand has at most :data:`EXACT_BITS`
+    significant bits (0.5, 3.0, 1.25: what was typed is what is stored). A longer binary significand carries its
+    format's precision: 53 for a float64 (0.1 as a double), 64 for a long double, 113 for real128, ``prec`` for
+    heyoka.real. An :class:`ExactState`-like object (with an ``exact`` attribute) is exact.
+    """
+    if isinstance(value, (Fraction, numbers.Integral, str, decimal.Decimal)) or value is None:
+        return None
+    if type(value).__module__.startswith("sympy") or hasattr(value, "_mpf_"):
+        return None
+    if isinstance(value, np.longdouble) and np.dtype(np.longdouble) != np.float64:
+        f = to_fraction(value)
+        return _significand_bits(f.numerator * f.denominator, _BUILTIN["long double"].bits)
+    if isinstance(value, (float, np.floating)):
+        n, _d = float(value).as_integer_ratio() if not isinstance(value, np.longdouble) else value.as_integer_ratio()
+        return _significand_bits(n, 53 if not isinstance(value, np.float32) else 24)
+    if isinstance(value, hy.real128):
+        return _significand_bits(to_fraction(value).numerator, 113)
+    if isinstance(value, hy.real):
+        return _significand_bits(to_fraction(value).numerator, int(value.prec))
+    return None
+
+
+def _significand_bits(man: int, fmt_bits: int):
+    man = abs(int(man))
+    if man == 0:
+        return None
+    man >>= (man & -man).bit_length() - 1  # drop trailing zero bits
+    return None if man.bit_length() <= EXACT_BITS else int(fmt_bits)
+
+
+def data_bits(values):
+    """The least precision carried by any of ``values`` (None when all are exact)."""
+    exact = getattr(values, "exact", None)
+    if exact is not None:
+        return None
+    arr = np.asarray(values, dtype=object).ravel() if not isinstance(values, (list, tuple)) else values
+    bits = [b for b in (carried_bits(v) for v in arr) if b is not None]
+    return min(bits) if bits else None
+
+
+def warn_if_coarse(bits, work_bits: int, argname: str, *, stacklevel: int = 3) -> None:
+    """Emit one :class:`PrecisionWarning` when data carrying ``bits`` bits feed a run at ``work_bits`` bits."""
+    if bits is None or bits >= work_bits:
+        return
+    warnings.warn(
+        f"`{argname}` carries only {bits} bits ({bits_to_dps(bits)} digits: binary numbers such as the double 0.1 "
+        f"are roundings of what was typed), but the run works with {work_bits} bits: it is exact for those binary "
+        "values, not for the decimals you may have meant, and agrees with the intended problem to about "
+        f"{bits_to_dps(bits)} digits only. Pass exact values (strings like '0.1', ints, Fractions), or a state "
+        "from `model.initial_state(...)` built from exact input.",
+        PrecisionWarning,
+        stacklevel=stacklevel,
+    )
+
+
+# -- thread-private mpmath ---------------------------------------------------------------------------------------------
+_LOCAL = threading.local()
+
+
+def mp_context():
+    """This thread's private mpmath context.
+
+    mpmath's global context ``mpmath.mp`` is process-wide: a ``workdps`` block in one thread changes the precision
+    of every other thread's arithmetic. lieseries computes in a context of its own per thread, and hands results out
+    as ordinary ``mpmath.mpf`` (:func:`export_mpf`).
+    """
+    ctx = getattr(_LOCAL, "ctx", None)
+    if ctx is None:
+        ctx = _LOCAL.ctx = mp.MPContext()
+    return ctx
+
+
+class _ThreadMP:
+    """mpmath's API on this thread's private context (:func:`mp_context`): ``thread_mp.workdps(50)``,
+    ``thread_mp.mpf``, ``thread_mp.ellipk``, ... behave like ``mpmath.mp``'s but touch no other thread."""
+
+    def __getattr__(self, name):
+        try:
+            return getattr(mp_context(), name)
+        except AttributeError:
+            return getattr(mp, name)
+
+
+#: Use as ``from lieseries.precision import thread_mp as mp`` inside the engines.
+thread_mp = _ThreadMP()
+
+
+def export_mpf(value, prec: int | None = None):
+    """``value`` (an mpf/mpc of any context, or nested lists/tuples/dicts/object arrays of them) as mpmath's global
+    ``mpf``/``mpc``, with its value unchanged (or rounded to ``prec`` bits when given), without touching the global
+    precision."""
+    if hasattr(value, "_mpf_"):
+        raw = value._mpf_ if prec is None else mp.libmp.mpf_pos(value._mpf_, prec, mp.libmp.round_nearest)
+        return mp.make_mpf(raw)
+    if hasattr(value, "_mpc_"):
+        re_, im_ = value._mpc_
+        if prec is not None:
+            re_ = mp.libmp.mpf_pos(re_, prec, mp.libmp.round_nearest)
+            im_ = mp.libmp.mpf_pos(im_, prec, mp.libmp.round_nearest)
+        return mp.make_mpc((re_, im_))
+    if isinstance(value, np.ndarray) and value.dtype == object:
+        out = np.empty(value.shape, dtype=object)
+        for idx, v in np.ndenumerate(value):
+            out[idx] = export_mpf(v, prec)
+        return out
+    if isinstance(value, list):
+        return [export_mpf(v, prec) for v in value]
+    if isinstance(value, tuple):
+        return tuple(export_mpf(v, prec) for v in value)
+    if isinstance(value, dict):
+        return {k: export_mpf(v, prec) for k, v in value.items()}
+    return value

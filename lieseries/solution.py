@@ -7,7 +7,7 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["Solution", "Stats", "STATUSES"]
+__all__ = ["Solution", "Stats", "STATUSES", "ChartRows"]
 
 #: Every status a run can end with, and what it means.
 STATUSES = {
@@ -19,6 +19,7 @@ STATUSES = {
     "step_budget": "the step budget (max_steps) ran out",
     "time_budget": "the wall-time budget (max_time) ran out",
     "divergent": "the Lie series diverges at the requested step (beyond its radius of convergence)",
+    "invariant_drift": "reached the final time, but a conserved quantity drifted: the result is wrong",
 }
 
 
@@ -82,20 +83,28 @@ class Solution:
     """
 
     def __init__(self, t, y, stats: Stats, status: str, message: str, t_reached, dense: Callable | None = None,
-                 t_requested=None, y_reached=None):
+                 t_requested=None, y_reached=None, charts=None, chart_reached=None):
         if status not in STATUSES:  # pragma: no cover - programming error
             raise ValueError(f"unknown status {status!r}")
-        self.t = t
-        self.y = y
-        self.stats = stats
-        self.status = status
-        self.message = message
-        self.t_reached = t_reached
-        self.t_requested = t_requested
-        self.y_reached = y_reached
-        #: For an atlas run: the chart each output row is written in (else None).
-        self.charts = None
-        self._dense = dense
+        set_ = object.__setattr__
+        set_(self, "t", _read_only(t))
+        set_(self, "y", _read_only(y))
+        set_(self, "stats", stats)
+        set_(self, "status", status)
+        set_(self, "message", message)
+        set_(self, "t_reached", t_reached)
+        set_(self, "t_requested", tuple(t_requested) if t_requested is not None else None)
+        set_(self, "y_reached", _read_only(y_reached))
+        #: For an atlas run: the chart each output row is written in (else None), and the chart of y_reached.
+        set_(self, "charts", _read_only(charts))
+        set_(self, "chart_reached", chart_reached)
+        set_(self, "_dense", dense)
+
+    def __setattr__(self, name, value):
+        raise AttributeError(f"a Solution is immutable; `{name}` cannot be set")
+
+    def __delattr__(self, name):
+        raise AttributeError(f"a Solution is immutable; `{name}` cannot be deleted")
 
     @property
     def success(self) -> bool:
@@ -103,8 +112,8 @@ class Solution:
 
     @property
     def y_final(self):
-        """The last state reached."""
-        return self.y[-1]
+        """The state at ``t_reached`` (the last good state of a run that stopped early)."""
+        return self.y_reached
 
     def __call__(self, t):
         """Dense output: the state at time(s) ``t`` inside the integrated interval."""
@@ -119,6 +128,51 @@ class Solution:
             f"Solution(status={self.status!r}, outputs={len(self.t)}, steps={self.stats.steps}, "
             f"order={self.stats.order}, precision={self.stats.precision!r})"
         )
+
+
+class ChartRows(np.ndarray):
+    """States of a run across an atlas of charts: ``charts`` gives the chart of each row.
+
+    A row taken from it (``sol.y[-1]``) keeps its chart, so that model helpers such as ``Sphere.position`` read
+    it in the right chart; anything else derived from it (arithmetic, columns, copies) is a plain array with no
+    chart, which those helpers refuse.
+    """
+
+    def __new__(cls, rows, charts):
+        arr = np.asarray(rows).view(cls)
+        arr.charts = np.asarray(charts, dtype=int) if arr.ndim == 2 else int(charts)
+        return arr
+
+    def __array_finalize__(self, obj):
+        self.charts = None
+
+    def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
+        inputs = tuple(np.asarray(x) if isinstance(x, ChartRows) else x for x in inputs)
+        if "out" in kwargs:
+            kwargs["out"] = tuple(np.asarray(o) if isinstance(o, ChartRows) else o for o in kwargs["out"])
+        return getattr(ufunc, method)(*inputs, **kwargs)
+
+    def __getitem__(self, key):
+        out = np.ndarray.__getitem__(self, key)
+        if not isinstance(out, np.ndarray):
+            return out
+        if self.ndim == 2 and self.charts is not None:
+            rows, cols = (key[0], key[1:]) if isinstance(key, tuple) else (key, ())
+            if all(isinstance(c, slice) and c == slice(None) for c in cols):
+                return ChartRows(np.asarray(out), np.asarray(self.charts)[rows])
+        return np.asarray(out)
+
+    def __copy__(self):
+        return ChartRows(np.asarray(self).copy(), self.charts) if self.charts is not None else np.asarray(self).copy()
+
+    def __reduce__(self):
+        return (ChartRows, (np.asarray(self), self.charts))
+
+
+def _read_only(a):
+    if isinstance(a, np.ndarray):
+        a.flags.writeable = False
+    return a
 
 
 def as_float_array(values) -> np.ndarray:

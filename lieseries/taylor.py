@@ -9,19 +9,36 @@ parameter values are set per run.
 
 Guards
 ------
-A run never hangs and never returns a silently wrong state. heyoka itself stops on a non-finite state
-(status ``non_finite``). A per-step guard stops when the wall-time budget ``max_time`` runs out
-(``time_budget``), when ``max_steps`` steps were taken (``step_budget``), and when the step size has collapsed
-so far that finishing at the current step size would need more than the remaining step budget
-(``step_collapse``: the symptom of a stiff problem for an explicit method, or of a singularity ahead). A run is
-called stiff when its steps are tiny (finishing needs more than 1e5 steps with the default budget, or more than
-``max_steps`` when given) while the state changes by less than 1e-3 per step: the step is then limited by
-stability, not accuracy, and the run stops with ``step_collapse`` and a message that says so.
-Terminal events of the model (e.g. the edge of a sphere chart) end the run with their own status.
+A run never hangs and never returns a silently wrong state, and pays no Python call per step for it: heyoka
+integrates in chunks of steps (sized so that a chunk takes about 0.1 s; a short run is a single chunk), and the
+checks run between chunks:
+
+- ``time_budget``: the wall-time budget ``max_time`` ran out (it bounds the integration, not the compilation of a
+  new integrator, which happens once per structure and precision);
+- ``step_budget``: ``max_steps`` steps were taken;
+- ``step_collapse``: the step size has collapsed so far that finishing would need more than the step budget (a
+  singularity ahead), or the problem is stiff: its steps are tiny (finishing needs more than 1e5 steps with the
+  default budget, or more than ``max_steps`` when given) while no component of the state changes by more than
+  1e-3 of its own size per step -- the step is then limited by stability, not accuracy;
+- ``non_finite``: heyoka stopped on a non-finite state (it overwrites the state with NaN); the last chunk is run
+  again from its start with a per-step copy of the state, so the last finite state is kept;
+- terminal events of the model (e.g. the edge of a sphere chart) end the run with their own status;
+- ``invariant_drift``: after a run that reached its final time, the Hamiltonian (conserved by every Hamiltonian
+  system) is evaluated at both ends; a change beyond sqrt(tol) (relative to max(|H|, 1)) means the result is
+  wrong, whatever the error control believed -- typically a motion much slower or faster than its time span
+  (Taylor coefficients underflow), fixed by rescaling time.
+
+Threads
+-------
+Compiled integrators are cached once per key and handed out one per concurrent run (a copy is made only when two
+runs of the same key overlap), so ``integrate`` may be called from many threads at once.
 """
 
 from __future__ import annotations
 
+import copy
+import math
+import threading
 import time as _time
 from fractions import Fraction
 
@@ -30,14 +47,26 @@ import numpy as np
 
 from .models.base import Model, state_fractions
 from .poisson import as_poisson_system
-from .precision import Precision, resolve_precision, to_fraction
+from .precision import (
+    Precision,
+    check_callable,
+    check_count,
+    check_seconds,
+    data_bits,
+    precision_of_dtype,
+    resolve_precision,
+    to_fraction,
+    warn_if_coarse,
+)
 from .solution import Solution, Stats
 from .timegrid import parse_times
 
 __all__ = ["integrate", "build_integrator", "clear_cache", "cache_info"]
 
-_CACHE: dict = {}
+_CACHE: dict = {}  # key -> [template integrator, list of free copies]
 _CACHE_MAX = 64
+_LOCK = threading.Lock()
+_OUTCOME = hy.taylor_outcome
 DEFAULT_MAX_STEPS = 50_000_000
 #: With the default budget, a stiff run (module docstring) is stopped once it would need more steps than this.
 STIFF_STEPS = 100_000
@@ -45,7 +74,9 @@ STIFF_STEPS = 100_000
 
 def clear_cache() -> None:
     """Forget every cached integrator."""
-    _CACHE.clear()
+    with _LOCK:
+        _CACHE.clear()
+        _ENERGY.clear()
 
 
 def cache_info() -> dict:
@@ -54,13 +85,19 @@ def cache_info() -> dict:
 
 
 def _tol_value(tol, prec: Precision) -> Fraction:
+    eps = Fraction(1, 2 ** (prec.bits - 1))
     if tol is None:
-        return Fraction(1, 2 ** (prec.bits - 1))
+        return eps
     f = to_fraction(tol, "tol")
     if f <= 0:
         raise ValueError(f"`tol` must be positive; got {float(f)}. Leave it out to use the precision's epsilon.")
     if f >= 1:
         raise ValueError(f"`tol` must be below 1 (it is a relative and absolute tolerance); got {float(f)}")
+    if f < eps:
+        raise ValueError(
+            f"`tol` = {float(f):.3g} is below the epsilon of {prec.name} ({float(eps):.3g}): no run in that "
+            "precision can reach it. Raise `tol`, or choose a higher `precision`."
+        )
     return f
 
 
@@ -85,9 +122,10 @@ def build_integrator(system, precision="double", tol=None, *, events=True, compa
         # compact mode keeps compilation fast: LLVM is slow on unrolled long-double, quad and real code
         compact_mode = prec.name != "double" or n > 20
     key = (ps.key, prec.name, tolf, tuple(str(e[0]) for e in evs), bool(compact_mode), bool(high_accuracy))
+    info = [(e[1], e[2]) for e in evs]  # messages from this model, never from the cached one
     hit = _CACHE.get(key)
     if hit is not None:
-        return hit[0], 0.0, True, hit[1]
+        return hit[0], 0.0, True, info
     state = prec.array([0] * n)
     pars = prec.array(ps.parameter_values) if ps.parameter_values else None
     kwargs = dict(tol=prec.to_native(tolf), compact_mode=compact_mode, high_accuracy=high_accuracy)
@@ -104,77 +142,74 @@ def build_integrator(system, precision="double", tol=None, *, events=True, compa
     t0 = _time.perf_counter()
     ta = hy.taylor_adaptive(ps.ode_system, state, **kwargs)
     build = _time.perf_counter() - t0
-    info = [(e[1], e[2]) for e in evs]
-    if len(_CACHE) >= _CACHE_MAX:
-        _CACHE.pop(next(iter(_CACHE)))
-    _CACHE[key] = (ta, info)
+    with _LOCK:
+        if len(_CACHE) >= _CACHE_MAX:
+            _CACHE.pop(next(iter(_CACHE)))
+        _CACHE.setdefault(key, [ta, [copy.deepcopy(ta)]])
     return ta, build, False, info
 
 
-class _Guard:
-    """Per-step callback: keeps the last good state, enforces the budgets, detects a collapsing step size.
+def _checkout(template):
+    """An integrator of the same key as ``template`` that no other run is using, and the list to return it to.
 
-    heyoka overwrites the state with NaN when a step goes non-finite, so the last accepted state is copied here
-    (one ``copyto`` per step, about 15% of a double-precision step of the rigid body). The budget checks run
-    every 8 steps.
+    The template itself (what :func:`build_integrator` returns) is never run here, so a caller holding it cannot
+    disturb a run; a copy is made only when more runs of one key overlap than there are free copies.
     """
+    with _LOCK:
+        free = next((entry[1] for entry in _CACHE.values() if entry[0] is template), [])
+        if free:
+            return free.pop(), free
+    return copy.deepcopy(template), free
 
-    def __init__(self, ta, t_end: float, max_steps: int, max_time, min_step, stiff_steps: int, progress=None):
-        self.state = ta.state
-        self.buf = np.array(ta.state, copy=True)
-        self.t_good = ta.time
-        self.t_end = t_end
-        self.max_steps = max_steps
-        self.max_time = max_time
-        self.min_step = min_step
-        self.stiff_steps = stiff_steps
-        self.progress = progress
-        self.t_start = float(ta.time)
-        self.last_report = 0.0
-        self.start = _time.perf_counter()
-        self.steps = 0
-        self.h_max = 0.0
-        self.change = float("nan")
-        self.reason = None
 
-    def __call__(self, ta) -> bool:
-        self.steps += 1
-        if self.steps & 7 and self.steps > 1:
-            np.copyto(self.buf, self.state)
-            self.t_good = ta.time
-            return True
-        self.change = _relative_change(self.state, self.buf)
-        np.copyto(self.buf, self.state)
-        self.t_good = ta.time
-        h = abs(float(ta.last_h))
-        self.h_max = max(self.h_max, h)
-        if self.progress is not None:
-            now = _time.perf_counter()
-            if now - self.last_report > 0.1:
-                self.last_report = now
-                span = self.t_end - self.t_start
-                self.progress((float(ta.time) - self.t_start) / span if span else 1.0)
-        if self.max_time is not None and _time.perf_counter() - self.start > self.max_time:
-            self.reason = "time_budget"
-            return False
-        if self.min_step is not None and h < self.min_step:
-            self.reason = "step_collapse"
-            return False
-        left = abs(self.t_end - float(ta.time))
-        if self.steps <= 16 or h == 0:
-            return True
-        need = left / h
-        if need > self.stiff_steps and h < 1e-2 * self.h_max:
-            self.reason = "step_collapse"  # shrinking towards a singularity
-            return False
-        if need > self.stiff_steps and self.change < 1e-3 and h < 1e-2 * left:
-            self.reason = "stiff"  # tiny steps over which the state hardly changes: stability-limited
-            return False
-        if need > (self.max_steps - self.steps):
-            # finishing at this step size needs more steps than the budget has left
-            self.reason = "step_collapse" if h < 1e-2 * self.h_max else "step_budget"
-            return False
-        return True
+def _release(ta, free) -> None:
+    with _LOCK:
+        if len(free) < 8:
+            free.append(ta)
+
+
+#: Steps in the first chunk of a run (later chunks grow fourfold, up to about CHUNK_SECONDS of work each).
+FIRST_CHUNK = 64
+CHUNK_SECONDS = 0.1
+
+
+def infer_precision(precision, y0) -> Precision:
+    """The run's precision: ``precision`` when given, else the precision of ``y0``'s format.
+
+    A float64 array, an :class:`~lieseries.models.base.ExactState` or plain Python numbers run in double; a
+    long double, real128 or heyoka.real array in its own precision. mpmath numbers carry no format: they need an
+    explicit ``precision``.
+    """
+    if precision is not None:
+        return resolve_precision(precision)
+    if getattr(y0, "exact", None) is not None:
+        return resolve_precision("double")
+    arr = y0 if isinstance(y0, np.ndarray) else np.asarray(y0, dtype=object)
+    prec = precision_of_dtype(arr.dtype) if arr.dtype != object else None
+    if prec is not None:
+        return prec
+    flat = arr.ravel()
+    if flat.size and isinstance(flat[0], hy.real):
+        return resolve_precision(int(flat[0].prec), "y0")
+    if flat.size and isinstance(flat[0], hy.real128):
+        return resolve_precision("quad")
+    if any(hasattr(v, "_mpf_") for v in flat):
+        raise ValueError(
+            "`y0` holds mpmath numbers, which carry no precision of their own: pass `precision=` ('double', "
+            "'long double', 'quad' or a number of bits)"
+        )
+    return resolve_precision("double")
+
+
+def warn_coarse_inputs(ps, y0, times, work_bits: int, *, stacklevel: int = 4) -> None:
+    """One :class:`~lieseries.precision.PrecisionWarning` per input that carries fewer bits than the run uses."""
+    if work_bits <= 53 and data_bits(y0) is None:
+        return
+    warn_if_coarse(data_bits(y0), work_bits, "y0", stacklevel=stacklevel)
+    warn_if_coarse(data_bits(times), work_bits, "t", stacklevel=stacklevel)
+    if work_bits > 53:
+        for name, bits in ps.coarse_data().items():
+            warn_if_coarse(bits, work_bits, name, stacklevel=stacklevel)
 
 
 def integrate(
@@ -183,7 +218,7 @@ def integrate(
     t,
     *,
     tol=None,
-    precision="double",
+    precision=None,
     t0=0,
     dense: bool = False,
     max_steps: int | None = None,
@@ -191,7 +226,7 @@ def integrate(
     min_step: float | None = None,
     compact_mode: bool | None = None,
     high_accuracy: bool = False,
-    atlas: bool = False,
+    atlas: bool | None = None,
     progress=None,
 ) -> Solution:
     """Integrate ``dz/dt = X_H(z)`` with heyoka's adaptive Taylor method.
@@ -200,138 +235,288 @@ def integrate(
     ----------
     system : model (EulerPoisson, Sphere, SphereDirac, ...) or PoissonSystem
     y0 : sequence of n numbers
-        Initial state. Taken at its exact value (a float64 entry is its binary value; pass str/Fraction/mpf or an
-        array from ``model.initial_state(..., precision=...)`` for exact high-precision data).
+        Initial state, taken at its exact value and rounded once to the working precision: a state from
+        ``model.initial_state(...)`` keeps the exact input it was built from; str, int, Fraction and mpf entries
+        are exact; a binary float entry is its own binary value. Binary data that carry fewer bits than the run
+        (0.1 as a double in a 237-bit run) give one :class:`~lieseries.precision.PrecisionWarning`.
     t : float or increasing sequence
         Final time (negative: backward integration) or output times (see :func:`lieseries.timegrid.parse_times`).
     tol : float, optional
-        Relative and absolute tolerance; default: the precision's epsilon.
-    precision : "double" | "long double" | "quad" | int bits
+        Relative and absolute tolerance; default and smallest allowed: the precision's epsilon.
+    precision : "double" | "long double" | "quad" | int bits (at most ``precision.MAX_BITS``), optional
+        Default: the precision of ``y0`` (double for exact states and Python numbers; a long double, real128 or
+        heyoka.real array runs in its own precision).
     t0 : float
         Initial time.
     dense : bool
         Keep heyoka's continuous output so that ``sol(t)`` works anywhere in the interval. Off by default (as in
-        scipy): it costs run time (building it took 5x the integration itself for a 48-step rigid-body run) and
-        memory (order x n numbers per step).
+        scipy): it costs run time and memory (order x n numbers per step).
     max_steps : int, optional
         Step budget (default 5e7). A run whose step size collapses so that it could not finish within the
         budget stops early with status ``step_collapse``; a stiff run (module docstring) stops once it would need
         more than 1e5 steps, or more than ``max_steps`` when you give it.
     max_time : float, optional
-        Wall-time budget in seconds (status ``time_budget``).
+        Wall-time budget in seconds for the integration (status ``time_budget``), checked between chunks of steps
+        that take about 0.1 s each. It does not bound the one-off compilation of a new integrator.
     min_step : float, optional
-        Stop with ``step_collapse`` when a step is smaller than this.
-    atlas : bool
-        For a model with charts (:class:`~lieseries.Sphere`): switch charts when the current one is ending and
-        go on (:mod:`lieseries.atlas`); ``sol.charts`` tells the chart of each output row. Budgets apply to each
-        chart segment.
+        Stop with ``step_collapse`` when a step smaller than this was taken (checked between chunks of steps).
+    atlas : bool, optional
+        For a model with charts (:class:`~lieseries.Sphere`), on by default: switch charts when the current one is
+        ending and go on (:mod:`lieseries.atlas`); ``sol.charts`` tells the chart of each output row. With
+        ``atlas=False`` the run stays in one chart and stops at its edge (``chart_edge``).
     progress : callable, optional
-        Called as ``progress(fraction_done)`` at most ten times a second during the run, for long runs
-        (with a :class:`lieseries.progress.ProgressBar` ``bar``: ``progress=lambda f: bar(f, 1)``).
+        Called as ``progress(fraction_done)`` between chunks of steps (about ten times a second) during long runs.
 
     Returns
     -------
     Solution
         ``sol.t``, ``sol.y`` (one row per output time reached), ``sol.stats``, ``sol.status``, ``sol.message``.
     """
-    prec = resolve_precision(precision)
+    if atlas is None:
+        atlas = hasattr(system, "for_chart")
+    prec = infer_precision(precision, y0)
+    check_callable(progress, "progress")
+    max_time = check_seconds(max_time, "max_time")
+    default_budget = max_steps is None
+    max_steps = DEFAULT_MAX_STEPS if default_budget else check_count(max_steps, "max_steps")
+    if min_step is not None:
+        min_step = float(to_fraction(min_step, "min_step"))
+        if not min_step > 0:
+            raise ValueError(f"`min_step` must be positive; got {min_step!r}")
     if atlas:
         from .atlas import run_atlas
 
+        ps = as_poisson_system(system)
+        warn_coarse_inputs(ps, y0, [t, t0], prec.bits)
         return run_atlas(integrate, system, y0, t, t0=t0, bits=prec.bits, dense=dense, tol=tol,
-                         precision=prec, max_steps=max_steps, max_time=max_time, min_step=min_step,
-                         compact_mode=compact_mode, high_accuracy=high_accuracy, progress=progress)
+                         precision=prec, max_steps=None if default_budget else max_steps, max_time=max_time,
+                         min_step=min_step, compact_mode=compact_mode, high_accuracy=high_accuracy,
+                         progress=progress)
     ps = as_poisson_system(system)
     model = system if isinstance(system, Model) else None
     z0 = model.check_state(y0, "y0") if model is not None else state_fractions(y0, ps.dimension, "y0")
     grid, direction, t0f = parse_times(t, t0)
-    default_budget = max_steps is None
-    if default_budget:
-        max_steps = DEFAULT_MAX_STEPS
-    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
-        raise ValueError(f"`max_steps` must be a positive integer; got {max_steps!r}")
-    if max_time is not None and not (float(max_time) > 0):
-        raise ValueError(f"`max_time` must be a positive number of seconds; got {max_time!r}")
-    if min_step is not None and not (float(min_step) > 0):
-        raise ValueError(f"`min_step` must be positive; got {min_step!r}")
-
-    ta, build, cached, event_info = build_integrator(
-        system, prec, tol, compact_mode=compact_mode, high_accuracy=high_accuracy
-    )
     tolf = _tol_value(tol, prec)
-    ta.time = prec.time(t0f)
-    ta.state[:] = prec.array(z0)
-    if ps.parameter_values:
-        ta.pars[:] = prec.array(ps.parameter_values)
-    if event_info:
-        ta.reset_cooldowns()
+    warn_coarse_inputs(ps, y0, [t, t0], prec.bits)
+    y0_native = prec.array(z0, "y0")
+    grid_native = [prec.time(g) for g in grid]
+    t0_native = prec.time(t0f)
 
-    t_end = grid[-1]
-    guard = _Guard(ta, float(t_end), int(max_steps), None if max_time is None else float(max_time),
-                   None if min_step is None else float(min_step),
-                   stiff_steps=min(int(max_steps), STIFF_STEPS) if default_budget else int(max_steps),
-                   progress=progress)
-    stats = Stats(method="taylor (heyoka)", precision=prec.name, tol=float(tolf), order=int(ta.order),
+    template, build, cached, event_info = build_integrator(
+        system, prec, tolf, compact_mode=compact_mode, high_accuracy=high_accuracy
+    )
+    stats = Stats(method="taylor (heyoka)", precision=prec.name, tol=float(tolf), order=int(template.order),
                   build_time=build, cached=cached)
-    y0_native = prec.array(z0)
-    c_out = outcome = out = None
-    nsteps, min_h, max_h = 0, float("nan"), float("nan")
-    start = _time.perf_counter()
-    if direction != 0:
-        if dense or grid == [t0f, t_end]:
-            res = ta.propagate_until(prec.time(t_end), c_output=dense, callback=guard, max_steps=int(max_steps))
-            outcome, min_h, max_h, nsteps, c_out = res[:5]
-        else:
-            # heyoka's grid propagation starts at the current time; t0 is added in front and dropped after
-            lead = grid[0] != t0f
-            res = ta.propagate_grid(prec.array([t0f] * lead + grid), callback=guard, max_steps=int(max_steps))
-            outcome, min_h, max_h, nsteps, out = res[0], res[1], res[2], res[3], res[-1][int(lead):]
-    stats.run_time = _time.perf_counter() - start
-    stats.steps = int(guard.steps or nsteps)
-    stats.min_step, stats.max_step = float(min_h), float(max_h)
-
     if direction == 0:
-        t_reached, y_reached = to_fraction(prec.time(t0f)), y0_native
-    elif str(outcome).endswith("err_nf_state"):  # heyoka has written NaN into the state: use the last good one
-        t_reached, y_reached = to_fraction(guard.t_good), np.array(guard.buf, copy=True)
+        ta = None
+        run = _Run(ta=None, direction=0)
+        run.t_reached, run.y_reached = t0_native, y0_native
     else:
-        t_reached, y_reached = to_fraction(ta.time), np.array(ta.state, copy=True)
+        ta, free = _checkout(template)
+        try:
+            ta.time = t0_native
+            ta.state[:] = y0_native
+            if ps.parameter_values:
+                ta.pars[:] = prec.array(ps.parameter_values, "parameters")
+            if event_info:
+                ta.reset_cooldowns()
+            run = _Run(ta, direction)
+            start = _time.perf_counter()
+            run.go(grid_native, t0_native, dense, max_steps, max_time, min_step,
+                   stiff_steps=min(max_steps, STIFF_STEPS) if default_budget else max_steps,
+                   first_chunk=FIRST_CHUNK, progress=progress)
+            stats.run_time = _time.perf_counter() - start
+        finally:
+            _release(ta, free)
+    stats.steps = run.steps
+    stats.min_step, stats.max_step = run.min_h, run.max_h
+
+    t_reached = to_fraction(run.t_reached)
     rows_t, rows_y = [], []
-    # heyoka's clock runs in the working precision: compare output times as rounded there ("0.1" is not a double)
-    t0n = to_fraction(prec.time(t0f))
-    for k, tk in enumerate(grid):
-        tk = to_fraction(prec.time(tk))
+    t0n = to_fraction(t0_native)
+    for k, tk_native in enumerate(grid_native):
+        tk = to_fraction(tk_native)  # heyoka's clock runs in the working precision ("0.1" is not a double)
         if (tk - t0n) * direction > (t_reached - t0n) * direction:
             break
         if tk == t0n:
-            yk = y0_native.copy()
+            yk = y0_native
         elif tk == t_reached:
-            yk = y_reached.copy()
-        elif out is not None:
-            if k >= len(out):
+            yk = run.y_reached
+        elif run.rows is not None:
+            if k >= len(run.rows):
                 break
-            yk = np.array(out[k], copy=True)
+            yk = run.rows[k]
         else:
-            yk = np.array(c_out(prec.time(tk)), copy=True)
+            yk = run.dense_at(tk_native)
         rows_t.append(tk)
-        rows_y.append(yk)
-    status, message = _status(outcome, guard, event_info, t_reached, t_end, ta, max_steps)
+        rows_y.append(np.array(yk, copy=True))
+    status, message = _status(run, event_info, t_reached, grid[-1], max_steps)
+    if status == "success" and direction != 0 and ps.is_hamiltonian:
+        status, message = _energy_check(ps, prec, tolf, y0_native, run.y_reached, run.steps, status, message)
     y = np.stack(rows_y) if rows_y else np.empty((0, ps.dimension), dtype=prec.numpy_dtype)
     tarr = prec.array(rows_t) if rows_t else np.empty(0, dtype=prec.numpy_dtype)
-    dense_fn = _dense_output(c_out, prec) if c_out is not None else None
+    dense_fn = DenseOutput(run.c_outs, prec) if run.c_outs else None
     return Solution(tarr, y, stats, status, message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
-                    y_reached=y_reached)
+                    y_reached=np.array(run.y_reached, copy=True))
+
+
+class _Run:
+    """One integration from the integrator's current time and state, in chunks of steps (module docstring)."""
+
+    def __init__(self, ta, direction):
+        self.ta = ta
+        self.direction = direction
+        self.steps = 0
+        self.min_h, self.max_h = math.inf, 0.0
+        self.outcome = None
+        self.reason = None
+        self.rows = None
+        self.c_outs = []
+        self.change = math.nan
+        self.h_last = math.nan
+        self.stiff_steps = 0
+        self.t_reached = self.y_reached = None
+
+    def go(self, grid, t0, dense, max_steps, max_time, min_step, *, stiff_steps, first_chunk, progress):
+        ta = self.ta
+        self.stiff_steps = stiff_steps
+        t_end = grid[-1]
+        span = abs(float(t_end) - float(t0))
+        use_grid = not dense and not (len(grid) == 2 and grid[0] == t0)
+        if use_grid:
+            self.rows = []
+            pending = list(grid)
+            if pending[0] == t0:
+                pending.pop(0)
+                self.rows.append(np.array(ta.state, copy=True))
+        chunk = first_chunk
+        start = _time.perf_counter()
+        while True:
+            budget = min(chunk, max_steps - self.steps)
+            t_chunk, y_chunk = ta.time, np.array(ta.state, copy=True)
+            tic = _time.perf_counter()
+            if use_grid and not pending:
+                self.outcome = _OUTCOME.time_limit
+                self.t_reached, self.y_reached = ta.time, np.array(ta.state, copy=True)
+                return
+            res = self._propagate(t_end, pending if use_grid else None, dense, budget, None)
+            elapsed = _time.perf_counter() - tic
+            outcome = res[0]
+            if outcome == _OUTCOME.err_nf_state:
+                # run the failed chunk again, keeping a copy of every accepted state
+                ta.time, ta.state[:] = t_chunk, y_chunk
+                keeper = _Keeper(ta)
+                res = self._propagate(t_end, pending if use_grid else None, dense, budget, keeper)
+                self._account(res, pending if use_grid else None, dense)
+                self.outcome = res[0]
+                self.t_reached, self.y_reached = keeper.t, keeper.state
+                return
+            self._account(res, pending if use_grid else None, dense)
+            self.outcome = outcome
+            self.t_reached, self.y_reached = ta.time, np.array(ta.state, copy=True)
+            if outcome != _OUTCOME.step_limit:
+                return
+            # between chunks: budgets, then one single step to measure the step size and the change it makes
+            if self.steps >= max_steps:
+                self.reason = "step_budget"
+                return
+            if max_time is not None and _time.perf_counter() - start > max_time:
+                self.reason = "time_budget"
+                return
+            if min_step is not None and self.min_h < min_step:
+                self.reason = "step_collapse"
+                return
+            if self._probe(t_end, pending if use_grid else None, dense):
+                return
+            h = self.h_last
+            h_first = self.max_h  # the largest step of the run so far
+            left = abs(float(t_end) - float(ta.time))
+            need = left / h if h > 0 else math.inf
+            if need > stiff_steps and h < 1e-2 * h_first:
+                self.reason = "step_collapse"  # shrinking towards a singularity
+                return
+            if need > stiff_steps and self.change < 1e-3 and h < 1e-2 * left:
+                self.reason = "stiff"  # tiny steps over which no component changes: stability-limited
+                return
+            if need > max_steps - self.steps:
+                self.reason = "step_collapse" if h < 1e-2 * h_first else "step_budget"
+                return
+            if progress is not None:
+                progress(min(1.0, abs(float(ta.time) - float(t0)) / span) if span else 1.0)
+            per_step = elapsed / max(int(res[3]), 1)
+            chunk = int(min(4 * chunk, max(16, CHUNK_SECONDS / max(per_step, 1e-9)), 1 << 20))
+
+    def _probe(self, t_end, pending, dense) -> bool:
+        """Take one step as part of the run; record its size and the relative change it made.
+        True when that step ended the run (an event, a non-finite state, the final time)."""
+        ta = self.ta
+        before_t, before = ta.time, np.array(ta.state, copy=True)
+        res = self._propagate(t_end, pending, dense, 1, None)
+        self.outcome = res[0]
+        if res[0] == _OUTCOME.err_nf_state:
+            self.steps += int(res[3])
+            self.t_reached, self.y_reached = before_t, before
+            return True
+        self._account(res, pending, dense)
+        self.h_last = abs(float(ta.time) - float(before_t))
+        self.change = _relative_change(ta.state, before)
+        self.t_reached, self.y_reached = ta.time, np.array(ta.state, copy=True)
+        return res[0] != _OUTCOME.step_limit
+
+    def _propagate(self, t_end, pending, dense, budget, callback):
+        ta = self.ta
+        if pending is not None:
+            return ta.propagate_grid([ta.time] + pending, max_steps=budget, callback=callback)
+        return ta.propagate_until(t_end, max_steps=budget, c_output=dense, callback=callback)
+
+    def _account(self, res, pending, dense):
+        self.steps += int(res[3])
+        if int(res[3]):
+            self.min_h = min(self.min_h, float(res[1]))
+            self.max_h = max(self.max_h, float(res[2]))
+        if pending is not None:
+            out = res[-1][1:]  # the first row is the chunk's start
+            self.rows.extend(np.array(r, copy=True) for r in out)
+            del pending[: len(out)]
+        elif dense and res[4] is not None:
+            self.c_outs.append(res[4])
+
+    def dense_at(self, t):
+        return DenseOutput(self.c_outs, None).at_native(t)
+
+
+class _Keeper:
+    """Per-step callback of a re-run chunk: keeps the last accepted (finite) state."""
+
+    def __init__(self, ta):
+        self.state = np.array(ta.state, copy=True)
+        self.t = ta.time
+
+    def __call__(self, ta) -> bool:
+        np.copyto(self.state, ta.state)
+        self.t = ta.time
+        return True
+
+    def pre_hook(self, ta):  # pragma: no cover - heyoka API
+        pass
 
 
 def _relative_change(a, b) -> float:
-    """max |a - b| / max(1, max |a|) in double (for the stiffness diagnosis)."""
+    """Largest change of one component relative to its own size: max_i |a_i - b_i| / max(|a_i|, |b_i|).
+
+    Measured per component, so that a large conserved variable beside a small oscillating one does not hide the
+    oscillation (what a norm of the whole state would do)."""
     try:
         fa = np.asarray(a, dtype=np.float64)
         fb = np.asarray(b, dtype=np.float64)
     except (TypeError, ValueError):
         fa = np.array([float(v) for v in a])
         fb = np.array([float(v) for v in b])
-    return float(np.max(np.abs(fa - fb)) / max(1.0, float(np.max(np.abs(fa)))))
+    scale = np.maximum(np.abs(fa), np.abs(fb))
+    moving = scale > 0
+    if not moving.any():
+        return 0.0
+    return float(np.max(np.abs(fa - fb)[moving] / scale[moving]))
 
 
 def _finite(v) -> bool:
@@ -341,66 +526,110 @@ def _finite(v) -> bool:
         return False
 
 
-def _status(outcome, guard, event_info, t_reached, t_end, ta, max_steps):
+def _status(run, event_info, t_reached, t_end, max_steps):
+    if run.direction == 0:
+        return "success", f"Nothing to integrate: t equals t0 = {float(t_reached):.17g}."
+    ta = run.ta
     h = abs(float(ta.last_h)) if _finite(ta.last_h) else float("nan")
     where = f"t = {float(t_reached):.17g} (last step size {h:.3g})"
     left = abs(float(t_end - t_reached))
-    need = f"{left:.3g} time units remain, about {left / h:.3g} steps at this step size" if h > 0 else ""
-    if guard.reason == "time_budget":
+    hh = run.h_last if run.h_last == run.h_last else h
+    need = f"{left:.3g} time units remain, about {left / hh:.3g} steps at this step size" if hh > 0 else ""
+    outcome = run.outcome
+    if run.reason == "time_budget":
         return "time_budget", f"The wall-time budget ran out at {where}; raise `max_time` or lower the accuracy."
-    if guard.reason == "step_collapse":
+    if run.reason == "step_collapse":
         return "step_collapse", (
-            f"The step size collapsed near {where}, from {guard.h_max:.3g} earlier: {need}, more than the "
-            f"{guard.stiff_steps} steps allowed for it (pass `max_steps` to allow more). The problem is stiff or singular there; an explicit Taylor method "
-            "cannot cross it efficiently."
+            f"The step size collapsed near {where}, from {run.max_h:.3g} earlier: {need}, more than the "
+            f"{run.stiff_steps} steps allowed for it (pass `max_steps` to allow more). The problem is stiff or "
+            "singular there; an explicit Taylor method cannot cross it efficiently."
         )
-    if guard.reason == "stiff":
+    if run.reason == "stiff":
         return "step_collapse", (
-            f"The problem is stiff: near {where} the step size is limited by stability, not accuracy -- the state "
-            f"changes by only {guard.change:.1e} (relative) per step. {need}, more than the {guard.stiff_steps} steps "
-            "allowed for a stiff run (pass `max_steps` to allow more). An explicit Taylor method cannot integrate this efficiently: reduce the stiffness "
-            "(e.g. the damping) or use an implicit method for this part of the motion."
+            f"The problem is stiff: near {where} the step size is limited by stability, not accuracy -- no "
+            f"component of the state changes by more than {run.change:.1e} of its size per step. {need}, more than "
+            f"the {run.stiff_steps} steps allowed for a stiff run (pass `max_steps` to allow more). An explicit "
+            "Taylor method cannot integrate this efficiently: reduce the stiffness (e.g. the damping) or use an "
+            "implicit method for this part of the motion."
         )
-    if guard.reason == "step_budget":
+    if run.reason == "step_budget" or outcome == _OUTCOME.step_limit:
         return "step_budget", (
-            f"Stopped early at {where}: {need}, more than the budget max_steps = {max_steps}. Raise `max_steps` "
-            "(and consider `dense=False` for long runs)."
+            f"Stopped early at {where}: {need}, more than the budget max_steps = {max_steps}. Raise `max_steps`."
         )
-    name = str(outcome)
-    if name.endswith("time_limit"):
+    if outcome == _OUTCOME.time_limit:
         return "success", f"Reached t = {float(t_end):.17g}."
-    if name.endswith("step_limit"):
-        return "step_budget", f"The step budget max_steps = {max_steps} ran out at {where}; raise `max_steps`."
-    if name.endswith("err_nf_state"):
+    if outcome == _OUTCOME.err_nf_state:
         return "non_finite", (
             f"The state became non-finite (NaN or infinity) in the step after t = {float(t_reached):.17g}; the "
             "solution blows up or leaves the domain of the equations there. The last finite state is kept."
         )
     # a terminal event: heyoka reports event i as outcome i, or -(i + 1) when it stopped the run
-    try:
-        idx = int(outcome.value)
-    except (AttributeError, TypeError, ValueError):
-        idx = len(event_info)
+    idx = int(outcome.value)
     if -len(event_info) <= idx < 0:
         idx = -idx - 1
     if 0 <= idx < len(event_info):
         status, msg = event_info[idx]
         return status, f"Stopped at {where}: {msg}."
-    return "event", f"Stopped at {where} with heyoka outcome {name}."
+    return "event", f"Stopped at {where} with heyoka outcome {outcome}."
 
 
-def _dense_output(c_out, prec: Precision):
-    lo, hi = sorted(float(b) for b in c_out.bounds)
+_ENERGY: dict = {}
 
-    def dense(t):
+
+def _energy_check(ps, prec, tolf, y_start, y_end, steps, status, message):
+    """``invariant_drift`` when the Hamiltonian changed beyond sqrt(tol) * max(|H|, 1) over a successful run."""
+    key = (ps.key, prec.name)
+    fn = _ENERGY.get(key)
+    if fn is None:
+        kwargs = {} if prec.name == "double" else {"fp_type": prec.fp_type}
+        if prec.is_real:
+            kwargs["prec"] = prec.bits
+        npar = 1 + max((int(str(p)[1:]) for p in hy.get_params([ps.hamiltonian])), default=-1)
+        fn = (hy.cfunc([ps.hamiltonian], ps.variables, compact_mode=prec.name != "double", **kwargs), npar)
+        _ENERGY[key] = fn
+    fn, npar = fn
+    pars = prec.array(ps.parameter_values[:npar], "parameters") if npar else None
+    e0 = float(fn(np.asarray(y_start), pars=pars)[0] if pars is not None else fn(np.asarray(y_start))[0])
+    e1 = float(fn(np.asarray(y_end), pars=pars)[0] if pars is not None else fn(np.asarray(y_end))[0])
+    if not (math.isfinite(e0) and math.isfinite(e1)):
+        return status, message
+    change = abs(e1 - e0)
+    if change <= math.sqrt(float(tolf)) * max(abs(e0), abs(e1), 1.0):
+        return status, message
+    return "invariant_drift", (
+        f"{message[:-1]}, but the result is wrong: the energy H, which the equations conserve, went from "
+        f"{e0:.6g} to {e1:.6g} in {steps} steps. The error control was fooled, usually because the motion is much "
+        "slower (or faster) than the time span, so that the Taylor coefficients underflow: rescale time so that "
+        "the motion is of order one per unit time."
+    )
+
+
+class DenseOutput:
+    """``sol(t)`` of a heyoka run: its continuous outputs (one per chunk of steps), picklable."""
+
+    def __init__(self, c_outs, prec: Precision | None):
+        self.c_outs = list(c_outs)
+        self.prec = prec
+        self.bounds = [tuple(sorted(float(b) for b in c.bounds)) for c in self.c_outs]
+
+    def at_native(self, t):
+        """The state at ``t`` (in the run's format) from the chunk that covers it."""
+        tv = float(t)
+        for (lo, hi), c in zip(self.bounds, self.c_outs):
+            if lo <= tv <= hi:
+                return np.array(c(t), copy=True)
+        return np.array(self.c_outs[-1](t), copy=True)
+
+    def __call__(self, t):
+        lo = min(b[0] for b in self.bounds)
+        hi = max(b[1] for b in self.bounds)
         scalar = np.ndim(t) == 0
         ts = [t] if scalar else list(np.asarray(t, dtype=object).ravel())
         out = []
-        for i, tk in enumerate(ts):
-            tv = float(to_fraction(tk, "t"))
+        for tk in ts:
+            tf = to_fraction(tk, "t")
+            tv = float(tf)
             if not (lo - 1e-15 * max(1.0, abs(lo)) <= tv <= hi + 1e-15 * max(1.0, abs(hi))):
                 raise ValueError(f"`t` = {tv} is outside the integrated interval [{lo}, {hi}]")
-            out.append(np.array(c_out(prec.time(to_fraction(tk, "t"))), copy=True))
+            out.append(self.at_native(self.prec.time(tf)))
         return out[0] if scalar else np.stack(out)
-
-    return dense

@@ -13,7 +13,7 @@ def parse_times(t, t0=0, argname: str = "t"):
     """Validate output times.
 
     A scalar ``t`` asks for the state at ``t`` (before ``t0`` integrates backward); the outputs are then
-    ``[t0, t]``. A sequence is a grid of output times: strictly increasing and not before ``t0`` (forward), or
+    ``[t0, t]`` (just ``[t0]`` when t equals t0). A sequence is a grid of output times: strictly increasing and not before ``t0`` (forward), or
     strictly decreasing and not after ``t0`` (backward).
 
     Returns
@@ -27,6 +27,8 @@ def parse_times(t, t0=0, argname: str = "t"):
     t0 = to_fraction(t0, "t0")
     if isinstance(t, (str, bytes)) or np.ndim(t) == 0:
         tf = to_fraction(t.item() if isinstance(t, np.ndarray) else t, argname)
+        if tf == t0:
+            return [t0], 0, t0
         return [t0, tf], (tf > t0) - (tf < t0), t0
     arr = np.asarray(t, dtype=object)
     if arr.ndim != 1:

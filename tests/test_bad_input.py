@@ -49,7 +49,7 @@ CASES = {
     "integrate: tol 0": (lambda: ls.integrate(BODY, Y0, t=1, tol=0), ValueError, "`tol`"),
     "integrate: tol -1e-9": (lambda: ls.integrate(BODY, Y0, t=1, tol=-1e-9), ValueError, "`tol`"),
     "lie_integrate: tol 0": (lambda: ls.lie_integrate(BODY, Y0, t=1, tol=0), ValueError, "`tol`"),
-    "lie_integrate: tol below dps": (lambda: ls.lie_integrate(BODY, Y0, t=1, dps=10, tol=1e-40), ValueError,
+    "lie_integrate: tol below dps": (lambda: ls.lie_integrate(BODY, Y0, t=1, dps=20, tol=1e-40), ValueError,
                                      "raise `dps`"),
     # unknown names
     "integrate: unknown precision": (lambda: ls.integrate(BODY, Y0, t=1, precision="half"), ValueError,

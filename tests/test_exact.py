@@ -652,4 +652,4 @@ def test_bad_input_sphere():
     with pytest.raises(ValueError, match="`axis`"):
         sphere_pole_distance(1, (1, 0, 0), (0, 1, 0), axis=3)
     # within the documented tolerance max(1e-12, 10**(-dps/2)) it is accepted
-    sphere(1, (1, 0, 1e-7), (0, 1, 0), 1.0, dps=10)
+    sphere(1, (1, 0, 1e-7), (0, 1, 0), 1.0, dps=15)

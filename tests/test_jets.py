@@ -235,9 +235,9 @@ def test_bad_input_messages():
         taylor_coefficients(prog, RB_Y0[:-1], RB_PARS, 5, 30)
     with pytest.raises(ValueError, match="`order` must be an integer >= 1; got 0"):
         taylor_coefficients(prog, RB_Y0, RB_PARS, 0, 30)
-    with pytest.raises(ValueError, match="`dps` must be at least 5 decimal digits; got 3"):
+    with pytest.raises(ValueError, match="`dps` must be at least 15 decimal digits; got 3"):
         taylor_coefficients(prog, RB_Y0, RB_PARS, 5, 3)
-    with pytest.raises(ValueError, match="`dps` must be at least 5 decimal digits; got 0"):
+    with pytest.raises(ValueError, match="`dps` must be at least 15 decimal digits; got 0"):
         taylor_coefficients(prog, RB_Y0, RB_PARS, 5, 0)
     with pytest.raises(ValueError, match="`pars` must have length 3; got 2"):
         taylor_coefficients(prog, RB_Y0, RB_PARS[:2], 5, 30)

@@ -49,13 +49,12 @@ def test_lie_integrate_sphere_follows_great_circle():
     y0 = s.initial_state(x0, v0, precision=300)
     sol = ls.lie_integrate(s, y0, t=[1, 2], dps=40)
     assert sol.success, sol.message
+    X, V = s.position(sol), s.velocity(sol)  # the rows' own charts
     with mp.workdps(60):
-        for tk, row in zip([1, 2], sol.y):
+        for tk, x, v in zip([1, 2], X, V):
             xe, ve = exact.sphere("1.5", x0, v0, tk, dps=60)
-            z = [to_fraction(v) for v in row]
-            x, p = s._xp(z)
             assert max(abs(a - b) for a, b in zip(x, xe)) < 1e-36
-            assert max(abs(a / 2 - b) for a, b in zip(p, ve)) < 1e-36
+            assert max(abs(a - b) for a, b in zip(v, ve)) < 1e-36
 
 
 def test_lie_integrate_backward_and_dense(body, y0):
@@ -153,7 +152,7 @@ def test_lie_integrate_bad_state_and_times(body):
 
 def test_lie_integrate_stops_at_chart_edge():
     s = ls.Sphere()
-    sol = ls.lie_integrate(s, s.initial_state((0.6, 0, 0.8), (0, 1, 0)), t=5, dps=20)
+    sol = ls.lie_integrate(s, s.initial_state((0.6, 0, 0.8), (0, 1, 0)), t=5, dps=20, atlas=False)
     assert sol.status == "chart_edge"
     assert float(sol.t_reached) < 1.6
     assert all(mp.isfinite(v) for v in sol.y_reached)

@@ -188,7 +188,7 @@ def test_literal_bad_input():
         literal_coefficients(variables, rhs, RB_Y0, RB_PARS[:1], 3, 20)
     with pytest.raises(ValueError, match="`order` must be an integer >= 1; got 0"):
         literal_coefficients(variables, rhs, RB_Y0, RB_PARS, 0, 20)
-    with pytest.raises(ValueError, match="`dps` must be at least 5 decimal digits; got 2"):
+    with pytest.raises(ValueError, match="`dps` must be at least 15 decimal digits; got 2"):
         literal_coefficients(variables, rhs, RB_Y0, RB_PARS, 3, 2)
     with pytest.raises(ValueError, match="`method`"):
         literal_coefficients(variables, rhs, RB_Y0, RB_PARS, 3, 20, method="fast")

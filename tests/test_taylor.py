@@ -53,7 +53,7 @@ def test_sphere_stops_cleanly_at_chart_edge():
     """The 5-d chart ends on x3 = 0; the run stops there with a status, no NaN, and keeps what it computed."""
     s = ls.Sphere()
     y0 = s.initial_state((0.6, 0.0, 0.8), (0.0, 1.0, 0.0))
-    sol = ls.integrate(s, y0, t=np.linspace(0, 5, 11))
+    sol = ls.integrate(s, y0, t=np.linspace(0, 5, 11), atlas=False)
     assert sol.status == "chart_edge"
     assert "x3" in sol.message and "t = 1.50" in sol.message
     # x3(t) = 0.8 cos t reaches edge * |x| = 0.05 at cos t = 1/16
@@ -258,7 +258,8 @@ def test_stiff_damped_body_is_diagnosed():
     sol = ls.integrate(body, body.initial_state((1.0, 0.1, 0.5)), t=20.0)
     assert sol.status == "step_collapse"
     assert "stiff" in sol.message and "step size" in sol.message
-    assert float(sol.t_reached) < 1e-2 and sol.stats.steps < 1000
+    # checked between chunks of steps (64, 256, 1024, ...): it stops within the first few thousand steps
+    assert float(sol.t_reached) < 0.1 and sol.stats.steps < 2000
     assert np.all(np.isfinite(sol.y_reached))
     # the same body with mild damping relaxes to rotation about the axis of largest inertia, |M| kept
     mild = ls.DampedEulerPoisson((1, 2, 3), damping=10)

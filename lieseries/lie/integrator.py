@@ -24,15 +24,29 @@ from __future__ import annotations
 
 import math
 import time as _time
+import warnings
 
-import mpmath as mp
 import numpy as np
 
-from ..precision import check_dps, check_order, to_fraction, to_mpf
+from ..poisson import as_poisson_system
+from ..precision import (
+    check_callable,
+    check_count,
+    check_dps,
+    check_order,
+    check_seconds,
+    dps_to_bits,
+    export_mpf,
+    mp_context,
+    to_fraction,
+    to_mpf,
+)
+from ..precision import thread_mp as mp
 from ..solution import Solution, Stats
 from ..timegrid import parse_times
 from .operator import (
     GUARD_DIGITS,
+    coarse_bits,
     estimate_radius,
     horner,
     norms,
@@ -62,7 +76,7 @@ def lie_integrate(
     max_time: float | None = None,
     guard: int = GUARD_DIGITS,
     progress=None,
-    atlas: bool = False,
+    atlas: bool | None = None,
 ) -> Solution:
     """Integrate with composed truncated Lie series exp(h X_H), in mpmath at ``dps`` digits.
 
@@ -84,24 +98,32 @@ def lie_integrate(
         Budgets; the run stops with status ``step_budget`` / ``time_budget`` and keeps what it computed.
     progress : callable, optional
         Called as ``progress(fraction_done)`` after each step.
-    atlas : bool
-        For a model with charts (Sphere): switch charts at the end of the step where the current one is
-        ending and go on (:mod:`lieseries.atlas`); ``sol.charts`` tells the chart of each output row.
+    atlas : bool, optional
+        For a model with charts (Sphere), on by default: switch charts at the end of the step where the current
+        one is ending and go on (:mod:`lieseries.atlas`); ``sol.charts`` tells the chart of each output row.
+        ``atlas=False`` stays in one chart and stops at its edge (``chart_edge``).
 
     Returns
     -------
     Solution
         ``y`` rows are numpy object arrays of mpf; ``stats.error_estimates`` has one estimate per step;
         ``stats.extra["max_step_over_radius"]`` is the largest step over the estimated radius of convergence
-        (at most 1/2 by construction).
+        (at most 1/2 by construction). When the data carry fewer bits than the run (binary floats), every
+        per-step estimate is at least the relative uncertainty of the data (``stats.extra["data_bits"]``), and
+        one :class:`~lieseries.precision.PrecisionWarning` says so.
     """
     from .jets import taylor_coefficients
 
     dps = check_dps(dps)
+    max_steps = check_count(max_steps, "max_steps")
+    max_time = check_seconds(max_time, "max_time")
+    check_callable(progress, "progress")
+    if atlas is None:
+        atlas = hasattr(system, "for_chart")
     if atlas:
         from ..atlas import run_atlas
-        from ..precision import dps_to_bits
 
+        coarse_bits(as_poisson_system(system), y0, dps_to_bits(dps))
         return run_atlas(lie_integrate, system, y0, t, t0=t0, bits=dps_to_bits(dps + guard), dense=dense,
                          dps=dps, tol=tol, order=order, max_steps=max_steps, max_time=max_time, guard=guard,
                          progress=progress)
@@ -119,30 +141,30 @@ def lie_integrate(
                 raise ValueError(f"`tol` must be positive; got {float(tf)}")
             if tf >= 1:
                 raise ValueError(f"`tol` must be below 1; got {float(tf)}")
-            tolm = to_mpf(tf)
+            tolm = to_mpf(tf, ctx=mp_context())
             if tolm < mp.mpf(10) ** (-(dps + guard)):
                 raise ValueError(
                     f"`tol` = {mp.nstr(tolm, 3)} is below what {dps} digits (+{guard} guard) can resolve; "
                     f"raise `dps` to at least {int(-mp.log10(tolm)) + 1}"
                 )
-    N = default_order(tolm) if order is None else check_order(order)
-    if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1:
-        raise ValueError(f"`max_steps` must be a positive integer; got {max_steps!r}")
-    if max_time is not None and not (float(max_time) > 0):
-        raise ValueError(f"`max_time` must be a positive number of seconds; got {max_time!r}")
+    N_auto = default_order(tolm)
+    N = N_auto if order is None else check_order(order)
+    bits = coarse_bits(ps, y0, dps_to_bits(dps))
 
     prog = ps.program
     start = _time.perf_counter()
     stats = Stats(method="lie series (mpmath)", precision=f"{dps} dps", tol=float(tolm), order=N)
+    stats.extra["data_bits"] = bits
     events = _event_checks(model, ps, wdps)
 
     with mp.workdps(wdps):
-        z = [to_mpf(v) for v in z0]
-        tcur = to_mpf(t0f)
-        tend = to_mpf(grid[-1])
+        floor = mp.mpf(2) ** (-bits) if bits is not None else mp.mpf(0)
+        z = [to_mpf(v, ctx=mp_context()) for v in z0]
+        tcur = to_mpf(t0f, ctx=mp_context())
+        tend = to_mpf(grid[-1], ctx=mp_context())
         sgn = 1 if direction >= 0 else -1
         out_t, out_y = [], []
-        pending = [(to_mpf(tk), tk) for tk in grid]
+        pending = [(to_mpf(tk, ctx=mp_context()), tk) for tk in grid]
         segments = [] if dense else None
         status, message = "success", ""
         hmin, hmax = mp.inf, mp.mpf(0)
@@ -166,7 +188,7 @@ def lie_integrate(
                 status = "time_budget"
                 message = f"The wall-time budget ran out at t = {mp.nstr(tcur, 17)}; raise `max_time`."
                 break
-            coeffs = taylor_coefficients(prog, z, pars, N, wdps)
+            coeffs = taylor_coefficients(prog, z, pars, N, wdps, mp_context())
             nrm = norms(coeffs)
             if not all(mp.isfinite(c) for c in nrm):
                 status = "non_finite"
@@ -193,7 +215,9 @@ def lie_integrate(
                 )
                 break
             hs = h * sgn
-            err = tail_estimate(nrm, h, rho)
+            err = max(tail_estimate(nrm, h, rho), floor * max(mp.mpf(1), nrm[0]))
+            if nsteps == 0 and order is not None and N < N_auto:
+                _warn_slow_order(N, N_auto, nrm, tol_abs, rho, abs(tend - tcur))
             znew = horner(coeffs, hs)
             tnew = tcur + hs if abs(tend - tcur) != h else tend
             emit_until(tnew, coeffs, tcur)
@@ -206,7 +230,7 @@ def lie_integrate(
             nsteps += 1
             z, tcur = znew, tnew
             if progress is not None:
-                progress(float((tcur - to_mpf(t0f)) / (tend - to_mpf(t0f))))
+                progress(float((tcur - to_mpf(t0f, ctx=mp_context())) / (tend - to_mpf(t0f, ctx=mp_context()))))
             hit = _check_events(events, z)
             if hit is not None:
                 status, msg = hit
@@ -215,10 +239,10 @@ def lie_integrate(
         if status == "success":
             message = f"Reached t = {mp.nstr(tend, 17)}."
         # y_reached keeps the guard digits: a run continued from it (an atlas chart change) loses nothing
-        y_reached = np.array(list(z), dtype=object)
+        y_reached = export_mpf(np.array(list(z), dtype=object))
         t_reached = to_fraction(tcur)
-        with mp.workdps(dps):
-            y_rows = [np.array([+v for v in row], dtype=object) for row in out_y]
+        prec = dps_to_bits(dps)
+        y_rows = [export_mpf(np.array(row, dtype=object), prec) for row in out_y]
     stats.steps = nsteps
     stats.run_time = _time.perf_counter() - start
     stats.min_step = float(hmin) if nsteps else float("nan")
@@ -230,6 +254,28 @@ def lie_integrate(
                     y_reached=y_reached)
 
 
+def _warn_slow_order(N, N_auto, nrm, tol_abs, rho, span):
+    """Warn when a fixed order forces far more steps than the automatic order would (geometric model of the
+    coefficients: ||c_k|| ~ A / rho^k gives steps rho (tol / A)^(1/N), capped at rho / 2)."""
+    if rho == mp.inf or nrm[0] == 0:
+        return
+    A = max(nrm[0], mp.mpf(1))
+
+    def step(n):
+        return min(rho * (tol_abs / A) ** (mp.mpf(1) / n), rho / 2)
+
+    fixed, auto = step(N), step(N_auto)
+    steps_fixed, steps_auto = span / fixed, span / auto
+    if steps_fixed > 10 * max(steps_auto, 1) and steps_fixed > 100:
+        warnings.warn(
+            f"`order` = {N} is far below the automatic order {N_auto} for this tolerance: the run will take about "
+            f"{mp.nstr(steps_fixed, 2)} steps instead of about {mp.nstr(steps_auto, 2)}. Leave `order` out unless "
+            "you study the order itself.",
+            UserWarning,
+            stacklevel=3,
+        )
+
+
 def _dense(segments, dps, sgn):
     def dense(t):
         scalar = np.ndim(t) == 0
@@ -239,15 +285,14 @@ def _dense(segments, dps, sgn):
             lo = segments[0][0] if segments else None
             hi = segments[-1][1] if segments else None
             for tk in ts:
-                tv = to_mpf(tk)
+                tv = to_mpf(tk, ctx=mp_context())
                 seg = next(
                     (s for s in segments if (tv - s[0]) * sgn >= 0 and (s[1] - tv) * sgn >= 0), None
                 )
                 if seg is None:
                     raise ValueError(f"`t` = {tk} is outside the integrated interval [{lo}, {hi}]")
                 vals = horner(seg[2], tv - seg[0])
-                with mp.workdps(dps):
-                    rows.append(np.array([+v for v in vals], dtype=object))
+                rows.append(export_mpf(np.array(vals, dtype=object), dps_to_bits(dps)))
         return rows[0] if scalar else np.stack(rows)
 
     return dense
@@ -269,7 +314,7 @@ def _event_checks(model, ps, wdps):
 def _check_events(events, z):
     """(status, message) when an event expression changed sign over the last step, else None."""
     for prog, statuses, messages, pars, signs in events:
-        vals = prog.evaluate(z, pars, mp.mp.dps)
+        vals = prog.evaluate(z, pars, mp.dps, mp_context())
         cur = [mp.sign(v) for v in vals]
         if signs[0] is None:
             signs[0] = cur

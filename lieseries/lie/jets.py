@@ -54,7 +54,7 @@ from mpmath.libmp import (
 
 from .. import expr as _expr
 from ..precision import check_dps, check_order
-from ..expr import RND, Constant, Node, Program, eval_nodes, POINTWISE
+from ..expr import RND, rounded_mpf, Constant, Node, Program, eval_nodes, POINTWISE
 
 __all__ = ["taylor_coefficients", "taylor_coefficients_raw", "jet_guard_bits"]
 
@@ -648,7 +648,7 @@ def taylor_coefficients_raw(program, y0_raw, pars_raw, order, prec):
     return [J[i] for i in range(nvars)]
 
 
-def taylor_coefficients(program_or_system, y0, pars, order, dps):
+def taylor_coefficients(program_or_system, y0, pars, order, dps, ctx=None):
     """Normalised Taylor coefficients of the solution of ``dz/dt = rhs(z)``.
 
     Parameters
@@ -693,16 +693,16 @@ def taylor_coefficients(program_or_system, y0, pars, order, dps):
     program = _resolve_program(program_or_system)
     order = check_order(order)
     dps = check_dps(dps)
-    with mpmath.mp.workdps(dps):
-        wp = mpmath.mp.prec + jet_guard_bits(order)
-        y0r = _expr.convert_vector(y0, program.nvars, wp, "y0")
-        pr = _expr.convert_vector(pars, program.npars, wp, "pars")
-        try:
-            jets = taylor_coefficients_raw(program, y0r, pr, order, wp)
-        except ZeroDivisionError as exc:
-            raise ValueError(
-                f"the Taylor expansion does not exist at `y0` ({exc}; a zero denominator "
-                "or a log/sqrt/non-integer power at zero)"
-            ) from None
-        make = mpmath.mp.make_mpf
-        return [[+make(jets[i][k]) for i in range(program.nvars)] for k in range(order + 1)]
+    # explicit precision: mpmath's global context is never touched
+    prec = mpmath.libmp.dps_to_prec(dps)
+    wp = prec + jet_guard_bits(order)
+    y0r = _expr.convert_vector(y0, program.nvars, wp, "y0")
+    pr = _expr.convert_vector(pars, program.npars, wp, "pars")
+    try:
+        jets = taylor_coefficients_raw(program, y0r, pr, order, wp)
+    except ZeroDivisionError as exc:
+        raise ValueError(
+            f"the Taylor expansion does not exist at `y0` ({exc}; a zero denominator "
+            "or a log/sqrt/non-integer power at zero)"
+        ) from None
+    return [[rounded_mpf(prec, jets[i][k], ctx) for i in range(program.nvars)] for k in range(order + 1)]

@@ -55,7 +55,7 @@ from sympy.polys.rings import PolyRing
 
 from .. import expr as _expr
 from ..precision import check_dps, check_order, to_fraction
-from ..expr import RND
+from ..expr import RND, rounded_mpf
 
 __all__ = [
     "lie_derivatives",
@@ -216,18 +216,17 @@ def _literal_heyoka_values(names, rhs, y0, pars, order, dps):
     # one-shot and possibly huge: compiled without cse and outside the cache
     prog = _expr._compile(names, flat, len(pars), False)
     n = len(names)
-    with mpmath.mp.workdps(dps):
-        prec = mpmath.mp.prec
-        wp = prec + 20
-        vr = _expr.convert_vector(y0, n, wp, "y0")
-        pr = _expr.convert_vector(pars, len(pars), wp, "pars")
-        vals = prog.evaluate_raw(vr, pr, wp)
-        make = mpmath.mp.make_mpf
-        out = []
-        for k in range(order + 1):
-            fk = from_int(math.factorial(k))
-            out.append([+make(mpf_div(vals[k * n + i], fk, prec, RND)) for i in range(n)])
-        return out
+    # explicit precision: mpmath's global context is never touched
+    prec = mpmath.libmp.dps_to_prec(dps)
+    wp = prec + 20
+    vr = _expr.convert_vector(y0, n, wp, "y0")
+    pr = _expr.convert_vector(pars, len(pars), wp, "pars")
+    vals = prog.evaluate_raw(vr, pr, wp)
+    out = []
+    for k in range(order + 1):
+        fk = from_int(math.factorial(k))
+        out.append([rounded_mpf(prec, mpf_div(vals[k * n + i], fk, prec, RND)) for i in range(n)])
+    return out
 
 
 # --------------------------------------------------------------------------
@@ -410,22 +409,21 @@ def _literal_exact_values(names, rhs, y0, pars, order, dps):
             )
         qvals.append(qv)
     levels = op.iterate(order)
-    with mpmath.mp.workdps(dps):
-        prec = mpmath.mp.prec
-        make = mpmath.mp.make_mpf
-        out = []
-        for k, level in enumerate(levels):
-            fk = math.factorial(k)
-            row = []
-            for P, e in level:
-                v = P(*point) if P else QQ(0)
-                for qv, ej in zip(qvals, e):
-                    if ej:
-                        v = v / qv ** ej
-                num, den = int(v.numerator), int(v.denominator) * fk
-                row.append(+make(from_rational(num, den, prec, RND)))
-            out.append(row)
-        return out
+    # explicit precision: mpmath's global context is never touched
+    prec = mpmath.libmp.dps_to_prec(dps)
+    out = []
+    for k, level in enumerate(levels):
+        fk = math.factorial(k)
+        row = []
+        for P, e in level:
+            v = P(*point) if P else QQ(0)
+            for qv, ej in zip(qvals, e):
+                if ej:
+                    v = v / qv ** ej
+            num, den = int(v.numerator), int(v.denominator) * fk
+            row.append(rounded_mpf(prec, from_rational(num, den, prec, RND)))
+        out.append(row)
+    return out
 
 
 def _symbolic_from_operator(op, levels, smap):

@@ -21,11 +21,21 @@ that tolerates coefficients that vanish by symmetry). For |t| >= rho the series 
 
 from __future__ import annotations
 
-import mpmath as mp
+import numpy as np
 
 from ..models.base import Model, state_fractions
 from ..poisson import as_poisson_system
-from ..precision import check_dps, check_order, to_mpf
+from ..precision import (
+    check_dps,
+    check_order,
+    data_bits,
+    dps_to_bits,
+    export_mpf,
+    mp_context,
+    to_mpf,
+    warn_if_coarse,
+)
+from ..precision import thread_mp as mp
 
 __all__ = ["LieSeries", "lie_series"]
 #: Guard digits carried above the requested precision inside the operator.
@@ -97,8 +107,35 @@ def tail_estimate(nrm, t, rho) -> mp.mpf:
     return nxt / (1 - q) if q < 1 else mp.inf
 
 
+def _local(coefficients):
+    """Coefficients as mpf of this thread's context (arithmetic takes the precision of its left operand's
+    context, so mixing in mpmath's global mpf would round to the global precision)."""
+    make = mp.make_mpf
+    return [[make(c._mpf_) for c in ck] for ck in coefficients]
+
+
+def _times(t):
+    """(values, scalar): a real or complex time, or a sequence/array of them, in this thread's context."""
+    if np.ndim(t) > 0 and not isinstance(t, str):
+        vals = [_time(v, f"t[{i}]") for i, v in enumerate(np.asarray(t, dtype=object).ravel())]
+        return vals, False
+    return [_time(t, "t")], True
+
+
+def _time(t, argname):
+    if isinstance(t, complex) or hasattr(t, "_mpc_") or (isinstance(t, np.generic) and np.iscomplexobj(t)):
+        z = mp.mpc(complex(t) if not hasattr(t, "_mpc_") else t)
+        if not (mp.isfinite(z.real) and mp.isfinite(z.imag)):
+            raise ValueError(f"`{argname}` must be finite; got {t!r}")
+        return z
+    return to_mpf(t, argname, ctx=mp_context())
+
+
 class LieSeries:
     """exp(t X_H) truncated at ``order``, applied to the state ``y0``: z(t) ~ sum_{k<=order} c_k t^k.
+
+    ``t`` may be real or complex (the series is analytic in t; its radius of convergence is the distance to the
+    nearest complex singularity), or an array of times (one state per time).
 
     Attributes
     ----------
@@ -107,47 +144,62 @@ class LieSeries:
     order, dps : int
     names : tuple of str
         Variable names, in state order.
+    data_bits : int or None
+        The precision carried by the input data (``y0``, parameters); None when they are exact. Error estimates
+        never go below the uncertainty this leaves in the data.
     """
 
-    def __init__(self, coefficients, order, dps, names, t0=0):
-        self.coefficients = coefficients
+    def __init__(self, coefficients, order, dps, names, t0=0, data_bits=None):
         self.order = order
         self.dps = dps
         self.names = names
         self.t0 = t0
+        self.data_bits = data_bits
         with mp.workdps(dps + GUARD_DIGITS):
-            self._norms = norms(coefficients)
+            self._norms = norms(_local(coefficients))
             self._radius = estimate_radius(self._norms)
+            self._floor = (mp.mpf(2) ** (-data_bits) * max(mp.mpf(1), self._norms[0])
+                           if data_bits is not None else mp.mpf(0))
+        self.coefficients = export_mpf(coefficients)
 
-    def __call__(self, t) -> list:
-        """The truncated series at time ``t`` (relative to the expansion point), as mpf rounded to ``dps``."""
+    def __call__(self, t):
+        """The truncated series at time ``t`` (relative to the expansion point), as mpf rounded to ``dps``; one
+        state per time for an array of times."""
         return self.partial_sum(t, self.order)
 
-    def partial_sum(self, t, order: int) -> list:
+    def partial_sum(self, t, order: int):
         """sum_{k <= order} c_k t^k."""
         order = check_order(order)
         if order > self.order:
             raise ValueError(f"`order` must be at most the series order {self.order}; got {order}")
+        prec = dps_to_bits(self.dps)
         with mp.workdps(self.dps + GUARD_DIGITS):
-            vals = horner(self.coefficients, to_mpf(t, "t"), order)
-        with mp.workdps(self.dps):
-            return [+v for v in vals]
+            ts, scalar = _times(t)
+            coeffs = _local(self.coefficients)
+            rows = [export_mpf(horner(coeffs, tk, order), prec) for tk in ts]
+        return rows[0] if scalar else rows
 
     def radius(self) -> mp.mpf:
         """Estimated radius of convergence in t (``inf`` for an entire or polynomial solution)."""
-        with mp.workdps(self.dps):
-            return +self._radius
+        return export_mpf(self._radius, dps_to_bits(self.dps))
 
-    def error_estimate(self, t) -> mp.mpf:
-        """Estimated truncation error at ``t``; ``inf`` where the series diverges (|t| >= radius)."""
+    def error_estimate(self, t):
+        """Estimated error at ``t``: the truncation error, and never less than the uncertainty the data carry
+        (``data_bits``); ``inf`` where the series diverges (|t| >= radius)."""
         with mp.workdps(self.dps + GUARD_DIGITS):
-            e = tail_estimate(self._norms, to_mpf(t, "t"), self._radius)
-        with mp.workdps(self.dps):
-            return +e
+            ts, scalar = _times(t)
+            nrm = [mp.make_mpf(v._mpf_) for v in self._norms]
+            radius, floor = mp.make_mpf(self._radius._mpf_), mp.make_mpf(self._floor._mpf_)
+            es = [max(tail_estimate(nrm, tk, radius), floor) if tk != 0 else floor for tk in ts]
+            es = [export_mpf(e, dps_to_bits(self.dps)) for e in es]
+        return es[0] if scalar else es
 
-    def converges(self, t) -> bool:
+    def converges(self, t):
         """False where |t| is at or beyond the estimated radius of convergence."""
-        return abs(to_mpf(t, "t")) < self._radius
+        with mp.workdps(self.dps + GUARD_DIGITS):
+            ts, scalar = _times(t)
+            out = [abs(tk) < mp.make_mpf(self._radius._mpf_) for tk in ts]
+        return out[0] if scalar else out
 
     def __repr__(self) -> str:
         return f"LieSeries(order={self.order}, dps={self.dps}, radius~{mp.nstr(self._radius, 5)})"
@@ -160,16 +212,19 @@ def lie_series(system, y0, order: int = 20, dps: int = 30) -> LieSeries:
     ----------
     system : model or PoissonSystem
     y0 : sequence of n numbers
-        Expansion point, taken at its exact value (strings, Fractions and mpf keep full precision).
-    order : int >= 1
+        Expansion point, taken at its exact value (a model state built from exact input, strings, Fractions and
+        mpf keep full precision). Binary data carrying fewer bits than ``dps`` digits give one
+        :class:`~lieseries.precision.PrecisionWarning`, and the error estimates never claim more digits than the
+        data carry.
+    order : int in [1, precision.MAX_ORDER]
         Truncation order N: coefficients c_0..c_N.
-    dps : int >= 5
+    dps : int in [precision.MIN_DPS, precision.MAX_DPS]
         Decimal digits of the result (the computation carries 10 guard digits).
 
     Examples
     --------
     >>> body = ls.EulerPoisson((1, 2, 3))
-    >>> series = ls.lie_series(body, body.initial_state((1, "0.1", "0.5"), precision=200), order=40, dps=50)
+    >>> series = ls.lie_series(body, body.initial_state((1, "0.1", "0.5")), order=40, dps=50)
     >>> series(0.5)                 # state at t = 0.5
     >>> series.error_estimate(0.5)  # truncation error estimate
     """
@@ -178,9 +233,20 @@ def lie_series(system, y0, order: int = 20, dps: int = 30) -> LieSeries:
     order = check_order(order)
     dps = check_dps(dps)
     ps, _model, z0, pars = prepare(system, y0)
+    bits = coarse_bits(ps, y0, dps_to_bits(dps))
     with mp.workdps(dps + GUARD_DIGITS):
-        coeffs = taylor_coefficients(ps.program, z0, pars, order, dps + GUARD_DIGITS)
-    with mp.workdps(dps):
-        coeffs = [[+c for c in ck] for ck in coeffs]
-    return LieSeries(coeffs, order, dps, ps.names)
+        coeffs = taylor_coefficients(ps.program, z0, pars, order, dps + GUARD_DIGITS, mp_context())
+    prec = dps_to_bits(dps)
+    coeffs = [[export_mpf(c, prec) for c in ck] for ck in coeffs]
+    return LieSeries(coeffs, order, dps, ps.names, data_bits=bits)
 
+
+def coarse_bits(ps, y0, work_bits: int, *, stacklevel: int = 4):
+    """The least precision carried by ``y0`` and the system's data (None when exact), warning once per coarse
+    input when it is below ``work_bits``."""
+    found = {"y0": data_bits(y0)}
+    found.update(ps.coarse_data())
+    bits = [b for b in found.values() if b is not None]
+    for name, b in found.items():
+        warn_if_coarse(b, work_bits, name, stacklevel=stacklevel)
+    return min(bits) if bits else None

@@ -4,13 +4,75 @@ from __future__ import annotations
 
 from fractions import Fraction
 
-import mpmath as mp
+from ..precision import thread_mp as mp
 import numpy as np
 
 from ..poisson import PoissonSystem
-from ..precision import precision_of_dtype, resolve_precision, to_fraction
+from ..solution import ChartRows, Solution
+from ..precision import export_mpf, precision_of_dtype, resolve_precision, to_fraction
 
-__all__ = ["Model", "state_fractions", "state_bits"]
+__all__ = ["Model", "ExactState", "make_state", "state_fractions", "state_bits"]
+
+
+class ExactState(np.ndarray):
+    """A state built from exact input: reads as a float64 array, runs from its exact values.
+
+    numpy sees the values rounded to double (``np.asarray(y0, float)``, printing, plotting); ``y0.exact`` holds
+    the exact values (Fractions), which every integrator uses: a run at any precision starts from the exact data
+    rounded once to that precision. The array is read-only, and anything derived from it (a slice, arithmetic, a
+    copy) is an ordinary float64 array that carries 53 bits only.
+    """
+
+    def __new__(cls, values):
+        fr = tuple(to_fraction(v, f"y[{i}]") for i, v in enumerate(values))
+        floats = []
+        for f in fr:
+            try:
+                floats.append(float(f))
+            except OverflowError:
+                floats.append(float("inf") if f > 0 else float("-inf"))
+        arr = np.array(floats, dtype=np.float64).view(cls)
+        arr.exact = fr
+        arr.flags.writeable = False
+        return arr
+
+    def __array_finalize__(self, obj):
+        self.exact = None
+
+    def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
+        inputs = tuple(np.asarray(x) if isinstance(x, ExactState) else x for x in inputs)
+        if "out" in kwargs:
+            kwargs["out"] = tuple(np.asarray(o) if isinstance(o, ExactState) else o for o in kwargs["out"])
+        return getattr(ufunc, method)(*inputs, **kwargs)
+
+    def __getitem__(self, key):
+        out = np.ndarray.__getitem__(self, key)
+        return np.asarray(out) if isinstance(out, np.ndarray) else out
+
+    def __reduce__(self):
+        return (ExactState, (self.exact,)) if self.exact is not None else np.asarray(self).__reduce__()
+
+    def __copy__(self):
+        return self
+
+    def __deepcopy__(self, memo):
+        return self
+
+    def at(self, precision):
+        """The state rounded once to ``precision`` ('double', 'long double', 'quad' or bits)."""
+        return resolve_precision(precision).array(list(self.exact))
+
+    def __repr__(self) -> str:
+        body = np.array2string(np.asarray(self), separator=", ", prefix="ExactState(")
+        return f"ExactState({body})"
+
+
+def make_state(values, precision=None):
+    """A model state from exact values: an :class:`ExactState` (``precision=None``) or an array rounded once to
+    ``precision``."""
+    if precision is None:
+        return ExactState(values)
+    return resolve_precision(precision).array(values, "state")
 
 
 def state_fractions(y, n: int, argname: str = "y0") -> list:
@@ -21,6 +83,11 @@ def state_fractions(y, n: int, argname: str = "y0") -> list:
     ValueError
         Naming ``argname``: wrong shape, NaN or infinity (with the offending index).
     """
+    exact = getattr(y, "exact", None)
+    if exact is not None:
+        if len(exact) != n:
+            raise ValueError(f"`{argname}` must be a 1-d sequence of {n} numbers; got {len(exact)}")
+        return list(exact)
     if isinstance(y, (str, bytes)) or np.ndim(y) == 0 and not hasattr(y, "__len__"):
         raise ValueError(f"`{argname}` must be a sequence of {n} numbers; got {type(y).__name__}")
     arr = np.asarray(y, dtype=object) if not isinstance(y, np.ndarray) else y
@@ -45,9 +112,9 @@ def state_bits(y) -> int:
     if len(flat) and hasattr(flat[0], "prec"):
         p = flat[0].prec
         return int(p() if callable(p) else p)
-    if len(flat) and isinstance(flat[0], mp.mpf):
+    if len(flat) and hasattr(flat[0], "_mpf_"):
         # mpf carries no precision of its own: use the longest significand in the state
-        return max([53] + [int(v._mpf_[3]) for v in flat if isinstance(v, mp.mpf)])
+        return max([53] + [int(v._mpf_[3]) for v in flat if hasattr(v, "_mpf_")])
     return 53
 
 
@@ -82,8 +149,24 @@ class Model:
         raise NotImplementedError
 
     # -- helpers -----------------------------------------------------------------------------------------------
+    def _with_charts(self, y, chart):
+        """(states, chart) for a helper: a Solution gives its rows (and their charts); atlas rows give theirs."""
+        if isinstance(y, Solution):
+            chart = y.charts if chart is None else chart
+            y = y.y
+        if isinstance(y, ChartRows):
+            if y.charts is None:
+                raise ValueError(
+                    "`y` was derived from the rows of an atlas run and no longer knows their charts; pass the rows "
+                    "themselves (`sol.y`, `sol.y[i]`), the Solution, or `chart=`"
+                )
+            chart = y.charts if chart is None else chart
+            y = np.asarray(y)
+        return y, chart
+
     def _rows(self, y, argname: str = "y"):
         """(rows of exact Fractions, bits, was_1d) for a state or a 2-d array of states."""
+        y, _ = self._with_charts(y, None)
         arr = y if isinstance(y, np.ndarray) else np.asarray(y, dtype=object)
         if arr.ndim == 1:
             return [state_fractions(arr, self.dimension, argname)], state_bits(y), True
@@ -100,11 +183,11 @@ class Model:
         prec = precision_of_dtype(arr.dtype)
         if prec is None and arr.dtype != object:
             prec = resolve_precision(bits)
-        if prec is None and arr.size and isinstance(arr.ravel()[0], mp.mpf):  # mpf in, mpf out
+        if prec is None and arr.size and hasattr(arr.ravel()[0], "_mpf_"):  # mpf in, mpf out
             with mp.workprec(bits):
-                rows = [np.array([+mp.mpf(v) if isinstance(v, mp.mpf) else _to_mpf(v) for v in r], dtype=object)
+                rows = [np.array([+mp.mpf(v) if hasattr(v, "_mpf_") else _to_mpf(v) for v in r], dtype=object)
                         for r in values_rows]
-            return rows[0] if was_1d else np.stack(rows)
+            return export_mpf(rows[0] if was_1d else np.stack(rows))
         if prec is None:  # plain Python sequences: give float64
             prec = resolve_precision("double")
         rows = [prec.array([_exact(v) for v in r]) for r in values_rows]
@@ -119,7 +202,7 @@ def _to_mpf(v):
 def _exact(v):
     if isinstance(v, Fraction):
         return v
-    if isinstance(v, mp.mpf):
+    if hasattr(v, "_mpf_"):
         return to_fraction(v)
     return v
 

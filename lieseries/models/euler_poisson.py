@@ -22,12 +22,12 @@ import warnings
 from fractions import Fraction
 
 import heyoka as hy
-import mpmath as mp
+from ..precision import thread_mp as mp
 import numpy as np
 
 from ..poisson import PoissonSystem
-from ..precision import resolve_precision, to_fraction
-from .base import Model
+from ..precision import data_bits, export_mpf, to_fraction
+from .base import Model, make_state
 
 __all__ = ["EulerPoisson", "DampedEulerPoisson", "levi_civita"]
 
@@ -125,6 +125,7 @@ class EulerPoisson(Model):
 
     def __init__(self, inertia=(1, 2, 3), bracket: str = "chetaev"):
         I = _parse_inertia(inertia)
+        self._input_bits = {"inertia": data_bits(np.asarray(inertia, dtype=object).ravel())}
         self._I = I
         self._Iinv = _inverse3(I)
         self.diagonal = all(I[i][j] == 0 for i in range(3) for j in range(3) if i != j)
@@ -192,7 +193,8 @@ class EulerPoisson(Model):
                 for j in range(3):
                     P[9 + i][3 * j + k] = Rm[j][m] if sign > 0 else -Rm[j][m]
                     P[3 * j + k][9 + i] = -Rm[j][m] if sign > 0 else Rm[j][m]
-        return PoissonSystem(z, P, H, parameters=params, name=f"Euler-Poisson ({self.bracket})")
+        return PoissonSystem(z, P, H, parameters=params, name=f"Euler-Poisson ({self.bracket})",
+                             input_bits=self._input_bits)
 
     # -- state helpers -----------------------------------------------------------------------------------------
     @property
@@ -210,7 +212,7 @@ class EulerPoisson(Model):
         """I^-1 as exact Fractions."""
         return [list(r) for r in self._Iinv]
 
-    def initial_state(self, omega, R0=None, precision="double") -> np.ndarray:
+    def initial_state(self, omega, R0=None, precision=None) -> np.ndarray:
         """The 12-number state with R(0) = ``R0`` (identity by default) and M = I ``omega``.
 
         Parameters
@@ -219,11 +221,11 @@ class EulerPoisson(Model):
             Initial angular velocity in the body frame (exact input such as "0.1" or Fraction stays exact).
         R0 : 3x3, optional
             Initial orientation; must be a rotation (orthogonal to 1e-12, det = +1).
-        precision : str or int
-            Precision of the returned array ('double', 'long double', 'quad' or bits). M = I omega is formed
-            exactly and rounded once.
+        precision : None, str or int
+            None (default): an :class:`~lieseries.models.base.ExactState` that keeps the exact values (M = I omega
+            formed exactly), so that a run at any precision starts from them. Otherwise the state rounded once
+            to that precision ('double', 'long double', 'quad' or bits), which carries that precision only.
         """
-        prec = resolve_precision(precision)
         om = np.asarray(omega, dtype=object)
         if om.shape != (3,):
             raise ValueError(f"`omega` must be three numbers; got shape {om.shape}")
@@ -247,10 +249,11 @@ class EulerPoisson(Model):
             if _det3(R) < 0:
                 raise ValueError("`R0` must be a proper rotation (det R0 = +1); got a reflection (det R0 = -1)")
         M = [sum(self._I[i][j] * w[j] for j in range(3)) for i in range(3)]
-        return prec.array([R[i][j] for i in range(3) for j in range(3)] + M)
+        return make_state([R[i][j] for i in range(3) for j in range(3)] + M, precision)
 
     def rotation(self, y) -> np.ndarray:
         """R as a 3x3 array (one 3x3 per row for a 2-d array of states)."""
+        y, _ = self._with_charts(y, None)
         arr = np.asarray(y) if not isinstance(y, np.ndarray) else y
         if arr.shape[-1] != 12:
             raise ValueError(f"`y` must have 12 entries per state; got shape {arr.shape}")
@@ -258,6 +261,7 @@ class EulerPoisson(Model):
 
     def angular_momentum(self, y) -> np.ndarray:
         """Body angular momentum M."""
+        y, _ = self._with_charts(y, None)
         arr = np.asarray(y) if not isinstance(y, np.ndarray) else y
         if arr.shape[-1] != 12:
             raise ValueError(f"`y` must have 12 entries per state; got shape {arr.shape}")
@@ -299,7 +303,7 @@ class EulerPoisson(Model):
                     max(abs(mp.fsum(R[k][i] * R[k][j] for k in range(3)) - (i == j)) for i in range(3) for j in range(3))
                 )
                 res["det_R"].append(_det3(R))
-        return {k: v[0] for k, v in res.items()} if was_1d else res
+        return export_mpf({k: v[0] for k, v in res.items()} if was_1d else res)
 
     def __repr__(self) -> str:
         if self.diagonal:
@@ -320,6 +324,7 @@ class DampedEulerPoisson(EulerPoisson):
 
     def __init__(self, inertia=(1, 2, 3), damping=1, bracket: str = "chetaev"):
         d = to_fraction(damping, "damping")
+        self._damping_bits = data_bits([damping])
         if d < 0:
             raise ValueError(f"`damping` must be >= 0 (a negative value pumps energy in); got {float(d)}")
         self.damping = d
@@ -342,6 +347,7 @@ class DampedEulerPoisson(EulerPoisson):
         return PoissonSystem(
             z, base.tensor, base.hamiltonian, parameters=params, extra_field=[0] * 9 + torque,
             name=f"damped Euler-Poisson ({self.bracket})",
+            input_bits={**self._input_bits, "damping": self._damping_bits},
         )
 
     def __repr__(self) -> str:

@@ -20,12 +20,12 @@ from __future__ import annotations
 from fractions import Fraction
 
 import heyoka as hy
-import mpmath as mp
+from ..precision import thread_mp as mp
 import numpy as np
 
 from ..poisson import PoissonSystem
-from ..precision import resolve_precision, to_fraction
-from .base import Model
+from ..precision import data_bits, export_mpf, to_fraction
+from .base import Model, make_state
 
 __all__ = ["Sphere", "SphereDirac"]
 
@@ -44,6 +44,16 @@ def _vec3(value, argname):
     return [to_fraction(v, f"{argname}[{i}]") for i, v in enumerate(arr)]
 
 
+def _fraction_in(value, argname, lo, hi) -> float:
+    """A number strictly between ``lo`` and ``hi`` (as a float), or an error naming ``argname``."""
+    if value is None or isinstance(value, (bool, str)):
+        raise TypeError(f"`{argname}` must be a number in ({lo}, {hi:.4g}); got {type(value).__name__} {value!r}")
+    v = float(to_fraction(value, argname))
+    if not (lo < v < hi):
+        raise ValueError(f"`{argname}` must lie in ({lo}, {hi:.4g}); got {v}")
+    return v
+
+
 def _frac_sqrt_float(f: Fraction) -> float:
     return float(f) ** 0.5
 
@@ -52,10 +62,8 @@ class _SphereBase(Model):
     def __init__(self, mass, radius, rtol):
         self.mass_exact = _positive(mass, "mass")
         self.radius_exact = _positive(radius, "radius")
-        rtol = float(rtol)
-        if not (0 < rtol < 1):
-            raise ValueError(f"`rtol` must lie in (0, 1); got {rtol}")
-        self.rtol = rtol
+        self._input_bits = {"mass": data_bits([mass]), "radius": data_bits([radius])}
+        self.rtol = _fraction_in(rtol, "rtol", 0, 1)
 
     @property
     def mass(self) -> float:
@@ -107,6 +115,7 @@ class _SphereBase(Model):
         ``chart``: the chart a :class:`Sphere` state is written in (default: the model's own); an int, or one
         chart per row for a 2-d array (e.g. ``sol.charts`` of an atlas run).
         """
+        y, chart = self._with_charts(y, chart)
         rows, bits, was_1d = self._rows(y)
         with mp.workprec(bits + 16):
             out = [xp[0] for xp in self._xp_of_rows(rows, chart)]
@@ -115,6 +124,7 @@ class _SphereBase(Model):
     def velocity(self, y, chart=None) -> np.ndarray:
         """The velocity v = p / m (three numbers per state), in the state's precision; ``chart`` as in
         :meth:`position`."""
+        y, chart = self._with_charts(y, chart)
         rows, bits, was_1d = self._rows(y)
         with mp.workprec(bits + 16):
             m = mp.mpf(self.mass_exact.numerator) / self.mass_exact.denominator
@@ -124,6 +134,7 @@ class _SphereBase(Model):
     def invariants(self, y, chart=None) -> dict:
         """``energy`` |p|^2/2m, ``x2`` = |x|^2 (the Casimir), ``L1, L2, L3`` = x cross p (mpf, in mpmath);
         ``chart`` as in :meth:`position`."""
+        y, chart = self._with_charts(y, chart)
         rows, bits, was_1d = self._rows(y)
         keys = ("energy", "x2", "L1", "L2", "L3")
         res = {k: [] for k in keys}
@@ -135,7 +146,7 @@ class _SphereBase(Model):
                 res["L1"].append(x[1] * p[2] - x[2] * p[1])
                 res["L2"].append(x[2] * p[0] - x[0] * p[2])
                 res["L3"].append(x[0] * p[1] - x[1] * p[0])
-        return {k: v[0] for k, v in res.items()} if was_1d else res
+        return export_mpf({k: v[0] for k, v in res.items()} if was_1d else res)
 
 
 class Sphere(_SphereBase):
@@ -154,14 +165,16 @@ class Sphere(_SphereBase):
 
     def __init__(self, mass=1, radius=1, *, chart: int = 2, edge: float = 0.05, rtol: float = 1e-12):
         super().__init__(mass, radius, rtol)
-        if chart not in (0, 1, 2) or isinstance(chart, bool):
-            raise ValueError(f"`chart` must be 0, 1 or 2 (the index of the dependent coordinate); got {chart!r}")
-        edge = float(edge)
-        if not (0 < edge < 3**-0.5):
-            raise ValueError(
-                f"`edge` must lie in (0, 1/sqrt(3)) (a fraction of |x|: the largest coordinate is always at least "
-                f"|x|/sqrt(3)); got {edge}"
+        if isinstance(chart, bool) or not isinstance(chart, (int, np.integer)):
+            raise TypeError(
+                f"`chart` must be the int 0, 1 or 2 (the index of the dependent coordinate); got "
+                f"{type(chart).__name__} {chart!r}"
             )
+        if chart not in (0, 1, 2):
+            raise ValueError(f"`chart` must be 0, 1 or 2 (the index of the dependent coordinate); got {chart!r}")
+        chart = int(chart)
+        # (a fraction of |x|: the largest coordinate is always at least |x|/sqrt(3))
+        edge = _fraction_in(edge, "edge", 0, 3**-0.5)
         self.chart = chart
         self.edge = edge
         self.free = tuple(i for i in range(3) if i != chart)
@@ -191,15 +204,15 @@ class Sphere(_SphereBase):
             parameters={"inv_mass": 1 / self.mass_exact, "edge2": Fraction(self.edge) ** 2},
             casimirs={"x2": x[0] ** 2 + x[1] ** 2 + x[2] ** 2},
             name=f"sphere (intermediate, chart x{k + 1})",
+            input_bits=self._input_bits,
         )
 
-    def initial_state(self, x, v, precision="double") -> np.ndarray:
+    def initial_state(self, x, v, precision=None) -> np.ndarray:
         """State (x1, x2, x3, pi_a, pi_b) from a position on the sphere and a tangent velocity.
 
         pi_c = m (v_c - x_c v_k / x_k) for the two free indices c (paper eq. dm3). Refuses x off the sphere,
         x . v != 0, and positions on or near the chart edge (|x_k| <= edge * radius).
         """
-        prec = resolve_precision(precision)
         x, v = self._check_xv(x, v)
         k = self.chart
         if abs(float(x[k])) <= self.edge * self.radius:
@@ -210,7 +223,7 @@ class Sphere(_SphereBase):
             )
         m = self.mass_exact
         pis = [m * (v[c] - x[c] * v[k] / x[k]) for c in self.free]
-        return prec.array(list(x) + pis)
+        return make_state(list(x) + pis, precision)
 
     def check_state(self, y, argname="y0"):
         z = super().check_state(y, argname)
@@ -280,7 +293,7 @@ class Sphere(_SphereBase):
             if x[chart] == 0:
                 raise ValueError(f"`chart` x{chart + 1} != 0 cannot hold a point with x{chart + 1} = 0")
             pis = [p[c] - x[c] * p[chart] / x[chart] for c in range(3) if c != chart]
-            return [+v for v in list(x) + pis]
+            return export_mpf([+v for v in list(x) + pis])
 
     def _xp(self, r):
         """(x, p) as mpf lists from an exact 5-number state (paper eq. dm4 with pi_3 = 0)."""
@@ -330,16 +343,16 @@ class SphereDirac(_SphereBase):
             parameters={"inv_mass": 1 / self.mass_exact},
             casimirs={"x2": r2, "xp": x[0] * p[0] + x[1] * p[1] + x[2] * p[2]},
             name="sphere (Dirac bracket)",
+            input_bits=self._input_bits,
         )
 
-    def initial_state(self, x, v, precision="double") -> np.ndarray:
+    def initial_state(self, x, v, precision=None) -> np.ndarray:
         """State (x, p) with p = m v, after checking |x| = radius and x . v = 0 (radial part removed exactly)."""
-        prec = resolve_precision(precision)
         x, v = self._check_xv(x, v)
         x2 = sum(c * c for c in x)
         xv = sum(a * b for a, b in zip(x, v))
         v = [v[i] - x[i] * xv / x2 for i in range(3)]
-        return prec.array(list(x) + [self.mass_exact * c for c in v])
+        return make_state(list(x) + [self.mass_exact * c for c in v], precision)
 
     def _xp(self, r):
         z = [mp.mpf(v.numerator) / v.denominator for v in r]

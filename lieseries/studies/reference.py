@@ -70,14 +70,13 @@ def observable_names(system) -> tuple:
     return tuple(as_poisson_system(system).names)
 
 
-def _sphere_xv(model, fracs, bits: int):
-    """(x, v) as mpf at ``bits`` from an exact state, through the model's own conversion."""
-    from ..precision import resolve_precision
+def _sphere_xv(model, fracs, bits: int, chart=None):
+    """(x, v) as mpf at ``bits`` from an exact state (written in ``chart``), through the model's own conversion."""
 
-    prec = resolve_precision(bits)
-    arr = prec.array(fracs)
-    x = model.position(arr)
-    v = model.velocity(arr)
+    with mp.workprec(bits):
+        arr = np.array([_mpf(q) for q in fracs], dtype=object)
+    x = model.position(arr, chart=chart) if chart is not None else model.position(arr)
+    v = model.velocity(arr, chart=chart) if chart is not None else model.velocity(arr)
     with mp.workprec(bits):
         return [_mpf(to_fraction(c)) for c in x], [_mpf(to_fraction(c)) for c in v]
 
@@ -102,7 +101,8 @@ def observables(system, y, dps: int = 40) -> list:
     fr = state_fractions(y, n, "y")
     if isinstance(system, (Sphere, SphereDirac)):
         bits = dps_to_bits(dps) + 16
-        x, v = _sphere_xv(system, fr, bits)
+        chart = getattr(y, "charts", None)  # a row of an atlas run knows its chart
+        x, v = _sphere_xv(system, fr, bits, chart if isinstance(chart, int) else None)
         with mp.workdps(dps):
             return [+c for c in x + v]
     with mp.workdps(dps):
