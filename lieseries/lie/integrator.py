@@ -249,7 +249,7 @@ def lie_integrate(
     stats.max_step = float(hmax) if nsteps else float("nan")
     y = np.stack(y_rows) if y_rows else np.empty((0, ps.dimension), dtype=object)
     tarr = np.array([float(v) for v in out_t])
-    dense_fn = _dense(segments, dps, sgn) if segments is not None else None
+    dense_fn = _Dense(segments, dps, sgn) if segments is not None else None
     return Solution(tarr, y, stats, status, message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
                     y_reached=y_reached)
 
@@ -276,26 +276,31 @@ def _warn_slow_order(N, N_auto, nrm, tol_abs, rho, span):
         )
 
 
-def _dense(segments, dps, sgn):
-    def dense(t):
+class _Dense:
+    """``sol(t)`` of a Lie-series run: every step's polynomial (picklable)."""
+
+    def __init__(self, segments, dps, sgn):
+        self.segments = [(export_mpf(a), export_mpf(b), export_mpf(c)) for a, b, c in segments]
+        self.dps = dps
+        self.sgn = sgn
+
+    def __call__(self, t):
         scalar = np.ndim(t) == 0
         ts = [t] if scalar else list(np.asarray(t, dtype=object).ravel())
         rows = []
-        with mp.workdps(dps + GUARD_DIGITS):
+        sgn, segments = self.sgn, self.segments
+        with mp.workdps(self.dps + GUARD_DIGITS):
             lo = segments[0][0] if segments else None
             hi = segments[-1][1] if segments else None
             for tk in ts:
-                tv = to_mpf(tk, ctx=mp_context())
-                seg = next(
-                    (s for s in segments if (tv - s[0]) * sgn >= 0 and (s[1] - tv) * sgn >= 0), None
-                )
+                tv = to_mpf(tk, "t", ctx=mp_context())
+                seg = next((s for s in segments if (tv - s[0]) * sgn >= 0 and (s[1] - tv) * sgn >= 0), None)
                 if seg is None:
                     raise ValueError(f"`t` = {tk} is outside the integrated interval [{lo}, {hi}]")
-                vals = horner(seg[2], tv - seg[0])
-                rows.append(export_mpf(np.array(vals, dtype=object), dps_to_bits(dps)))
+                coeffs = [[mp.make_mpf(c._mpf_) for c in ck] for ck in seg[2]]
+                vals = horner(coeffs, tv - mp.make_mpf(seg[0]._mpf_))
+                rows.append(export_mpf(np.array(vals, dtype=object), dps_to_bits(self.dps)))
         return rows[0] if scalar else np.stack(rows)
-
-    return dense
 
 
 def _event_checks(model, ps, wdps):

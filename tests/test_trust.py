@@ -1,0 +1,302 @@
+"""Results that are right or loud: precision carried by the data, honest statuses, threads, hard limits.
+
+Every expectation is an independent reference (closed forms of `lieseries.exact` at more digits, the exact
+Hamiltonian, a hand-computed quantity) or a precise statement of what must happen (a status, a warning, an error
+naming the argument).
+"""
+
+import math
+import pickle
+import threading
+import time
+import warnings
+from fractions import Fraction
+
+import heyoka as hy
+import mpmath as mp
+import numpy as np
+import pytest
+
+import lieseries as ls
+from lieseries import exact
+from lieseries.precision import PrecisionWarning, to_fraction
+
+INERTIA, OMEGA = (1, 2, 3), (1, "0.1", "0.5")
+
+
+def body_error(sol_row, t, dps=80):
+    """Max |state - closed form| at t, the closed form from the exact decimal data."""
+    ref = exact.euler_poisson(INERTIA, OMEGA, t, dps=dps)
+    with mp.workdps(dps):
+        return max(abs(mp.mpf(to_fraction(a).numerator) / to_fraction(a).denominator - b)
+                   for a, b in zip(sol_row, ref))
+
+
+# -- 1. precision carried by the data -----------------------------------------------------------------------------
+def test_exact_state_reaches_237_bits_without_a_precision_argument():
+    body = ls.EulerPoisson(INERTIA)
+    y0 = body.initial_state(omega=OMEGA)  # no precision: the exact values are kept
+    assert np.asarray(y0, float)[10] == 0.2 and "0.2" in repr(y0)  # numpy reads it as doubles
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PrecisionWarning)
+        sol = ls.integrate(body, y0, t=20, precision=237)
+    assert sol.success
+    assert body_error(sol.y_final, 20) < 1e-68  # before: 7.8e-18 (the doubles of 0.1 and 0.5)
+
+
+def test_binary_state_warns_once_naming_y0_and_runs_from_its_values():
+    body = ls.EulerPoisson(INERTIA)
+    y0 = np.asarray(body.initial_state(omega=OMEGA), dtype=float)
+    with pytest.warns(PrecisionWarning, match=r"`y0` carries only 53 bits") as rec:
+        sol = ls.integrate(body, y0, t=20, precision=237)
+    assert len([w for w in rec if issubclass(w.category, PrecisionWarning)]) == 1
+    assert sol.success
+    # it is the exact run of the binary data: the decimal problem differs by about a double's rounding
+    assert 1e-19 < body_error(sol.y_final, 20) < 1e-14
+
+
+def test_a_state_rounded_to_a_lower_precision_warns_at_a_higher_one():
+    body = ls.EulerPoisson(INERTIA)
+    y0q = body.initial_state(omega=OMEGA, precision="quad")
+    with pytest.warns(PrecisionWarning, match="113 bits"):
+        ls.integrate(body, y0q, t=1, precision=237)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PrecisionWarning)
+        ls.integrate(body, y0q, t=1, precision="double")  # lower precision: nothing to say
+
+
+def test_float_parameters_and_constants_warn_by_name_above_double():
+    with pytest.warns(PrecisionWarning, match="`inertia`"):
+        body = ls.EulerPoisson((1.1, 2, 3))
+        ls.integrate(body, body.initial_state(omega=(1, 0, 0)), t=1, precision=113)
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 + 0.05 * q**2)
+    with pytest.warns(PrecisionWarning, match="the constant 0.1 in the expressions"):
+        ls.integrate(osc, [1, 0], t=1, precision=113)
+    # short dyadic constants are exact: no warning
+    exact_osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 + 0.25 * q**2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PrecisionWarning)
+        ls.integrate(exact_osc, [1, 0], t=1, precision=113)
+
+
+@pytest.mark.parametrize("precision, dtype_of", [("quad", lambda: np.dtype(hy.real128)), (160, None)])
+def test_precision_left_out_runs_at_the_precision_of_y0(precision, dtype_of):
+    body = ls.EulerPoisson(INERTIA)
+    y0 = body.initial_state(omega=OMEGA, precision=precision)
+    sol = ls.integrate(body, y0, t=5)
+    eps = ls.resolve_precision(precision).eps
+    assert sol.stats.precision == ls.resolve_precision(precision).name
+    assert body_error(sol.y_final, 5) < 1e3 * eps  # not double's 1e-15
+    with pytest.raises(ValueError, match="`y0` holds mpmath numbers.*`precision=`"):
+        ls.integrate(body, [mp.mpf(v) for v in np.asarray(y0, float)], t=1)
+
+
+def test_lie_estimates_never_claim_more_digits_than_the_data():
+    body = ls.EulerPoisson(INERTIA)
+    y0 = np.asarray(body.initial_state(omega=OMEGA), dtype=float)
+    with pytest.warns(PrecisionWarning):
+        series = ls.lie_series(body, y0, order=30, dps=70)
+    actual = body_error(series(0.25), 0.25)  # against the decimal problem the user wrote
+    assert actual > 1e-19  # the data's own rounding
+    assert series.error_estimate(0.25) >= actual  # before: 4.5e-31 against an actual 1e-17
+    with pytest.warns(PrecisionWarning):
+        sol = ls.lie_integrate(body, y0, t=2, dps=40)
+    assert max(sol.stats.error_estimates) >= body_error(sol.y_final, 2)  # before: 3e-72 against 6e-18
+    # exact data keep the full claim
+    series = ls.lie_series(body, body.initial_state(omega=OMEGA), order=30, dps=70)
+    assert series.error_estimate(0.25) < 1e-25
+
+
+def test_lie_series_takes_arrays_of_times_and_complex_times():
+    body = ls.EulerPoisson(INERTIA)
+    series = ls.lie_series(body, body.initial_state(omega=OMEGA), order=60, dps=40)
+    rows = series(np.array([0.1, 0.2]))
+    assert len(rows) == 2 and body_error(rows[1], 0.2) < 1e-30
+    # complex time: Omega(t) = I^-1 M(t), compared with the analytic continuation of the closed form
+    tc = 0.2 + 0.1j
+    M = series(tc)[9:]
+    om = exact.angular_velocity(INERTIA, OMEGA, tc, dps=40)
+    with mp.workdps(40):
+        assert max(abs(M[i] / INERTIA[i] - om[i]) for i in range(3)) < 1e-30
+    assert series.converges(tc) and series.error_estimate(tc) < 1e-20
+    with pytest.raises(ValueError, match="`t`"):
+        series(complex(float("nan"), 1))
+
+
+# -- 2. statuses and rows ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("T", [5, 10])
+def test_chart_edge_whatever_the_final_time(T):
+    s = ls.Sphere()
+    y0 = s.initial_state(x=("0.6", "0", "0.8"), v=(0, 1, 0))
+    sol = ls.integrate(s, y0, t=T, atlas=False)
+    assert sol.status == "chart_edge"  # before: 'step_collapse' ("the problem is stiff") for T = 10
+    # x3(t) = 0.8 cos t reaches 0.05 |x| at cos t = 1/16
+    assert float(sol.t_reached) == pytest.approx(math.acos(0.05 / 0.8), rel=1e-12)
+    assert np.asarray(sol.y_final, float)[2] == pytest.approx(0.05, rel=1e-9)
+
+
+def test_sphere_switches_charts_by_default_and_helpers_read_the_charts():
+    s = ls.Sphere()
+    x0, v0 = ("0.6", "0", "0.8"), (0, 1, 0)
+    for sol in (ls.integrate(s, s.initial_state(x0, v0), t=[3, 10]),
+                ls.lie_integrate(s, s.initial_state(x0, v0), t=[3, 10], dps=20)):
+        assert sol.success and sol.stats.extra["chart_switches"] >= 2
+        energy = s.invariants(sol.y)["energy"]  # before: 0.1745 instead of 0.5
+        assert max(abs(e - 0.5) for e in energy) < 1e-13
+        xe, _ = exact.sphere(1, x0, v0, 10, dps=30)
+        for got in (s.position(sol)[-1], s.position(sol.y[-1]), s.position(sol.y_final)):
+            assert max(abs(a - b) for a, b in zip(got, xe)) < 1e-13
+
+
+def test_messages_come_from_the_run_that_produced_them():
+    x0, v0 = ("0.6", "0", "0.8"), (0, 1, 0)
+    for edge in (0.05, 0.2, 0.05):
+        s = ls.Sphere(edge=edge)
+        sol = ls.integrate(s, s.initial_state(x0, v0), t=5, atlas=False)
+        assert f"{edge} * radius" in sol.message
+        assert float(sol.t_reached) == pytest.approx(math.acos(edge / 0.8), rel=1e-12)
+
+
+def test_t_equal_to_t0_is_success_with_one_row():
+    body = ls.EulerPoisson(INERTIA)
+    y0 = body.initial_state(omega=OMEGA)
+    for sol in (ls.integrate(body, y0, t=0), ls.integrate(body, y0, t=3, t0=3),
+                ls.lie_integrate(body, y0, t=0, dps=20)):
+        assert sol.status == "success" and len(sol.t) == 1
+        assert [float(v) for v in sol.y[0]] == [float(v) for v in np.asarray(y0, float)]
+
+
+def test_solution_is_immutable_and_y_final_is_the_state_reached():
+    s = ls.Sphere()
+    sol = ls.integrate(s, s.initial_state(("0.6", "0", "0.8"), (0, 1, 0)), t=[0, 5], atlas=False)
+    assert sol.status == "chart_edge" and len(sol.t) == 1  # only t = 0 was reached as an output row
+    assert np.asarray(sol.y_final, float)[2] == pytest.approx(0.05, rel=1e-9)  # before: the t = 0 row
+    with pytest.raises(AttributeError):
+        sol.status = "success"
+    with pytest.raises(ValueError):
+        sol.y[0, 0] = 1.0
+    with pytest.raises(ValueError):
+        sol.y_reached[0] = 1.0
+
+
+def test_every_solution_pickles_dense_output_included():
+    body = ls.EulerPoisson(INERTIA)
+    y0 = body.initial_state(omega=OMEGA)
+    for sol in (ls.integrate(body, y0, t=10, dense=True), ls.lie_integrate(body, y0, t=2, dps=20, dense=True),
+                ls.integrate(ls.Sphere(), ls.Sphere().initial_state(("0.6", "0", "0.8"), (0, 1, 0)), t=[5])):
+        back = pickle.loads(pickle.dumps(sol))
+        assert back.status == sol.status and back.message == sol.message
+        np.testing.assert_array_equal(np.asarray(back.y, float), np.asarray(sol.y, float))
+        if sol._dense is not None:
+            assert body_error(back(1.5), 1.5) < 1e-13
+
+
+def test_mixed_scales_are_not_stiff():
+    """An oscillator beside a conserved variable of size 1e4: not stiff (before: 'stiff' at t = 0.18)."""
+    q, p, c = hy.make_vars("q", "p", "c")
+    sys = ls.PoissonSystem([q, p, c], [[0, 1, 0], [-1, 0, 0], [0, 0, 0]], (p**2 + q**2) / 2 + 0 * c)
+    sol = ls.integrate(sys, [1, 0, 10000], t=2000)
+    assert sol.success, sol.message
+    assert float(sol.y_final[0]) == pytest.approx(math.cos(2000), abs=1e-9)
+
+
+def test_a_motion_slow_for_its_time_span_is_not_success():
+    """omega ~ 1e-16 over T ~ 1e17 (the omega = 1, T = 20 motion rescaled): heyoka's coefficients underflow and
+    one step 'succeeds' with a relative error of 8e16. The energy check says so."""
+    body = ls.EulerPoisson(INERTIA)
+    slow = body.initial_state(omega=("1e-16", "1e-17", "5e-17"))
+    sol = ls.integrate(body, slow, t="2e17")
+    assert sol.status == "invariant_drift" and "rescale time" in sol.message
+    # the same motion in rescaled time is right: M(2e17) = 1e-16 M_fast(20)
+    fast = ls.integrate(body, body.initial_state(omega=(1, "0.1", "0.5")), t=20)
+    assert fast.success and body_error(fast.y_final, 20) < 1e-13
+
+
+def test_closed_forms_at_huge_times_are_computed_not_noise():
+    # sphere, w = 1: x1(t) = 0.6 cos t, computed directly with enough digits for the argument reduction
+    x, _ = exact.sphere(1, ("0.6", "0", "0.8"), (0, 1, 0), "1e300", dps=20)
+    with mp.workdps(340):
+        ref = mp.mpf("0.6") * mp.cos(mp.mpf(10) ** 300)
+    assert abs(x[0] - ref) < 1e-18
+    # rigid body: the answer at 20 digits agrees with the one at 40 digits (noise would not)
+    a = exact.angular_velocity(INERTIA, OMEGA, "1e300", dps=20)
+    b = exact.angular_velocity(INERTIA, OMEGA, "1e300", dps=40)
+    assert max(abs(u - v) for u, v in zip(a, b)) < 1e-18
+
+
+# -- 3. threads --------------------------------------------------------------------------------------------------------
+def test_four_threads_on_different_systems_and_precisions_each_match_their_reference():
+    bodies = [ls.EulerPoisson((1, 2, 3)), ls.EulerPoisson((2, 3, 4)), ls.EulerPoisson((1, 2, 3)),
+              ls.EulerPoisson((3, 4, 5))]
+    jobs = [("double", bodies[0], 1e-13), (113, bodies[1], 1e-30), ("lie60", bodies[2], 1e-55),
+            ("lie15", bodies[3], 1e-12)]
+    errors, failures = {}, []
+
+    def work(i, kind, body, bound):
+        try:
+            inertia = tuple(int(v) for v in np.diag(body.inertia))
+            y0 = body.initial_state(omega=OMEGA)
+            worst = 0.0
+            for rep in range(6):
+                T = 1 + rep % 3
+                if kind == "lie60":
+                    row = ls.lie_series(body, y0, order=70, dps=60)(mp.mpf(T) / 10)
+                    T = mp.mpf(T) / 10
+                elif kind == "lie15":
+                    row = ls.lie_integrate(body, y0, t=T, dps=15).y_final
+                else:
+                    row = ls.integrate(body, y0, t=T, precision=kind).y_final
+                ref = exact.euler_poisson(inertia, OMEGA, T, dps=70)
+                worst = max(worst, float(max(abs(to_fraction(a) - to_fraction(b)) for a, b in zip(row, ref))))
+            errors[i] = worst
+            if worst > bound:
+                failures.append((kind, worst))
+        except Exception as exc:  # pragma: no cover - a failure is reported below
+            failures.append((kind, repr(exc)))
+
+    threads = [threading.Thread(target=work, args=(i, *job)) for i, job in enumerate(jobs)]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    assert not failures, failures
+    assert len(errors) == 4
+
+
+# -- 4. hard limits ----------------------------------------------------------------------------------------------------
+def test_limits_refuse_at_once_naming_the_argument():
+    body = ls.EulerPoisson(INERTIA)
+    y0 = body.initial_state(omega=OMEGA)
+    cases = [
+        (lambda: ls.integrate(body, y0, t=1, tol=1e-300), "`tol`.*below the epsilon of double"),
+        (lambda: ls.integrate(body, y0, t=1, precision=4000), "`precision`.*at most|`precision` as a number"),
+        (lambda: ls.lie_series(body, y0, order=5000), "`order` must be at most"),
+        (lambda: ls.lie_series(body, y0, dps=100_000), "`dps` must be at most"),
+        (lambda: ls.integrate(body, y0, t="1e99999999"), "`t`.*out of range"),
+        (lambda: ls.integrate(body, y0, t="1e400"), "`t`.*overflows double"),
+        (lambda: ls.integrate(body, y0, t="1/0"), "`t`.*divides by zero"),
+        (lambda: ls.EulerPoisson(("1e99999999", 1, 1)), "`inertia\\[0\\]`.*out of range"),
+    ]
+    for call, pattern in cases:
+        tic = time.perf_counter()
+        with pytest.raises(ValueError, match=pattern):
+            call()
+        assert time.perf_counter() - tic < 5  # refused, not attempted (a generous bound; no timing claim)
+
+
+def test_max_time_bounds_a_high_precision_run():
+    body = ls.EulerPoisson(INERTIA)
+    y0 = body.initial_state(omega=OMEGA)
+    ls.integrate(body, y0, t="0.01", precision=256)  # compile once (compilation is not bounded)
+    tic = time.perf_counter()
+    sol = ls.integrate(body, y0, t=1e6, precision=256, max_time=0.5)
+    assert sol.status == "time_budget"
+    assert time.perf_counter() - tic < 10  # before: precision=4000, max_time=1 took 69 s
+
+
+def test_fixed_order_far_below_the_automatic_one_warns():
+    body = ls.EulerPoisson(INERTIA)
+    with pytest.warns(UserWarning, match="`order` = 8 is far below the automatic order"):
+        sol = ls.lie_integrate(body, body.initial_state(omega=OMEGA), t="0.05", dps=40, order=8, max_steps=3)
+    assert sol.status == "step_budget"
