@@ -67,6 +67,47 @@ CASES = {
     "not a model": (lambda: ls.lie_series({"a": 1}, Y0), TypeError, "`system`"),
 }
 
+# refusals added with the precision model, the hard limits and the statuses that tell the truth
+CASES.update({
+    "Sphere: chart 2.0": (lambda: ls.Sphere(chart=2.0), TypeError, "`chart` must be the int"),
+    "Sphere: edge string": (lambda: ls.Sphere(edge="x"), TypeError, "`edge`"),
+    "Sphere: edge None": (lambda: ls.Sphere(edge=None), TypeError, "`edge`"),
+    "Sphere: rtol string": (lambda: ls.Sphere(rtol="small"), TypeError, "`rtol`"),
+    "Sphere: rtol None": (lambda: ls.SphereDirac(rtol=None), TypeError, "`rtol`"),
+    "integrate: max_time string": (lambda: ls.integrate(BODY, Y0, t=1, max_time="x"), TypeError, "`max_time`"),
+    "integrate: max_time nan": (lambda: ls.integrate(BODY, Y0, t=1, max_time=float("nan")), ValueError,
+                                "`max_time`"),
+    "integrate: progress not callable": (lambda: ls.integrate(BODY, Y0, t=1, progress=3), TypeError,
+                                         "`progress` must be callable"),
+    "lie_integrate: progress not callable": (lambda: ls.lie_integrate(BODY, Y0, t=1, progress="bar"), TypeError,
+                                             "`progress`"),
+    "lie_integrate: max_steps 1.5": (lambda: ls.lie_integrate(BODY, Y0, t=1, max_steps=1.5), TypeError,
+                                     "`max_steps`"),
+    "LieSeries(t): string": (lambda: ls.lie_series(BODY, Y0, order=4, dps=20)("soon"), ValueError, "`t`"),
+    "LieSeries(t): nan": (lambda: ls.lie_series(BODY, Y0, order=4, dps=20)(float("nan")), ValueError, "`t`"),
+    "exact: nan + 1j": (lambda: exact.angular_velocity((1, 2, 3), (1, 0, 0), complex(float("nan"), 1)),
+                        ValueError, "`t` must be finite"),
+    "lie_series: dps 5": (lambda: ls.lie_series(BODY, Y0, dps=5), ValueError, "`dps` must be at least 15"),
+    "integrate: tol below eps": (lambda: ls.integrate(BODY, Y0, t=1, tol=1e-20), ValueError, "`tol`"),
+    "integrate: 4000 bits": (lambda: ls.integrate(BODY, Y0, t=1, precision=4000), ValueError, "`precision`"),
+    "lie_series: order 5000": (lambda: ls.lie_series(BODY, Y0, order=5000), ValueError, "`order`"),
+    "integrate: t '1e99999999'": (lambda: ls.integrate(BODY, Y0, t="1e99999999"), ValueError, "`t`"),
+    "integrate: t '1e400' in double": (lambda: ls.integrate(BODY, Y0, t="1e400"), ValueError, "`t`.*overflows"),
+    "integrate: t '1/0'": (lambda: ls.integrate(BODY, Y0, t="1/0"), ValueError, "`t`.*divides by zero"),
+    "integrate: y0 '1e400'": (lambda: ls.integrate(BODY, [1, 0, 0, 0, 1, 0, 0, 0, 1, "1e400", 0, 0], t=1),
+                              ValueError, r"`y0`.*overflows"),
+    "mpf state without precision": (lambda: ls.integrate(BODY, [ls.precision.mp_context().mpf(1)] * 12, t=1),
+                                    ValueError, "`precision=`"),
+    "atlas rows that lost their charts": (lambda: SPHERE.position(_derived_atlas_rows()), ValueError,
+                                          "no longer knows their charts"),
+})
+
+
+def _derived_atlas_rows():
+    rows = ls.integrate(SPHERE, S0, t=[1, 4]).y
+    derived = rows.view(type(rows))  # a view that lost the charts
+    return derived
+
 
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_bad_input_names_the_argument(name):

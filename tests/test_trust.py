@@ -300,3 +300,11 @@ def test_fixed_order_far_below_the_automatic_one_warns():
     with pytest.warns(UserWarning, match="`order` = 8 is far below the automatic order"):
         sol = ls.lie_integrate(body, body.initial_state(omega=OMEGA), t="0.05", dps=40, order=8, max_steps=3)
     assert sol.status == "step_budget"
+
+
+def test_numpy_integers_are_counts_everywhere():
+    body = ls.EulerPoisson(INERTIA)
+    y0 = body.initial_state(omega=OMEGA)
+    sol = ls.lie_integrate(body, y0, t=5, dps=20, max_steps=np.int64(2))  # before: refused
+    assert sol.status == "step_budget" and sol.stats.steps == 2
+    assert ls.integrate(body, y0, t=5, max_steps=np.int64(3)).status == "step_budget"
