@@ -147,6 +147,7 @@ class PoissonSystem:
             if b is not None:
                 self._coarse[str(k)] = int(b)
         self._constants_checked = False
+        self._native_params = {}
         used = hy.get_params(
             [self._hamiltonian]
             + [e for r in self._tensor for e in r if e is not None]
@@ -254,6 +255,18 @@ class PoissonSystem:
             if e is not None
         ]
         return hy.sum(terms) if terms else hy.expression(0.0)
+
+    def native_parameters(self, prec):
+        """The parameter values rounded once to the :class:`~lieseries.precision.Precision` ``prec`` (kept per
+        precision; read-only), or None when the system has no parameters."""
+        if not self._param_values:
+            return None
+        arr = self._native_params.get(prec.name)
+        if arr is None:
+            arr = prec.array(self._param_values, "parameters")
+            arr.flags.writeable = False
+            self._native_params[prec.name] = arr
+        return arr
 
     def coarse_data(self) -> dict:
         """What in the system carries a finite precision: ``{argument: bits}``.

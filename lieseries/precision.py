@@ -222,6 +222,15 @@ class Precision:
         Raises ValueError, naming ``argname``, when the value overflows the format (or underflows to zero).
         """
         frac = value if isinstance(value, Fraction) else to_fraction(value, argname)
+        if self.name == "double":
+            try:
+                x = float(frac)  # correctly rounded
+            except OverflowError:
+                x = math.inf
+            if math.isinf(x) or (x == 0 and frac != 0):
+                pass  # out of range: the general path below says so
+            else:
+                return x
         if frac == 0:
             return self._raw_to_native(mp.libmp.fzero)
         raw = mp.libmp.from_rational(frac.numerator, frac.denominator, self.bits, mp.libmp.round_nearest)

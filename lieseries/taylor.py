@@ -65,6 +65,7 @@ __all__ = ["integrate", "build_integrator", "clear_cache", "cache_info"]
 
 _CACHE: dict = {}  # key -> [template integrator, list of free copies]
 _CACHE_MAX = 64
+_FREE: dict = {}  # id(template) -> its cache entry
 _LOCK = threading.Lock()
 _OUTCOME = hy.taylor_outcome
 DEFAULT_MAX_STEPS = 50_000_000
@@ -76,6 +77,8 @@ def clear_cache() -> None:
     """Forget every cached integrator."""
     with _LOCK:
         _CACHE.clear()
+        _FREE.clear()
+        _PLANS.clear()
         _ENERGY.clear()
 
 
@@ -144,8 +147,10 @@ def build_integrator(system, precision="double", tol=None, *, events=True, compa
     build = _time.perf_counter() - t0
     with _LOCK:
         if len(_CACHE) >= _CACHE_MAX:
-            _CACHE.pop(next(iter(_CACHE)))
-        _CACHE.setdefault(key, [ta, [copy.deepcopy(ta)]])
+            old = _CACHE.pop(next(iter(_CACHE)))
+            _FREE.pop(id(old[0]), None)
+        entry = _CACHE.setdefault(key, [ta, [copy.deepcopy(ta)]])
+        _FREE[id(entry[0])] = entry
     return ta, build, False, info
 
 
@@ -156,7 +161,8 @@ def _checkout(template):
     disturb a run; a copy is made only when more runs of one key overlap than there are free copies.
     """
     with _LOCK:
-        free = next((entry[1] for entry in _CACHE.values() if entry[0] is template), [])
+        entry = _FREE.get(id(template))
+        free = entry[1] if entry is not None and entry[0] is template else []
         if free:
             return free.pop(), free
     return copy.deepcopy(template), free
@@ -171,6 +177,36 @@ def _release(ta, free) -> None:
 #: Steps in the first chunk of a run (later chunks grow fourfold, up to about CHUNK_SECONDS of work each).
 FIRST_CHUNK = 64
 CHUNK_SECONDS = 0.1
+
+
+_PLANS: dict = {}
+_PLANS_MAX = 256
+
+
+def _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy):
+    """What a run needs that depends only on hashable call arguments, computed once and memoised: the output
+    grid (exact and in the working format), the tolerance and the integrator's cache entry."""
+    key = None
+    scalar = (int, float, str, Fraction)
+    if isinstance(t, scalar) and isinstance(t0, scalar) and (tol is None or isinstance(tol, scalar)):
+        key = (id(system), prec.name, tol, t, t0, compact_mode, high_accuracy)
+        hit = _PLANS.get(key)
+        if hit is not None and hit[0] is system:
+            return hit[1]
+    grid, direction, t0f = parse_times(t, t0)
+    tolf = _tol_value(tol, prec)
+    grid_native = [prec.time(g) for g in grid]
+    plan = dict(
+        grid=grid, direction=direction, t0f=t0f, tolf=tolf, grid_native=grid_native,
+        grid_exact=[to_fraction(g) for g in grid_native], t0_native=prec.time(t0f),
+        build=build_integrator(system, prec, tolf, compact_mode=compact_mode, high_accuracy=high_accuracy),
+    )
+    if key is not None:
+        with _LOCK:
+            if len(_PLANS) >= _PLANS_MAX:
+                _PLANS.pop(next(iter(_PLANS)))
+            _PLANS[key] = (system, plan)
+    return plan
 
 
 def infer_precision(precision, y0) -> Precision:
@@ -295,16 +331,15 @@ def integrate(
     ps = as_poisson_system(system)
     model = system if isinstance(system, Model) else None
     z0 = model.check_state(y0, "y0") if model is not None else state_fractions(y0, ps.dimension, "y0")
-    grid, direction, t0f = parse_times(t, t0)
-    tolf = _tol_value(tol, prec)
+    plan = _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy)
+    grid, direction, tolf = plan["grid"], plan["direction"], plan["tolf"]
+    grid_native, t0_native = plan["grid_native"], plan["t0_native"]
     warn_coarse_inputs(ps, y0, [t, t0], prec.bits)
-    y0_native = prec.array(z0, "y0")
-    grid_native = [prec.time(g) for g in grid]
-    t0_native = prec.time(t0f)
-
-    template, build, cached, event_info = build_integrator(
-        system, prec, tolf, compact_mode=compact_mode, high_accuracy=high_accuracy
-    )
+    y0_native = y0.native(prec) if getattr(y0, "exact", None) is not None else prec.array(z0, "y0")
+    template, build, cached, event_info = plan["build"]
+    if cached or plan.get("used"):
+        build, cached = 0.0, True
+    plan["used"] = True
     stats = Stats(method="taylor (heyoka)", precision=prec.name, tol=float(tolf), order=int(template.order),
                   build_time=build, cached=cached)
     if direction == 0:
@@ -317,7 +352,7 @@ def integrate(
             ta.time = t0_native
             ta.state[:] = y0_native
             if ps.parameter_values:
-                ta.pars[:] = prec.array(ps.parameter_values, "parameters")
+                ta.pars[:] = ps.native_parameters(prec)
             if event_info:
                 ta.reset_cooldowns()
             run = _Run(ta, direction)
@@ -333,31 +368,41 @@ def integrate(
 
     t_reached = to_fraction(run.t_reached)
     rows_t, rows_y = [], []
-    t0n = to_fraction(t0_native)
-    for k, tk_native in enumerate(grid_native):
-        tk = to_fraction(tk_native)  # heyoka's clock runs in the working precision ("0.1" is not a double)
-        if (tk - t0n) * direction > (t_reached - t0n) * direction:
+    # heyoka's clock runs in the working precision ("0.1" is not a double): compare the rounded times, exactly,
+    # in that format
+    t_hit = run.t_reached
+    for k, tk in enumerate(grid_native):
+        if (direction > 0 and tk > t_hit) or (direction < 0 and tk < t_hit):
             break
-        if tk == t0n:
+        if tk == t0_native:
             yk = y0_native
-        elif tk == t_reached:
+        elif tk == t_hit:
             yk = run.y_reached
         elif run.rows is not None:
             if k >= len(run.rows):
                 break
             yk = run.rows[k]
         else:
-            yk = run.dense_at(tk_native)
+            yk = run.dense_at(tk)
         rows_t.append(tk)
         rows_y.append(np.array(yk, copy=True))
-    status, message = _status(run, event_info, t_reached, grid[-1], max_steps)
+    status, message = _status(run, event_info, t_reached, grid_native[-1], max_steps)
     if status == "success" and direction != 0 and ps.is_hamiltonian:
         status, message = _energy_check(ps, prec, tolf, y0_native, run.y_reached, run.steps, status, message)
     y = np.stack(rows_y) if rows_y else np.empty((0, ps.dimension), dtype=prec.numpy_dtype)
-    tarr = prec.array(rows_t) if rows_t else np.empty(0, dtype=prec.numpy_dtype)
+    tarr = _time_array(rows_t, prec)
     dense_fn = DenseOutput(run.c_outs, prec) if run.c_outs else None
     return Solution(tarr, y, stats, status, message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
                     y_reached=np.array(run.y_reached, copy=True))
+
+
+def _time_array(natives, prec: Precision) -> np.ndarray:
+    if prec.is_real:
+        out = np.empty(len(natives), dtype=hy.real)
+        for i, v in enumerate(natives):
+            out[i] = v
+        return out
+    return np.array(natives, dtype=prec.numpy_dtype)
 
 
 class _Run:
@@ -529,10 +574,12 @@ def _finite(v) -> bool:
 def _status(run, event_info, t_reached, t_end, max_steps):
     if run.direction == 0:
         return "success", f"Nothing to integrate: t equals t0 = {float(t_reached):.17g}."
+    if run.reason is None and run.outcome == _OUTCOME.time_limit:
+        return "success", f"Reached t = {float(t_end):.17g}."
     ta = run.ta
     h = abs(float(ta.last_h)) if _finite(ta.last_h) else float("nan")
     where = f"t = {float(t_reached):.17g} (last step size {h:.3g})"
-    left = abs(float(t_end - t_reached))
+    left = abs(float(t_end) - float(run.t_reached))
     hh = run.h_last if run.h_last == run.h_last else h
     need = f"{left:.3g} time units remain, about {left / hh:.3g} steps at this step size" if hh > 0 else ""
     outcome = run.outcome
@@ -585,12 +632,22 @@ def _energy_check(ps, prec, tolf, y_start, y_end, steps, status, message):
         if prec.is_real:
             kwargs["prec"] = prec.bits
         npar = 1 + max((int(str(p)[1:]) for p in hy.get_params([ps.hamiltonian])), default=-1)
-        fn = (hy.cfunc([ps.hamiltonian], ps.variables, compact_mode=prec.name != "double", **kwargs), npar)
-        _ENERGY[key] = fn
-    fn, npar = fn
-    pars = prec.array(ps.parameter_values[:npar], "parameters") if npar else None
-    e0 = float(fn(np.asarray(y_start), pars=pars)[0] if pars is not None else fn(np.asarray(y_start))[0])
-    e1 = float(fn(np.asarray(y_end), pars=pars)[0] if pars is not None else fn(np.asarray(y_end))[0])
+        fn = hy.cfunc([ps.hamiltonian], ps.variables, compact_mode=prec.name != "double", **kwargs)
+        _ENERGY[key] = fn = (fn, npar, {})
+    fn, npar, pars_by_system = fn
+    both = np.empty((len(y_start), 2), dtype=prec.numpy_dtype)  # one batched call for both ends
+    both[:, 0], both[:, 1] = y_start, y_end
+    if npar:
+        pars = pars_by_system.get(id(ps))
+        if pars is None or pars[0] is not ps:
+            if len(pars_by_system) > 64:
+                pars_by_system.clear()
+            native = ps.native_parameters(prec)[:npar]
+            pars = pars_by_system[id(ps)] = (ps, np.repeat(native[:, None], 2, axis=1))
+        values = fn(both, pars=pars[1])
+    else:
+        values = fn(both)
+    e0, e1 = float(values[0, 0]), float(values[0, 1])
     if not (math.isfinite(e0) and math.isfinite(e1)):
         return status, message
     change = abs(e1 - e0)

@@ -38,6 +38,7 @@ class ExactState(np.ndarray):
 
     def __array_finalize__(self, obj):
         self.exact = None
+        self._native = {}
 
     def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
         inputs = tuple(np.asarray(x) if isinstance(x, ExactState) else x for x in inputs)
@@ -59,8 +60,19 @@ class ExactState(np.ndarray):
         return self
 
     def at(self, precision):
-        """The state rounded once to ``precision`` ('double', 'long double', 'quad' or bits)."""
-        return resolve_precision(precision).array(list(self.exact))
+        """The state rounded once to ``precision`` ('double', 'long double', 'quad' or bits), as a new array."""
+        return self.native(resolve_precision(precision)).copy()
+
+    def native(self, prec):
+        """The state rounded once to the :class:`~lieseries.precision.Precision` ``prec`` (computed once per
+        precision and kept: the state is immutable). Read-only."""
+        cache = self.__dict__.setdefault("_native", {})
+        arr = cache.get(prec.name)
+        if arr is None:
+            arr = prec.array(list(self.exact), "y0")
+            arr.flags.writeable = False
+            cache[prec.name] = arr
+        return arr
 
     def __repr__(self) -> str:
         body = np.array2string(np.asarray(self), separator=", ", prefix="ExactState(")
