@@ -5,6 +5,8 @@ Public API (stable names)::
     ls.EulerPoisson, ls.Sphere, ls.SphereDirac     models
     ls.PoissonSystem                               write your own from a bracket and a Hamiltonian
     ls.integrate                                   heyoka's adaptive Taylor method, any precision
+    ls.Event                                       zero crossings to record or stop at (both engines)
+    ls.PrecisionWarning                            binary data fed to a run above their precision
     ls.lie_series, ls.LieSeries                    the truncated operator exp(t X_H) at a point, in mpmath
     ls.lie_integrate                               adaptive Lie-series stepping, same Solution type
     ls.rigid_body_series                           R(t) from R0 = 1 as an exact series in t (paper, dt61)
@@ -14,9 +16,10 @@ Public API (stable names)::
 """
 
 from . import exact, studies
+from .events import Event
 from .models import DampedEulerPoisson, EulerPoisson, Model, Sphere, SphereDirac
 from .poisson import PoissonSystem
-from .precision import Precision, resolve_precision
+from .precision import Precision, PrecisionWarning, resolve_precision
 from .solution import Solution, Stats
 from .lie.integrator import lie_integrate
 from .lie.operator import LieSeries, lie_series
@@ -32,6 +35,8 @@ __all__ = [
     "Sphere",
     "SphereDirac",
     "PoissonSystem",
+    "Event",
+    "PrecisionWarning",
     "Precision",
     "resolve_precision",
     "Solution",

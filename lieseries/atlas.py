@@ -57,6 +57,7 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, **kwarg
     tcur = t0f
     stats = None
     switches = 0
+    events = None
     sol = None
     first = True
     while True:
@@ -70,6 +71,7 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, **kwarg
         sol = integrator(current, z, t=remaining, t0=tcur, atlas=False, **kwargs)
         first = False
         stats = _merge(stats, sol.stats)
+        events = _merge_events(events, sol.events, current.chart)
         rows_t.extend(to_fraction(v) for v in sol.t)
         rows_y.extend(sol.y)
         rows_c.extend([current.chart] * len(sol.t))
@@ -90,7 +92,18 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, **kwarg
     tarr = np.array([float(v) for v in rows_t])
     return Solution(tarr, ChartRows(y, rows_c), stats, status, f"{message} ({switches} chart switches)",
                     t_reached=sol.t_reached, t_requested=grid, y_reached=ChartRows(sol.y_reached, current.chart),
-                    charts=np.array(rows_c, dtype=int), chart_reached=current.chart)
+                    charts=np.array(rows_c, dtype=int), chart_reached=current.chart, events=events)
+
+
+def _merge_events(total, part, chart):
+    """Crossings of every segment, in order; ``charts`` tells the chart each state is written in."""
+    if part is None:
+        return total
+    part = {k: {"t": v["t"], "y": v["y"], "charts": np.full(len(v["t"]), chart, dtype=int)}
+            for k, v in part.items()}
+    if total is None:
+        return part
+    return {k: {f: np.concatenate([total[k][f], part[k][f]]) for f in ("t", "y", "charts")} for k in total}
 
 
 def _merge(total: Stats | None, part: Stats) -> Stats:

@@ -83,7 +83,7 @@ class Solution:
     """
 
     def __init__(self, t, y, stats: Stats, status: str, message: str, t_reached, dense: Callable | None = None,
-                 t_requested=None, y_reached=None, charts=None, chart_reached=None):
+                 t_requested=None, y_reached=None, charts=None, chart_reached=None, events=None):
         if status not in STATUSES:  # pragma: no cover - programming error
             raise ValueError(f"unknown status {status!r}")
         set_ = object.__setattr__
@@ -99,6 +99,8 @@ class Solution:
         set_(self, "charts", _read_only(charts))
         set_(self, "chart_reached", chart_reached)
         set_(self, "_dense", dense)
+        #: ``{name: {"t": times, "y": states}}`` of the events asked for (``events=``), else None.
+        set_(self, "events", events)
 
     def __setattr__(self, name, value):
         raise AttributeError(f"a Solution is immutable; `{name}` cannot be set")

@@ -45,6 +45,7 @@ from fractions import Fraction
 import heyoka as hy
 import numpy as np
 
+from .events import resolve_events
 from .models.base import Model, state_fractions
 from .poisson import as_poisson_system
 from .precision import (
@@ -104,7 +105,22 @@ def _tol_value(tol, prec: Precision) -> Fraction:
     return f
 
 
-def build_integrator(system, precision="double", tol=None, *, events=True, compact_mode=None, high_accuracy=False):
+class _Recorder:
+    """Callback of a non-terminal heyoka event: records the time and the state of every crossing."""
+
+    def __init__(self):
+        self.sink = []
+
+    def __call__(self, ta, t, d_sgn):
+        ta.update_d_output(t)
+        self.sink.append((t, np.array(ta.d_output, copy=True)))
+
+
+_HY_DIRECTION = {0: hy.event_direction.any, 1: hy.event_direction.positive, -1: hy.event_direction.negative}
+
+
+def build_integrator(system, precision="double", tol=None, *, events=True, user_events=(), compact_mode=None,
+                     high_accuracy=False):
     """The heyoka ``taylor_adaptive`` object for ``system`` (from the cache when possible).
 
     Returns
@@ -124,8 +140,10 @@ def build_integrator(system, precision="double", tol=None, *, events=True, compa
     if compact_mode is None:
         # compact mode keeps compilation fast: LLVM is slow on unrolled long-double, quad and real code
         compact_mode = prec.name != "double" or n > 20
-    key = (ps.key, prec.name, tolf, tuple(str(e[0]) for e in evs), bool(compact_mode), bool(high_accuracy))
+    user = tuple((str(e[1]), e[2], e[3]) for e in user_events)
+    key = (ps.key, prec.name, tolf, tuple(str(e[0]) for e in evs), user, bool(compact_mode), bool(high_accuracy))
     info = [(e[1], e[2]) for e in evs]  # messages from this model, never from the cached one
+    info += [("event", f"the event {e[0]!r} fired") for e in user_events if e[3]]
     hit = _CACHE.get(key)
     if hit is not None:
         return hit[0], 0.0, True, info
@@ -136,10 +154,15 @@ def build_integrator(system, precision="double", tol=None, *, events=True, compa
         kwargs["fp_type"] = prec.fp_type
     if prec.is_real:
         kwargs["prec"] = prec.bits
-    if evs:
-        kwargs["t_events"] = [
-            hy.t_event(e[0], fp_type=prec.fp_type if prec.name != "double" else float) for e in evs
-        ]
+    fp = prec.fp_type if prec.name != "double" else float
+    t_events = [hy.t_event(e[0], fp_type=fp) for e in evs]
+    t_events += [hy.t_event(e[1], direction=_HY_DIRECTION[e[2]], fp_type=fp) for e in user_events if e[3]]
+    nt_events = [hy.nt_event(e[1], _Recorder(), direction=_HY_DIRECTION[e[2]], fp_type=fp)
+                 for e in user_events if not e[3]]
+    if t_events:
+        kwargs["t_events"] = t_events
+    if nt_events:
+        kwargs["nt_events"] = nt_events
     if pars is not None:
         kwargs["pars"] = pars
     t0 = _time.perf_counter()
@@ -183,12 +206,13 @@ _PLANS: dict = {}
 _PLANS_MAX = 256
 
 
-def _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy):
+def _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events=()):
     """What a run needs that depends only on hashable call arguments, computed once and memoised: the output
     grid (exact and in the working format), the tolerance and the integrator's cache entry."""
     key = None
     scalar = (int, float, str, Fraction)
-    if isinstance(t, scalar) and isinstance(t0, scalar) and (tol is None or isinstance(tol, scalar)):
+    if (not user_events and isinstance(t, scalar) and isinstance(t0, scalar)
+            and (tol is None or isinstance(tol, scalar))):
         key = (id(system), prec.name, tol, t, t0, compact_mode, high_accuracy)
         hit = _PLANS.get(key)
         if hit is not None and hit[0] is system:
@@ -199,7 +223,8 @@ def _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy):
     plan = dict(
         grid=grid, direction=direction, t0f=t0f, tolf=tolf, grid_native=grid_native,
         grid_exact=[to_fraction(g) for g in grid_native], t0_native=prec.time(t0f),
-        build=build_integrator(system, prec, tolf, compact_mode=compact_mode, high_accuracy=high_accuracy),
+        build=build_integrator(system, prec, tolf, user_events=user_events, compact_mode=compact_mode,
+                               high_accuracy=high_accuracy),
     )
     if key is not None:
         with _LOCK:
@@ -264,6 +289,7 @@ def integrate(
     high_accuracy: bool = False,
     atlas: bool | None = None,
     progress=None,
+    events=None,
 ) -> Solution:
     """Integrate ``dz/dt = X_H(z)`` with heyoka's adaptive Taylor method.
 
@@ -302,6 +328,9 @@ def integrate(
         ``atlas=False`` the run stays in one chart and stops at its edge (``chart_edge``).
     progress : callable, optional
         Called as ``progress(fraction_done)`` between chunks of steps (about ten times a second) during long runs.
+    events : list of :class:`lieseries.Event`, optional
+        Zero crossings to record (``sol.events[name]``: times and states) or, for a terminal event, to stop at
+        (status ``event``), found by heyoka's polynomial root finding on every step.
 
     Returns
     -------
@@ -327,11 +356,12 @@ def integrate(
         return run_atlas(integrate, system, y0, t, t0=t0, bits=prec.bits, dense=dense, tol=tol,
                          precision=prec, max_steps=None if default_budget else max_steps, max_time=max_time,
                          min_step=min_step, compact_mode=compact_mode, high_accuracy=high_accuracy,
-                         progress=progress)
+                         progress=progress, events=events)
     ps = as_poisson_system(system)
     model = system if isinstance(system, Model) else None
     z0 = model.check_state(y0, "y0") if model is not None else state_fractions(y0, ps.dimension, "y0")
-    plan = _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy)
+    user_events = resolve_events(events, system, ps)
+    plan = _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events)
     grid, direction, tolf = plan["grid"], plan["direction"], plan["tolf"]
     grid_native, t0_native = plan["grid_native"], plan["t0_native"]
     warn_coarse_inputs(ps, y0, [t, t0], prec.bits)
@@ -345,6 +375,7 @@ def integrate(
     if direction == 0:
         ta = None
         run = _Run(ta=None, direction=0)
+        recorders = []
         run.t_reached, run.y_reached = t0_native, y0_native
     else:
         ta, free = _checkout(template)
@@ -353,9 +384,12 @@ def integrate(
             ta.state[:] = y0_native
             if ps.parameter_values:
                 ta.pars[:] = ps.native_parameters(prec)
-            if event_info:
+            if event_info or user_events:
                 ta.reset_cooldowns()
-            run = _Run(ta, direction)
+            recorders = [ev.callback for ev in ta.nt_events] if user_events else []
+            for rec in recorders:
+                rec.sink = []
+            run = _Run(ta, direction, recorders)
             start = _time.perf_counter()
             run.go(grid_native, t0_native, dense, max_steps, max_time, min_step,
                    stiff_steps=min(max_steps, STIFF_STEPS) if default_budget else max_steps,
@@ -393,7 +427,32 @@ def integrate(
     tarr = _time_array(rows_t, prec)
     dense_fn = DenseOutput(run.c_outs, prec) if run.c_outs else None
     return Solution(tarr, y, stats, status, message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
-                    y_reached=np.array(run.y_reached, copy=True))
+                    y_reached=np.array(run.y_reached, copy=True),
+                    events=_event_records(user_events, recorders, run, status, event_info, prec, ps.dimension)
+                    if user_events else None)
+
+
+def _event_records(user_events, recorders, run, status, event_info, prec, n) -> dict:
+    """``{name: {"t": times, "y": states}}`` from the recorders (non-terminal) and the stop (terminal)."""
+    out = {}
+    rec_iter = iter(recorders)
+    fired = None
+    if status == "event" and run.outcome is not None:
+        idx = int(run.outcome.value)
+        idx = -idx - 1 if idx < 0 else idx
+        fired = event_info[idx][1] if 0 <= idx < len(event_info) else None
+    for name, _expr, _direction, terminal in user_events:
+        if terminal:
+            hit = fired == f"the event {name!r} fired"
+            times, states = ([run.t_reached], [run.y_reached]) if hit else ([], [])
+        else:
+            sink = next(rec_iter).sink
+            times, states = [t for t, _ in sink], [y for _, y in sink]
+        out[name] = {
+            "t": _time_array(times, prec),
+            "y": np.stack(states) if states else np.empty((0, n), dtype=prec.numpy_dtype),
+        }
+    return out
 
 
 def _time_array(natives, prec: Precision) -> np.ndarray:
@@ -408,9 +467,10 @@ def _time_array(natives, prec: Precision) -> np.ndarray:
 class _Run:
     """One integration from the integrator's current time and state, in chunks of steps (module docstring)."""
 
-    def __init__(self, ta, direction):
+    def __init__(self, ta, direction, recorders=()):
         self.ta = ta
         self.direction = direction
+        self.recorders = list(recorders)
         self.steps = 0
         self.min_h, self.max_h = math.inf, 0.0
         self.outcome = None
@@ -439,6 +499,7 @@ class _Run:
         while True:
             budget = min(chunk, max_steps - self.steps)
             t_chunk, y_chunk = ta.time, np.array(ta.state, copy=True)
+            marks = [len(r.sink) for r in self.recorders]
             tic = _time.perf_counter()
             if use_grid and not pending:
                 self.outcome = _OUTCOME.time_limit
@@ -450,6 +511,8 @@ class _Run:
             if outcome == _OUTCOME.err_nf_state:
                 # run the failed chunk again, keeping a copy of every accepted state
                 ta.time, ta.state[:] = t_chunk, y_chunk
+                for rec, mark in zip(self.recorders, marks):
+                    del rec.sink[mark:]  # the chunk runs again: its crossings are recorded again
                 keeper = _Keeper(ta)
                 res = self._propagate(t_end, pending if use_grid else None, dense, budget, keeper)
                 self._account(res, pending if use_grid else None, dense)

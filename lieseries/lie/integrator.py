@@ -28,6 +28,7 @@ import warnings
 
 import numpy as np
 
+from ..events import resolve_events
 from ..poisson import as_poisson_system
 from ..precision import (
     check_callable,
@@ -77,6 +78,7 @@ def lie_integrate(
     guard: int = GUARD_DIGITS,
     progress=None,
     atlas: bool | None = None,
+    events=None,
 ) -> Solution:
     """Integrate with composed truncated Lie series exp(h X_H), in mpmath at ``dps`` digits.
 
@@ -94,6 +96,10 @@ def lie_integrate(
         Series order; default from ``tol`` (module docstring).
     dense : bool
         Keep every step's polynomial so that ``sol(t)`` works anywhere in the interval.
+    events : list of :class:`lieseries.Event`, optional
+        Zero crossings to record (``sol.events[name]``) or stop at (terminal: status ``event``): each step's
+        polynomial is sampled for sign changes, and every crossing is solved for in mpmath at the working
+        precision (a bracketed secant method on the step's polynomial).
     max_steps, max_time :
         Budgets; the run stops with status ``step_budget`` / ``time_budget`` and keeps what it computed.
     progress : callable, optional
@@ -115,6 +121,7 @@ def lie_integrate(
     from .jets import taylor_coefficients
 
     dps = check_dps(dps)
+    user_events_arg = events
     max_steps = check_count(max_steps, "max_steps")
     max_time = check_seconds(max_time, "max_time")
     check_callable(progress, "progress")
@@ -126,7 +133,7 @@ def lie_integrate(
         coarse_bits(as_poisson_system(system), y0, dps_to_bits(dps))
         return run_atlas(lie_integrate, system, y0, t, t0=t0, bits=dps_to_bits(dps + guard), dense=dense,
                          dps=dps, tol=tol, order=order, max_steps=max_steps, max_time=max_time, guard=guard,
-                         progress=progress)
+                         progress=progress, events=events)
     if isinstance(guard, bool) or not isinstance(guard, int) or guard < 0:
         raise ValueError(f"`guard` must be a non-negative number of digits; got {guard!r}")
     wdps = dps + guard
@@ -156,9 +163,11 @@ def lie_integrate(
     stats = Stats(method="lie series (mpmath)", precision=f"{dps} dps", tol=float(tolm), order=N)
     stats.extra["data_bits"] = bits
     events = _event_checks(model, ps, wdps)
+    user_events = resolve_events(user_events_arg, system, ps)
 
     with mp.workdps(wdps):
         floor = mp.mpf(2) ** (-bits) if bits is not None else mp.mpf(0)
+        user = _UserEvents(user_events, ps, pars) if user_events else None
         z = [to_mpf(v, ctx=mp_context()) for v in z0]
         tcur = to_mpf(t0f, ctx=mp_context())
         tend = to_mpf(grid[-1], ctx=mp_context())
@@ -220,6 +229,11 @@ def lie_integrate(
                 _warn_slow_order(N, N_auto, nrm, tol_abs, rho, abs(tend - tcur))
             znew = horner(coeffs, hs)
             tnew = tcur + hs if abs(tend - tcur) != h else tend
+            stop = user.step(coeffs, tcur, hs, sgn) if user is not None else None
+            if stop is not None:  # a terminal event inside the step: the step ends there
+                hs = stop - tcur
+                h = abs(hs)
+                znew, tnew = horner(coeffs, hs), stop
             emit_until(tnew, coeffs, tcur)
             if segments is not None:
                 segments.append((tcur, tnew, coeffs))
@@ -231,6 +245,9 @@ def lie_integrate(
             z, tcur = znew, tnew
             if progress is not None:
                 progress(float((tcur - to_mpf(t0f, ctx=mp_context())) / (tend - to_mpf(t0f, ctx=mp_context()))))
+            if stop is not None:
+                status, message = "event", f"Stopped at t = {mp.nstr(tcur, 17)}: {user.fired}."
+                break
             hit = _check_events(events, z)
             if hit is not None:
                 status, msg = hit
@@ -251,7 +268,7 @@ def lie_integrate(
     tarr = np.array([float(v) for v in out_t])
     dense_fn = _Dense(segments, dps, sgn) if segments is not None else None
     return Solution(tarr, y, stats, status, message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
-                    y_reached=y_reached)
+                    y_reached=y_reached, events=user.records(dps, ps.dimension) if user is not None else None)
 
 
 def _warn_slow_order(N, N_auto, nrm, tol_abs, rho, span):
@@ -301,6 +318,58 @@ class _Dense:
                 vals = horner(coeffs, tv - mp.make_mpf(seg[0]._mpf_))
                 rows.append(export_mpf(np.array(vals, dtype=object), dps_to_bits(self.dps)))
         return rows[0] if scalar else np.stack(rows)
+
+
+class _UserEvents:
+    """Crossings of the user's events on each step's polynomial P(tau), tau in [0, h] (in time order)."""
+
+    #: Interior sample points per step: crossings closer together than h / SAMPLES may be missed in pairs.
+    SAMPLES = 8
+
+    def __init__(self, user_events, ps, pars):
+        from ..expr import compile_expressions
+
+        self.events = user_events
+        self.prog = compile_expressions(ps.variables, [e[1] for e in user_events], len(ps.parameter_values))
+        self.pars = pars
+        self.found = {e[0]: [] for e in user_events}
+        self.fired = None
+
+    def _g(self, coeffs, tau):
+        return self.prog.evaluate(horner(coeffs, tau), self.pars, mp.dps, mp_context())
+
+    def step(self, coeffs, t0, hs, sgn):
+        """Record the crossings in (t0, t0 + hs]; the time of the first terminal one, or None."""
+        taus = [hs * k / self.SAMPLES for k in range(self.SAMPLES + 1)]
+        vals = [self._g(coeffs, tau) for tau in taus]
+        hits = []
+        for i, (name, _expr, direction, terminal) in enumerate(self.events):
+            for a in range(self.SAMPLES):
+                ga, gb = vals[a][i], vals[a + 1][i]
+                if not ((ga < 0 < gb) or (gb < 0 < ga) or (gb == 0 and ga != 0)):
+                    continue  # (a zero at tau = 0 was the previous step's crossing)
+                rising = (gb > ga) if sgn > 0 else (gb < ga)
+                if direction and (rising != (direction > 0)):
+                    continue
+                if gb == 0:
+                    tau = taus[a + 1]
+                else:
+                    tau = mp.findroot(lambda x: self._g(coeffs, x)[i], (taus[a], taus[a + 1]), solver="anderson")
+                hits.append((abs(tau), t0 + tau, name, terminal, tau))
+        hits.sort(key=lambda h: h[0])
+        for _, t_hit, name, terminal, tau in hits:
+            self.found[name].append((t_hit, horner(coeffs, tau)))
+            if terminal:
+                self.fired = f"the event {name!r} fired"
+                return t_hit
+        return None
+
+    def records(self, dps, n):
+        prec = dps_to_bits(dps)
+        return {name: {"t": np.array([export_mpf(t, prec) for t, _ in hits], dtype=object),
+                       "y": (np.stack([export_mpf(np.array(y, dtype=object), prec) for _, y in hits]) if hits
+                             else np.empty((0, n), dtype=object))}
+                for name, hits in self.found.items()}
 
 
 def _event_checks(model, ps, wdps):

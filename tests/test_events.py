@@ -1,0 +1,105 @@
+"""Events in both engines, against crossings computed independently from the closed forms."""
+
+import heyoka as hy
+import mpmath as mp
+import numpy as np
+import pytest
+
+import lieseries as ls
+from lieseries import exact
+from lieseries.precision import to_fraction
+
+INERTIA, OMEGA = (1, 2, 3), (1, "0.1", "0.5")
+T = 16
+
+
+@pytest.fixture(scope="module")
+def m2_zeros():
+    """Zeros of M2(t) on (0, T] from the closed form alone: a scan, then a root solve at 80 digits."""
+    ts = [mp.mpf(k) / 4 for k in range(0, 4 * T + 1)]
+    with mp.workdps(80):
+        vals = [s[10] for s in exact.euler_poisson_many(INERTIA, OMEGA, ts, dps=20)]
+        roots = []
+        for a, b, fa, fb in zip(ts, ts[1:], vals, vals[1:]):
+            if fa * fb < 0:
+                roots.append((mp.findroot(lambda t: exact.euler_poisson(INERTIA, OMEGA, t, dps=80)[10], (a, b),
+                                          solver="anderson"), 1 if fb > fa else -1))
+    return roots
+
+
+def m2(body):
+    return body.poisson.variables[10]
+
+
+@pytest.mark.parametrize("engine, bound", [("double", 1e-12), (237, 1e-60), ("lie", 1e-25)])
+def test_rigid_body_m2_crossings(engine, bound, m2_zeros):
+    body = ls.EulerPoisson(INERTIA)
+    y0 = body.initial_state(omega=OMEGA)
+    events = [ls.Event(m2, name="m2"), ls.Event(m2, direction="negative", name="down")]
+    if engine == "lie":
+        sol = ls.lie_integrate(body, y0, t=T, dps=30, events=events)
+    else:
+        sol = ls.integrate(body, y0, t=T, precision=engine, events=events)
+    assert sol.success, sol.message
+    assert len(m2_zeros) >= 2
+    got = sol.events["m2"]
+    assert len(got["t"]) == len(m2_zeros)
+    with mp.workdps(80):
+        for (t_ref, _), t_got, y_got in zip(m2_zeros, got["t"], got["y"]):
+            assert abs(to_fraction(t_got) - to_fraction(t_ref)) < bound
+            assert abs(to_fraction(y_got[10])) < bound  # the state at the crossing has M2 = 0
+    downs = [t for t, d in m2_zeros if d < 0]
+    assert len(sol.events["down"]["t"]) == len(downs)
+    assert all(abs(to_fraction(a) - to_fraction(b)) < bound for a, b in zip(sol.events["down"]["t"], downs))
+
+
+@pytest.mark.parametrize("engine", ["double", "lie"])
+def test_terminal_event_stops_the_run_with_its_name(engine, m2_zeros):
+    body = ls.EulerPoisson(INERTIA)
+    y0 = body.initial_state(omega=OMEGA)
+    ev = [ls.Event(m2, terminal=True, name="flip")]
+    sol = (ls.lie_integrate(body, y0, t=[1, 5, T], dps=30, events=ev) if engine == "lie"
+           else ls.integrate(body, y0, t=[1, 5, T], events=ev))
+    assert sol.status == "event" and "'flip'" in sol.message
+    first = m2_zeros[0][0]
+    assert abs(float(sol.t_reached) - float(first)) < 1e-12
+    assert len(sol.t) == sum(1 for t in (1, 5, T) if t < first)  # rows up to the stop only
+    assert abs(float(sol.y_final[10])) < 1e-12
+
+
+@pytest.mark.parametrize("engine", ["double", "quad", "lie"])
+def test_sphere_crosses_the_equator_where_the_great_circle_does(engine):
+    """x3(t) = 0.8 cos t on the unit sphere: crossings at pi/2 + k pi, across the atlas's chart changes."""
+    s = ls.Sphere()
+    y0 = s.initial_state(("0.6", "0", "0.8"), (0, 1, 0))
+    x3 = hy.make_vars("x3")
+    events = [ls.Event(x3, name="equator")]
+    sol = (ls.lie_integrate(s, y0, t=8, dps=30, events=events) if engine == "lie"
+           else ls.integrate(s, y0, t=8, precision=engine, events=events))
+    assert sol.success
+    got = sol.events["equator"]
+    assert len(got["t"]) == 3
+    bound = {"double": 1e-13, "quad": 1e-30, "lie": 1e-25}[engine]
+    with mp.workdps(50):
+        ref = [mp.pi / 2 + k * mp.pi for k in range(3)]
+        assert max(abs(to_fraction(a) - to_fraction(b)) for a, b in zip(got["t"], ref)) < bound
+    # the states are written in the charts the run was in
+    X = s.position(got["y"], chart=got["charts"])
+    assert max(abs(float(x[2])) for x in X) < 1e-12
+
+
+def test_event_input_is_checked():
+    body = ls.EulerPoisson(INERTIA)
+    y0 = body.initial_state(omega=OMEGA)
+    q = hy.make_vars("q")
+    with pytest.raises(ValueError, match=r"`events\[0\]` uses variables \['q'\]"):
+        ls.integrate(body, y0, t=1, events=[ls.Event(q)])
+    with pytest.raises(TypeError, match=r"`events\[0\]` must be an ls.Event"):
+        ls.integrate(body, y0, t=1, events=["M2"])
+    with pytest.raises(ValueError, match="`direction`"):
+        ls.Event(m2(body), direction=2)
+    with pytest.raises(ValueError, match="used twice"):
+        ls.lie_integrate(body, y0, t=1, events=[ls.Event(m2(body), name="a"), ls.Event(m2(body), name="a")])
+    # a callable builds the expression from the model
+    sol = ls.integrate(body, y0, t=T, events=[ls.Event(lambda b: b.poisson.variables[10], name="m2")])
+    assert len(sol.events["m2"]["t"]) >= 2
