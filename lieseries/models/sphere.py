@@ -285,7 +285,9 @@ class Sphere(_SphereBase):
         """
         if chart not in (0, 1, 2) or isinstance(chart, bool):
             raise ValueError(f"`chart` must be 0, 1 or 2; got {chart!r}")
-        r = [to_fraction(v, f"y[{i}]") for i, v in enumerate(np.asarray(y, dtype=object))]
+        exact = getattr(y, "exact", None)
+        r = list(exact) if exact is not None else [to_fraction(v, f"y[{i}]") for i, v in
+                                                    enumerate(np.asarray(y, dtype=object))]
         if len(r) != 5:
             raise ValueError(f"`y` must be a 5-number sphere state; got {len(r)} numbers")
         with mp.workprec(int(bits) + 32):
