@@ -1,0 +1,184 @@
+"""How long each precision stays on the exact motion, over the sphere of initial angular momenta |M| = 1.
+
+For a free rigid body every initial angular momentum M0 on the sphere |M| = 1 (R(0) = 1) is one motion; the
+separatrices through the intermediate axis split the sphere into rotations about the major and the minor axis.
+Near the separatrix the motion is exponentially sensitive, and every precision departs from the closed form after
+a time that grows only like ln(1/eps): this study measures that time on a grid of M0 for several precisions, in
+one ensemble run per precision, against :func:`lieseries.exact.euler_poisson_many`.
+
+Plain data: :func:`departure_map` returns a :class:`DepartureMap`; reports draw it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from fractions import Fraction
+
+import mpmath as mp
+import numpy as np
+
+from .. import exact
+from ..models.euler_poisson import EulerPoisson
+from ..precision import check_count, resolve_precision, to_fraction
+from ..taylor import integrate
+
+__all__ = ["DepartureMap", "departure_map"]
+
+
+@dataclass
+class DepartureMap:
+    """Departure times over a (theta, phi) grid of initial angular momenta on |M| = 1.
+
+    Attributes
+    ----------
+    theta, phi : 1-d arrays
+        Polar angle from the body's third axis and azimuth of M0 = (sin th cos ph, sin th sin ph, cos th).
+    energy_ratio : 2-d array (theta x phi)
+        2 H I2 / |M|^2: above 1 the body rotates about the minor axis (I1), below 1 about the major axis (I3);
+        1 is the separatrix.
+    departure : dict precision -> 2-d array
+        The first output time at which the state differs from the closed form by more than ``threshold``
+        (``T`` when it never did: see ``stayed``).
+    stayed : dict precision -> 2-d bool array
+        True where the run stayed within ``threshold`` up to ``T``.
+    max_error : dict precision -> 2-d array
+        The largest max-norm difference from the closed form over the output times reached.
+    statuses : dict precision -> list of str
+        The run's status per member (anything but ``success`` is reported, never hidden).
+    """
+
+    inertia: tuple
+    T: float
+    threshold: float
+    theta: np.ndarray
+    phi: np.ndarray
+    energy_ratio: np.ndarray
+    departure: dict = field(default_factory=dict)
+    stayed: dict = field(default_factory=dict)
+    max_error: dict = field(default_factory=dict)
+    statuses: dict = field(default_factory=dict)
+    run_time: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {
+            "inertia": list(self.inertia), "T": self.T, "threshold": self.threshold,
+            "theta": self.theta.tolist(), "phi": self.phi.tolist(), "energy_ratio": self.energy_ratio.tolist(),
+            "departure": {k: v.tolist() for k, v in self.departure.items()},
+            "stayed": {k: v.tolist() for k, v in self.stayed.items()},
+            "max_error": {k: v.tolist() for k, v in self.max_error.items()},
+            "statuses": self.statuses, "run_time": self.run_time,
+        }
+
+
+def _directions(n_theta: int, n_phi: int, dps: int):
+    """Grid angles and exact unit-ish vectors (the rounded components are the exact data of the motion)."""
+    theta = np.array([(i + 0.5) * math.pi / n_theta for i in range(n_theta)])
+    phi = np.array([j * 2 * math.pi / n_phi for j in range(n_phi)])
+    out = []
+    with mp.workdps(dps):
+        for th in theta:
+            for ph in phi:
+                v = (mp.sin(th) * mp.cos(ph), mp.sin(th) * mp.sin(ph), mp.cos(th))
+                out.append(tuple(to_fraction(+c) for c in v))
+    return theta, phi, out
+
+
+def departure_map(
+    inertia=(1, 2, 3),
+    *,
+    grid=(8, 16),
+    T=100,
+    samples: int = 100,
+    precisions=("double", "quad"),
+    threshold="1e-6",
+    dps: int = 30,
+    progress=None,
+) -> DepartureMap:
+    """Measure, for each M0 on a (theta, phi) grid of the unit sphere and each precision, how long the Taylor
+    integration stays within ``threshold`` (max norm of the 12-number state) of the closed form.
+
+    Parameters
+    ----------
+    inertia : three principal moments (exact input stays exact)
+    grid : (n_theta, n_phi)
+        Grid of initial momentum directions (at most 64 x 128).
+    T, samples :
+        Final time and number of equally spaced output times at which the state is compared.
+    precisions : sequence of precisions ('double', 'long double', 'quad', bits)
+    threshold : number
+        Departure is the first output time with max |y - y_exact| > threshold.
+    dps : digits of the closed-form reference (and of the exact initial data).
+    progress : callable, optional
+        ``progress(fraction_done)`` after each member's reference.
+    """
+    if not (isinstance(grid, (tuple, list)) and len(grid) == 2):
+        raise ValueError(f"`grid` must be (n_theta, n_phi); got {grid!r}")
+    n_theta = check_count(grid[0], "grid[0]", high=64)
+    n_phi = check_count(grid[1], "grid[1]", high=128)
+    samples = check_count(samples, "samples", low=2, high=100_000)
+    Tf = to_fraction(T, "T")
+    if Tf <= 0:
+        raise ValueError(f"`T` must be positive; got {float(Tf)}")
+    thr = to_fraction(threshold, "threshold")
+    if thr <= 0:
+        raise ValueError(f"`threshold` must be positive; got {float(thr)}")
+    precs = [resolve_precision(p, "precisions") for p in precisions]
+    body = EulerPoisson(inertia)
+    I = [body.inertia_exact[i][i] for i in range(3)]
+    if not body.diagonal:
+        raise ValueError("`inertia` must be three principal moments for the departure map")
+    theta, phi, dirs = _directions(n_theta, n_phi, dps)
+    times = [Tf * k / samples for k in range(1, samples + 1)]
+    omegas = [tuple(m / Ii for m, Ii in zip(M, I)) for M in dirs]
+    ratio = np.array([float(sum(m * m / Ii for m, Ii in zip(M, I)) * I[1] / sum(m * m for m in M))
+                      for M in dirs]).reshape(n_theta, n_phi)
+
+    refs = []
+    for k, om in enumerate(omegas):
+        refs.append(exact.euler_poisson_many(inertia, om, times, dps=dps))
+        if progress is not None:
+            progress((k + 1) / (len(omegas) * (1 + len(precs))))
+    result = DepartureMap(tuple(float(v) for v in I), float(Tf), float(thr), theta, phi, ratio)
+    for ip, prec in enumerate(precs):
+        dep = np.empty(len(omegas))
+        worst = np.empty(len(omegas))
+        stayed = np.zeros(len(omegas), dtype=bool)
+        statuses = []
+        run_time = 0.0
+        for k, om in enumerate(omegas):
+            y0 = body.initial_state(omega=om)
+            sol = integrate(body, y0, t=times, precision=prec)
+            run_time += sol.stats.run_time
+            statuses.append(sol.status)
+            dep[k], worst[k] = _first_departure(sol, refs[k], times, thr, dps)
+            stayed[k] = sol.success and dep[k] == math.inf
+            if dep[k] == math.inf:
+                dep[k] = float(Tf)
+            if progress is not None:
+                progress((len(omegas) * (1 + ip) + k + 1) / (len(omegas) * (1 + len(precs))))
+        result.departure[prec.name] = dep.reshape(n_theta, n_phi)
+        result.stayed[prec.name] = stayed.reshape(n_theta, n_phi)
+        result.max_error[prec.name] = worst.reshape(n_theta, n_phi)
+        result.statuses[prec.name] = statuses
+        result.run_time[prec.name] = run_time
+    return result
+
+
+def _first_departure(sol, ref, times, thr: Fraction, dps: int):
+    """(the first output time whose state is farther than ``thr`` from the reference -- inf if none, the first
+    unreached time when the run stopped early --, the largest difference over the rows reached)."""
+    first, worst = math.inf, 0.0
+    with mp.workdps(dps):
+        limit = mp.mpf(thr.numerator) / thr.denominator
+        for k, tk in enumerate(times):
+            if k >= len(sol.y):
+                first = min(first, float(tk))
+                break
+            row = sol.y[k]
+            err = max(abs(mp.mpf(to_fraction(a).numerator) / to_fraction(a).denominator - b)
+                      for a, b in zip(row, ref[k]))
+            worst = max(worst, float(err))
+            if err > limit and first == math.inf:
+                first = float(tk)
+    return first, worst
