@@ -108,8 +108,7 @@ def _merge_events(total, part, chart):
 
 def _merge(total: Stats | None, part: Stats) -> Stats:
     if total is None:
-        part.error_estimates = list(part.error_estimates)
-        return part
+        return part.thawed()
     total.steps += part.steps
     total.order = max(total.order, part.order)
     total.build_time += part.build_time

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -54,6 +54,21 @@ class Stats:
     error_estimates: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)
 
+    def __setattr__(self, name, value):
+        if self.__dict__.get("_frozen"):
+            raise AttributeError(f"the stats of a returned Solution are immutable; `{name}` cannot be set")
+        object.__setattr__(self, name, value)
+
+    def freeze(self) -> "Stats":
+        """Make the attributes read-only (a Solution freezes the Stats it holds)."""
+        object.__setattr__(self, "error_estimates", tuple(self.error_estimates))
+        object.__setattr__(self, "_frozen", True)
+        return self
+
+    def thawed(self) -> "Stats":
+        """A mutable copy (for drivers that merge the stats of several runs)."""
+        return replace(self, error_estimates=list(self.error_estimates), extra=dict(self.extra))
+
     def as_dict(self) -> dict:
         d = asdict(self)
         d.pop("error_estimates")
@@ -89,7 +104,7 @@ class Solution:
         set_ = object.__setattr__
         set_(self, "t", _read_only(t))
         set_(self, "y", _read_only(y))
-        set_(self, "stats", stats)
+        set_(self, "stats", stats.freeze())
         set_(self, "status", status)
         set_(self, "message", message)
         set_(self, "t_reached", t_reached)
