@@ -11,7 +11,6 @@ The driver is shared by both integrators: it calls the integrator on each chart 
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 

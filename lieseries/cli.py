@@ -1,7 +1,11 @@
-"""Command line: ``lieseries scenes`` and ``lieseries run SCENE [--out DIR] [--quick] [--no-progress]``.
+"""Command line: ``lieseries scenes`` and ``lieseries run SCENE [--out DIR] [--overwrite] [--quick] [--no-progress]``.
 
-User errors (an unknown scene, an invalid scene file, a bad option) print one line naming the problem and exit
-with status 2, without a traceback.
+Exit status: 0 when every run of the scene succeeded, 1 when a run ended without success (its status is in the
+report and the summary), 2 for bad input (an unknown scene, an invalid scene file, a bad option, a report folder
+holding files lieseries did not write): one line naming the problem, no traceback.
+
+The report folder is never emptied: lieseries replaces only the files it writes itself (listed in
+``.lieseries-manifest.json``), and refuses a folder holding other files unless ``--overwrite``.
 """
 
 from __future__ import annotations
@@ -31,6 +35,8 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="run a scene and write its report")
     r.add_argument("scene", metavar="SCENE", help="a built-in scene name (see `lieseries scenes`) or a .toml path")
     r.add_argument("--out", metavar="DIR", help="report folder (default: reports/<scene name>)")
+    r.add_argument("--overwrite", action="store_true",
+                   help="write into a folder that holds other files (only the report's own files are replaced)")
     r.add_argument("--quick", action="store_true", help="scale the studies down (fewer orders, samples, tolerances)")
     r.add_argument("--no-progress", action="store_true", help="no progress bars on stderr")
     return p
@@ -55,19 +61,24 @@ def _cmd_scenes(out) -> int:
 
 
 def _cmd_run(args, out) -> int:
-    from .report import summary_text
-    from .scenes import load_scene, run_scene
+    from .report import claim_folder, summary_text, write_report
+    from .run import run_scene
+    from .scenes import load_scene
 
     scene = load_scene(args.scene)
     out_dir = Path(args.out) if args.out else Path("reports") / scene.name
-    result = run_scene(scene, out_dir=out_dir, quick=args.quick, progress=not args.no_progress)
+    claim_folder(out_dir, args.overwrite)  # refuse before the work, not after it
+    result = run_scene(scene, quick=args.quick, progress=not args.no_progress)
+    path = write_report(result, out_dir, overwrite=args.overwrite)
     print(summary_text(result), file=out)
-    print(f"report: {result.report_path}  ({result.wall_time:.1f} s)", file=out)
-    return 0
+    print(f"report: {path}  ({result.wall_time:.1f} s)", file=out)
+    failed = [r for r in (result.run or {}).get("rows", []) if r.status != "success"]
+    return 1 if failed else 0
 
 
 def main(argv=None) -> int:
     """Entry point; returns the exit status (0 success, 2 user error, 1 unexpected failure)."""
+    from .report import FolderError
     from .scenes import SceneError
 
     parser = build_parser()
@@ -86,7 +97,7 @@ def main(argv=None) -> int:
             return _cmd_run(args, out)
         parser.print_help(sys.stderr)
         return 2
-    except SceneError as err:
+    except (SceneError, FolderError) as err:
         print(f"lieseries: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

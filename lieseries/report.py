@@ -7,7 +7,7 @@
     out_dir/<table>.csv          one CSV per table
     out_dir/<plot>.png           the plots the scene asks for (trajectory, error_vs_order, work_precision, drift)
 
-``write_stability_report(stability, out_dir)`` writes the stability report (:mod:`lieseries.studies.stability`):
+``write_stability_report(stability, out_dir)`` writes the stability report (:mod:`lieseries.stability`):
 ``report.md`` with one row per case, ``data.json``, ``stability.csv``, ``stability_all.csv``, the plots of
 :data:`STABILITY_PLOTS` and each case's scene report under ``scenes/<case>/``.
 
@@ -454,24 +454,68 @@ def _section_drift(result, lines, csvs, plotted):
         lines += ["![invariant drift](drift.png)", ""]
 
 
+# -- the output folder -------------------------------------------------------------------------------------------
+#: The list of files lieseries wrote into a report folder (the only files it ever replaces or removes there).
+MANIFEST = ".lieseries-manifest.json"
+
+
+class FolderError(ValueError):
+    """A report folder that holds files lieseries did not write, without ``overwrite``."""
+
+
+def claim_folder(out_dir, overwrite: bool = False):
+    """Make ``out_dir`` ready for a report: ``(folder, names lieseries wrote there before)``.
+
+    A missing or empty folder, or one holding only the files of an earlier lieseries report (its manifest), is
+    used as it is. A folder holding anything else is refused unless ``overwrite``; even then only the files
+    lieseries writes are replaced, and no other file is touched.
+    """
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise FolderError(f"`{out}` exists and is not a folder; choose another --out")
+    ours = set()
+    if out.is_dir():
+        manifest = out / MANIFEST
+        if manifest.is_file():
+            try:
+                ours = set(json.loads(manifest.read_text(encoding="utf-8")).get("files", []))
+            except (OSError, ValueError, AttributeError):
+                ours = set()
+        foreign = sorted(p.name for p in out.iterdir() if p.name != MANIFEST and p.name not in ours)
+        if foreign and not overwrite:
+            shown = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
+            raise FolderError(
+                f"`{out}` already holds files lieseries did not write ({shown}); choose another --out, or pass "
+                "--overwrite to write there (only the report's own files are replaced)"
+            )
+    out.mkdir(parents=True, exist_ok=True)
+    return out, ours
+
+
+def release_folder(out: Path, before: set, written) -> None:
+    """Remove the files of an earlier report that this one did not write again, and record what it wrote."""
+    written = set(written)
+    for name in sorted(before - written):
+        p = out / name
+        if p.is_file():
+            p.unlink()
+    (out / MANIFEST).write_text(json.dumps({"files": sorted(written)}, indent=1), encoding="utf-8")
+
+
 # -- the report ------------------------------------------------------------------------------------------------
-def write_report(result, out_dir) -> Path:
+def write_report(result, out_dir, overwrite: bool = False) -> Path:
     """Write ``report.md``, the plots, ``data.json`` and CSV tables of ``result`` into ``out_dir``.
+
+    The folder is claimed first (:func:`claim_folder`): files lieseries did not write are never removed, and a
+    folder holding any is refused unless ``overwrite``.
 
     Returns
     -------
     Path
         The path of ``report.md``.
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out, before = claim_folder(out_dir, overwrite)
     scene = result.scene
-    # drop the files an earlier report wrote here (a plot this scene no longer asks for must not linger)
-    stale = [out / f"{p}.png" for p in _PLOTTERS] + [out / n for n in _CSV_NAMES]
-    stale += list(out.glob("drift_*.csv"))
-    for old in stale:
-        if old.is_file():
-            old.unlink()
     plotted = []
     for name in scene.plots:
         if name == "trajectory" and not result.trajectories:
@@ -517,6 +561,7 @@ def write_report(result, out_dir) -> Path:
         json.dump(result.to_dict(), f, separators=(",", ":"), default=_json_default)
     path = out / "report.md"
     path.write_text("\n".join(lines), encoding="utf-8")
+    release_folder(out, before, [f"{p}.png" for p in plotted] + [c[0] for c in csvs] + ["data.json", "report.md"])
     return path
 
 
@@ -777,8 +822,9 @@ def stability_tables(stab):
     return (h1, rows1), (h2, rows2)
 
 
-def write_stability_report(stab, out_dir, scene_reports: bool = True, command: str | None = None) -> Path:
-    """Write the stability report of a :class:`lieseries.studies.stability.Stability` into ``out_dir``.
+def write_stability_report(stab, out_dir, scene_reports: bool = True, command: str | None = None,
+                           overwrite: bool = False) -> Path:
+    """Write the stability report of a :class:`lieseries.stability.Stability` into ``out_dir``.
 
     Writes ``report.md`` (one row per case, then a section per case), ``data.json``, ``stability.csv`` (one row
     per case), ``stability_all.csv`` (every run), the plots of :data:`STABILITY_PLOTS` that have data, and, with
@@ -789,12 +835,7 @@ def write_stability_report(stab, out_dir, scene_reports: bool = True, command: s
     Path
         The path of ``report.md``.
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    for name in STABILITY_PLOTS:
-        old = out / f"{name}.png"
-        if old.is_file():
-            old.unlink()
+    out, before = claim_folder(out_dir, overwrite)
     plotted = []
     for name, (fn, has) in _STABILITY_PLOTTERS.items():
         if has(stab):
@@ -804,7 +845,7 @@ def write_stability_report(stab, out_dir, scene_reports: bool = True, command: s
     if scene_reports:
         for c in stab.cases:
             if c.result is not None:
-                p = write_report(c.result, out / "scenes" / c.name)
+                p = write_report(c.result, out / "scenes" / c.name, overwrite=overwrite)
                 scene_links[c.name] = p.relative_to(out).as_posix()
 
     (h1, r1), (h2, r2) = stability_tables(stab)
@@ -870,4 +911,6 @@ def write_stability_report(stab, out_dir, scene_reports: bool = True, command: s
         json.dump(stab.to_dict(), f, separators=(",", ":"), default=_json_default)
     path = out / "report.md"
     path.write_text("\n".join(lines), encoding="utf-8")
+    written = [f"{p}.png" for p in plotted] + ["stability.csv", "stability_all.csv", "data.json", "report.md"]
+    release_folder(out, before, written + (["scenes"] if scene_reports else []))
     return path

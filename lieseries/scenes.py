@@ -34,47 +34,48 @@ A scene is a TOML file::
     [report]
     plots = ["trajectory", "error_vs_order", "work_precision", "drift"]   # default: one per study present
 
-    [stability]                  # optional: how the stability study (lieseries.studies.stability) reads the scene
+    [stability]                  # optional: how the stability study (lieseries.stability) reads the scene
     analysis = "saddle"          # "none" | "saddle" | "scaled" | "drift" | "stiff" | "divergence" | "atlas"
     headline = "heyoka double"   # the method (label) of the case's row in the one-row-per-case table
     expect = "success"           # the status that row should end with; expect_message: a text its message holds
                                  # invariants: the ones whose drift the row reports (default: all of the model's)
-                                 # saddle: threshold; divergence: beyond, inside, orders, dps (see studies.stability)
+                                 # saddle: threshold; divergence: beyond, inside, orders, dps (see lieseries.stability)
 
-Scenes with a [stability] table are the extreme and stiff cases. They live in ``validation/scenes/extreme/``
+Scenes with a [stability] table are the extreme and stiff cases. They live in ``lieseries/data/scenes/extreme/``
 (:func:`extreme_scenes`), apart from the built-in scenes whose runs must all succeed; :func:`load_scene` finds them
 by name too.
 
 Validation is strict: an unknown model kind, a missing required field, a field of the wrong type or an unknown
 field raises :class:`SceneError` naming the field by its dotted path (``run.methods[1].precision``).
 
-Built-in scenes live in ``validation/scenes/*.toml`` of the repository (override the folder with the
+Built-in scenes live in ``lieseries/data/scenes/*.toml`` (package data, shipped with every install) (override the folder with the
 environment variable ``LIESERIES_SCENES``). :func:`run_scene` computes what a scene asks for and returns a
-:class:`SceneResult` (data, :mod:`lieseries.runner`); :func:`lieseries.report.write_report` writes it.
+:class:`SceneResult` (data, :mod:`lieseries.run`); :func:`lieseries.report.write_report` writes it.
 """
 
 from __future__ import annotations
 
 import copy
 import difflib
+import math
 import os
 import tomllib
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 
+import numpy as np
+
 from .precision import resolve_precision, to_fraction
 
 __all__ = [
     "SceneError",
     "Scene",
-    "SceneResult",
     "load_scene",
     "parse_scene",
     "builtin_scenes",
     "extreme_scenes",
     "scenes_dir",
-    "run_scene",
     "MODEL_KINDS",
     "PLOTS",
     "STUDIES",
@@ -89,6 +90,9 @@ _FAMILY = {"euler_poisson": "rigid_body", "damped_euler_poisson": "rigid_body", 
 EXTREME_FOLDER = "extreme"
 #: What the stability study computes for a scene ([stability].analysis).
 ANALYSES = ("none", "saddle", "scaled", "drift", "stiff", "divergence", "atlas")
+
+#: Numbers in a scene lie within 1e-MAX_MAGNITUDE .. 1eMAX_MAGNITUDE in magnitude (or are 0).
+MAX_MAGNITUDE = 300
 
 #: Bits of the initial state handed to every method (each rounds it once to its own precision).
 INITIAL_BITS = 256
@@ -113,8 +117,12 @@ def _number(value, path, *, positive=False, nonzero=False, below_one=False, what
         _fail(path, what + ' (a decimal string such as "0.1" is read exactly)', value)
     try:
         q = to_fraction(value, path)
-    except (TypeError, ValueError):
+    except TypeError:
         _fail(path, what + ' (a decimal string such as "0.1" is read exactly)', value)
+    except ValueError as err:
+        raise SceneError(str(err)) from None
+    if q != 0 and not (Fraction(1, 10**MAX_MAGNITUDE) <= abs(q) <= 10**MAX_MAGNITUDE):
+        _fail(path, f"a number of magnitude between 1e-{MAX_MAGNITUDE} and 1e{MAX_MAGNITUDE} (or 0)", value)
     if positive and q <= 0:
         _fail(path, "a positive number", value)
     if nonzero and q == 0:
@@ -175,6 +183,18 @@ def _choice(*choices):
         return value
 
     return check
+
+
+_NAME_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.-")
+
+
+def _scene_name(value, path):
+    """A scene name is a name, not a path: it becomes a folder name of reports."""
+    if (not isinstance(value, str) or not value or len(value) > 64 or not set(value) <= _NAME_CHARS
+            or value[0] in ".-" or ".." in value):
+        _fail(path, "a name of at most 64 letters, digits, '_', '-' or '.' (not starting with '.' or '-'; "
+                    "not a path)", value)
+    return value
 
 
 def _vector3(value, path):
@@ -287,7 +307,7 @@ _MODEL_FIELDS = {
     "damped_euler_poisson": {"inertia": (_inertia, _REQUIRED), "damping": (_nonnegative, _REQUIRED),
                              "bracket": (_choice("chetaev", "intermediate"), "chetaev")},
     "sphere": {"mass": (_positive, 1), "radius": (_positive, 1), "chart": (_integer(0, 2), 2),
-               "edge": (_fraction01, 0.05), "atlas": (_boolean, False)},
+               "edge": (_fraction01, 0.05), "atlas": (_boolean, True)},
     "sphere_dirac": {"mass": (_positive, 1), "radius": (_positive, 1)},
 }
 _INITIAL_FIELDS = {
@@ -413,11 +433,12 @@ class ModelSpec:
                                       bracket=self.params["bracket"])
         if self.kind == "sphere":
             p = self.params
-            return Sphere(mass=p["mass"], radius=p["radius"], chart=p["chart"], edge=float(to_fraction(p["edge"])))
+            return Sphere(mass=p["mass"], radius=p["radius"], chart=p["chart"], edge=float(to_fraction(p["edge"])),
+                          atlas=p["atlas"])
         return SphereDirac(mass=self.params["mass"], radius=self.params["radius"])
 
     def to_dict(self) -> dict:
-        return {"label": self.label, "kind": self.kind, **{k: _jsonable(v) for k, v in self.params.items()}}
+        return {"label": self.label, "kind": self.kind, **{k: jsonable(v, drop_none=True) for k, v in self.params.items()}}
 
 
 @dataclass
@@ -470,22 +491,28 @@ class Scene:
             "title": self.title,
             "description": self.description,
             "models": [m.to_dict() for m in self.models],
-            "initial": _jsonable(self.initial),
-            "run": _jsonable(self.run),
-            "studies": _jsonable(self.studies),
+            "initial": jsonable(self.initial, drop_none=True),
+            "run": jsonable(self.run, drop_none=True),
+            "studies": jsonable(self.studies, drop_none=True),
             "plots": list(self.plots),
             "path": self.path,
-            **({"stability": _jsonable(self.stability)} if self.stability is not None else {}),
+            **({"stability": jsonable(self.stability, drop_none=True)} if self.stability is not None else {}),
         }
 
 
-def _jsonable(v):
+def jsonable(v, drop_none: bool = False):
+    """``v`` with only JSON types: numpy and mpmath numbers and Fractions as floats, non-finite floats as
+    ``None``/``"inf"``, tuples as lists (``drop_none``: leave out dict entries that are None, as TOML has no null)."""
     if isinstance(v, dict):
-        return {k: _jsonable(x) for k, x in v.items() if x is not None}
+        return {str(k): jsonable(x, drop_none) for k, x in v.items() if not (drop_none and x is None)}
     if isinstance(v, (list, tuple)):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, Fraction):
+        return [jsonable(x, drop_none) for x in v]
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    if isinstance(v, Fraction) or hasattr(v, "_mpf_"):
         return float(v)
+    if isinstance(v, float) and not math.isfinite(v):
+        return None if math.isnan(v) else ("inf" if v > 0 else "-inf")
     return v
 
 
@@ -524,7 +551,7 @@ def parse_scene(data, source: str = "<scene>", path: str | None = None) -> Scene
     if not isinstance(data, dict):
         raise SceneError(f"{source}: a scene must be a TOML table; got {_show(data)}")
     top = {
-        "name": (_string, _REQUIRED),
+        "name": (_scene_name, _REQUIRED),
         "title": (_string, _REQUIRED),
         "description": (_string, ""),
         "model": (None, None),
@@ -611,7 +638,7 @@ def _check_studies(studies, run, models):
 
 def _check_stability(st, run, studies, plots, models):
     """The [stability] table must match what the scene computes (its headline is a run of the scene, ...)."""
-    from .studies.work_precision import method_label, normalize_method
+    from .methods import method_label, normalize_method
 
     if run is None:
         raise SceneError("`stability` needs a [run] table: the stability row of a case is one of its runs")
@@ -674,9 +701,7 @@ def scenes_dir() -> Path:
     env = os.environ.get("LIESERIES_SCENES")
     if env:
         return Path(env)
-    import lieseries
-
-    return Path(lieseries.__file__).resolve().parents[1] / "validation" / "scenes"
+    return Path(__file__).resolve().parent / "data" / "scenes"  # package data: the same in every install
 
 
 def builtin_scenes() -> list:
@@ -687,7 +712,7 @@ def builtin_scenes() -> list:
 
 
 def extreme_scenes() -> list:
-    """[(name, title)] of the extreme and stiff cases (``validation/scenes/extreme/*.toml``), sorted by name."""
+    """[(name, title)] of the extreme and stiff cases (``lieseries/data/scenes/extreme/*.toml``), sorted by name."""
     return _titles(scenes_dir() / EXTREME_FOLDER)
 
 
@@ -769,7 +794,7 @@ def effective_plan(scene: Scene, quick: bool = False):
                 m["t_max"] = min(float(to_fraction(m["t_max"])), 0.5)
     ev = studies.get("error_vs_order")
     if ev is not None:
-        orders = _orders_of(ev)
+        orders = orders_of(ev)
         top = max(12, max(orders) // 2)
         ev["orders"] = [o for o in orders if o <= top]
         ev["max_order"] = None
@@ -796,12 +821,9 @@ def effective_plan(scene: Scene, quick: bool = False):
     return run, studies
 
 
-def _orders_of(ev) -> list:
+def orders_of(ev) -> list:
     if ev.get("orders") is not None:
         return sorted(set(int(o) for o in ev["orders"]))
     top = ev.get("max_order") or 40
     return list(range(ev.get("min_order", 1), top + 1, ev.get("step", 1)))
 
-
-# the runner needs the definitions above; re-exported so that ``from lieseries.scenes import run_scene`` works
-from .runner import RunRow, SceneResult, run_scene, scaled_error  # noqa: E402,F401

@@ -323,9 +323,9 @@ def integrate(
     min_step : float, optional
         Stop with ``step_collapse`` when a step smaller than this was taken (checked between chunks of steps).
     atlas : bool, optional
-        For a model with charts (:class:`~lieseries.Sphere`), on by default: switch charts when the current one is
-        ending and go on (:mod:`lieseries.atlas`); ``sol.charts`` tells the chart of each output row. With
-        ``atlas=False`` the run stays in one chart and stops at its edge (``chart_edge``).
+        For a model with charts (:class:`~lieseries.Sphere`), on by default (the model's ``atlas``): switch charts
+        when the current one is ending and go on (:mod:`lieseries.atlas`); ``sol.charts`` tells the chart of each
+        output row. With ``atlas=False`` the run stays in one chart and stops at its edge (``chart_edge``).
     progress : callable, optional
         Called as ``progress(fraction_done)`` between chunks of steps (about ten times a second) during long runs.
     events : list of :class:`lieseries.Event`, optional
@@ -338,7 +338,7 @@ def integrate(
         ``sol.t``, ``sol.y`` (one row per output time reached), ``sol.stats``, ``sol.status``, ``sol.message``.
     """
     if atlas is None:
-        atlas = hasattr(system, "for_chart")
+        atlas = bool(getattr(system, "atlas", False))  # a Sphere says (True unless built with atlas=False)
     prec = infer_precision(precision, y0)
     check_callable(progress, "progress")
     max_time = check_seconds(max_time, "max_time")

@@ -8,13 +8,14 @@ import pytest
 
 import lieseries as ls
 from lieseries.report import SECTION_TITLES, markdown_table
+from lieseries.report import FolderError, write_report
+from lieseries.run import run_scene
 from lieseries.scenes import (
     SceneError,
     builtin_scenes,
     effective_plan,
     load_scene,
     parse_scene,
-    run_scene,
 )
 
 HAS_LIE_SERIES = hasattr(ls, "lie_series")
@@ -176,7 +177,8 @@ def headings(md: str) -> set:
 @pytest.mark.parametrize("name", BUILTINS)
 def test_builtin_scene_quick_report_has_what_it_asks_for(name, tmp_path):
     scene = load_scene(name)
-    res = run_scene(scene, out_dir=tmp_path, quick=True, progress=False)
+    res = run_scene(scene, quick=True, progress=False)
+    write_report(res, tmp_path)
     md = (tmp_path / "report.md").read_text()
     heads = headings(md)
     assert SECTION_TITLES["scene"] in heads
@@ -220,20 +222,30 @@ def test_scene_without_drift_never_runs_drift(tmp_path, monkeypatch):
     # (the package re-exports the function under the module's name: patch both)
     monkeypatch.setattr(sys.modules["lieseries.studies.drift"], "drift", boom)
     monkeypatch.setattr(lieseries.studies, "drift", boom)
-    res = run_scene(parse_scene(RIGID), out_dir=tmp_path, progress=False)
+    res = run_scene(parse_scene(RIGID), progress=False)
+    write_report(res, tmp_path)
     md = (tmp_path / "report.md").read_text()
     assert "drift" not in res.studies
     assert SECTION_TITLES["drift"] not in headings(md)
     assert not list(tmp_path.glob("*.png"))  # no plots asked for
 
 
-def test_report_drops_plots_of_an_earlier_run(tmp_path):
-    (tmp_path / "drift.png").write_bytes(b"old")
-    (tmp_path / "notes.txt").write_text("mine")
-    run_scene(parse_scene(RIGID + '[report]\nplots = ["trajectory"]\n'), out_dir=tmp_path, progress=False)
-    assert not (tmp_path / "drift.png").exists()
+def test_report_drops_its_own_earlier_plots_and_nothing_else(tmp_path):
+    write_report(run_scene(parse_scene(RIGID + '[report]\nplots = ["trajectory"]\n'), progress=False), tmp_path)
     assert (tmp_path / "trajectory.png").is_file()
-    assert (tmp_path / "notes.txt").read_text() == "mine"  # files the report did not write are left alone
+    # a later report of a scene without plots removes the plot lieseries wrote before...
+    write_report(run_scene(parse_scene(RIGID), progress=False), tmp_path)
+    assert not (tmp_path / "trajectory.png").exists()
+    # ...but a folder with the user's own files is refused, and with overwrite they are kept
+    (tmp_path / "drift.png").write_bytes(b"mine")
+    (tmp_path / "notes.txt").write_text("mine")
+    with pytest.raises(FolderError, match="drift.png"):
+        write_report(run_scene(parse_scene(RIGID), progress=False), tmp_path)
+    write_report(run_scene(parse_scene(RIGID + '[report]\nplots = ["trajectory"]\n'), progress=False), tmp_path,
+                 overwrite=True)
+    assert (tmp_path / "drift.png").read_bytes() == b"mine"
+    assert (tmp_path / "notes.txt").read_text() == "mine"
+    assert (tmp_path / "trajectory.png").is_file()
 
 
 def test_markdown_table_aligns_numbers():

@@ -1,4 +1,4 @@
-"""The extreme and stiff cases (validation/scenes/extreme/) and the stability study: every case runs (quick) and its
+"""The extreme and stiff cases (lieseries/data/scenes/extreme/) and the stability study: every case runs (quick) and its
 report holds what it asks for; the numbers are checked against independent references (closed forms, heyoka at
 256 bits, the saddle's rate lambda from the principal moments, the pole distance of the elliptic functions)."""
 
@@ -14,6 +14,7 @@ import lieseries as ls
 from lieseries import exact
 from lieseries.precision import to_fraction
 from lieseries.report import SECTION_TITLES, write_report, write_stability_report
+from lieseries.run import run_scene, scaled_error
 from lieseries.scenes import (
     SceneError,
     builtin_scenes,
@@ -21,10 +22,8 @@ from lieseries.scenes import (
     extreme_scenes,
     load_scene,
     parse_scene,
-    run_scene,
-    scaled_error,
 )
-from lieseries.studies.stability import precision_eps, saddle_rate, stability
+from lieseries.stability import precision_eps, saddle_rate, stability
 
 EXTREME = [name for name, _ in extreme_scenes()]
 

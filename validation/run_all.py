@@ -17,7 +17,9 @@ import traceback
 from pathlib import Path
 
 from lieseries.report import summary_text
-from lieseries.scenes import SceneError, builtin_scenes, load_scene, run_scene
+from lieseries.report import write_report
+from lieseries.run import run_scene
+from lieseries.scenes import SceneError, builtin_scenes, load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -44,7 +46,8 @@ def main(argv=None) -> int:
         print(f"[{i}/{len(scenes)}] {scene.name}: {scene.title}", flush=True)
         t0 = time.perf_counter()
         try:
-            res = run_scene(scene, out_dir=out / scene.name, quick=args.quick, progress=not args.no_progress)
+            res = run_scene(scene, quick=args.quick, progress=not args.no_progress)
+            write_report(res, out / scene.name, overwrite=True)
         except Exception:  # keep going: one broken scene must not hide the others
             failed.append(scene.name)
             traceback.print_exc()

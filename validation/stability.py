@@ -1,6 +1,6 @@
 """Regenerate the stability report: every extreme and stiff case, full size, into docs/reports/stability/.
 
-    .venv/bin/python validation/stability.py                         # every case in validation/scenes/extreme/
+    .venv/bin/python validation/stability.py                         # every case in lieseries/data/scenes/extreme/
     .venv/bin/python validation/stability.py separatrix-exact damped-stiff
     .venv/bin/python validation/stability.py --quick --out /tmp/stability
 
@@ -20,7 +20,7 @@ from pathlib import Path
 from lieseries.progress import ProgressBar
 from lieseries.report import write_stability_report
 from lieseries.scenes import SceneError, extreme_scenes, load_scene
-from lieseries.studies.stability import stability
+from lieseries.stability import stability
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -35,7 +35,7 @@ def _print_case(case):
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("names", nargs="*", help="cases to run (default: every scene in validation/scenes/extreme/)")
+    parser.add_argument("names", nargs="*", help="cases to run (default: every scene in lieseries/data/scenes/extreme/)")
     parser.add_argument("--out", default=str(ROOT / "docs" / "reports" / "stability"), help="report folder")
     parser.add_argument("--quick", action="store_true", help="each scene's quick plan (a smoke test)")
     parser.add_argument("--no-progress", action="store_true")
@@ -65,7 +65,8 @@ def main(argv=None) -> int:
         bar.close()
     cmd = "python validation/stability.py" + (" --quick" if args.quick else "") + (
         " " + " ".join(args.names) if args.names else "")
-    path = write_stability_report(stab, args.out, scene_reports=not args.no_scene_reports, command=cmd)
+    path = write_stability_report(stab, args.out, scene_reports=not args.no_scene_reports, command=cmd,
+                                  overwrite=True)
     total = time.perf_counter() - start
     failed = [c.name for c in stab.cases if not c.as_expected]
     print(f"{len(stab.cases) - len(failed)}/{len(stab.cases)} cases as expected in {total:.1f} s -> {path}"

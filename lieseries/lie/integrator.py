@@ -126,7 +126,7 @@ def lie_integrate(
     max_time = check_seconds(max_time, "max_time")
     check_callable(progress, "progress")
     if atlas is None:
-        atlas = hasattr(system, "for_chart")
+        atlas = bool(getattr(system, "atlas", False))  # a Sphere says (True unless built with atlas=False)
     if atlas:
         from ..atlas import run_atlas
 

@@ -161,9 +161,13 @@ class Sphere(_SphereBase):
         The chart is left when |x_dep| <= edge * radius: states there are refused and runs stop there.
     rtol : float
         Tolerance of the checks |x| = radius and x . v = 0 in :meth:`initial_state`.
+    atlas : bool
+        How the integrators run this model when their ``atlas`` argument is left out: across the atlas of charts
+        (True, the default) or in this one chart, stopping at its edge (False).
     """
 
-    def __init__(self, mass=1, radius=1, *, chart: int = 2, edge: float = 0.05, rtol: float = 1e-12):
+    def __init__(self, mass=1, radius=1, *, chart: int = 2, edge: float = 0.05, rtol: float = 1e-12,
+                 atlas: bool = True):
         super().__init__(mass, radius, rtol)
         if isinstance(chart, bool) or not isinstance(chart, (int, np.integer)):
             raise TypeError(
@@ -175,6 +179,9 @@ class Sphere(_SphereBase):
         chart = int(chart)
         # (a fraction of |x|: the largest coordinate is always at least |x|/sqrt(3))
         edge = _fraction_in(edge, "edge", 0, 3**-0.5)
+        if not isinstance(atlas, bool):
+            raise TypeError(f"`atlas` must be True or False; got {atlas!r}")
+        self.atlas = atlas
         self.chart = chart
         self.edge = edge
         self.free = tuple(i for i in range(3) if i != chart)
@@ -269,7 +276,8 @@ class Sphere(_SphereBase):
             if key == (self.chart, self.edge):
                 cache[key] = self
             else:
-                cache[key] = Sphere(self.mass_exact, self.radius_exact, chart=int(chart), edge=edge, rtol=self.rtol)
+                cache[key] = Sphere(self.mass_exact, self.radius_exact, chart=int(chart), edge=edge, rtol=self.rtol,
+                                    atlas=self.atlas)
         return cache[key]
 
     def best_chart(self, y) -> int:

@@ -1,4 +1,5 @@
-"""Studies: error against order, error against run time, invariant drift. Plain data, no plotting, no file I/O.
+"""Studies: error against order, error against run time, invariant drift, departure maps. Plain data, no plotting,
+no file I/O. (The stability study runs scenes, so it lives above them: :mod:`lieseries.stability`.)
 
 Every study returns a dataclass with a ``to_dict()`` (JSON-ready: floats, ints, strings, lists, dicts); the
 report layer (:mod:`lieseries.report`) turns it into tables and plots.
@@ -23,29 +24,17 @@ from .reference import (  # noqa: F401
 )
 from .convergence import ErrorVsOrder, error_vs_order
 from .drift import Drift, drift
-from .work_precision import (
-    MethodRun,
-    WorkPrecision,
-    WorkPrecisionRow,
-    default_methods,
-    run_method,
-    work_precision,
-)
-from .stability import Stability, StabilityCase, StabilityRow, stability
+from .work_precision import WorkPrecision, WorkPrecisionRow, work_precision
+from .departure import DepartureMap, departure_map
 
 __all__ = reference.__all__ + [
     "ErrorVsOrder",
     "error_vs_order",
     "WorkPrecision",
     "WorkPrecisionRow",
-    "MethodRun",
-    "run_method",
     "work_precision",
-    "default_methods",
     "Drift",
     "drift",
-    "Stability",
-    "StabilityCase",
-    "StabilityRow",
-    "stability",
+    "DepartureMap",
+    "departure_map",
 ]

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..poisson import as_poisson_system
 from ..precision import to_fraction
-from .reference import _finite_or_none, _to_float, observable_names, observables, reference_solution, theoretical_radius
+from .reference import finite_or_none, to_float, observable_names, observables, reference_solution, theoretical_radius
 
 __all__ = ["ErrorVsOrder", "error_vs_order", "fit_geometric_rate"]
 
@@ -170,11 +170,8 @@ def error_vs_order(system, y0, t, orders, dps: int = 60, reference=None, *, fit_
     -------
     ErrorVsOrder
     """
-    import lieseries as ls
+    from ..lie.operator import lie_series
 
-    lie_series = getattr(ls, "lie_series", None)
-    if lie_series is None:
-        raise RuntimeError("`error_vs_order` needs `lieseries.lie_series`, which this installation does not have")
     if isinstance(dps, bool) or not isinstance(dps, int) or dps < 10:
         raise ValueError(f"`dps` must be an integer >= 10; got {dps!r}")
     orders = _check_orders(orders)
@@ -204,7 +201,7 @@ def error_vs_order(system, y0, t, orders, dps: int = 60, reference=None, *, fit_
                 acc = [acc[i] * tm + ck[i] for i in range(n)]
             obs = observables(system, acc, dps + 10)
             with mp.workdps(dps + 10):
-                errors.append(_to_float(max(abs(a - b) for a, b in zip(obs, ref.values))))
+                errors.append(to_float(max(abs(a - b) for a, b in zip(obs, ref.values))))
             if progress:
                 progress(3 + done, total, f"order {N}")
     floor = FLOOR_FACTOR * 10.0 ** (-dps)
@@ -218,8 +215,8 @@ def error_vs_order(system, y0, t, orders, dps: int = 60, reference=None, *, fit_
         orders=orders,
         errors=errors,
         rate=slope,
-        radius_measured=_finite_or_none(radius_measured),
-        radius_theory=_finite_or_none(rho),
+        radius_measured=finite_or_none(radius_measured),
+        radius_theory=finite_or_none(rho),
         floor=floor,
         fit_orders=used,
         intercept=intercept,

@@ -54,7 +54,7 @@ def _mpf(q: Fraction) -> mp.mpf:
     return mp.mpf(q.numerator) / q.denominator
 
 
-def _to_float(x) -> float:
+def to_float(x) -> float:
     """A float from an mpf (0.0 only when it underflows)."""
     try:
         return float(x)
@@ -256,7 +256,7 @@ def state_error(system, y, reference: Reference) -> float:
     """Largest absolute difference between the :func:`observables` of ``y`` and ``reference``."""
     obs = observables(system, y, reference.dps)
     with mp.workdps(reference.dps):
-        return _to_float(max(abs(a - b) for a, b in zip(obs, reference.values)))
+        return to_float(max(abs(a - b) for a, b in zip(obs, reference.values)))
 
 
 def theoretical_radius(system, y0, dps: int = 30):
@@ -297,7 +297,7 @@ def _free_body(system) -> bool:
     return isinstance(system, EulerPoisson) and not isinstance(system, DampedEulerPoisson)
 
 
-def _finite_or_none(v):
+def finite_or_none(v):
     if v is None:
         return None
     v = float(v)

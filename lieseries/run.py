@@ -1,7 +1,7 @@
 """Running a scene: compute exactly what it asks for (runs, studies) and return it as data.
 
 :func:`run_scene` is the only entry point; :mod:`lieseries.scenes` defines and validates scenes, and
-:func:`lieseries.report.write_report` turns a :class:`SceneResult` into a report.
+:func:`lieseries.report.write_report` turns a :class:`SceneResult` into a report (this module writes no file).
 """
 
 from __future__ import annotations
@@ -14,10 +14,23 @@ from fractions import Fraction
 import mpmath as mp
 import numpy as np
 
-from .precision import resolve_precision, to_fraction
-from .scenes import INITIAL_BITS, STUDIES, Scene, SceneError, _orders_of, effective_plan, load_scene
+from .methods import (
+    MethodRun,
+    best_of,
+    clear_rhs_cache,
+    default_methods,
+    expand_methods,
+    method_label,
+    normalize_method,
+    precision_name,
+    reference_dps,
+    run_method,
+    setting,
+)
+from .precision import dps_to_bits, resolve_precision, to_fraction
+from .scenes import INITIAL_BITS, STUDIES, Scene, SceneError, effective_plan, load_scene, orders_of
 
-__all__ = ["RunRow", "SceneResult", "run_scene", "scaled_error"]
+__all__ = ["RunRow", "SceneResult", "environment", "run_scene", "scaled_error"]
 
 
 @dataclass
@@ -72,7 +85,6 @@ class SceneResult:
     notes : list of str        what was left out and why
     wall_time : float
     environment : dict
-    report_path : str or None  set when the report was written
     """
 
     scene: Scene
@@ -83,7 +95,6 @@ class SceneResult:
     notes: list = field(default_factory=list)
     wall_time: float = 0.0
     environment: dict = field(default_factory=dict)
-    report_path: str | None = None
     created: str = ""
 
     def to_dict(self) -> dict:
@@ -105,15 +116,20 @@ class SceneResult:
         }
 
 
-def _environment() -> dict:
+def environment() -> dict:
+    """Versions of what computed a result (for reports)."""
+    from importlib.metadata import PackageNotFoundError, version
+
     import heyoka
     import numpy
     import scipy
 
-    import lieseries
-
+    try:
+        own = version("lieseries")
+    except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
+        own = "?"
     return {
-        "lieseries": getattr(lieseries, "__version__", "?"),
+        "lieseries": own,
         "python": platform.python_version(),
         "heyoka": getattr(heyoka, "__version__", "?"),
         "numpy": numpy.__version__,
@@ -154,7 +170,7 @@ def _needed_bits(specs) -> int:
                 bits = max(bits, resolve_precision(p).bits + 64)
         if s["method"] in ("lie", "mpmath"):
             for d in (s["dps"] if isinstance(s["dps"], list) else [s["dps"]]):
-                bits = max(bits, int(d * 3.33) + 64)
+                bits = max(bits, dps_to_bits(d) + 64)
     return bits
 
 
@@ -166,9 +182,10 @@ def _invariants_of(model, states, digits: int):
     if isinstance(first, np.ndarray) and first.dtype != object:
         arr = np.stack(states)
         return model.invariants(arr)
-    # mpf (or Fraction) states: hand them over exactly as a heyoka real array (the model reads their precision)
-    prec = resolve_precision(int(digits * 3.33) + 32)
-    arr = np.stack([prec.array([to_fraction(v) for v in s]) for s in states])
+    # mpf (or Fraction) states: hand them over exactly as mpf rows (the model reads their precision)
+    with mp.workprec(dps_to_bits(digits) + 32):
+        arr = np.stack([np.array([mp.mpf(to_fraction(v).numerator) / to_fraction(v).denominator for v in s],
+                                 dtype=object) for s in states])
     return model.invariants(arr)
 
 
@@ -274,9 +291,8 @@ def _run_atlas_method(sphere, y0, tf, spec, grid, repeat, bits):
     """One method across the sphere's atlas (``atlas=True``): a MethodRun whose states are the Dirac (x, p) of
     each output row (rows of an atlas run are written in different charts), with the chart of each row and the
     number of switches in ``extra``."""
-    import lieseries as ls
-
-    from .studies.work_precision import MethodRun, _best_of, _precision_name, _setting, method_label
+    from .lie.integrator import lie_integrate
+    from .taylor import integrate
 
     m = spec["method"]
     label = method_label(spec)
@@ -284,7 +300,7 @@ def _run_atlas_method(sphere, y0, tf, spec, grid, repeat, bits):
         prec = resolve_precision(spec["precision"])
 
         def call():
-            return ls.integrate(sphere, y0, t=grid, tol=spec["tol"], precision=prec, atlas=True)
+            return integrate(sphere, y0, t=grid, tol=spec["tol"], precision=prec, atlas=True)
     elif m == "lie":
         kwargs = {"dps": int(spec["dps"])}
         if spec.get("tol") is not None:
@@ -293,14 +309,14 @@ def _run_atlas_method(sphere, y0, tf, spec, grid, repeat, bits):
             kwargs["order"] = int(spec["order"])
 
         def call():
-            return ls.lie_integrate(sphere, y0, grid, atlas=True, **kwargs)
+            return lie_integrate(sphere, y0, grid, atlas=True, **kwargs)
     else:
-        return MethodRun(m, label, _precision_name(spec), _setting(spec), float(tf), float(tf), status="skipped",
+        return MethodRun(m, label, precision_name(spec), setting(spec), float(tf), float(tf), status="skipped",
                          message=f"method {m!r} has no atlas runs (use taylor or lie)"), None
     try:
-        sol, walls = _best_of(call, repeat)
+        sol, walls = best_of(call, repeat)
     except Exception as err:  # a failing method is a row, not the end of the run
-        return MethodRun(m, label, _precision_name(spec), _setting(spec), float(tf), float(tf), status="error",
+        return MethodRun(m, label, precision_name(spec), setting(spec), float(tf), float(tf), status="error",
                          message=f"{type(err).__name__}: {err}"), None
     times = [to_fraction(v) for v in sol.t]
     rows = list(sol.y)
@@ -313,7 +329,7 @@ def _run_atlas_method(sphere, y0, tf, spec, grid, repeat, bits):
     st = sol.stats
     build = float(st.build_time or 0.0)
     run = MethodRun(
-        m, label, _precision_name(spec), _setting(spec), float(times[-1]), float(tf), t_exact=times[-1],
+        m, label, precision_name(spec), setting(spec), float(times[-1]), float(tf), t_exact=times[-1],
         times=[float(v) for v in times], states=states, steps=int(st.steps), order=int(st.order) if st.order else None,
         build_time=build if m == "taylor" else None, run_time=float(min([walls[0] - build] + walls[1:])),
         core_time=float(st.run_time), status=sol.status, message=sol.message,
@@ -326,7 +342,6 @@ def _run_atlas_method(sphere, y0, tf, spec, grid, repeat, bits):
 
 def _do_run(scene, runp, built, bar, notes):
     from .studies import observables, reference_solutions
-    from .studies.work_precision import method_label, normalize_method, reference_dps, run_method
 
     tf = to_fraction(runp["t"], "run.t")
     n_out = runp["samples"]
@@ -442,17 +457,12 @@ def _do_run(scene, runp, built, bar, notes):
 
 
 def _study_error_vs_order(opts, built, scene, bar, notes):
-    import lieseries as ls
-
     from .studies import theoretical_radius
     from .studies.convergence import error_vs_order
 
-    if getattr(ls, "lie_series", None) is None:
-        notes.append("error vs order: not computed, `lieseries.lie_series` is not available in this installation.")
-        return []
-    orders = _orders_of(opts)
+    orders = orders_of(opts)
     dps = opts["dps"]
-    bits = int(dps * 3.33) + 64
+    bits = dps_to_bits(dps) + 64
     states = [(lab, model, scene.initial_state(model, precision=max(bits, INITIAL_BITS))) for lab, model in built]
     if opts["t"] is not None:
         t = to_fraction(opts["t"])
@@ -479,7 +489,7 @@ def _study_error_vs_order(opts, built, scene, bar, notes):
 
 
 def _study_work_precision(opts, built, scene, bar, notes, quick):
-    from .studies.work_precision import default_methods, expand_methods, work_precision
+    from .studies.work_precision import work_precision
 
     methods = opts["methods"] if opts["methods"] is not None else default_methods(quick)
     bits = _needed_bits(expand_methods(methods))
@@ -516,14 +526,12 @@ def _study_drift(opts, built, scene, bar, notes):
     return out
 
 
-def run_scene(scene, out_dir=None, quick: bool = False, progress=True) -> SceneResult:
+def run_scene(scene, quick: bool = False, progress=True) -> SceneResult:
     """Compute what ``scene`` asks for, and nothing else.
 
     Parameters
     ----------
     scene : Scene, or a built-in name or path
-    out_dir : str or Path, optional
-        When given, the report is written there (:func:`lieseries.report.write_report`).
     quick : bool
         Scale the studies down for CI (see :func:`effective_plan`).
     progress : bool or callable
@@ -539,7 +547,6 @@ def run_scene(scene, out_dir=None, quick: bool = False, progress=True) -> SceneR
     -------
     SceneResult
     """
-    from .studies.work_precision import clear_rhs_cache
     from .taylor import clear_cache
 
     scene = load_scene(scene)
@@ -550,7 +557,7 @@ def run_scene(scene, out_dir=None, quick: bool = False, progress=True) -> SceneR
     start = _time.perf_counter()
     runp, studies = effective_plan(scene, quick)
     built = scene.build_models()
-    result = SceneResult(scene=scene, quick=bool(quick), environment=_environment(),
+    result = SceneResult(scene=scene, quick=bool(quick), environment=environment(),
                          created=_time.strftime("%Y-%m-%d %H:%M:%S %Z"))
     if runp is not None:
         bar = _make_progress(progress, "run")
@@ -573,8 +580,4 @@ def run_scene(scene, out_dir=None, quick: bool = False, progress=True) -> SceneR
             bar.close()
         result.studies[name] = items
     result.wall_time = _time.perf_counter() - start
-    if out_dir is not None:
-        from .report import write_report
-
-        result.report_path = str(write_report(result, out_dir))
     return result

@@ -1,6 +1,6 @@
 """Stability: the extreme and stiff cases, one row per case. Plain data, no plotting, no file I/O.
 
-Every case is a scene with a ``[stability]`` table (``validation/scenes/extreme/*.toml``, listed by
+Every case is a scene with a ``[stability]`` table (``lieseries/data/scenes/extreme/*.toml``, listed by
 :func:`lieseries.scenes.extreme_scenes`). :func:`stability` runs each scene with
 :func:`lieseries.scenes.run_scene` (its run table: every method against the closed form, or heyoka at 256 bits,
 with invariant drift, steps, order, run time, status and message) and then reads what the scene's
@@ -22,7 +22,7 @@ with invariant drift, steps, order, run time, status and message) and then reads
 ``"stiff"``
     Where and how the headline run stopped: time reached, steps, and the engine's message.
 ``"divergence"`` (the Lie operator beyond its radius)
-    ``ls.lie_series(...).radius()`` against the pole distance of the closed form
+    ``lie_series(...).radius()`` against the pole distance of the closed form
     (:func:`lieseries.exact.rigid_body_constants`), ``error_estimate`` and ``converges`` inside the radius
     (``inside`` x rho) and beyond it (``beyond`` x rho), the actual error of the truncated series against the order
     at both times (:func:`lieseries.studies.error_vs_order`: it falls inside, grows beyond), and the largest step
@@ -30,7 +30,7 @@ with invariant drift, steps, order, run time, status and message) and then reads
     (``sol.stats.extra["max_step_over_radius"]``), checked independently against the smallest true radius along
     the orbit, the imaginary part K'/lam of the poles.
 ``"atlas"`` (the sphere over many revolutions)
-    Chart switches of ``ls.integrate(..., atlas=True)`` and ``ls.lie_integrate(..., atlas=True)`` against the
+    Chart switches of ``ls.integrate(..., atlas=True)`` and ``lie_integrate(..., atlas=True)`` against the
     great circle and the Dirac form, when the engine has the atlas; otherwise the case is reported as skipped.
 
 The *headline* of a case (``[stability].headline``, a method label of its run) is its row in the one-row-per-case
@@ -46,6 +46,8 @@ from dataclasses import dataclass, field
 
 import mpmath as mp
 import numpy as np
+
+from .scenes import jsonable
 
 __all__ = ["StabilityRow", "StabilityCase", "Stability", "stability", "run_case", "failed_case", "precision_eps",
            "saddle_rate"]
@@ -96,7 +98,7 @@ class StabilityRow:
     extra: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
-        return _jsonable(dict(self.__dict__))
+        return jsonable(dict(self.__dict__))
 
 
 @dataclass
@@ -139,7 +141,7 @@ class StabilityCase:
             "rows": [r.to_dict() for r in self.rows],
             "headline": self.headline.to_dict() if self.headline is not None else None,
             "expect": self.expect, "expect_message": self.expect_message, "as_expected": self.as_expected,
-            "finding": self.finding, "details": _jsonable(self.details), "notes": list(self.notes),
+            "finding": self.finding, "details": jsonable(self.details), "notes": list(self.notes),
             "wall_time": self.wall_time,
         }
 
@@ -187,20 +189,6 @@ class Stability:
 
 
 # -- helpers ---------------------------------------------------------------------------------------------------
-def _jsonable(v):
-    if isinstance(v, dict):
-        return {str(k): _jsonable(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, (np.floating, np.integer)):
-        return v.item()
-    if isinstance(v, mp.mpf):
-        return float(v)
-    if isinstance(v, float) and not math.isfinite(v):
-        return None if math.isnan(v) else ("inf" if v > 0 else "-inf")
-    return v
-
-
 def precision_eps(precision: str, working: bool = False) -> float | None:
     """Unit round-off of a run's precision name: "double", "long double", "quad", "real256", "30 dps".
 
@@ -208,8 +196,8 @@ def precision_eps(precision: str, working: bool = False) -> float | None:
     10^-(dps + guard), the precision its state is carried in between steps (the size of the perturbation that an
     instability amplifies).
     """
-    from ..lie.operator import GUARD_DIGITS
-    from ..precision import resolve_precision
+    from .lie.operator import GUARD_DIGITS
+    from .precision import resolve_precision
 
     if precision is None:
         return None
@@ -387,7 +375,7 @@ def _analysis_drift(scene, result, rows, opts):
     items = result.studies.get("drift", [])
     if not items:
         return "The drift study did not run.", {}
-    from . import loglog_slope
+    from .studies.reference import loglog_slope
 
     mlabel, dr = items[0]
     keys = [k for k in ("energy", "orthogonality") if k in dr.errors]
@@ -425,13 +413,13 @@ def _analysis_stiff(scene, result, rows, opts):
 
 
 def _analysis_divergence(scene, result, rows, opts):
-    import lieseries as ls
-
-    from .. import exact
-    from ..models import EulerPoisson
-    from ..precision import to_fraction
-    from .reference import theoretical_radius
-    from .convergence import error_vs_order
+    from . import exact
+    from .lie.integrator import lie_integrate
+    from .lie.operator import lie_series
+    from .models import EulerPoisson
+    from .precision import to_fraction
+    from .studies.convergence import error_vs_order
+    from .studies.reference import theoretical_radius
 
     st = scene.stability
     built = dict(scene.build_models())
@@ -449,7 +437,7 @@ def _analysis_divergence(scene, result, rows, opts):
         top = max(12, max(orders) // 2)
         orders = [o for o in orders if o <= top]
     N = max(orders)
-    series = ls.lie_series(model, y0, order=N, dps=dps)
+    series = lie_series(model, y0, order=N, dps=dps)
     rho_est = series.radius()
     inside = float(to_fraction(st["inside"]))
     beyond = float(to_fraction(st["beyond"]))
@@ -467,7 +455,7 @@ def _analysis_divergence(scene, result, rows, opts):
     lie_dps = next((int(re.match(r"(\d+)", r.precision).group(1)) for r in rows
                     if r.method.startswith("Lie") and r.model == mlabel), 30)
     t_run = scene.run["t"] if not opts.get("quick") or scene.run.get("quick_t") is None else scene.run["quick_t"]
-    sol = ls.lie_integrate(model, y0, t_run, dps=lie_dps)
+    sol = lie_integrate(model, y0, t_run, dps=lie_dps)
     ratio = sol.stats.extra.get("max_step_over_radius")
     notes = []
     if ratio is None:
@@ -553,7 +541,8 @@ def run_case(scene, quick: bool = False, progress=None) -> StabilityCase:
     progress : callable, optional
         ``progress(done, total, label)`` for the scene's run.
     """
-    from ..scenes import SceneError, load_scene, run_scene
+    from .run import run_scene
+    from .scenes import SceneError, load_scene
 
     scene = load_scene(scene)
     if scene.stability is None:
@@ -585,16 +574,7 @@ def run_case(scene, quick: bool = False, progress=None) -> StabilityCase:
 
 
 def _atlas(scene, result, rows, opts):
-    """The atlas analysis, or a note that the engine does not have the atlas yet."""
-    import inspect
-
-    import lieseries as ls
-
-    has = "atlas" in inspect.signature(ls.integrate).parameters
-    if not has:
-        note = ("atlas: `ls.integrate(..., atlas=True)` is not available in this installation; the atlas runs were "
-                "skipped (the scene's run table holds the single-chart and Dirac runs only).")
-        return "Skipped: the engine has no atlas yet (ls.integrate has no `atlas` argument).", {"skipped": True}, [note]
+    """The atlas analysis."""
     return _atlas_analysis(scene, result, rows, opts)
 
 
@@ -673,13 +653,13 @@ def stability(cases=None, quick: bool = False, progress=None, on_case=None) -> S
     Stability
         A case whose scene raised is kept, with the error in its notes and no rows.
     """
-    from ..runner import _environment
-    from ..scenes import extreme_scenes, load_scene
+    from .run import environment
+    from .scenes import extreme_scenes, load_scene
 
     if cases is None:
         cases = [name for name, _ in extreme_scenes()]
         if not cases:
-            raise ValueError("no stability cases found: validation/scenes/extreme/ is empty or missing; pass `cases`")
+            raise ValueError("no stability cases found: lieseries/data/scenes/extreme/ is empty or missing; pass `cases`")
     if isinstance(cases, (str, bytes)) or not hasattr(cases, "__iter__"):
         raise ValueError(f"`cases` must be a list of scene names, paths or Scenes; got {cases!r}")
     scenes = [load_scene(c) for c in cases]
@@ -705,4 +685,4 @@ def stability(cases=None, quick: bool = False, progress=None, on_case=None) -> S
     if progress:
         progress(n, n, "done")
     return Stability(cases=out, quick=bool(quick), wall_time=_time.perf_counter() - start,
-                     environment=_environment(), created=_time.strftime("%Y-%m-%d %H:%M:%S %Z"))
+                     environment=environment(), created=_time.strftime("%Y-%m-%d %H:%M:%S %Z"))
