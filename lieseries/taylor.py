@@ -19,7 +19,8 @@ checks run between chunks:
 - ``step_collapse``: the step size has collapsed so far that finishing would need more than the step budget (a
   singularity ahead), or the problem is stiff: its steps are tiny (finishing needs more than 1e5 steps with the
   default budget, or more than ``max_steps`` when given) while no component of the state changes by more than
-  1e-3 of its own size per step -- the step is then limited by stability, not accuracy;
+  1e-2 of its own size (at least 1/100 of the state's max-norm) per step -- the step is then limited by
+  stability, not accuracy;
 - ``non_finite``: heyoka stopped on a non-finite state (it overwrites the state with NaN); the last chunk is run
   again from its start with a per-step copy of the state, so the last finite state is kept;
 - terminal events of the model (e.g. the edge of a sphere chart) end the run with their own status;
@@ -72,6 +73,9 @@ _OUTCOME = hy.taylor_outcome
 DEFAULT_MAX_STEPS = 50_000_000
 #: With the default budget, a stiff run (module docstring) is stopped once it would need more steps than this.
 STIFF_STEPS = 100_000
+#: A step that changes no component by more than this fraction of its size (module docstring) is stability-limited:
+#: an accuracy-limited step of order ~20 at tol = eps moves the state by ~15% of its time scale.
+STIFF_CHANGE = 1e-2
 
 
 def clear_cache() -> None:
@@ -543,7 +547,7 @@ class _Run:
             if need > stiff_steps and h < 1e-2 * h_first:
                 self.reason = "step_collapse"  # shrinking towards a singularity
                 return
-            if need > stiff_steps and self.change < 1e-3 and h < 1e-2 * left:
+            if need > stiff_steps and self.change < STIFF_CHANGE and h < 1e-2 * left:
                 self.reason = "stiff"  # tiny steps over which no component changes: stability-limited
                 return
             if need > max_steps - self.steps:
@@ -610,17 +614,19 @@ class _Keeper:
 
 
 def _relative_change(a, b) -> float:
-    """Largest change of one component relative to its own size: max_i |a_i - b_i| / max(|a_i|, |b_i|).
+    """Largest change of one component relative to its own size: max_i |a_i - b_i| / max(|a_i|, |b_i|, s / 100),
+    s the max-norm of the state.
 
     Measured per component, so that a large conserved variable beside a small oscillating one does not hide the
-    oscillation (what a norm of the whole state would do)."""
+    oscillation (what a norm of the whole state would do); the floor s / 100 keeps components passing through
+    zero from looking fast."""
     try:
         fa = np.asarray(a, dtype=np.float64)
         fb = np.asarray(b, dtype=np.float64)
     except (TypeError, ValueError):
         fa = np.array([float(v) for v in a])
         fb = np.array([float(v) for v in b])
-    scale = np.maximum(np.abs(fa), np.abs(fb))
+    scale = np.maximum(np.maximum(np.abs(fa), np.abs(fb)), 1e-2 * float(np.max(np.abs(fa))))
     moving = scale > 0
     if not moving.any():
         return 0.0

@@ -174,7 +174,12 @@ def headings(md: str) -> set:
     return set(re.findall(r"^## (.+)$", md, flags=re.M))
 
 
-@pytest.mark.parametrize("name", BUILTINS)
+#: Built-in scenes whose quick report runs in the default suite; the others (2-5 s each) run with `make test-all`.
+FAST_SCENES = ("default", "sphere-great-circle")
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=() if n in FAST_SCENES else pytest.mark.slow)
+                                  for n in BUILTINS])
 def test_builtin_scene_quick_report_has_what_it_asks_for(name, tmp_path):
     scene = load_scene(name)
     res = run_scene(scene, quick=True, progress=False)

@@ -28,9 +28,19 @@ from lieseries.stability import precision_eps, saddle_rate, stability
 EXTREME = [name for name, _ in extreme_scenes()]
 
 
+#: Cases run in the default suite (about 5 s in quick mode); the others run with `make test-all` (slow).
+FAST = ["damped-stiff", "unstable-axis", "unstable-axis-principal", "sphere-atlas"]
+
+
 @pytest.fixture(scope="module")
 def quick():
-    """Every case in quick mode, run once for the module (about 25 s)."""
+    """The FAST cases in quick mode, run once for the module."""
+    return stability(cases=FAST, quick=True)
+
+
+@pytest.fixture(scope="module")
+def quick_all():
+    """Every case in quick mode, run once for the module (about 20 s: slow tests only)."""
     return stability(quick=True)
 
 
@@ -162,9 +172,9 @@ def test_precision_eps_and_saddle_rate():
 
 
 # -- every case, quick -----------------------------------------------------------------------------------------
-@pytest.mark.parametrize("name", EXTREME)
-def test_case_runs_quick_and_its_report_has_what_it_asks_for(quick, name, tmp_path):
-    case = quick.case(name)
+@pytest.mark.parametrize("name", [pytest.param(n, marks=() if n in FAST else pytest.mark.slow) for n in EXTREME])
+def test_case_runs_quick_and_its_report_has_what_it_asks_for(request, name, tmp_path):
+    case = request.getfixturevalue("quick" if name in FAST else "quick_all").case(name)
     scene = load_scene(name)
     assert case.rows, case.notes
     assert case.as_expected, (case.headline.status, case.headline.message)
@@ -214,9 +224,10 @@ def test_stiff_case_stops_quickly_and_says_stiff(quick):
     assert case.details["t_reached"] == head.t
 
 
-@pytest.mark.parametrize("name", ["separatrix-near", "separatrix-exact", "unstable-axis"])
-def test_saddle_cases_quad_beats_double_and_errors_grow_at_the_saddle_rate(quick, name):
-    case = quick.case(name)
+@pytest.mark.parametrize("name", ["unstable-axis", pytest.param("separatrix-near", marks=pytest.mark.slow),
+                                  pytest.param("separatrix-exact", marks=pytest.mark.slow)])
+def test_saddle_cases_quad_beats_double_and_errors_grow_at_the_saddle_rate(request, name):
+    case = request.getfixturevalue("quick" if name in FAST else "quick_all").case(name)
     by = {r.method: r for r in case.rows}
     dbl, quad = by["heyoka double"], by["heyoka quad"]
     assert math.isfinite(dbl.error) and math.isfinite(quad.error)
@@ -253,8 +264,9 @@ def test_unstable_axis_in_principal_axes_never_departs(quick):
         assert r.error < 100 * precision_eps(r.precision)
 
 
-def test_long_run_drift_follows_brouwer(quick):
-    case = quick.case("long-run")
+@pytest.mark.slow
+def test_long_run_drift_follows_brouwer(quick_all):
+    case = quick_all.case("long-run")
     d = case.details
     assert d["total_steps"] > 50_000
     assert d["exponents"]["energy"] < 0.8
@@ -264,17 +276,18 @@ def test_long_run_drift_follows_brouwer(quick):
     assert final < 20 * d["eps"] * math.sqrt(d["total_steps"]) * E0  # not eps * steps
 
 
-def test_scaled_cases_reach_their_precision_relative_to_the_natural_scale(quick):
+@pytest.mark.slow
+def test_scaled_cases_reach_their_precision_relative_to_the_natural_scale(quick_all):
     for name in ("spin-fast", "spin-slow", "body-nearly-flat", "body-nearly-symmetric", "damped-mild"):
-        for r in quick.case(name).rows:
+        for r in quick_all.case(name).rows:
             if r.method.startswith("heyoka"):
                 assert r.error_over_eps < 1e3, (name, r.method, r.error_over_eps)
     # the same motion at three speeds: the same relative accuracy
-    rel = {name: next(r for r in quick.case(name).rows if r.method == "heyoka double").scaled_error
+    rel = {name: next(r for r in quick_all.case(name).rows if r.method == "heyoka double").scaled_error
            for name in ("spin-fast", "spin-slow")}
     assert 0.1 < rel["spin-fast"] / rel["spin-slow"] < 10
     for name in ("sphere-huge", "sphere-tiny"):
-        for r in quick.case(name).rows:
+        for r in quick_all.case(name).rows:
             if r.model.startswith("Dirac") and r.method.startswith("heyoka"):
                 assert r.error_over_eps < 100, (name, r.method, r.error_over_eps)
 
@@ -327,7 +340,8 @@ def test_lie_series_beyond_its_radius():
     assert err_out[2] > 10 * err_out[0]
 
 
-def test_lie_integrate_never_steps_beyond_the_radius(quick):
+@pytest.mark.slow
+def test_lie_integrate_never_steps_beyond_the_radius(quick_all):
     body = ls.EulerPoisson((1, 2, 3))
     omega = (1, "0.1", "0.5")
     y0 = body.initial_state(omega, precision=256)
@@ -339,7 +353,7 @@ def test_lie_integrate_never_steps_beyond_the_radius(quick):
     # a singularity; the largest step stays inside that disc
     c = exact.rigid_body_constants((1, 2, 3), omega)
     assert sol.stats.max_step < 0.5 * float(c.Kp / c.lam)
-    d = quick.case("lie-divergence").details
+    d = quick_all.case("lie-divergence").details
     assert d["error_estimate"]["beyond"] == math.inf and d["converges"]["beyond"] is False
     assert math.isfinite(d["error_estimate"]["inside"]) and d["converges"]["inside"] is True
     assert d["lie_integrate"]["max_step_over_radius"] <= 0.5
@@ -348,20 +362,21 @@ def test_lie_integrate_never_steps_beyond_the_radius(quick):
 
 
 # -- the stability report --------------------------------------------------------------------------------------
-def test_stability_report_has_one_row_per_case(quick, tmp_path):
-    path = write_stability_report(quick, tmp_path, scene_reports=False)
+@pytest.mark.slow
+def test_stability_report_has_one_row_per_case(quick_all, tmp_path):
+    path = write_stability_report(quick_all, tmp_path, scene_reports=False)
     md = path.read_text()
     table = md.split("## Findings")[0]
     body = [line for line in table.splitlines() if line.startswith("| ") and not line.startswith("| case")
             and not line.startswith("| ---")]
-    assert len(body) == len(quick.cases) == len(EXTREME)
+    assert len(body) == len(quick_all.cases) == len(EXTREME)
     stiff = next(line for line in body if line.startswith("| damped-stiff"))
     assert "step_collapse" in stiff and "stiff" in stiff and "last step size" in stiff
     for name in ("overview", "error_growth", "drift", "divergence", "atlas"):
         assert (tmp_path / f"{name}.png").is_file(), name
         assert f"({name}.png)" in md
     data = json.loads((tmp_path / "data.json").read_text())
-    assert [r["case"] for r in data["rows"]] == [c.name for c in quick.cases]
+    assert [r["case"] for r in data["rows"]] == [c.name for c in quick_all.cases]
     assert data["quick"] is True
     row = next(r for r in data["rows"] if r["case"] == "damped-stiff")
     assert row["status"] == "step_collapse"
