@@ -2,6 +2,8 @@
 
 import io
 
+import pytest
+
 from lieseries.cli import main
 from lieseries.progress import ProgressBar
 from lieseries.scenes import builtin_scenes
@@ -16,14 +18,46 @@ def test_scenes_lists_the_builtins(capsys):
         assert any(line.startswith(name + " ") and title in line for line in lines), name
 
 
-def test_run_default_quick(tmp_path, capsys):
-    out_dir = tmp_path / "rep"
-    assert main(["run", "default", "--out", str(out_dir), "--quick", "--no-progress"]) == 0
-    captured = capsys.readouterr()
-    assert (out_dir / "report.md").is_file()
-    assert str(out_dir / "report.md") in captured.out
-    assert "heyoka double" in captured.out and "final error" in captured.out
-    assert captured.err == ""  # --no-progress: nothing on stderr
+def scene_file(tmp_path, name="mine", t="1"):
+    path = tmp_path / f"{name.replace('/', '_')}.toml"
+    path.write_text(
+        f'name = "{name}"\ntitle = "a file"\n[model]\nkind = "sphere_dirac"\n[initial]\nx = [1, 0, 0]\n'
+        f'v = [0, 1, 0]\n[run]\nt = {t}\nmethods = [{{ method = "taylor" }}]\n'
+    )
+    return path
+
+
+@pytest.mark.parametrize("name, t, says", [
+    ("../../x", "1", "`name` must be a name"),
+    ("/tmp/x", "1", "`name` must be a name"),
+    ("ok", '"1e99999999"', "`run.t`"),
+    ("ok", '"1e400"', "`run.t`"),
+    ("ok", '"1/0"', "`run.t`"),
+    ("ok", "1e400", "`run.t`"),
+])
+def test_bad_scene_values_exit_2_with_one_line(tmp_path, capsys, name, t, says):
+    assert main(["run", str(scene_file(tmp_path, name, t)), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert says in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+
+
+def test_run_exit_status_and_overwrite(tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    scene = str(scene_file(tmp_path))
+    assert main(["run", scene, "--out", str(out), "--no-progress"]) == 2  # a folder with the user's files
+    assert main(["run", scene, "--out", str(out), "--no-progress", "--overwrite"]) == 0
+    assert (out / "notes.txt").read_text() == "mine" and (out / "report.md").is_file()
+    assert main(["run", scene, "--out", str(out), "--no-progress", "--overwrite"]) == 0  # again: its own files
+    # a run that ends without success exits 1 (the damped stiff body stops with step_collapse)
+    stiff = tmp_path / "stiff.toml"
+    stiff.write_text('name = "stiff"\ntitle = "t"\n[model]\nkind = "damped_euler_poisson"\n'
+                     'inertia = [1, 2, 3]\ndamping = 100000\n[initial]\nomega = [1, "0.1", "0.5"]\n[run]\nt = 20\n'
+                     'methods = [{ method = "taylor" }]\n')
+    assert main(["run", str(stiff), "--out", str(tmp_path / "s"), "--no-progress"]) == 1
+    assert "step_collapse" in capsys.readouterr().out
 
 
 def test_run_scene_file_path(tmp_path, capsys):
