@@ -98,6 +98,11 @@ CASES.update({
                               ValueError, r"`y0`.*overflows"),
     "mpf state without precision": (lambda: ls.integrate(BODY, [ls.precision.mp_context().mpf(1)] * 12, t=1),
                                     ValueError, "`precision=`"),
+    "drift: perturbation nan": (lambda: studies.drift(BODY, Y0, 10, perturbation=float("nan")), ValueError,
+                                "`perturbation`"),
+    "drift: seed string": (lambda: studies.drift(BODY, Y0, 10, seed="x"), TypeError, "`seed`"),
+    "drift: a billion samples": (lambda: studies.drift(BODY, Y0, 10, samples=10**9), ValueError, "`samples`"),
+    "work_precision: repeat 0": (lambda: studies.work_precision(BODY, Y0, 1, repeat=0), ValueError, "`repeat`"),
     "atlas rows that lost their charts": (lambda: SPHERE.position(_derived_atlas_rows()), ValueError,
                                           "no longer knows their charts"),
 })

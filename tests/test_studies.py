@@ -255,3 +255,20 @@ def test_damped_body_is_measured_against_a_numerical_reference():
     free = reference_solution(ls.EulerPoisson((1, 2, 3)), y0, 2, dps=30)
     assert max(abs(a - b) for a, b in zip(ref.values, free.values)) > 1e-3
     assert theoretical_radius(damped, y0) is None
+
+
+def test_drift_of_a_bare_poisson_system_measures_h_and_its_casimirs():
+    """A bare PoissonSystem gets H and its declared Casimirs (before: a TypeError), evaluated exactly."""
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega=(1, "0.1", "0.5"))
+    d = ls.studies.drift(body.poisson, y0, 50, samples=12)
+    assert d.status == "success"
+    assert d.initial["energy"] == 0.885  # (1 + 2 * 0.1^2 + 3 * 0.5^2) / 2, exactly
+    assert max(d.errors["energy"]) < 1e-13
+
+    M1, M2, M3 = hy.make_vars("M1", "M2", "M3")
+    so3 = ls.PoissonSystem([M1, M2, M3], [[0, -M3, M2], [M3, 0, -M1], [-M2, M1, 0]],
+                           (M1**2 + M2**2 / 2 + M3**2 / 4) / 2, casimirs={"M2": M1**2 + M2**2 + M3**2})
+    d = ls.studies.drift(so3, [1, 2, 3], 50, samples=12, precision="quad")
+    assert d.initial == {"energy": (1 + 2 + 9 / 4) / 2, "M2": 14.0}
+    assert max(d.errors["M2"]) < 1e-30 and max(d.errors["energy"]) < 1e-30

@@ -21,12 +21,11 @@ import math
 from dataclasses import dataclass, field
 from fractions import Fraction
 
-import mpmath as mp
 import numpy as np
 
 from ..models.base import state_fractions
 from ..poisson import as_poisson_system
-from ..precision import resolve_precision, to_fraction
+from ..precision import check_count, resolve_precision, to_fraction
 from .reference import loglog_slope
 
 __all__ = ["Drift", "drift", "growth_exponent"]
@@ -113,24 +112,24 @@ def growth_exponent(steps, errors) -> float | None:
     return loglog_slope(s[h:], env[h:])
 
 
-def _invariant_function(system):
-    """f(states) -> dict name -> list of mpf, from the model's ``invariants`` (or H and the Casimirs)."""
+def _invariant_function(system, dps: int):
+    """f(state or states) -> dict name -> mpf (list of mpf for a 2-d array), from the model's ``invariants`` or,
+    for a bare PoissonSystem, H and its declared Casimirs evaluated exactly from the states at ``dps`` digits."""
     if hasattr(system, "invariants"):
         return system.invariants
-    import heyoka as hy
+    from ..expr import compile_expressions
 
     ps = as_poisson_system(system)
     names = ["energy"] + list(ps.casimirs)
-    exprs = [ps.hamiltonian] + list(ps.casimirs.values())
-    used = hy.get_params(exprs)
-    npar = 1 + max((int(str(p)[1:]) for p in used), default=-1)
-    cf = hy.cfunc(exprs, vars=ps.variables)
-    pars = np.array([float(v) for v in ps.parameter_values[:npar]])
+    prog = compile_expressions(ps.variables, [ps.hamiltonian] + list(ps.casimirs.values()),
+                               len(ps.parameter_values))
+    pars = list(ps.parameter_values)
 
     def inv(y):
-        arr = np.atleast_2d(np.asarray(y, dtype=float))
-        out = np.array([cf(r, pars=pars) if npar else cf(r) for r in arr])
-        return {nm: [mp.mpf(float(v)) for v in out[:, i]] for i, nm in enumerate(names)}
+        rows = [y] if np.ndim(y) == 1 else list(y)
+        vals = [prog.evaluate([to_fraction(v) for v in r], pars, dps) for r in rows]
+        out = {nm: [v[i] for v in vals] for i, nm in enumerate(names)}
+        return {k: v[0] for k, v in out.items()} if np.ndim(y) == 1 else out
 
     return inv
 
@@ -153,17 +152,18 @@ def drift(system, y0, t, precision="double", samples: int = 200, tol=None, *, en
     ----------
     system : model or PoissonSystem
         A model's ``invariants(y)`` are measured (rigid body: energy, M2, L1..L3, orthogonality, det_R; sphere:
-        energy, x2, L1..L3); a bare PoissonSystem gets H and its declared Casimirs (evaluated in double).
+        energy, x2, L1..L3); a bare PoissonSystem gets H and its declared Casimirs (evaluated exactly from the
+        states, at the run's digits plus 10).
     y0 : sequence of n numbers
     t : number
         Final time, positive; long enough for many steps (10^4 and more).
     precision : "double" | "long double" | "quad" | int bits
     samples : int
-        Number of sample times, log-spaced from t/1000 to t.
+        Number of sample times, log-spaced from t/1000 to t (6 .. 100000).
     tol : float, optional
         heyoka tolerance; default the precision's epsilon (truncation error below round-off).
     ensemble : int
-        Number of runs (the first from ``y0`` itself, the others from perturbed copies); the drift curve is
+        Number of runs (1 .. 1000) (the first from ``y0`` itself, the others from perturbed copies); the drift curve is
         their root mean square.
     perturbation : float
         Size of the perturbations, relative to max |y0| (rigid body: only M is perturbed, so that R stays a
@@ -185,10 +185,13 @@ def drift(system, y0, t, precision="double", samples: int = 200, tol=None, *, en
     tf = to_fraction(t, "t")
     if tf <= 0:
         raise ValueError(f"`t` must be a positive final time; got {float(tf)}")
-    if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 6:
-        raise ValueError(f"`samples` must be an integer >= 6; got {samples!r}")
-    if isinstance(ensemble, bool) or not isinstance(ensemble, (int, np.integer)) or ensemble < 1:
-        raise ValueError(f"`ensemble` must be a positive integer; got {ensemble!r}")
+    samples = check_count(samples, "samples", low=6, high=100_000)
+    ensemble = check_count(ensemble, "ensemble", low=1, high=1000)
+    seed = check_count(seed, "seed", low=0)
+    pert = to_fraction(perturbation, "perturbation")
+    if not pert > 0:
+        raise ValueError(f"`perturbation` must be a positive number; got {perturbation!r}")
+    perturbation = float(pert)
     ps = as_poisson_system(system)
     z0 = state_fractions(y0, ps.dimension, "y0")
     t_first = to_fraction(first, "first") if first is not None else tf / 1000
@@ -197,7 +200,7 @@ def drift(system, y0, t, precision="double", samples: int = 200, tol=None, *, en
     grid = [Fraction(v).limit_denominator(2**40) for v in np.geomspace(float(t_first), float(tf), int(samples))]
     grid[-1] = tf
     grid = sorted(set(grid))
-    inv_fn = _invariant_function(system)
+    inv_fn = _invariant_function(system, prec.dps + 10)
     free = _perturbable(system, ps.dimension)
     rng = np.random.default_rng(seed)
     scale_y = max(abs(float(v)) for v in z0) or 1.0

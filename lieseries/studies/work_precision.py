@@ -30,7 +30,7 @@ from fractions import Fraction
 
 from ..methods import default_methods, expand_methods, method_label, reference_dps, run_method, setting
 from ..poisson import as_poisson_system
-from ..precision import to_fraction
+from ..precision import check_count, to_fraction
 from .reference import reference_solution, state_error
 
 __all__ = ["WorkPrecisionRow", "WorkPrecision", "work_precision"]
@@ -109,6 +109,7 @@ def work_precision(system, y0, t, methods=None, reference=None, repeat: int = 3,
     -------
     WorkPrecision
     """
+    repeat = check_count(repeat, "repeat", low=1, high=1000)
     if methods is None:
         methods = default_methods()
     specs = expand_methods(methods)
