@@ -16,10 +16,10 @@ run: $(STAMP)
 	$(BIN)/lieseries run default --out reports/default
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2
 
 test-all: $(STAMP)
-	$(BIN)/python -m pytest -q -m ""
+	$(BIN)/python -m pytest -q -n 2 -m ""
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py

@@ -19,7 +19,6 @@ from .methods import (
     best_of,
     clear_rhs_cache,
     default_methods,
-    expand_methods,
     method_label,
     normalize_method,
     precision_name,
@@ -28,7 +27,8 @@ from .methods import (
     setting,
 )
 from .precision import dps_to_bits, resolve_precision, to_fraction
-from .scenes import INITIAL_BITS, STUDIES, Scene, SceneError, effective_plan, load_scene, orders_of
+from .scenes import STUDIES, Scene, SceneError, effective_plan, load_scene, orders_of
+from .studies.drift import invariant_function
 
 __all__ = ["RunRow", "SceneResult", "environment", "run_scene", "scaled_error"]
 
@@ -162,8 +162,13 @@ class _Null:
         pass
 
 
+#: Fewest bits of the numerical references and of the conversions of atlas rows.
+REFERENCE_BITS = 256
+
+
 def _needed_bits(specs) -> int:
-    bits = INITIAL_BITS
+    """Bits for references and conversions that stay far above every method of ``specs``."""
+    bits = REFERENCE_BITS
     for s in specs:
         if s["method"] == "taylor":
             for p in (s["precision"] if isinstance(s["precision"], list) else [s["precision"]]):
@@ -179,22 +184,25 @@ def _invariants_of(model, states, digits: int):
     if not states:
         return None
     first = states[0]
+    invariants = invariant_function(model, digits)
     if isinstance(first, np.ndarray) and first.dtype != object:
-        arr = np.stack(states)
-        return model.invariants(arr)
+        return invariants(np.stack(states))
     # mpf (or Fraction) states: hand them over exactly as mpf rows (the model reads their precision)
     with mp.workprec(dps_to_bits(digits) + 32):
         arr = np.stack([np.array([mp.mpf(to_fraction(v).numerator) / to_fraction(v).denominator for v in s],
                                  dtype=object) for s in states])
-    return model.invariants(arr)
+    return invariants(arr)
 
 
 def _trajectory_quantity(model, label):
-    from .models import EulerPoisson
+    from .models import EulerPoisson, Sphere, SphereDirac
+    from .poisson import as_poisson_system
 
     if isinstance(model, EulerPoisson):
         return "angular velocity Omega", ("Omega1", "Omega2", "Omega3")
-    return "position x", ("x1", "x2", "x3")
+    if isinstance(model, (Sphere, SphereDirac)):
+        return "position x", ("x1", "x2", "x3")
+    return "state", tuple(as_poisson_system(model).names[:3])
 
 
 def _plot_values(model, ref_rows):
@@ -358,7 +366,7 @@ def _do_run(scene, runp, built, bar, notes):
     initial_invariants = {}
     atlas_of = {m.label: bool(m.params.get("atlas", False)) for m in scene.models}
     for mlabel, model in built:
-        y0 = scene.initial_state(model, precision=bits)
+        y0 = scene.initial_state(model)
         bar(done, total, f"{mlabel}: reference")
         refs = {}
         atlas = atlas_of.get(mlabel, False)
@@ -385,7 +393,7 @@ def _do_run(scene, runp, built, bar, notes):
                 sol = integrate(model, y0, t=grid, precision=max(256, bits), tol=Fraction(1, 2**250))
                 refs_grid = [observables(model, y, dps) for y in sol.y]
         done += 1
-        inv0 = model.invariants(y0)
+        inv0 = invariant_function(model, dps)(y0)
         inv_names = list(inv0)
         initial_invariants[mlabel] = {k: float(v) for k, v in inv0.items()}
         traj = None
@@ -462,8 +470,7 @@ def _study_error_vs_order(opts, built, scene, bar, notes):
 
     orders = orders_of(opts)
     dps = opts["dps"]
-    bits = dps_to_bits(dps) + 64
-    states = [(lab, model, scene.initial_state(model, precision=max(bits, INITIAL_BITS))) for lab, model in built]
+    states = [(lab, model, scene.initial_state(model)) for lab, model in built]
     if opts["t"] is not None:
         t = to_fraction(opts["t"])
     else:
@@ -492,10 +499,9 @@ def _study_work_precision(opts, built, scene, bar, notes, quick):
     from .studies.work_precision import work_precision
 
     methods = opts["methods"] if opts["methods"] is not None else default_methods(quick)
-    bits = _needed_bits(expand_methods(methods))
     out = []
     for i, (lab, model) in enumerate(built):
-        y0 = scene.initial_state(model, precision=bits)
+        y0 = scene.initial_state(model)
 
         def prog(done, total, label, _i=i, _lab=lab):
             bar(_i * total + done, len(built) * total, f"{_lab}: {label}")
@@ -514,7 +520,7 @@ def _study_drift(opts, built, scene, bar, notes):
 
     out = []
     for i, (lab, model) in enumerate(built):
-        y0 = scene.initial_state(model, precision=INITIAL_BITS)
+        y0 = scene.initial_state(model)
 
         def prog(done, total, label, _i=i, _lab=lab):
             bar(_i * total + done, len(built) * total, f"{_lab}: {label}")

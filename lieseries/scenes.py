@@ -69,6 +69,10 @@ import numpy as np
 from .precision import resolve_precision, to_fraction
 
 __all__ = [
+    "FIELD_DOCS",
+    "scene_reference",
+    "jsonable",
+    "orders_of",
     "SceneError",
     "Scene",
     "load_scene",
@@ -81,10 +85,10 @@ __all__ = [
     "STUDIES",
 ]
 
-MODEL_KINDS = ("euler_poisson", "damped_euler_poisson", "sphere", "sphere_dirac")
+MODEL_KINDS = ("euler_poisson", "damped_euler_poisson", "sphere", "sphere_dirac", "python")
 STUDIES = ("error_vs_order", "work_precision", "drift")
 PLOTS = ("trajectory", "error_vs_order", "work_precision", "drift")
-_FAMILY = {"euler_poisson": "rigid_body", "damped_euler_poisson": "rigid_body", "sphere": "sphere",
+_FAMILY = {"euler_poisson": "rigid_body", "damped_euler_poisson": "rigid_body", "sphere": "sphere", "python": "state",
            "sphere_dirac": "sphere"}
 #: Sub-folder of the scenes folder holding the extreme and stiff cases (scenes with a [stability] table).
 EXTREME_FOLDER = "extreme"
@@ -93,9 +97,6 @@ ANALYSES = ("none", "saddle", "scaled", "drift", "stiff", "divergence", "atlas")
 
 #: Numbers in a scene lie within 1e-MAX_MAGNITUDE .. 1eMAX_MAGNITUDE in magnitude (or are 0).
 MAX_MAGNITUDE = 300
-
-#: Bits of the initial state handed to every method (each rounds it once to its own precision).
-INITIAL_BITS = 256
 
 
 class SceneError(ValueError):
@@ -194,6 +195,12 @@ def _scene_name(value, path):
             or value[0] in ".-" or ".." in value):
         _fail(path, "a name of at most 64 letters, digits, '_', '-' or '.' (not starting with '.' or '-'; "
                     "not a path)", value)
+    return value
+
+
+def _identifier(value, path):
+    if not (isinstance(value, str) and value.isidentifier()):
+        _fail(path, "a Python name (the function that builds the model)", value)
     return value
 
 
@@ -302,6 +309,18 @@ def _table(data, path: str, spec: dict, what: str = "a table") -> dict:
 
 
 # -- schema ----------------------------------------------------------------------------------------------------
+_TOP_FIELDS = {
+    "name": (_scene_name, _REQUIRED),
+    "title": (_string, _REQUIRED),
+    "description": (_string, ""),
+    "model": (None, None),
+    "models": (None, None),
+    "initial": (None, _REQUIRED),
+    "run": (None, None),
+    "studies": (None, None),
+    "report": (None, None),
+    "stability": (None, None),
+}
 _MODEL_FIELDS = {
     "euler_poisson": {"inertia": (_inertia, _REQUIRED), "bracket": (_choice("chetaev", "intermediate"), "chetaev")},
     "damped_euler_poisson": {"inertia": (_inertia, _REQUIRED), "damping": (_nonnegative, _REQUIRED),
@@ -309,10 +328,12 @@ _MODEL_FIELDS = {
     "sphere": {"mass": (_positive, 1), "radius": (_positive, 1), "chart": (_integer(0, 2), 2),
                "edge": (_fraction01, 0.05), "atlas": (_boolean, True)},
     "sphere_dirac": {"mass": (_positive, 1), "radius": (_positive, 1)},
+    "python": {"file": (_string, _REQUIRED), "factory": (_identifier, "make")},
 }
 _INITIAL_FIELDS = {
     "rigid_body": {"omega": (_vector3, _REQUIRED), "R0": (_matrix3, None)},
     "sphere": {"x": (_vector3, _REQUIRED), "v": (_vector3, _REQUIRED)},
+    "state": {"y0": (_list_of(_number, allow_scalar=False), _REQUIRED)},
 }
 
 
@@ -415,6 +436,184 @@ _STUDY_FIELDS = {
 }
 
 
+# -- the reference of the format (docs/scenes.md is generated from it and the schema above) -----------------------
+#: Every field of the schema: (type, meaning). Defaults are read from the schema itself, so that the reference and
+#: the checks cannot drift apart (tests/test_scenes.py compares docs/scenes.md with :func:`scene_reference`).
+FIELD_DOCS = {
+    "": {
+        "name": ("name", "the scene's name: letters, digits, '_', '-', '.'; the default report folder reports/<name>"),
+        "title": ("string", "the report's title"),
+        "description": ("string", "a paragraph for the report"),
+        "model": ("table", "the model (or `models`: an array of tables, each with a distinct `label`)"),
+        "models": ("array of tables", "several models sharing [initial], each with a `label`"),
+        "initial": ("table", "the initial state (fields by model family below)"),
+        "run": ("table", "methods run side by side against the reference"),
+        "studies": ("table of tables", "studies to run: error_vs_order, work_precision, drift"),
+        "report": ("table", "what the report plots"),
+        "stability": ("table", "for the extreme and stiff cases: how lieseries.stability reads the scene"),
+    },
+    "model.euler_poisson": {
+        "inertia": ("3 numbers or 3x3 numbers", "principal moments, or a symmetric positive-definite tensor"),
+        "bracket": ("'chetaev' | 'intermediate'", "the Poisson structure (paper 11.20.2 or 11.20)"),
+    },
+    "model.damped_euler_poisson": {
+        "inertia": ("3 numbers or 3x3 numbers", "as for euler_poisson"),
+        "damping": ("number >= 0", "the internal damping: the torque damping * M x (M x Omega)"),
+        "bracket": ("'chetaev' | 'intermediate'", "as for euler_poisson"),
+    },
+    "model.sphere": {
+        "mass": ("positive number", "the particle's mass"),
+        "radius": ("positive number", "the sphere's radius"),
+        "chart": ("0 | 1 | 2", "the dependent coordinate of the chart the state is written in"),
+        "edge": ("number in (0, 1)", "a chart ends where |x_chart| <= edge * |x|"),
+        "atlas": ("boolean", "runs and studies switch charts (true) or stay in one and stop at its edge"),
+    },
+    "model.sphere_dirac": {
+        "mass": ("positive number", "the particle's mass"),
+        "radius": ("positive number", "the sphere's radius"),
+    },
+    "model.python": {
+        "file": ("path", "a Python file (relative to the scene file) defining the model; it runs as code"),
+        "factory": ("Python name", "the function of that file returning a lieseries model or PoissonSystem"),
+    },
+    "initial.rigid_body": {
+        "omega": ("3 numbers", "the body angular velocity Omega(0); R(0) = 1"),
+        "R0": ("3x3 numbers", "an initial rotation instead of the identity"),
+    },
+    "initial.sphere": {
+        "x": ("3 numbers", "the position, on the sphere"),
+        "v": ("3 numbers", "the velocity, tangent to it"),
+    },
+    "initial.state": {
+        "y0": ("list of numbers", "the state itself, one number per variable (python models)"),
+    },
+    "run": {
+        "t": ("number", "the final time"),
+        "methods": ("array of method tables", "the methods run side by side (fields below)"),
+        "samples": ("integer 2..100000", "output times, for the invariant drift and the trajectory plot"),
+        "repeat": ("integer 1..100", "best-of repeats of each timing"),
+        "quick_t": ("number", "the final time in quick mode (default: t)"),
+    },
+    "method.taylor": {
+        "precision": ("'double' | 'long double' | 'quad' | bits", "heyoka's precision (a list in work_precision)"),
+        "tol": ("number in (0, 1)", "the tolerance (default: the precision's epsilon)"),
+    },
+    "method.lie": {
+        "dps": ("integer", "decimal digits of lie_integrate (a list in work_precision)"),
+        "tol": ("positive number", "the per-step tolerance (default 10^-dps)"),
+        "order": ("integer", "a fixed series order (default: the automatic one)"),
+    },
+    "method.scipy": {
+        "rtol": ("number in (0, 1)", "DOP853's relative tolerance (a list in work_precision)"),
+        "atol": ("positive number", "its absolute tolerance (default rtol)"),
+    },
+    "method.mpmath": {
+        "dps": ("integer", "digits of mpmath.odefun"),
+        "t_max": ("positive number", "the run is capped at |t| <= t_max (odefun is slow)"),
+    },
+    "studies.error_vs_order": {
+        "t": ("number", "the time at which the truncated series is compared"),
+        "t_fraction": ("number in (0, 1)", "or t as this fraction of the theoretical radius of convergence"),
+        "orders": ("list of integers", "the orders (or max_order, min_order, step)"),
+        "max_order": ("integer", "the largest order"),
+        "min_order": ("integer", "the smallest order"),
+        "step": ("integer", "the step between orders"),
+        "dps": ("integer", "digits of the series and of the reference"),
+        "fit_min_order": ("integer", "the smallest order in the rate fit (default: the upper half)"),
+    },
+    "studies.work_precision": {
+        "t": ("number", "the final time (default run.t)"),
+        "methods": ("array of method tables", "settings may be lists: one row per value"),
+        "repeat": ("integer 1..100", "best-of repeats of each timing"),
+    },
+    "studies.drift": {
+        "t": ("positive number", "the final time (long: 10^4 steps and more)"),
+        "precision": ("'double' | 'long double' | 'quad' | bits", "heyoka's precision"),
+        "samples": ("integer 6..100000", "log-spaced sample times"),
+        "tol": ("number in (0, 1)", "heyoka's tolerance (default: epsilon)"),
+        "ensemble": ("integer 1..1000", "runs from perturbed copies of the initial state"),
+        "perturbation": ("positive number", "their size, relative to max |y0|"),
+        "seed": ("integer >= 0", "the seed of the perturbations"),
+        "first": ("positive number", "the first sample time (default t / 1000)"),
+    },
+    "report": {
+        "plots": ("list of names", "trajectory, error_vs_order, work_precision, drift (default: one per study)"),
+    },
+    "stability": {
+        "analysis": ("name", "none | saddle | scaled | drift | stiff | divergence | atlas"),
+        "headline": ("string", "the method (label) of the case's row in the one-row-per-case table"),
+        "headline_model": ("string", "the model of that row"),
+        "expect": ("status", "the status the headline row must end with"),
+        "expect_message": ("string", "a text its message must hold"),
+        "threshold": ("positive number", "saddle: the departure threshold"),
+        "beyond": ("positive number", "divergence: t beyond the radius, as a multiple of it"),
+        "inside": ("number in (0, 1)", "divergence: t inside the radius, as a fraction of it"),
+        "orders": ("list of integers", "divergence: the orders"),
+        "dps": ("integer", "divergence: the digits"),
+        "invariants": ("list of names", "the invariants whose drift the row reports (default: all)"),
+        "note": ("string", "a sentence for the report"),
+    },
+}
+
+
+def _schema() -> dict:
+    """The schema as {section: {field: default}} (None for no default, "required" for required fields)."""
+    def defaults(spec):
+        return {k: ("required" if d is _REQUIRED else d) for k, (_c, d) in spec.items()}
+
+    out = {"": defaults(_TOP_FIELDS)}
+    for kind, spec in _MODEL_FIELDS.items():
+        out[f"model.{kind}"] = defaults(spec)
+    for fam, spec in _INITIAL_FIELDS.items():
+        out[f"initial.{fam}"] = defaults(spec)
+    out["run"] = defaults(_RUN_FIELDS)
+    for name, spec in _method_fields(False).items():
+        out[f"method.{name}"] = defaults(spec)
+    for name, spec in _STUDY_FIELDS.items():
+        out[f"studies.{name}"] = defaults(spec)
+    out["report"] = {"plots": None}
+    out["stability"] = defaults(_stability_fields())
+    return out
+
+
+def scene_reference() -> str:
+    """docs/scenes.md: every field of the scene format with its type, default and meaning."""
+    heads = {"": "Top level", "run": "[run]", "report": "[report]", "stability": "[stability]"}
+    lines = [
+        "# Scene format",
+        "",
+        "A scene is a TOML file that says what to integrate, how, and which studies and plots its report needs;",
+        "nothing more is computed. `lieseries run FILE.toml` runs one; `lieseries scenes` lists the built-in ones",
+        "(`lieseries/data/scenes/`). Numbers may be strings, read exactly (`\"0.1\"` is 1/10); every number lies",
+        f"within 1e-{MAX_MAGNITUDE} .. 1e{MAX_MAGNITUDE} in magnitude. An unknown or invalid field is refused with",
+        "its dotted path (`run.methods[1].precision`).",
+        "",
+        "This page is generated from the schema in `lieseries/scenes.py` (`scene_reference()`), and a test checks",
+        "that the two agree.",
+        "",
+    ]
+    schema = _schema()
+    for section, fields in schema.items():
+        kind = section.split(".", 1)
+        if section in heads:
+            title = heads[section]
+        elif kind[0] == "model":
+            title = f"[model] kind = \"{kind[1]}\""
+        elif kind[0] == "initial":
+            title = f"[initial] for {kind[1].replace('_', ' ')} models"
+        elif kind[0] == "method":
+            title = f"a method table: method = \"{kind[1]}\" (`label` optional)"
+        else:
+            title = f"[{section}]"
+        lines += [f"## {title}", "", "| field | type | default | meaning |", "|---|---|---|---|"]
+        for field, default in fields.items():
+            typ, meaning = FIELD_DOCS[section][field]
+            shown = "required" if default == "required" else ("-" if default is None else f"`{default!r}`")
+            lines.append(f"| `{field}` | {typ} | {shown} | {meaning} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
 @dataclass
 class ModelSpec:
     """One model of a scene: its label, kind and parameters (as given, validated)."""
@@ -422,10 +621,13 @@ class ModelSpec:
     label: str
     kind: str
     params: dict
+    base: str | None = None  # the folder of the scene file (a python model's `file` is relative to it)
 
     def build(self):
         from .models import DampedEulerPoisson, EulerPoisson, Sphere, SphereDirac
 
+        if self.kind == "python":
+            return _python_model(self.params["file"], self.params["factory"], self.base)
         if self.kind == "euler_poisson":
             return EulerPoisson(self.params["inertia"], bracket=self.params["bracket"])
         if self.kind == "damped_euler_poisson":
@@ -478,11 +680,20 @@ class Scene:
         """[(label, model)] for every model of the scene."""
         return [(m.label, m.build()) for m in self.models]
 
-    def initial_state(self, model, precision=INITIAL_BITS):
-        """The initial state of ``model`` from the scene's [initial] table, in ``precision``."""
+    def initial_state(self, model, precision=None):
+        """The initial state of ``model`` from the scene's [initial] table: exact (an ExactState, which every
+        method rounds once to its own precision), or rounded to ``precision``."""
         ini = self.initial
         if self.family == "rigid_body":
             return model.initial_state(ini["omega"], R0=ini.get("R0"), precision=precision)
+        if self.family == "state":
+            from .models.base import make_state
+            from .poisson import as_poisson_system
+
+            n = as_poisson_system(model).dimension
+            if len(ini["y0"]) != n:
+                raise ValueError(f"`initial.y0` must have {n} numbers, one per variable; got {len(ini['y0'])}")
+            return make_state(ini["y0"], precision)
         return model.initial_state(ini["x"], ini["v"], precision=precision)
 
     def to_dict(self) -> dict:
@@ -528,7 +739,8 @@ def _model_spec(data, path, label_required=False) -> ModelSpec:
     spec.update(_MODEL_FIELDS[kind])
     out = _table(data, path, spec)
     label = out.pop("label") or {"euler_poisson": "rigid body", "damped_euler_poisson": "damped rigid body",
-                                 "sphere": "sphere (5-d chart)", "sphere_dirac": "sphere (Dirac)"}[kind]
+                                 "sphere": "sphere (5-d chart)", "sphere_dirac": "sphere (Dirac)",
+                                 "python": "model"}[kind]
     out.pop("kind")
     return ModelSpec(label=label, kind=kind, params=out)
 
@@ -550,19 +762,7 @@ def parse_scene(data, source: str = "<scene>", path: str | None = None) -> Scene
             raise SceneError(f"{source} is not valid TOML: {err}") from None
     if not isinstance(data, dict):
         raise SceneError(f"{source}: a scene must be a TOML table; got {_show(data)}")
-    top = {
-        "name": (_scene_name, _REQUIRED),
-        "title": (_string, _REQUIRED),
-        "description": (_string, ""),
-        "model": (None, None),
-        "models": (None, None),
-        "initial": (None, _REQUIRED),
-        "run": (None, None),
-        "studies": (None, None),
-        "report": (None, None),
-        "stability": (None, None),
-    }
-    d = _table(data, "", top)
+    d = _table(data, "", _TOP_FIELDS)
     # models
     if (d["model"] is None) == (d["models"] is None):
         raise SceneError("a scene needs exactly one of `model` (a table) or `models` (an array of tables); "
@@ -608,6 +808,8 @@ def parse_scene(data, source: str = "<scene>", path: str | None = None) -> Scene
     if d["stability"] is not None:
         stability = _table(d["stability"], "stability", _stability_fields())
         _check_stability(stability, run, studies, plots, models)
+    for m in models:
+        m.base = str(Path(path).resolve().parent) if path else os.getcwd()
     scene = Scene(
         name=d["name"], title=d["title"], description=d["description"].strip(), models=models, initial=initial,
         run=run, studies=studies, plots=list(dict.fromkeys(plots)), source=text, path=path, stability=stability,
@@ -680,6 +882,34 @@ def _check_stability(st, run, studies, plots, models):
                              "(kind 'euler_poisson' or 'sphere')")
     if analysis == "atlas" and not any(m.kind == "sphere" for m in models):
         raise SceneError("`stability.analysis` = 'atlas' needs a model of kind 'sphere'")
+
+
+def _python_model(file: str, factory: str, base):
+    """The model or PoissonSystem that ``factory()`` in the Python file ``file`` returns (the file runs as code:
+    scenes that name one are as trusted as the file)."""
+    import importlib.util
+
+    from .poisson import as_poisson_system
+
+    p = Path(file) if Path(file).is_absolute() else Path(base or os.getcwd()) / file
+    if not p.is_file():
+        raise SceneError(f"`model.file`: {str(p)!r} not found (a path relative to the scene file)")
+    spec = importlib.util.spec_from_file_location(f"lieseries_scene_model_{p.stem}", p)
+    module = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    except Exception as err:  # the user's file: whatever it raises is a bad scene, said in one line
+        raise SceneError(f"`model.file`: running {p.name} raised {type(err).__name__}: {err}") from None
+    fn = getattr(module, factory, None)
+    if not callable(fn):
+        raise SceneError(f"`model.factory`: {p.name} has no function {factory!r}")
+    try:
+        model = fn()
+        as_poisson_system(model)
+    except Exception as err:
+        raise SceneError(f"`model.factory`: {factory}() in {p.name} must return a lieseries model or "
+                         f"PoissonSystem; {type(err).__name__}: {err}") from None
+    return model
 
 
 def _check_physics(scene: Scene, where: str):

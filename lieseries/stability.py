@@ -293,7 +293,7 @@ def _analysis_saddle(scene, result, rows, opts):
     built = dict(scene.build_models())
     mlabel = st["headline_model"]
     model = built[mlabel]
-    y0 = scene.initial_state(model, precision=256)
+    y0 = scene.initial_state(model)
     lam = saddle_rate(model, y0)
     traj = result.trajectories.get(mlabel, {})
     prec_of = {r.method: r.precision for r in rows if r.model == mlabel}
@@ -426,7 +426,7 @@ def _analysis_divergence(scene, result, rows, opts):
     mlabel = st["headline_model"]
     model = built[mlabel]
     dps = int(st["dps"])
-    y0 = scene.initial_state(model, precision=max(256, int(dps * 3.33) + 64))
+    y0 = scene.initial_state(model)
     rho_true = theoretical_radius(model, y0, dps=dps)
     orders = st["orders"]
     if orders is None:

@@ -10,13 +10,9 @@ import pytest
 import lieseries as ls
 from lieseries import exact
 from lieseries.precision import to_fraction
+from problems import mpf
 
 X0, V0 = ("0.6", "0", "0.8"), ("0", "1", "0")  # |x| = 1 exactly; a great circle through both poles' equators
-
-
-def mpf(q):
-    q = to_fraction(q)
-    return mp.mpf(q.numerator) / q.denominator
 
 
 def position_errors(model, sol, times, dps):

@@ -2,14 +2,14 @@
 
 import heyoka as hy
 import mpmath as mp
-import numpy as np
 import pytest
 
 import lieseries as ls
 from lieseries import exact
 from lieseries.precision import to_fraction
 
-INERTIA, OMEGA = (1, 2, 3), (1, "0.1", "0.5")
+from problems import RIGID_INERTIA as INERTIA
+from problems import RIGID_OMEGA as OMEGA
 T = 16
 
 

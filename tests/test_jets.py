@@ -17,7 +17,7 @@ import sympy
 from lieseries.lie import compile_expressions, compile_system, taylor_coefficients
 from lieseries.expr import Program
 
-from _systems import RB_PARS, RB_Y0, SPHERE_M, max_rel, rigid_body, sphere, sphere_initial  # test systems
+from problems import RB_PARS, RB_Y0, SPHERE_M, max_rel, rigid_body, sphere, sphere_initial  # test systems
 
 
 def heyoka_tc(variables, rhs, y0, pars, **kw):

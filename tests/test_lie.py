@@ -8,14 +8,9 @@ import pytest
 
 import lieseries as ls
 from lieseries import exact
-from lieseries.precision import to_fraction
+from problems import mpf
 
 OMEGA = (1, "0.1", "0.5")
-
-
-def mpf(q):
-    q = to_fraction(q)
-    return mp.mpf(q.numerator) / q.denominator
 
 
 @pytest.fixture(scope="module")

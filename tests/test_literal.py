@@ -15,7 +15,7 @@ from lieseries.lie.literal import (
     literal_series_symbolic,
 )
 
-from _systems import SPHERE_M, max_rel, nonlinear, rigid_body, sphere, sphere_initial  # test systems
+from problems import SPHERE_M, max_rel, nonlinear, rigid_body, sphere, sphere_initial  # test systems
 
 # the rigid body's data as exact Fractions (test_jets uses decimal strings for the same numbers)
 RB_INERTIA = (1, 2, 3)

@@ -18,7 +18,6 @@ from lieseries.scenes import (
     parse_scene,
 )
 
-HAS_LIE_SERIES = hasattr(ls, "lie_series")
 BUILTINS = [name for name, _ in builtin_scenes()]
 
 RIGID = """
@@ -192,7 +191,7 @@ def test_builtin_scene_quick_report_has_what_it_asks_for(name, tmp_path):
         assert (SECTION_TITLES[study] in heads) == (study in scene.studies), study
         assert (study in res.studies) == (study in scene.studies)
     for plot in ("trajectory", "error_vs_order", "work_precision", "drift"):
-        expected = plot in scene.plots and (plot != "error_vs_order" or HAS_LIE_SERIES)
+        expected = plot in scene.plots
         assert (tmp_path / f"{plot}.png").is_file() == expected, plot
         assert (f"({plot}.png)" in md) == expected, plot
     data = json.loads((tmp_path / "data.json").read_text())
@@ -210,7 +209,7 @@ def test_builtin_scene_quick_report_has_what_it_asks_for(name, tmp_path):
                 assert r.error < 1e4 * eps, (r.label, r.error)
         # the numbers in the table are the ones computed
         assert f"{rows[0].error:.2e}" in md
-    if "error_vs_order" in scene.studies and HAS_LIE_SERIES:
+    if "error_vs_order" in scene.studies:
         for _, ev in res.studies["error_vs_order"]:
             if ev.radius_theory:
                 assert abs(ev.radius_measured / ev.radius_theory - 1) < 0.15
@@ -259,3 +258,40 @@ def test_markdown_table_aligns_numbers():
     assert lines[1].endswith("-: |")
     assert len({len(line) for line in lines}) == 1
     assert lines[2].index("1.00e-03") == lines[3].index("2.50e-16")
+
+
+def test_scene_reference_is_generated_from_the_schema():
+    """docs/scenes.md is what scene_reference() writes, and every field of the schema has a type and meaning."""
+    from pathlib import Path
+
+    from lieseries.scenes import FIELD_DOCS, _schema, scene_reference  # noqa: PLC2701 (same-project test)
+
+    schema = _schema()
+    for section, fields in schema.items():
+        assert set(fields) == set(FIELD_DOCS[section]), section
+    assert set(FIELD_DOCS) == set(schema)
+    doc = Path(__file__).resolve().parents[1] / "docs" / "scenes.md"
+    assert doc.read_text() == scene_reference() + "\n", "regenerate docs/scenes.md from scene_reference()"
+
+
+def test_a_scene_can_run_a_model_from_a_python_file(tmp_path):
+    """kind = "python": a user's own PoissonSystem (a pendulum) as a scene, measured against heyoka at 256 bits."""
+    (tmp_path / "pendulum.py").write_text(
+        "import heyoka as hy\nimport lieseries as ls\n\n\ndef make():\n    q, p = hy.make_vars('q', 'p')\n"
+        "    return ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 - hy.par[0] * hy.cos(q),\n"
+        "                            parameters={'g': 1}, name='pendulum')\n"
+    )
+    (tmp_path / "pend.toml").write_text(
+        'name = "pendulum"\ntitle = "t"\n[model]\nkind = "python"\nfile = "pendulum.py"\n[initial]\n'
+        'y0 = ["0.5", 0]\n[run]\nt = 10\nmethods = [{ method = "taylor" }, { method = "lie", dps = 20 }]\n'
+    )
+    scene = load_scene(str(tmp_path / "pend.toml"))
+    res = run_scene(scene, progress=False)
+    rows = {r.method: r for r in res.run["rows"]}
+    assert rows["taylor"].status == "success" and rows["taylor"].error < 1e-14
+    assert rows["lie"].status == "success" and rows["lie"].error < 1e-19
+    assert "numerical" in res.run["reference"] or "heyoka" in res.run["reference"]
+    bad = tmp_path / "bad.toml"
+    bad.write_text((tmp_path / "pend.toml").read_text().replace('file = "pendulum.py"', 'file = "nope.py"'))
+    with pytest.raises(SceneError, match="`model.file`"):
+        run_scene(load_scene(str(bad)), progress=False)

@@ -44,11 +44,6 @@ def quick_all():
     return stability(quick=True)
 
 
-def mpf(q):
-    q = to_fraction(q)
-    return mp.mpf(q.numerator) / q.denominator
-
-
 # -- the scenes ------------------------------------------------------------------------------------------------
 def test_extreme_scenes_are_apart_from_the_builtins():
     """The cases are listed by extreme_scenes(), found by name, and kept out of builtin_scenes() (whose runs must

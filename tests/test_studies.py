@@ -22,17 +22,11 @@ from lieseries.studies import (
 )
 from lieseries.studies.convergence import fit_geometric_rate
 from lieseries.studies.drift import growth_exponent
+from problems import mpf
 
-HAS_LIE_SERIES = hasattr(ls, "lie_series")
-HAS_LIE_INTEGRATE = hasattr(ls, "lie_integrate")
 
 #: Two rigid-body motions on the two elliptic branches: (omega, branch)
 RIGID_CASES = [((1, "0.1", "0.5"), "below"), (("0.5", "0.1", 1), "above")]
-
-
-def mpf(q):
-    q = to_fraction(q)
-    return mp.mpf(q.numerator) / q.denominator
 
 
 def heyoka_series(system, y0, order, dps):
@@ -132,7 +126,6 @@ def test_error_vs_order_sphere_chart_radius_with_heyoka_coefficients(monkeypatch
     assert abs(res.radius_measured / res.radius_theory - 1) < 0.1
 
 
-@pytest.mark.skipif(not HAS_LIE_SERIES, reason="ls.lie_series is not available yet")
 @pytest.mark.parametrize("omega,branch", RIGID_CASES, ids=[b for _, b in RIGID_CASES])
 def test_lie_series_radius_matches_pole_distance(omega, branch):
     """The real Lie series of the rigid body: measured radius within 10% of the pole distance, on both branches."""
@@ -144,7 +137,6 @@ def test_lie_series_radius_matches_pole_distance(omega, branch):
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not HAS_LIE_SERIES, reason="ls.lie_series is not available yet")
 @pytest.mark.parametrize("fraction", [0.5, 0.8])
 def test_lie_series_radius_high_order(fraction):
     """Orders up to 80 at 100 digits, closer to and further from the radius."""
@@ -184,11 +176,7 @@ def test_work_precision_errors_follow_the_tolerance():
     assert by["heyoka quad"][-1].error < 1e-22
     odefun = by["mpmath odefun 15 dps"][0]
     assert odefun.t == 0.5 and odefun.error < 1e-12  # capped span, measured at the time it reached
-    if HAS_LIE_INTEGRATE:
-        assert by["Lie series 30 dps"][0].error < 1e-15
-    else:
-        assert any("lie_integrate" in n for n in wp.notes)
-        assert "Lie series 30 dps" not in by
+    assert by["Lie series 30 dps"][0].error < 1e-15
 
 
 def test_work_precision_numerical_reference_for_a_plain_poisson_system():

@@ -8,13 +8,8 @@ import numpy as np
 import pytest
 
 import lieseries as ls
-from lieseries.precision import to_fraction
 from lieseries.taylor import build_integrator
-
-
-def mpf(q):
-    q = to_fraction(q)
-    return mp.mpf(q.numerator) / q.denominator
+from problems import mpf
 
 
 def great_circle(x0, v0, t):

@@ -10,7 +10,6 @@ import pickle
 import threading
 import time
 import warnings
-from fractions import Fraction
 
 import heyoka as hy
 import mpmath as mp
@@ -21,15 +20,9 @@ import lieseries as ls
 from lieseries import exact
 from lieseries.precision import PrecisionWarning, to_fraction
 
-INERTIA, OMEGA = (1, 2, 3), (1, "0.1", "0.5")
-
-
-def body_error(sol_row, t, dps=80):
-    """Max |state - closed form| at t, the closed form from the exact decimal data."""
-    ref = exact.euler_poisson(INERTIA, OMEGA, t, dps=dps)
-    with mp.workdps(dps):
-        return max(abs(mp.mpf(to_fraction(a).numerator) / to_fraction(a).denominator - b)
-                   for a, b in zip(sol_row, ref))
+from problems import RIGID_INERTIA as INERTIA
+from problems import RIGID_OMEGA as OMEGA
+from problems import rigid_error as body_error
 
 
 # -- 1. precision carried by the data -----------------------------------------------------------------------------

@@ -28,7 +28,8 @@ from ..poisson import as_poisson_system
 from ..precision import check_count, resolve_precision, to_fraction
 from .reference import loglog_slope
 
-__all__ = ["Drift", "drift", "growth_exponent"]
+__all__ = [
+    "Drift", "drift", "growth_exponent", "invariant_function"]
 
 
 @dataclass
@@ -112,7 +113,7 @@ def growth_exponent(steps, errors) -> float | None:
     return loglog_slope(s[h:], env[h:])
 
 
-def _invariant_function(system, dps: int):
+def invariant_function(system, dps: int):
     """f(state or states) -> dict name -> mpf (list of mpf for a 2-d array), from the model's ``invariants`` or,
     for a bare PoissonSystem, H and its declared Casimirs evaluated exactly from the states at ``dps`` digits."""
     if hasattr(system, "invariants"):
@@ -200,7 +201,7 @@ def drift(system, y0, t, precision="double", samples: int = 200, tol=None, *, en
     grid = [Fraction(v).limit_denominator(2**40) for v in np.geomspace(float(t_first), float(tf), int(samples))]
     grid[-1] = tf
     grid = sorted(set(grid))
-    inv_fn = _invariant_function(system, prec.dps + 10)
+    inv_fn = invariant_function(system, prec.dps + 10)
     free = _perturbable(system, ps.dimension)
     rng = np.random.default_rng(seed)
     scale_y = max(abs(float(v)) for v in z0) or 1.0

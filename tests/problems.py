@@ -1,9 +1,37 @@
-"""Test systems written by hand as heyoka expressions, shared by the jet and literal-operator tests."""
+"""The shared registry of test problems: systems, initial states, references, and the exact-to-mpf helper.
+
+Every test file takes its problems from here, so that one problem is written once: the asymmetric rigid body of
+the tutorial (RIGID_INERTIA, RIGID_OMEGA) with its closed form, the great circle on the unit sphere (SPHERE_X0,
+SPHERE_V0), and hand-written systems for the jet and literal engines.
+"""
 
 from fractions import Fraction
 
 import heyoka as hy
 import mpmath as mp
+
+from lieseries import exact
+from lieseries.precision import to_fraction
+
+#: The tutorial's body: I = (1, 2, 3), Omega(0) = (1, 0.1, 0.5) exactly, R(0) = 1.
+RIGID_INERTIA = (1, 2, 3)
+RIGID_OMEGA = (1, "0.1", "0.5")
+#: A great circle through the equators of the unit sphere: x(t) = x0 cos t + v0 sin t.
+SPHERE_X0, SPHERE_V0 = ("0.6", "0", "0.8"), ("0", "1", "0")
+
+
+def mpf(q):
+    """The exact value of ``q`` (any number lieseries accepts) as an mpf at the current mpmath precision."""
+    q = to_fraction(q)
+    return mp.mpf(q.numerator) / q.denominator
+
+
+def rigid_error(row, t, dps=80, inertia=RIGID_INERTIA, omega=RIGID_OMEGA):
+    """Max |state - closed form| of the rigid body at t (the closed form from the exact data)."""
+    ref = exact.euler_poisson(inertia, omega, t, dps=dps)
+    with mp.workdps(dps):
+        return max(abs(mpf(a) - b) for a, b in zip(row, ref))
+
 
 RB_PARS = [Fraction(1), Fraction(1, 2), Fraction(1, 3)]  # 1/I for I = (1, 2, 3)
 RB_Y0 = [1, 0, 0, 0, 1, 0, 0, 0, 1, 1, "0.2", "1.5"]  # R = 1, M = I (1, 0.1, 0.5)
