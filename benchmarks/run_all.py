@@ -11,6 +11,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import lie_vs_odefun  # noqa: E402
+import overhead  # noqa: E402
 import taylor_vs_scipy  # noqa: E402
 
 if __name__ == "__main__":
@@ -19,5 +20,7 @@ if __name__ == "__main__":
     args = ap.parse_args()
     print("== heyoka (double) vs scipy DOP853 ==")
     taylor_vs_scipy.main()
+    print("\n== the wrapper's cost: ls.integrate vs the bare heyoka integrator vs DOP853 ==")
+    overhead.main()
     print("\n== lie_integrate vs mpmath.odefun vs heyoka, arbitrary precision ==")
     lie_vs_odefun.main(T=2 if args.quick else 10)

@@ -44,7 +44,7 @@ def best_of(fn, repeat):
 
 def main(repeat: int = 7) -> dict:
     body = ls.EulerPoisson(INERTIA)
-    y0 = body.initial_state((1.0, 0.1, 0.5))
+    y0 = body.initial_state((1, "0.1", "0.5"))
     ref = ls.integrate(body, y0, t=T, precision=256, tol=2.0**-240)
     yref = np.array([float(to_fraction(v)) for v in ref.y[-1]])
 

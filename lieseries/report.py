@@ -434,6 +434,10 @@ def _section_drift(result, lines, csvs, plotted):
         lines.append(f"**{mlabel}**: heyoka {dr.precision}, tol {fmt_sci(dr.tol)}, t = {t_end}, "
                      f"{dr.total_steps} steps, order {dr.order}, run time {fmt_sci(dr.run_time)} s{ens}; "
                      f"status {dr.status}.")
+        if dr.status != "success":
+            reach = f"up to t = {fmt_num(dr.times[-1])}" if dr.times else "at no sample time"
+            lines.append(f"The run stopped early ({dr.message}); the drift below is measured {reach}, and empty "
+                         "cells mean no sample was reached.")
         lines.append("")
         h = ["invariant", "I(0)", "final drift", "max drift", "Brouwer eps sqrt(N) |I(0)|", "exponent p",
              "growth"]
