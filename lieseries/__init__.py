@@ -9,6 +9,7 @@ Public API (stable names)::
     ls.PrecisionWarning                            binary data fed to a run above their precision
     ls.lie_series, ls.LieSeries                    the truncated operator exp(t X_H) at a point, in mpmath
     ls.lie_integrate                               adaptive Lie-series stepping, same Solution type
+    ls.validated_integrate                         certified enclosures (Arb balls) of the solution
     ls.rigid_body_series                           R(t) from R0 = 1 as an exact series in t (paper, dt61)
     ls.Solution, ls.Stats                          what integrators return
     ls.exact                                       closed-form references in mpmath
@@ -25,6 +26,7 @@ from .lie.integrator import lie_integrate
 from .lie.operator import LieSeries, lie_series
 from .lie.symbolic import rigid_body_series
 from .taylor import integrate
+from .validated import validated_integrate
 
 __all__ = [
     "exact",
@@ -46,6 +48,7 @@ __all__ = [
     "LieSeries",
     "lie_integrate",
     "rigid_body_series",
+    "validated_integrate",
 ]
 
 __version__ = "0.1.0"

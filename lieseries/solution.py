@@ -19,6 +19,7 @@ STATUSES = {
     "step_budget": "the step budget (max_steps) ran out",
     "time_budget": "the wall-time budget (max_time) ran out",
     "divergent": "the Lie series diverges at the requested step (beyond its radius of convergence)",
+    "validation_failed": "a validated run could not prove the next enclosure (where and why in the message)",
     "invariant_drift": "reached the final time, but a conserved quantity drifted: the result is wrong",
 }
 

@@ -1,0 +1,91 @@
+"""Certified enclosures (Arb balls): they contain the exact solution, they are not vacuous, and they fail loudly.
+
+Every containment is checked exactly: the reference (closed form at many more digits) is turned into an exact
+rational and asked to lie in the ball. A reference moved by a little more than the ball's radius must not lie in it.
+"""
+
+from fractions import Fraction
+
+import flint
+import heyoka as hy
+import mpmath as mp
+import pytest
+
+import lieseries as ls
+from lieseries import exact
+from lieseries.precision import to_fraction
+from lieseries.validated import certified_digits, radii, validated_integrate
+from problems import RIGID_INERTIA, RIGID_OMEGA
+
+
+def inside(ball, value) -> bool:
+    """The real number ``value`` (any exact or mpf number) lies in ``ball``, decided exactly."""
+    q = to_fraction(value)
+    old = flint.ctx.prec
+    flint.ctx.prec = max(old, 64 + q.numerator.bit_length() + q.denominator.bit_length())
+    try:
+        return ball.contains(flint.arb(flint.fmpq(q.numerator, q.denominator)))
+    finally:
+        flint.ctx.prec = old
+
+
+def test_rigid_body_enclosures_contain_the_closed_form():
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    times = [Fraction(k, 4) for k in range(1, 9)]
+    sol = validated_integrate(body, body.initial_state(omega=RIGID_OMEGA), t=times, dps=30)
+    assert sol.status == "success", sol.message
+    refs = exact.euler_poisson_many(RIGID_INERTIA, RIGID_OMEGA, times, dps=70)
+    assert all(inside(b, v) for row, ref in zip(sol.y, refs) for b, v in zip(row, ref))
+    # not vacuous: the balls are far narrower than the coefficients' size, and a slightly wrong value is outside
+    assert max(radii(sol)[-1]) < 1e-24 and min(certified_digits(sol)) > 24
+    r = sol.y[-1][10].rad()
+    assert not inside(sol.y[-1][10], refs[-1][10] + 4 * mp.mpf(float(r)))
+    # R^T R = 1 is certified within the enclosure's own width: the ball of R^T R - 1 contains 0
+    R = [[sol.y[-1][3 * i + j] for j in range(3)] for i in range(3)]
+    old = flint.ctx.prec
+    flint.ctx.prec = 200
+    try:
+        for i in range(3):
+            for j in range(3):
+                e = sum(R[k][i] * R[k][j] for k in range(3)) - (1 if i == j else 0)
+                assert e.contains(flint.arb(0)) and e.rad() < 1e-22
+    finally:
+        flint.ctx.prec = old
+
+
+def test_uncertain_initial_data_enclose_every_solution_from_the_box():
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    exact_y0 = list(body.initial_state(omega=RIGID_OMEGA).exact)
+    rad = Fraction(1, 10**12)
+    y0 = exact_y0[:9] + [(m, rad) for m in exact_y0[9:]]  # M known to 1e-12
+    sol = validated_integrate(body, y0, t=[Fraction(1, 2), Fraction(1)], dps=30)
+    assert sol.status == "success"
+    assert 1e-13 < max(radii(sol)[-1]) < 1e-9  # the uncertainty, propagated, not the arithmetic's 1e-30
+    for dM in ([rad, -rad, rad], [-rad, rad, 0], [0, 0, -rad]):
+        omega = [(exact_y0[9 + i] + dM[i]) / RIGID_INERTIA[i] for i in range(3)]
+        for tk, row in zip([Fraction(1, 2), Fraction(1)], sol.y):
+            ref = exact.euler_poisson(RIGID_INERTIA, omega, tk, dps=40)
+            assert all(inside(b, v) for b, v in zip(row, ref))
+
+
+def test_a_blow_up_is_validation_failed_and_what_was_proved_stays_true():
+    """dq/dt = q^2 from q = 1: q = 1 / (1 - t) blows up at t = 1; no enclosure can pass it."""
+    q, p = hy.make_vars("q", "p")
+    sys_ = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p * q**2, name="blow-up")
+    times = [Fraction(1, 4), Fraction(1, 2), Fraction(3, 2)]
+    sol = validated_integrate(sys_, [1, 0], t=times, dps=20)
+    assert sol.status == "validation_failed" and "t = " in sol.message
+    assert float(sol.t_reached) < 1
+    for tk, row in zip(sol.t, sol.y):
+        assert inside(row[0], 1 / (1 - to_fraction(tk)))  # q(t) = 1 / (1 - t), exactly
+
+
+def test_bad_input_is_named():
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    y0 = body.initial_state(omega=RIGID_OMEGA)
+    with pytest.raises(ValueError, match="`dps`"):
+        validated_integrate(body, y0, t=1, dps=3)
+    with pytest.raises(ValueError, match=r"`y0\[9\]` radius"):
+        validated_integrate(body, list(y0.exact[:9]) + [(1, -1), 0, 0], t=1)
+    with pytest.raises(ValueError, match="`y0`"):
+        validated_integrate(body, [1, 2], t=1)
