@@ -22,7 +22,8 @@ def inside(ball, value) -> bool:
     """The real number ``value`` (any exact or mpf number) lies in ``ball``, decided exactly."""
     q = to_fraction(value)
     old = flint.ctx.prec
-    flint.ctx.prec = max(old, 64 + q.numerator.bit_length() + q.denominator.bit_length())
+    flint.ctx.prec = max(old, 512, 64 + q.numerator.bit_length() + q.denominator.bit_length())  # exact, or far
+    # narrower than any enclosure here
     try:
         return ball.contains(flint.arb(flint.fmpq(q.numerator, q.denominator)))
     finally:
