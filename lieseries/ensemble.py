@@ -1,0 +1,609 @@
+"""Ensembles: one system from k initial conditions (and per-member parameters), locally or on a Dask cluster.
+
+Paths
+-----
+``"double"``
+    heyoka's batch mode (:class:`heyoka.taylor_adaptive_batch`): ``batch_size`` members (default
+    ``heyoka.recommended_simd_size()``) advance together in the SIMD lanes, each lane with its own step size, so
+    every member takes the same steps as its single run. Batches are spread over ``workers`` threads (heyoka
+    releases the GIL while it integrates). Each thread works on its own copy of the cached compiled integrator
+    (integrators are not thread-safe); one copy per thread, not per batch, because copying an integrator costs
+    about as much as integrating eight rigid bodies to T = 20.
+``"long double"``, ``"quad"``, bits (arbitrary precision)
+    heyoka has no batch mode in these types: every member is a single run (``single_run``, normally
+    :func:`lieseries.integrate`), one after another, or in ``workers`` processes when ``workers`` > 1 (each
+    process compiles once and keeps its own cache).
+
+Statuses and the guards
+-----------------------
+Every member ends with the status its single run would end with. In batch mode heyoka stops the whole batch when
+one lane becomes non-finite or hits a terminal event (e.g. a sphere chart's edge): lanes stopped by a terminal
+event keep their state at the event (status from the model's event, as in a single run); a lane that became
+non-finite, and every lane the stop interrupted, is run again from its initial condition as a single run, which
+keeps the last finite state and applies the single run's guards (step collapse, stiffness, budgets). Batches are
+given a step budget of at most :data:`BATCH_STEPS` steps per lane: a lane that would need more is also handed to
+a single run, which decides between success, ``step_collapse`` and ``step_budget`` exactly as for one run. With
+``max_time`` (a per-member wall-time budget) every member runs as a single run.
+
+A member that stops early has NaN in the output rows after its stop; ``t_reached``/``y_reached`` give the last
+time and state it reached.
+
+Dask
+----
+``client=`` a :class:`dask.distributed.Client`: the members are cut into chunks (``chunk_size``), and each chunk is
+one task that receives the system (pickled: the model or PoissonSystem with its heyoka expressions, never a
+compiled integrator), the chunk's initial conditions already rounded to the working precision, and the options;
+the worker runs :func:`integrate_ensemble` on its chunk, compiling the integrator once per worker process (module
+cache). The chunks are gathered into one :class:`~lieseries.solution.EnsembleSolution`, equal to the local one.
+"""
+
+from __future__ import annotations
+
+import copy
+import numbers
+import os
+import threading
+import time as _time
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from fractions import Fraction
+
+import heyoka as hy
+import numpy as np
+
+from .models.base import Model, state_fractions
+from .poisson import PoissonSystem, as_poisson_system
+from .precision import Precision, resolve_precision, to_fraction
+from .solution import EnsembleSolution
+from .timegrid import parse_times
+
+__all__ = ["integrate_ensemble", "build_batch_integrator", "clear_batch_cache", "BATCH_STEPS"]
+
+#: Steps a lane may take inside a batch before it is handed to a single run (which decides whether the run is
+#: healthy and long, stiff, or collapsing; see the module docstring).
+BATCH_STEPS = 100_000
+DEFAULT_MAX_STEPS = 50_000_000
+
+_CACHE: dict = {}
+_CACHE_MAX = 16
+_CACHE_LOCK = threading.Lock()
+
+
+def clear_batch_cache() -> None:
+    """Forget every cached batch integrator (of this process)."""
+    with _CACHE_LOCK:
+        _CACHE.clear()
+
+
+def _tol_value(tol, prec: Precision) -> Fraction:
+    if tol is None:
+        return Fraction(1, 2 ** (prec.bits - 1))
+    f = to_fraction(tol, "tol")
+    if not (0 < f < 1):
+        raise ValueError(f"`tol` must lie in (0, 1) (a relative and absolute tolerance); got {float(f)}")
+    return f
+
+
+def build_batch_integrator(system, tol=None, batch_size=None, *, compact_mode=None):
+    """heyoka's ``taylor_adaptive_batch`` (double) for ``system``, from this process's cache when possible.
+
+    The cache key is (system structure, precision, tolerance, terminal events, batch size, compact mode); model
+    parameters are runtime parameters, so bodies of different inertia share one compiled integrator. The
+    returned object is the cached one: copy it (``copy.deepcopy``) before integrating in more than one thread.
+
+    Returns
+    -------
+    ta : heyoka.taylor_adaptive_batch
+    build_time : float   seconds spent compiling (0.0 on a cache hit)
+    event_info : list of (status, message), one per terminal event of the model, in heyoka's order
+    """
+    ps = as_poisson_system(system)
+    prec = resolve_precision("double")
+    tolf = _tol_value(tol, prec)
+    B = _check_batch_size(batch_size)
+    evs = system.events() if isinstance(system, Model) else []
+    n = ps.dimension
+    if compact_mode is None:
+        compact_mode = n > 20
+    key = (ps.key, prec.name, tolf, tuple(str(e[0]) for e in evs), B, bool(compact_mode))
+    with _CACHE_LOCK:
+        hit = _CACHE.get(key)
+        if hit is not None:
+            return hit[0], 0.0, hit[1]
+        kwargs = dict(tol=float(tolf), compact_mode=bool(compact_mode))
+        if evs:
+            kwargs["t_events"] = [hy.t_event_batch(e[0]) for e in evs]
+        npar = len(ps.parameter_values)
+        if npar:
+            kwargs["pars"] = np.repeat(np.array([float(v) for v in ps.parameter_values]), B).reshape(npar, B)
+        start = _time.perf_counter()
+        ta = hy.taylor_adaptive_batch(ps.ode_system, np.zeros((n, B)), **kwargs)
+        build = _time.perf_counter() - start
+        info = [(e[1], e[2]) for e in evs]
+        if len(_CACHE) >= _CACHE_MAX:
+            _CACHE.pop(next(iter(_CACHE)))
+        _CACHE[key] = (ta, info)
+        return ta, build, info
+
+
+# -- input checks ------------------------------------------------------------------------------------------------
+def _check_batch_size(batch_size) -> int:
+    if batch_size is None:
+        return int(hy.recommended_simd_size())
+    if isinstance(batch_size, bool) or not isinstance(batch_size, numbers.Integral) or batch_size < 1:
+        raise ValueError(f"`batch_size` must be a positive integer; got {batch_size!r}")
+    return int(batch_size)
+
+
+def _check_count(value, argname):
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+        raise ValueError(f"`{argname}` must be a positive integer; got {value!r}")
+    return int(value)
+
+
+def _structure(system):
+    """(structure system, list of per-member systems or None) from a model/PoissonSystem or a list of them."""
+    if isinstance(system, (list, tuple)):
+        if not system:
+            raise ValueError("`system` as a list must hold at least one model")
+        pss = [as_poisson_system(s, f"system[{i}]") for i, s in enumerate(system)]
+        key = pss[0].key
+        for i, p in enumerate(pss):
+            if p.key != key:
+                raise ValueError(
+                    f"`system[{i}]` has another structure than `system[0]` ({p.name} vs {pss[0].name}): every "
+                    "member of an ensemble must be the same model with other parameter values (e.g. inertia)"
+                )
+            if type(system[i]) is not type(system[0]):
+                raise ValueError(f"`system[{i}]` is a {type(system[i]).__name__}, `system[0]` a "
+                                 f"{type(system[0]).__name__}: pass models of one kind")
+        ev0 = [str(e[0]) for e in system[0].events()] if isinstance(system[0], Model) else []
+        for i, s in enumerate(system):
+            evi = [str(e[0]) for e in s.events()] if isinstance(s, Model) else []
+            if evi != ev0:
+                raise ValueError(f"`system[{i}]` watches other events than `system[0]`; pass models of one kind")
+        return system[0], list(system)
+    as_poisson_system(system)
+    return system, None
+
+
+def _states(model, ps, Y0, prec: Precision):
+    """Y0 checked and rounded once to the working precision: (native array (k, n), exact or None)."""
+    n = ps.dimension
+    if isinstance(Y0, np.ndarray) and Y0.dtype != object:
+        arr = Y0
+    else:
+        if isinstance(Y0, (str, bytes)) or np.ndim(Y0) == 0:
+            raise ValueError(f"`Y0` must have shape (k, {n}): one initial state per row; got {type(Y0).__name__}")
+        try:
+            arr = np.asarray(Y0, dtype=object)
+        except ValueError:
+            raise ValueError(f"`Y0` must have shape (k, {n}): rows of equal length {n}") from None
+    if arr.ndim != 2 or arr.shape[1] != n or arr.shape[0] < 1:
+        raise ValueError(f"`Y0` must have shape (k, {n}) with k >= 1: one initial state of {n} numbers per row; "
+                         f"got shape {arr.shape}")
+    plain_check = model is None or type(model).check_state is Model.check_state
+    if plain_check and arr.dtype in (np.float64, np.longdouble) and prec.name in ("double", "long double"):
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            i, j = map(int, np.argwhere(bad)[0])
+            raise ValueError(f"`Y0[{i}][{j}]` must be finite; got {arr[i, j]}: every entry of `Y0` must be a "
+                             "finite number")
+        return arr.astype(prec.numpy_dtype), None  # exact (widening) or rounded once (long double -> double)
+    rows = []
+    for i in range(arr.shape[0]):
+        if model is not None:
+            rows.append(model.check_state(arr[i], f"Y0[{i}]"))
+        else:
+            rows.append(state_fractions(arr[i], n, f"Y0[{i}]"))
+    return np.stack([prec.array(r) for r in rows]), rows
+
+
+def _parameters(ps, params, members, k, prec: Precision):
+    """Per-member parameter values (exact Fractions, (k, npar)) or None when every member uses the system's own."""
+    npar = len(ps.parameter_values)
+    if members is not None:
+        if len(members) != k:
+            raise ValueError(f"`system` as a list must give one model per row of `Y0` ({k}); got {len(members)}")
+        if params is not None:
+            raise ValueError("pass either `params` or a list of models as `system`, not both")
+        return [list(as_poisson_system(m).parameter_values) for m in members]
+    if params is None:
+        return None
+    arr = params if isinstance(params, np.ndarray) else np.asarray(params, dtype=object)
+    if arr.ndim != 2 or arr.shape != (k, npar):
+        raise ValueError(
+            f"`params` must have shape (k, npar) = ({k}, {npar}): one row per member with the values of "
+            f"{list(ps.parameter_names)} in that order; got shape {arr.shape}"
+        )
+    return [[to_fraction(arr[i, j], f"params[{i}][{j}]") for j in range(npar)] for i in range(k)]
+
+
+def _member_system(system, ps, values):
+    """The system with the parameter values of one member (the system itself when they are its own)."""
+    if values is None or tuple(values) == tuple(ps.parameter_values):
+        return system
+    ps2 = copy.copy(ps)
+    ps2._param_values = tuple(values)  # same structure, other runtime parameter values (no recompilation)
+    if isinstance(system, PoissonSystem):
+        return ps2
+    model = copy.copy(system)
+    model.poisson = ps2
+    model.__dict__.pop("_charts", None)
+    return model
+
+
+# -- the driver ----------------------------------------------------------------------------------------------------
+def integrate_ensemble(
+    system,
+    Y0,
+    t,
+    *,
+    tol=None,
+    precision="double",
+    t0=0,
+    params=None,
+    workers=None,
+    client=None,
+    max_steps=None,
+    max_time=None,
+    chunk_size=None,
+    batch_size=None,
+    progress=None,
+    single_run=None,
+) -> EnsembleSolution:
+    """Integrate ``system`` from each row of ``Y0``; every member as its single run would.
+
+    Parameters
+    ----------
+    system : model or PoissonSystem, or a list of k models of one kind
+        A list gives each member its own parameter values (e.g. bodies of different inertia).
+    Y0 : array-like, shape (k, n)
+        Initial states, one per row. Exact entries (str, Fraction, mpf, int) are rounded once to the working
+        precision; float64 entries are their binary values.
+    t : float or sequence
+        Final time or output times, as for :func:`lieseries.integrate` (the same for every member).
+    tol, precision, t0, max_steps, max_time
+        As for :func:`lieseries.integrate`, per member.
+    params : array-like, shape (k, npar), optional
+        Per-member values of the system's runtime parameters, in the order of
+        ``system.poisson.parameter_names`` (for EulerPoisson the entries of I^-1).
+    workers : int, optional
+        Threads for the batch path (default: the number of CPUs); processes for the other precisions (default 1:
+        one after another in this process).
+    client : dask.distributed.Client, optional
+        Run the chunks on a Dask cluster (module docstring).
+    chunk_size : int, optional
+        Members per Dask task (default: about four tasks per worker thread of the cluster, at least one batch).
+    batch_size : int, optional
+        SIMD lanes per batch (double; default ``heyoka.recommended_simd_size()``).
+    progress : callable, optional
+        ``progress(members_done, k)`` as batches and chunks finish.
+    single_run : callable, optional
+        The single-run driver (``lieseries.integrate``, which passes itself): runs the members of the other
+        precisions and the members handed over by the batch path. Without it, every member must be decided in
+        batch mode, or a RuntimeError says which member needed a single run.
+
+    Returns
+    -------
+    EnsembleSolution
+    """
+    structure, members = _structure(system)
+    ps = as_poisson_system(structure)
+    model = structure if isinstance(structure, Model) else None
+    prec = resolve_precision(precision)
+    grid, direction, t0f = parse_times(t, t0)
+    tolf = _tol_value(tol, prec)
+    workers = _check_count(workers, "workers")
+    chunk_size = _check_count(chunk_size, "chunk_size")
+    B = _check_batch_size(batch_size)
+    if max_steps is not None:
+        _check_count(max_steps, "max_steps")
+    if max_time is not None and not (isinstance(max_time, numbers.Real) and max_time > 0):
+        raise ValueError(f"`max_time` must be a positive number of seconds; got {max_time!r}")
+    if progress is not None and not callable(progress):
+        raise TypeError(f"`progress` must be a callable progress(done, total); got {type(progress).__name__}")
+    Ynat, _exact = _states(model, ps, Y0, prec)
+    k = Ynat.shape[0]
+    pars = _parameters(ps, params, members, k, prec)
+
+    if client is not None:
+        return _run_dask(client, structure, Ynat, pars, t, t0, dict(
+            tol=tol, precision=precision, max_steps=max_steps, max_time=max_time, batch_size=batch_size,
+            single_run=single_run), chunk_size, progress, k)
+
+    opts = dict(tol=tol, precision=prec, t0=t0, max_steps=max_steps, max_time=max_time)
+    # heyoka's clock runs in the working precision: output times as rounded there (as in a single run)
+    tgrid = [to_fraction(prec.time(g)) for g in grid]
+    t0n = to_fraction(prec.time(t0f))
+    res = _Result(k, len(grid), ps.dimension, prec)
+    start = _time.perf_counter()
+    build = 0.0
+    handed = []
+    if direction == 0:
+        for i in range(k):
+            res.rows[i] = len(grid)
+            res.y[i, :] = Ynat[i]
+            res.finish(i, "success", f"Reached t = {float(t0f):.17g}.", t0n, Ynat[i], 0)
+        used_workers, path, order = 1, "none", 0
+    elif prec.name == "double" and max_time is None:
+        ta, build, event_info = build_batch_integrator(structure, tolf, B)
+        order = int(ta.order)
+        n_batches = -(-k // B)
+        used_workers = min(workers or (os.cpu_count() or 1), n_batches)
+        cap = min(BATCH_STEPS, max_steps or DEFAULT_MAX_STEPS)
+        handed = _run_batches(ta, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, used_workers,
+                              res, progress)
+        path = "batch"
+    else:
+        handed = list(range(k))
+        used_workers, path, order = (workers or 1), "single", 0
+    if handed:
+        if single_run is None:
+            raise RuntimeError(
+                f"member {handed[0]} (of {len(handed)}) needs a single run ({'precision ' + prec.name if path == 'single' else 'it stopped early in batch mode'}); "
+                "call lieseries.integrate(system, Y0, ...) or pass `single_run=lieseries.integrate`"
+            )
+        systems = [_member_system(members[i] if members else structure, ps, None if pars is None else pars[i])
+                   for i in handed]
+        sols = _run_singles(single_run, systems, [Ynat[i] for i in handed], t, opts,
+                            workers if path == "single" else 1, progress, k, k - len(handed))
+        for i, sol in zip(handed, sols):
+            res.take(i, sol, tgrid)
+            order = max(order, int(sol.stats.order))
+    run_time = _time.perf_counter() - start
+    stats = dict(method="taylor (heyoka)", precision=prec.name, tol=float(tolf), order=order,
+                 steps=res.steps, build_time=build, run_time=run_time, workers=used_workers,
+                 batch_size=B if path == "batch" else 1, path=path, single_runs=len(handed))
+    tarr = prec.array(tgrid)
+    return EnsembleSolution(tarr, res.y, res.status, res.message, res.t_reached, res.y_reached, stats,
+                            rows=res.rows, method="taylor (heyoka)")
+
+
+class _Result:
+    """Per-member outputs being filled in (NaN rows where a member did not get to)."""
+
+    def __init__(self, k, m, n, prec: Precision):
+        self.prec = prec
+        self.y = _nan_array((k, m, n), prec)
+        self.y_reached = _nan_array((k, n), prec)
+        self.status = np.array([""] * k, dtype=object)
+        self.message = [""] * k
+        self.t_reached = np.empty(k, dtype=object)
+        self.steps = np.zeros(k, dtype=np.int64)
+        self.rows = np.zeros(k, dtype=np.int64)
+
+    def finish(self, i, status, message, t_reached, y_reached, steps):
+        self.status[i] = status
+        self.message[i] = message
+        self.t_reached[i] = t_reached
+        self.y_reached[i] = y_reached
+        self.steps[i] = steps
+
+    def take(self, i, sol, tgrid):
+        m = len(sol.t)
+        self.y[i, :m] = sol.y
+        self.rows[i] = m
+        self.finish(i, sol.status, sol.message, sol.t_reached, sol.y_reached, sol.stats.steps)
+
+
+def _nan_array(shape, prec: Precision):
+    if prec.is_real:
+        out = np.empty(shape, dtype=hy.real)
+        out[...] = hy.real(float("nan"), prec.bits)
+        return out
+    return np.full(shape, np.nan, dtype=prec.numpy_dtype)
+
+
+def _outcome_kind(outcome, n_events):
+    """'done', 'interrupted', 'non_finite', or an event index."""
+    name = str(outcome)
+    if name.endswith("time_limit"):
+        return "done"
+    if name.endswith("err_nf_state"):
+        return "non_finite"
+    if name.endswith(".success") or name.endswith("step_limit") or name.endswith("cb_stop"):
+        return "interrupted"
+    try:
+        idx = int(outcome.value)
+    except (AttributeError, TypeError, ValueError):
+        return "interrupted"
+    if -n_events <= idx < 0:
+        return -idx - 1
+    if 0 <= idx < n_events:
+        return idx
+    return "interrupted"
+
+
+_TIME_LIMIT = hy.taylor_outcome.time_limit
+
+
+def _record_lane(res, i, lane, kind, ta, out, Ynat, tgrid, t0n, direction, simple, event_info, nsteps, success_msg):
+    """Record one lane that finished (``kind`` "done") or stopped at a terminal event (``kind`` its index)."""
+    t_r = to_fraction(ta.time[lane])
+    y_r = np.array(ta.state[:, lane], copy=True)
+    if simple:
+        res.y[i, 0] = Ynat[i]
+        res.y[i, 1] = y_r
+        res.rows[i] = 1 + (kind == "done" or t_r == tgrid[-1])
+    else:
+        m = 0
+        for j, tj in enumerate(tgrid):
+            if (tj - t0n) * direction > (t_r - t0n) * direction:
+                break
+            res.y[i, j] = Ynat[i] if tj == t0n else (y_r if tj == t_r else out[j, :, lane])
+            m = j + 1
+        res.rows[i] = m
+    if kind == "done":
+        res.finish(i, "success", success_msg, t_r, y_r, nsteps)
+    else:
+        status, msg = event_info[kind]
+        h = abs(float(ta.last_h[lane]))
+        res.finish(i, status, f"Stopped at t = {float(t_r):.17g} (last step size {h:.3g}): {msg}.", t_r, y_r, nsteps)
+
+
+def _run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, n_threads, res, progress):
+    """Integrate every member in batches of B lanes over ``n_threads`` threads; return the members to hand over."""
+    k, n = Ynat.shape
+    npar = len(ps.parameter_values)
+    par_rows = None
+    if npar:
+        base = np.array([float(v) for v in ps.parameter_values])
+        par_rows = np.tile(base, (k, 1)) if pars is None else np.array([[float(v) for v in r] for r in pars])
+    simple = len(tgrid) == 2 and tgrid[0] == t0n
+    t_end = float(tgrid[-1])
+    if not simple:
+        lead = tgrid[0] != t0n
+        times = [float(t0n)] * lead + [float(g) for g in tgrid]
+        grid = np.repeat(np.array(times), B).reshape(-1, B)
+    success_msg = f"Reached t = {float(tgrid[-1]):.17g}."
+    n_batches = -(-k // B)
+    counter = iter(range(n_batches))
+    lock = threading.Lock()
+    handed = []
+    done = [0]
+
+    def work(_):
+        ta = copy.deepcopy(ta0)
+        while True:
+            with lock:
+                b = next(counter, None)
+            if b is None:
+                return
+            lo, hi = b * B, min(k, b * B + B)
+            idx = list(range(lo, hi)) + [lo] * (B - (hi - lo))  # pad the last batch with copies of its first lane
+            ta.set_time(float(t0n))
+            ta.state[:] = Ynat[idx].T
+            if npar:
+                ta.pars[:] = par_rows[idx].T
+            if event_info:
+                ta.reset_cooldowns()
+            if simple:
+                ta.propagate_until(t_end, max_steps=cap)
+                out = None
+            else:
+                out = ta.propagate_grid(grid, max_steps=cap)[-1]
+                if lead:
+                    out = out[1:]
+            prs = ta.propagate_res
+            nl = hi - lo
+            outcomes = [prs[lane][0] for lane in range(nl)]
+            mine = []
+            if all(o == _TIME_LIMIT for o in outcomes):  # the common case, in bulk
+                state = ta.state
+                res.y_reached[lo:hi] = state.T[:nl]
+                if simple:
+                    res.y[lo:hi, 0] = Ynat[lo:hi]
+                    res.y[lo:hi, 1] = state.T[:nl]
+                else:
+                    res.y[lo:hi] = np.transpose(out[:, :, :nl], (2, 0, 1))
+                    res.y[lo:hi, -1] = state.T[:nl]
+                    if tgrid[0] == t0n:
+                        res.y[lo:hi, 0] = Ynat[lo:hi]
+                res.rows[lo:hi] = len(tgrid)
+                res.status[lo:hi] = "success"
+                res.message[lo:hi] = [success_msg] * nl
+                res.t_reached[lo:hi] = [tgrid[-1]] * nl
+                res.steps[lo:hi] = [prs[lane][3] for lane in range(nl)]
+            else:
+                for lane in range(nl):
+                    i = lo + lane
+                    kind = _outcome_kind(outcomes[lane], len(event_info))
+                    if kind in ("interrupted", "non_finite"):
+                        mine.append(i)
+                        continue
+                    _record_lane(res, i, lane, kind, ta, out, Ynat, tgrid, t0n, direction, simple, event_info,
+                                 prs[lane][3], success_msg)
+            with lock:
+                handed.extend(mine)
+                done[0] += hi - lo - len(mine)
+                if progress is not None:
+                    progress(done[0], k)
+
+    if n_threads <= 1:
+        work(0)
+    else:
+        with ThreadPoolExecutor(max_workers=n_threads) as pool:
+            list(pool.map(work, range(n_threads)))
+    return sorted(handed)
+
+
+def _single(single_run, system, y0, t, opts):
+    return single_run(system, y0, t, **opts)
+
+
+def _run_singles(single_run, systems, rows, t, opts, workers, progress, k, done0):
+    """Single runs, one after another or in ``workers`` processes."""
+    out = []
+    if workers is None or workers <= 1 or len(rows) <= 1:
+        for j, (s, y0) in enumerate(zip(systems, rows)):
+            out.append(_single(single_run, s, y0, t, opts))
+            if progress is not None:
+                progress(done0 + j + 1, k)
+        return out
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=min(workers, len(rows)), mp_context=ctx) as pool:
+        futs = [pool.submit(_single, single_run, s, y0, t, opts) for s, y0 in zip(systems, rows)]
+        for j, f in enumerate(futs):
+            out.append(f.result())
+            if progress is not None:
+                progress(done0 + j + 1, k)
+    return out
+
+
+# -- Dask ------------------------------------------------------------------------------------------------------------
+def _dask_client_class():
+    try:
+        from distributed import Client
+    except ImportError as err:
+        raise ImportError(
+            "`client=` needs Dask distributed, which is not installed: pip install 'lieseries[distributed]'"
+        ) from err
+    return Client
+
+
+def _chunk_task(system, rows, pars, t, t0, opts):
+    """One Dask task: an ensemble of a chunk of members, run on the worker (its own integrator cache)."""
+    return integrate_ensemble(system, rows, t, t0=t0, params=pars, workers=1, **opts)
+
+
+def _run_dask(client, system, Ynat, pars, t, t0, opts, chunk_size, progress, k):
+    Client = _dask_client_class()
+    if not isinstance(client, Client):
+        raise TypeError(f"`client` must be a dask.distributed.Client; got {type(client).__name__}")
+    if chunk_size is None:
+        try:
+            threads = sum(client.nthreads().values())
+        except Exception:  # pragma: no cover - scheduler unreachable: let submit raise the real error
+            threads = 1
+        B = _check_batch_size(opts.get("batch_size"))
+        chunk_size = max(B, -(-k // max(1, 4 * threads)))
+        chunk_size = -(-chunk_size // B) * B
+    from distributed import as_completed
+
+    start = _time.perf_counter()
+    sys_future = client.scatter(system, broadcast=True)
+    futures = {}
+    for lo in range(0, k, chunk_size):
+        hi = min(k, lo + chunk_size)
+        p = None if pars is None else [list(r) for r in pars[lo:hi]]
+        f = client.submit(_chunk_task, sys_future, Ynat[lo:hi], p, t, t0, opts, pure=False)
+        futures[f] = lo
+    parts = {}
+    done = 0
+    for f in as_completed(list(futures)):
+        part = f.result()
+        parts[futures[f]] = part
+        done += len(part.status)
+        if progress is not None:
+            progress(done, k)
+    ordered = [parts[lo] for lo in sorted(parts)]
+    es = EnsembleSolution.concatenate(ordered)
+    es.stats["run_time"] = _time.perf_counter() - start
+    es.stats["workers"] = len(client.nthreads())
+    es.stats["chunks"] = len(ordered)
+    es.stats["chunk_size"] = chunk_size
+    return es
