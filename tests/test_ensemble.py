@@ -1,0 +1,260 @@
+"""Ensembles (lieseries.ensemble): every member against its single run and against closed forms; early stops per
+member; per-member parameters; the Dask path against the local one; pickling; input errors."""
+
+import pickle
+import sys
+from fractions import Fraction
+
+import heyoka as hy
+import mpmath as mp
+import numpy as np
+import pytest
+
+import lieseries as ls
+from lieseries.ensemble import integrate_ensemble
+from lieseries.solution import EnsembleSolution
+
+EPS = 2.0**-52
+
+
+def run(system, Y0, t, **kw):
+    return integrate_ensemble(system, Y0, t, single_run=ls.integrate, **kw)
+
+
+def omegas(k, seed=0):
+    rng = np.random.default_rng(seed)
+    return np.array([1.0, 0.1, 0.5]) + 0.05 * rng.standard_normal((k, 3))
+
+
+def body_states(body, oms, precision="double"):
+    return np.stack([body.initial_state(o, precision=precision) for o in oms])
+
+
+def blowup_system():
+    """dq/dt = q^2, dp/dt = -2 p q (H = p q^2, canonical): q(t) = q0 / (1 - q0 t) blows up at t = 1/q0."""
+    q, p = hy.make_vars("q", "p")
+    return ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p * q**2, name="blow-up")
+
+
+def close(a, b, rtol):
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    return np.max(np.abs(a - b) / np.maximum(1.0, np.abs(b)))
+
+
+def test_members_equal_single_runs_and_closed_form():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    oms = omegas(11)  # not a multiple of the batch size: the last batch is padded
+    Y0 = body_states(body, oms)
+    es = run(body, Y0, 20.0, batch_size=4, workers=2)
+    assert isinstance(es, EnsembleSolution) and es.success and es.y.shape == (11, 2, 12)
+    assert es.stats["path"] == "batch" and es.stats["single_runs"] == 0
+    for i in range(11):
+        sol = ls.integrate(body, Y0[i], 20.0)
+        assert close(es.y[i], sol.y, 0) <= 64 * EPS
+        assert es.stats["steps"][i] == sol.stats.steps  # each lane steps as its single run
+        assert es.t_reached[i] == sol.t_reached == 20
+    with mp.workdps(30):
+        for i in (0, 5, 10):
+            ref = ls.exact.euler_poisson((1, 2, 3), list(oms[i]), 20, dps=30)
+            assert close(es.y[i, 1], [float(v) for v in ref], 0) <= 2e-13
+
+
+def test_output_grid_and_backward():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Y0 = body_states(body, omegas(5, seed=1))
+    grid = [1, 2.5, "3.7", 8]  # t0 = 0 not in the grid: the batch adds it in front and drops it
+    es = run(body, Y0, grid)
+    assert es.y.shape == (5, 4, 12) and es.success
+    back = run(body, Y0, -3.0)
+    for i in range(5):
+        sol = ls.integrate(body, Y0[i], grid)
+        assert close(es.y[i], sol.y, 0) <= 64 * EPS
+        sb = ls.integrate(body, Y0[i], -3.0)
+        assert close(back.y[i], sb.y, 0) <= 64 * EPS and back.t_reached[i] == -3
+
+
+def test_exact_input_rounded_once():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    y_str = [1, 0, 0, 0, 1, 0, 0, 0, 1, "1", "0.2", "1.5"]
+    y_frac = [Fraction(v) for v in y_str]
+    es = run(body, [y_str, y_frac], 4.0)
+    sol = ls.integrate(body, y_str, 4.0)
+    assert np.array_equal(es.y[0, 0], es.y[1, 0]) and es.y[0, 0, 10] == 0.2
+    assert close(es.y[0], sol.y, 0) <= 64 * EPS and close(es.y[1], sol.y, 0) <= 64 * EPS
+
+
+def test_per_member_inertia_list_and_params():
+    inertias = [(1, 2, 3), (2, 3, 4), ("1.5", 2, "2.5")]
+    bodies = [ls.EulerPoisson(inertia=I) for I in inertias]
+    om = [1.0, 0.1, 0.5]
+    Y0 = np.stack([b.initial_state(om) for b in bodies])
+    es = run(bodies, Y0, 10.0)
+    params = [[Fraction(1) / Fraction(v) for v in I] for I in inertias]  # entries of I^-1 (diagonal bodies)
+    es2 = run(bodies[0], Y0, 10.0, params=params)
+    assert np.array_equal(es.y, es2.y)
+    for i, (b, I) in enumerate(zip(bodies, inertias)):
+        sol = ls.integrate(b, Y0[i], 10.0)
+        assert close(es.y[i], sol.y, 0) <= 64 * EPS
+        with mp.workdps(30):
+            ref = ls.exact.euler_poisson(I, om, 10, dps=30)
+        assert close(es.y[i, 1], [float(v) for v in ref], 0) <= 2e-13
+
+
+def test_sphere_member_stops_at_chart_edge_others_succeed():
+    sphere = ls.Sphere(mass=1, radius=1)
+    # the first member runs down a meridian to the chart's edge |x3| = 0.05 at t = asin(0.8) - asin(0.05) = 0.877;
+    # the other two move slowly and stay far from it up to t = 2
+    states = [sphere.initial_state(x=(0.6, 0, 0.8), v=(0.8, 0, -0.6)),
+              sphere.initial_state(x=(0, 0.6, 0.8), v=(0.3, 0, 0)),
+              sphere.initial_state(x=(0.6, 0, 0.8), v=(0, 0.2, 0))]
+    t = [0.5, 1.0, 2.0]
+    es = run(sphere, np.stack(states), t)
+    assert list(es.status) == ["chart_edge", "success", "success"]
+    assert not es.success and list(es.succeeded) == [False, True, True]
+    for i, y0 in enumerate(states):
+        sol = ls.integrate(sphere, y0, t)
+        assert sol.status == es.status[i]
+        assert es.rows[i] == len(sol.t)
+        assert close(es.y[i, : len(sol.t)], sol.y, 0) <= 64 * EPS
+        assert close(es.y_reached[i], sol.y_reached, 0) <= 64 * EPS
+        assert abs(float(es.t_reached[i] - sol.t_reached)) <= 64 * EPS
+        m = es.member(i)
+        assert m.status == sol.status and len(m.t) == len(sol.t)
+    assert np.isnan(es.y[0, es.rows[0]:]).all()
+    assert es.rows[0] == 1 and "chart" in es.message[0]
+    # the stop is where the great circle (closed form) has x3 = 0.05, and the state is the closed form's there
+    t_edge = float(es.t_reached[0])
+    assert abs(t_edge - (np.arcsin(0.8) - np.arcsin(0.05))) <= 1e-12
+    x_ref, _ = ls.exact.sphere(1, (0.6, 0, 0.8), (0.8, 0, -0.6), es.t_reached[0], dps=30)
+    assert close(es.y_reached[0, :3], [float(v) for v in x_ref], 0) <= 1e-13
+    for i in (1, 2):
+        x_ref, _ = ls.exact.sphere(1, ["0.6", 0, "0.8"] if i == 2 else [0, "0.6", "0.8"],
+                                   [0, "0.2", 0] if i == 2 else ["0.3", 0, 0], 2, dps=30)
+        assert close(es.y[i, -1, :3], [float(v) for v in x_ref], 0) <= 1e-14
+
+
+def test_non_finite_member_next_to_finite_ones():
+    ps = blowup_system()
+    # q0 = 1e200: q^2 overflows in the first step (non_finite at t = 0, the last finite state is y0);
+    # q0 = 1: the solution blows up at t = 1 (the single run's guard stops it there); the others are finite
+    Y0 = [["1e200", 1], [1, 1], [-1, 1], ["0.25", 1]]
+    es = run(ps, Y0, 2.0)
+    assert es.status[0] == "non_finite" and es.status[1] != "success"
+    assert list(es.status[2:]) == ["success", "success"]
+    for i, y0 in enumerate(Y0):
+        sol = ls.integrate(ps, y0, 2.0)
+        assert sol.status == es.status[i] and sol.message == es.message[i]
+        assert close(es.y_reached[i], sol.y_reached, 0) <= 64 * EPS
+        assert es.t_reached[i] == sol.t_reached
+    assert es.t_reached[0] == 0 and es.y_reached[0, 0] == 1e200
+    assert 0.99 < es.t_reached[1] <= 1
+    # q(2) = q0 / (1 - 2 q0): -1/3 and 0.5, against the closed form
+    assert abs(es.y[2, 1, 0] + 1 / 3) <= 8 * EPS and abs(es.y[3, 1, 0] - 0.5) <= 8 * EPS
+    assert np.isnan(es.y[:2, 1]).all() and list(es.rows) == [1, 1, 2, 2]
+    assert es.stats["single_runs"] >= 2
+
+
+def test_long_double_members_equal_single_runs():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Y0 = body_states(body, omegas(3, seed=2), precision="long double")
+    es = run(body, Y0, 5.0, precision="long double")
+    assert es.y.dtype == np.longdouble and es.success and es.stats["path"] == "single"
+    for i in range(3):
+        sol = ls.integrate(body, Y0[i], 5.0, precision="long double")
+        assert np.array_equal(es.y[i], sol.y)
+
+
+def test_nothing_to_integrate_and_without_single_run():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Y0 = body_states(body, omegas(2))
+    es = run(body, Y0, 0.0)
+    assert es.success and np.array_equal(es.y[:, 0], Y0) and np.array_equal(es.y_reached, Y0)
+    with pytest.raises(RuntimeError, match="single_run"):
+        integrate_ensemble(body, Y0, 1.0, precision="quad")
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(Y0=[[1, 2, 3]]), "`Y0` must have shape"),
+        (dict(Y0=np.zeros(12)), "`Y0` must have shape"),
+        (dict(params=[[1, 2]]), "`params` must have shape"),
+        (dict(workers=0), "`workers` must be a positive integer"),
+        (dict(workers=1.5), "`workers` must be a positive integer"),
+        (dict(batch_size=0), "`batch_size` must be a positive integer"),
+        (dict(chunk_size=-1), "`chunk_size` must be a positive integer"),
+        (dict(client="tcp://127.0.0.1:8786"), "`client` must be a dask.distributed.Client"),
+        (dict(Y0=[[np.nan] + [0] * 11]), r"`Y0\[0\]\[0\]` must be finite"),
+    ],
+)
+def test_bad_input_names_the_argument(kwargs, match):
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    args = dict(Y0=body_states(body, omegas(1)))
+    args.update(kwargs)
+    Y0 = args.pop("Y0")
+    with pytest.raises((ValueError, TypeError), match=match):
+        run(body, Y0, 1.0, **args)
+
+
+def test_bad_model_list():
+    with pytest.raises(ValueError, match=r"`system\[1\]`"):
+        run([ls.EulerPoisson(), ls.Sphere()], np.zeros((2, 12)), 1.0)
+
+
+def test_client_without_dask_says_how_to_install(monkeypatch):
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed now raises ImportError
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    with pytest.raises(ImportError, match=r"pip install 'lieseries\[distributed\]'"):
+        run(body, body_states(body, omegas(1)), 1.0, client=object())
+
+
+def test_models_systems_and_solutions_pickle():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    for system in (body, ls.DampedEulerPoisson(), ls.Sphere(), ls.SphereDirac(), blowup_system()):
+        ps = system.poisson if hasattr(system, "poisson") else system
+        ps.vector_field  # the cached field must pickle too
+        copy = pickle.loads(pickle.dumps(system))
+        ps2 = copy.poisson if hasattr(copy, "poisson") else copy
+        assert ps2.key == ps.key and ps2.parameter_values == ps.parameter_values
+    y0 = body.initial_state((1, 0.1, 0.5))
+    again = pickle.loads(pickle.dumps(body))
+    assert np.array_equal(ls.integrate(again, y0, 3.0).y, ls.integrate(body, y0, 3.0).y)
+    es = run(body, body_states(body, omegas(3)), 2.0)
+    es2 = pickle.loads(pickle.dumps(es))
+    assert np.array_equal(es2.y, es.y) and list(es2.status) == list(es.status)
+    assert es2.member(1).status == "success"
+
+
+# -- Dask --------------------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def client():
+    distributed = pytest.importorskip("distributed")
+    cluster = distributed.LocalCluster(processes=True, n_workers=2, threads_per_worker=1, host="127.0.0.1",
+                                       dashboard_address=None)
+    cl = distributed.Client(cluster)
+    yield cl
+    cl.close()
+    cluster.close()
+
+
+def test_dask_equals_local(client):
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Y0 = body_states(body, omegas(20, seed=3))
+    local = run(body, Y0, [5, 10])
+    dist = run(body, Y0, [5, 10], client=client, chunk_size=8)
+    assert dist.stats["chunks"] == 3
+    assert np.array_equal(dist.y, local.y) and list(dist.status) == list(local.status)
+    assert list(dist.t_reached) == list(local.t_reached)
+    # early stops on the workers: a chart edge (batch) and a non-finite blow-up (single run on the worker)
+    sphere = ls.Sphere()
+    S0 = np.stack([sphere.initial_state(x=(0.6, 0, 0.8), v=(0.8, 0, -0.6)),
+                   sphere.initial_state(x=(0.6, 0, 0.8), v=(0, 0.2, 0))])
+    a, b = run(sphere, S0, 2.0), run(sphere, S0, 2.0, client=client, chunk_size=1)
+    assert list(b.status) == list(a.status) == ["chart_edge", "success"]
+    assert np.array_equal(a.y_reached, b.y_reached, equal_nan=True)
+    ps = blowup_system()
+    Y0 = [["1e200", 1], [-1, 1]]
+    a, b = run(ps, Y0, 2.0), run(ps, Y0, 2.0, client=client)
+    assert list(b.status) == list(a.status) == ["non_finite", "success"]
+    assert np.array_equal(a.y, b.y, equal_nan=True)
