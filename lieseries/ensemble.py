@@ -17,13 +17,15 @@ Paths
 Statuses and the guards
 -----------------------
 Every member ends with the status its single run would end with. In batch mode heyoka stops the whole batch when
-one lane becomes non-finite or hits a terminal event (e.g. a sphere chart's edge): lanes stopped by a terminal
-event keep their state at the event (status from the model's event, as in a single run); a lane that became
-non-finite, and every lane the stop interrupted, is run again from its initial condition as a single run, which
-keeps the last finite state and applies the single run's guards (step collapse, stiffness, budgets). Batches are
-given a step budget of at most :data:`BATCH_STEPS` steps per lane: a lane that would need more is also handed to
-a single run, which decides between success, ``step_collapse`` and ``step_budget`` exactly as for one run. With
-``max_time`` (a per-member wall-time budget) every member runs as a single run.
+one lane becomes non-finite or hits a terminal event (e.g. a sphere chart's edge). Lanes stopped by a terminal
+event keep their state at the event (status from the model's event, as in a single run). For a final time, the
+lanes the stop interrupted go on in the batch (the stopped lane is parked at the final time): heyoka's step size
+depends on the current state alone, so they take the steps they would have taken anyway. For an output grid they
+are run again as single runs. A lane that became non-finite is run again as a single run from its initial
+condition, which keeps the last finite state and applies the single run's guards (step collapse, stiffness,
+budgets). Batches are given a step budget of at most :data:`BATCH_STEPS` steps per lane: a lane that would need
+more is also handed to a single run, which decides between success, ``step_collapse`` and ``step_budget`` exactly
+as for one run. With ``max_time`` (a per-member wall-time budget) every member runs as a single run.
 
 A member that stops early has NaN in the output rows after its stop; ``t_reached``/``y_reached`` give the last
 time and state it reached.
@@ -72,6 +74,7 @@ def clear_batch_cache() -> None:
     """Forget every cached batch integrator (of this process)."""
     with _CACHE_LOCK:
         _CACHE.clear()
+        _SPARE.clear()
 
 
 def _tol_value(tol, prec: Precision) -> Fraction:
@@ -120,7 +123,8 @@ def build_batch_integrator(system, tol=None, batch_size=None, *, compact_mode=No
         build = _time.perf_counter() - start
         info = [(e[1], e[2]) for e in evs]
         if len(_CACHE) >= _CACHE_MAX:
-            _CACHE.pop(next(iter(_CACHE)))
+            old = _CACHE.pop(next(iter(_CACHE)))
+            _SPARE.pop(id(old[0]), None)
         _CACHE[key] = (ta, info)
         return ta, build, info
 
@@ -417,6 +421,23 @@ def _outcome_kind(outcome, n_events):
 
 
 _TIME_LIMIT = hy.taylor_outcome.time_limit
+#: Copies of the cached batch integrators that no thread is using, by id of the cached original.
+_SPARE: dict = {}
+
+
+def _borrow(ta0):
+    """A private copy of the cached integrator ``ta0`` for one thread (a spare one when there is one)."""
+    with _CACHE_LOCK:
+        spares = _SPARE.get(id(ta0))
+        if spares:
+            return spares.pop()
+    return copy.deepcopy(ta0)
+
+
+def _give_back(ta0, ta):
+    with _CACHE_LOCK:
+        if any(entry[0] is ta0 for entry in _CACHE.values()):  # still cached: keep the copy for the next call
+            _SPARE.setdefault(id(ta0), []).append(ta)
 
 
 def _record_lane(res, i, lane, kind, ta, out, Ynat, tgrid, t0n, direction, simple, event_info, nsteps, success_msg):
@@ -443,6 +464,59 @@ def _record_lane(res, i, lane, kind, ta, out, Ynat, tgrid, t0n, direction, simpl
         res.finish(i, status, f"Stopped at t = {float(t_r):.17g} (last step size {h:.3g}): {msg}.", t_r, y_r, nsteps)
 
 
+def _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, event_info, cap, t_end, success_msg):
+    """Finish a batch (final-time run) after one lane stopped it: record the lanes that finished or met a terminal
+    event, park them at the final time on a finite state (they take no more steps), and go on with the others.
+
+    heyoka's step size depends on the current state only, so a lane that goes on takes the steps it would have
+    taken without the stop. Lanes that became non-finite or exceeded the step cap are returned (single runs).
+    """
+    B = len(idx)
+    decided = np.zeros(B, dtype=bool)
+    steps = np.zeros(B, dtype=np.int64)
+    handed = []
+    n_events = len(event_info)
+    while True:
+        times = np.array(ta.time, copy=True)
+        parked = False
+        for lane in range(B):
+            if decided[lane]:
+                continue
+            outcome, _hmin, _hmax, nsteps = prs[lane]
+            steps[lane] += nsteps
+            kind = _outcome_kind(outcome, n_events)
+            if kind == "interrupted" and not str(outcome).endswith("step_limit"):
+                continue  # stopped by another lane: goes on
+            decided[lane] = True
+            if lane < nl:
+                if kind in ("done",) or isinstance(kind, int):
+                    _record_lane(res, lo + lane, lane, kind, ta, None, Ynat, tgrid, t0n, direction, True,
+                                 event_info, int(steps[lane]), success_msg)
+                else:  # non-finite, or over the step cap
+                    handed.append(lo + lane)
+            if kind != "done":
+                times[lane] = t_end
+                parked = True
+        if decided.all():
+            return handed
+        if parked:
+            # a parked lane takes zero-length steps, but heyoka still evaluates the field at its state: give it
+            # the state of a lane that goes on (finite, and where the field is finite)
+            live = int(np.flatnonzero(~decided)[0])
+            for lane in np.flatnonzero(times == t_end):
+                if decided[lane] and lane != live and prs[lane][0] != _TIME_LIMIT:
+                    ta.state[:, lane] = ta.state[:, live]
+            ta.set_time(times)
+        if n_events:
+            ta.reset_cooldowns()
+        left = cap - int(steps[~decided].max())
+        if left <= 0:  # the cap is reached: what is left goes to single runs
+            handed.extend(lo + lane for lane in range(nl) if not decided[lane])
+            return handed
+        ta.propagate_until(t_end, max_steps=left)
+        prs = ta.propagate_res
+
+
 def _run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, n_threads, res, progress):
     """Integrate every member in batches of B lanes over ``n_threads`` threads; return the members to hand over."""
     k, n = Ynat.shape
@@ -465,7 +539,13 @@ def _run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap,
     done = [0]
 
     def work(_):
-        ta = copy.deepcopy(ta0)
+        ta = _borrow(ta0)
+        try:
+            _work(ta)
+        finally:
+            _give_back(ta0, ta)
+
+    def _work(ta):
         while True:
             with lock:
                 b = next(counter, None)
@@ -506,7 +586,8 @@ def _run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap,
                 res.message[lo:hi] = [success_msg] * nl
                 res.t_reached[lo:hi] = [tgrid[-1]] * nl
                 res.steps[lo:hi] = [prs[lane][3] for lane in range(nl)]
-            else:
+            elif not simple:
+                # a grid run that one lane stopped: the lanes it interrupted run again as single runs
                 for lane in range(nl):
                     i = lo + lane
                     kind = _outcome_kind(outcomes[lane], len(event_info))
@@ -515,6 +596,9 @@ def _run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap,
                         continue
                     _record_lane(res, i, lane, kind, ta, out, Ynat, tgrid, t0n, direction, simple, event_info,
                                  prs[lane][3], success_msg)
+            else:
+                mine = _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, event_info, cap,
+                                       t_end, success_msg)
             with lock:
                 handed.extend(mine)
                 done[0] += hi - lo - len(mine)

@@ -123,6 +123,13 @@ def test_sphere_member_stops_at_chart_edge_others_succeed():
         assert m.status == sol.status and len(m.t) == len(sol.t)
     assert np.isnan(es.y[0, es.rows[0]:]).all()
     assert es.rows[0] == 1 and "chart" in es.message[0]
+    # to a final time, the lanes the stop interrupted go on in the batch (no single run), as their single runs
+    fin = run(sphere, np.stack(states * 3), 2.0, batch_size=4)
+    assert fin.stats["single_runs"] == 0 and list(fin.status) == ["chart_edge", "success", "success"] * 3
+    for i, y0 in enumerate(states * 3):
+        sol = ls.integrate(sphere, y0, 2.0)
+        assert fin.stats["steps"][i] == sol.stats.steps and fin.t_reached[i] == sol.t_reached
+        assert close(fin.y_reached[i], sol.y_reached, 0) <= 64 * EPS
     # the stop is where the great circle (closed form) has x3 = 0.05, and the state is the closed form's there
     t_edge = float(es.t_reached[0])
     assert abs(t_edge - (np.arcsin(0.8) - np.arcsin(0.05))) <= 1e-12
