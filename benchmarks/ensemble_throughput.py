@@ -8,6 +8,8 @@ excluded (both are built before timing).
 Run:  PYTHONPATH=. python benchmarks/ensemble_throughput.py            (ratio at k = 4096)
       PYTHONPATH=. python benchmarks/ensemble_throughput.py --plot     (also throughput vs k, the PNG and CSV
                                                                          in docs/reports/ensemble/)
+      PYTHONPATH=. python benchmarks/ensemble_throughput.py --dask     (also a Dask LocalCluster of 2 worker
+                                                                         processes against the local run)
 """
 
 from __future__ import annotations
@@ -71,8 +73,9 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--plot", action="store_true", help="throughput vs k into docs/reports/ensemble/")
+    ap.add_argument("--dask", action="store_true", help="a local 2-process Dask cluster against the local run")
     args = ap.parse_args(argv)
-    print(f"# {COMMAND}" + (" --plot" if args.plot else ""))
+    print(f"# {COMMAND} {' '.join(sys.argv[1:] if argv is None else argv)}".rstrip())
     print(f"# CPUs: {os.cpu_count()}, heyoka {hy.__version__}, SIMD batch size {hy.recommended_simd_size()}")
     t_bare, t_ens, stats = measure(args.k, args.repeat, args.workers)
     ratio = t_bare / t_ens
@@ -83,7 +86,27 @@ def main(argv=None):
     print(f"  ratio bare / ensemble = {ratio:.2f}  (bar: >= 3)")
     if args.plot:
         plot(args.repeat, args.workers)
+    if args.dask:
+        dask_vs_local(args.k, args.repeat)
     return 0 if ratio >= 3 else 1
+
+
+def dask_vs_local(k, repeat):
+    from distributed import Client, LocalCluster
+
+    body, Y0 = initial_states(k)
+    local = integrate_ensemble(body, Y0, T, single_run=ls.integrate)
+    t_local = best(lambda: integrate_ensemble(body, Y0, T, single_run=ls.integrate), repeat)
+    with LocalCluster(processes=True, n_workers=2, threads_per_worker=1, host="127.0.0.1",
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        t = time.perf_counter()
+        first = integrate_ensemble(body, Y0, T, client=client, single_run=ls.integrate)
+        t_first = time.perf_counter() - t  # includes each worker's compilation
+        t_dask = best(lambda: integrate_ensemble(body, Y0, T, client=client, single_run=ls.integrate), repeat)
+    same = np.array_equal(first.y, local.y) and list(first.status) == list(local.status)
+    print(f"Dask LocalCluster (2 worker processes x 1 thread, loopback), k = {k}:")
+    print(f"  first call {t_first * 1e3:.0f} ms (workers compile), then {t_dask * 1e3:.1f} ms; local "
+          f"{t_local * 1e3:.1f} ms; ratio local / dask = {t_local / t_dask:.2f}; equal to local: {same}")
 
 
 def plot(repeat, workers):

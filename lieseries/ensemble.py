@@ -274,8 +274,8 @@ def integrate_ensemble(
         Per-member values of the system's runtime parameters, in the order of
         ``system.poisson.parameter_names`` (for EulerPoisson the entries of I^-1).
     workers : int, optional
-        Threads for the batch path (default: the number of CPUs); processes for the other precisions (default 1:
-        one after another in this process).
+        Threads for the batch path (default: the number of CPUs, with at least two batches per thread);
+        processes for the other precisions (default 1: one after another in this process).
     client : dask.distributed.Client, optional
         Run the chunks on a Dask cluster (module docstring).
     chunk_size : int, optional
@@ -335,7 +335,8 @@ def integrate_ensemble(
         ta, build, event_info = build_batch_integrator(structure, tolf, B)
         order = int(ta.order)
         n_batches = -(-k // B)
-        used_workers = min(workers or (os.cpu_count() or 1), n_batches)
+        # a thread pool costs about half a millisecond to start: by default, threads only for two batches each
+        used_workers = min(workers, n_batches) if workers else max(1, min(os.cpu_count() or 1, n_batches // 2))
         cap = min(BATCH_STEPS, max_steps or DEFAULT_MAX_STEPS)
         handed = _run_batches(ta, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, used_workers,
                               res, progress)
@@ -356,6 +357,7 @@ def integrate_ensemble(
         for i, sol in zip(handed, sols):
             res.take(i, sol, tgrid)
             order = max(order, int(sol.stats.order))
+            build += float(sol.stats.build_time)
     run_time = _time.perf_counter() - start
     stats = dict(method="taylor (heyoka)", precision=prec.name, tol=float(tolf), order=order,
                  steps=res.steps, build_time=build, run_time=run_time, workers=used_workers,
@@ -613,8 +615,14 @@ def _run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap,
     return sorted(handed)
 
 
+#: Single runs share their integrator cache within a process and are not thread-safe: one at a time per process
+#: (several Dask tasks may run in threads of one worker process).
+_SINGLE_LOCK = threading.Lock()
+
+
 def _single(single_run, system, y0, t, opts):
-    return single_run(system, y0, t, **opts)
+    with _SINGLE_LOCK:
+        return single_run(system, y0, t, **opts)
 
 
 def _run_singles(single_run, systems, rows, t, opts, workers, progress, k, done0):

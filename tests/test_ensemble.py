@@ -172,6 +172,16 @@ def test_long_double_members_equal_single_runs():
         assert np.array_equal(es.y[i], sol.y)
 
 
+@pytest.mark.slow
+def test_quad_members_in_processes_equal_single_runs():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Y0 = body_states(body, omegas(3, seed=4), precision="quad")
+    es = run(body, Y0, 2.0, precision="quad", workers=2)  # spawned processes, each with its own cache
+    assert es.stats["path"] == "single" and es.stats["workers"] == 2 and es.success
+    for i in range(3):
+        assert np.array_equal(es.y[i], ls.integrate(body, Y0[i], 2.0, precision="quad").y)
+
+
 def test_nothing_to_integrate_and_without_single_run():
     body = ls.EulerPoisson(inertia=(1, 2, 3))
     Y0 = body_states(body, omegas(2))
