@@ -25,7 +25,8 @@ are run again as single runs. A lane that became non-finite is run again as a si
 condition, which keeps the last finite state and applies the single run's guards (step collapse, stiffness,
 budgets). Batches are given a step budget of at most :data:`BATCH_STEPS` steps per lane: a lane that would need
 more is also handed to a single run, which decides between success, ``step_collapse`` and ``step_budget`` exactly
-as for one run. With ``max_time`` (a per-member wall-time budget) every member runs as a single run.
+as for one run. With ``max_time`` (a per-member wall-time budget) or ``min_step``, every member runs as a single
+run.
 
 A member that stops early has NaN in the output rows after its stop; ``t_reached``/``y_reached`` give the last
 time and state it reached.
@@ -86,10 +87,11 @@ def _tol_value(tol, prec: Precision) -> Fraction:
     return f
 
 
-def build_batch_integrator(system, tol=None, batch_size=None, *, compact_mode=None):
+def build_batch_integrator(system, tol=None, batch_size=None, *, compact_mode=None, high_accuracy=False):
     """heyoka's ``taylor_adaptive_batch`` (double) for ``system``, from this process's cache when possible.
 
-    The cache key is (system structure, precision, tolerance, terminal events, batch size, compact mode); model
+    The cache key is (system structure, precision, tolerance, terminal events, batch size, compact mode, high
+    accuracy); model
     parameters are runtime parameters, so bodies of different inertia share one compiled integrator. The
     returned object is the cached one: copy it (``copy.deepcopy``) before integrating in more than one thread.
 
@@ -107,12 +109,12 @@ def build_batch_integrator(system, tol=None, batch_size=None, *, compact_mode=No
     n = ps.dimension
     if compact_mode is None:
         compact_mode = n > 20
-    key = (ps.key, prec.name, tolf, tuple(str(e[0]) for e in evs), B, bool(compact_mode))
+    key = (ps.key, prec.name, tolf, tuple(str(e[0]) for e in evs), B, bool(compact_mode), bool(high_accuracy))
     with _CACHE_LOCK:
         hit = _CACHE.get(key)
         if hit is not None:
             return hit[0], 0.0, hit[1]
-        kwargs = dict(tol=float(tolf), compact_mode=bool(compact_mode))
+        kwargs = dict(tol=float(tolf), compact_mode=bool(compact_mode), high_accuracy=bool(high_accuracy))
         if evs:
             kwargs["t_events"] = [hy.t_event_batch(e[0]) for e in evs]
         npar = len(ps.parameter_values)
@@ -256,6 +258,12 @@ def integrate_ensemble(
     batch_size=None,
     progress=None,
     single_run=None,
+    min_step=None,
+    compact_mode=None,
+    high_accuracy: bool = False,
+    dense: bool = False,
+    atlas: bool = False,
+    events=None,
 ) -> EnsembleSolution:
     """Integrate ``system`` from each row of ``Y0``; every member as its single run would.
 
@@ -283,11 +291,16 @@ def integrate_ensemble(
     batch_size : int, optional
         SIMD lanes per batch (double; default ``heyoka.recommended_simd_size()``).
     progress : callable, optional
-        ``progress(members_done, k)`` as batches and chunks finish.
+        Called as ``progress(fraction_done)`` (the fraction of members finished) as batches, single runs and
+        chunks finish, as for :func:`lieseries.integrate`.
     single_run : callable, optional
         The single-run driver (``lieseries.integrate``, which passes itself): runs the members of the other
         precisions and the members handed over by the batch path. Without it, every member must be decided in
         batch mode, or a RuntimeError says which member needed a single run.
+    min_step, compact_mode, high_accuracy
+        As for :func:`lieseries.integrate` (with ``min_step`` every member runs as a single run).
+    dense, atlas, events
+        Not available for ensembles: a ValueError says what to do instead.
 
     Returns
     -------
@@ -307,7 +320,18 @@ def integrate_ensemble(
     if max_time is not None and not (isinstance(max_time, numbers.Real) and max_time > 0):
         raise ValueError(f"`max_time` must be a positive number of seconds; got {max_time!r}")
     if progress is not None and not callable(progress):
-        raise TypeError(f"`progress` must be a callable progress(done, total); got {type(progress).__name__}")
+        raise TypeError(f"`progress` must be a callable progress(fraction_done); got {type(progress).__name__}")
+    for name, value in (("dense", dense), ("atlas", atlas)):
+        if value:
+            raise ValueError(f"`{name}=True` is not available for an ensemble (`Y0` of shape (k, n)); run the "
+                             "members you need it for one by one with lieseries.integrate")
+    if events is not None:
+        raise ValueError("`events` are not available for an ensemble (`Y0` of shape (k, n)) yet; run the members "
+                         "one by one with lieseries.integrate, or use a model's terminal events")
+    if min_step is not None and not (isinstance(min_step, numbers.Real) and min_step > 0):
+        raise ValueError(f"`min_step` must be positive; got {min_step!r}")
+    user_progress = progress
+    progress = None if user_progress is None else (lambda done, total: user_progress(done / total))
     Ynat, _exact = _states(model, ps, Y0, prec)
     k = Ynat.shape[0]
     pars = _parameters(ps, params, members, k, prec)
@@ -315,9 +339,15 @@ def integrate_ensemble(
     if client is not None:
         return _run_dask(client, structure, Ynat, pars, t, t0, dict(
             tol=tol, precision=precision, max_steps=max_steps, max_time=max_time, batch_size=batch_size,
-            single_run=single_run), chunk_size, progress, k)
+            single_run=single_run, min_step=min_step, compact_mode=compact_mode, high_accuracy=high_accuracy),
+            chunk_size, progress, k)
 
     opts = dict(tol=tol, precision=prec, t0=t0, max_steps=max_steps, max_time=max_time)
+    for name, value in (("min_step", min_step), ("compact_mode", compact_mode)):
+        if value is not None:
+            opts[name] = value
+    if high_accuracy:
+        opts["high_accuracy"] = True
     # heyoka's clock runs in the working precision: output times as rounded there (as in a single run)
     tgrid = [to_fraction(prec.time(g)) for g in grid]
     t0n = to_fraction(prec.time(t0f))
@@ -331,8 +361,9 @@ def integrate_ensemble(
             res.y[i, :] = Ynat[i]
             res.finish(i, "success", f"Reached t = {float(t0f):.17g}.", t0n, Ynat[i], 0)
         used_workers, path, order = 1, "none", 0
-    elif prec.name == "double" and max_time is None:
-        ta, build, event_info = build_batch_integrator(structure, tolf, B)
+    elif prec.name == "double" and max_time is None and min_step is None:
+        ta, build, event_info = build_batch_integrator(structure, tolf, B, compact_mode=compact_mode,
+                                                       high_accuracy=high_accuracy)
         order = int(ta.order)
         n_batches = -(-k // B)
         # a thread pool costs about half a millisecond to start: by default, threads only for two batches each

@@ -182,6 +182,18 @@ def test_quad_members_in_processes_equal_single_runs():
         assert np.array_equal(es.y[i], ls.integrate(body, Y0[i], 2.0, precision="quad").y)
 
 
+def test_progress_and_single_run_options():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Y0 = body_states(body, omegas(20))
+    seen = []
+    es = run(body, Y0, 2.0, progress=seen.append, batch_size=4, workers=1)
+    assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) == 5
+    # min_step routes every member through its single run, with the single run's own check
+    es2 = run(body, Y0[:2], 2.0, min_step=1e-300)
+    assert es2.stats["path"] == "single" and es2.stats["single_runs"] == 2
+    assert close(es2.y, es.y[:2], 0) <= 64 * EPS
+
+
 def test_nothing_to_integrate_and_without_single_run():
     body = ls.EulerPoisson(inertia=(1, 2, 3))
     Y0 = body_states(body, omegas(2))
@@ -203,6 +215,9 @@ def test_nothing_to_integrate_and_without_single_run():
         (dict(chunk_size=-1), "`chunk_size` must be a positive integer"),
         (dict(client="tcp://127.0.0.1:8786"), "`client` must be a dask.distributed.Client"),
         (dict(Y0=[[np.nan] + [0] * 11]), r"`Y0\[0\]\[0\]` must be finite"),
+        (dict(dense=True), "`dense=True` is not available for an ensemble"),
+        (dict(events=[]), "`events` are not available for an ensemble"),
+        (dict(progress=3), "`progress` must be a callable"),
     ],
 )
 def test_bad_input_names_the_argument(kwargs, match):
