@@ -175,7 +175,7 @@ def _structure(system):
 
 
 def _states(model, ps, Y0, prec: Precision):
-    """Y0 checked and rounded once to the working precision: (native array (k, n), exact or None)."""
+    """Y0 checked and rounded once to the working precision: a native array (k, n)."""
     n = ps.dimension
     if isinstance(Y0, np.ndarray) and Y0.dtype != object:
         arr = Y0
@@ -196,14 +196,14 @@ def _states(model, ps, Y0, prec: Precision):
             i, j = map(int, np.argwhere(bad)[0])
             raise ValueError(f"`Y0[{i}][{j}]` must be finite; got {arr[i, j]}: every entry of `Y0` must be a "
                              "finite number")
-        return arr.astype(prec.numpy_dtype), None  # exact (widening) or rounded once (long double -> double)
+        return arr.astype(prec.numpy_dtype)  # exact (widening) or rounded once (long double -> double)
     rows = []
     for i in range(arr.shape[0]):
         if model is not None:
             rows.append(model.check_state(arr[i], f"Y0[{i}]"))
         else:
             rows.append(state_fractions(arr[i], n, f"Y0[{i}]"))
-    return np.stack([prec.array(r) for r in rows]), rows
+    return np.stack([prec.array(r) for r in rows])
 
 
 def _parameters(ps, params, members, k, prec: Precision):
@@ -332,7 +332,7 @@ def integrate_ensemble(
         raise ValueError(f"`min_step` must be positive; got {min_step!r}")
     user_progress = progress
     progress = None if user_progress is None else (lambda done, total: user_progress(done / total))
-    Ynat, _exact = _states(model, ps, Y0, prec)
+    Ynat = _states(model, ps, Y0, prec)
     k = Ynat.shape[0]
     pars = _parameters(ps, params, members, k, prec)
 
@@ -377,9 +377,10 @@ def integrate_ensemble(
         used_workers, path, order = (workers or 1), "single", 0
     if handed:
         if single_run is None:
+            why = f"precision {prec.name}" if path == "single" else "batch mode could not decide it"
             raise RuntimeError(
-                f"member {handed[0]} (of {len(handed)}) needs a single run ({'precision ' + prec.name if path == 'single' else 'it stopped early in batch mode'}); "
-                "call lieseries.integrate(system, Y0, ...) or pass `single_run=lieseries.integrate`"
+                f"member {handed[0]} (of {len(handed)}) needs a single run ({why}): call "
+                "lieseries.integrate(system, Y0, ...), or pass `single_run=lieseries.integrate`"
             )
         systems = [_member_system(members[i] if members else structure, ps, None if pars is None else pars[i])
                    for i in handed]
