@@ -23,9 +23,11 @@ lanes the stop interrupted go on in the batch (the stopped lane is parked at the
 depends on the current state alone, so they take the steps they would have taken anyway. For an output grid they
 are run again as single runs. A lane that became non-finite is run again as a single run from its initial
 condition, which keeps the last finite state and applies the single run's guards (step collapse, stiffness,
-budgets). Batches are given a step budget of at most :data:`BATCH_STEPS` steps per lane: a lane that would need
-more is also handed to a single run, which decides between success, ``step_collapse`` and ``step_budget`` exactly
-as for one run. With ``max_time`` (a per-member wall-time budget) or ``min_step``, every member runs as a single
+budgets). A lane may take at most ``max_steps`` steps in a batch (default :data:`BATCH_STEPS`, the single run's
+threshold for a stiff run): the batch runs in chunks of steps, and a lane that at its current step size would need
+more is handed to a single run early, which decides between success, ``step_collapse`` and ``step_budget`` exactly
+as for one run (a healthy run longer than :data:`BATCH_STEPS` steps thus runs as a single run unless ``max_steps``
+is given). With ``max_time`` (a per-member wall-time budget) or ``min_step``, every member runs as a single
 run.
 
 A member that stops early has NaN in the output rows after its stop; ``t_reached``/``y_reached`` give the last
@@ -61,9 +63,12 @@ from .timegrid import parse_times
 
 __all__ = ["integrate_ensemble", "build_batch_integrator", "clear_batch_cache", "BATCH_STEPS"]
 
-#: Steps a lane may take inside a batch before it is handed to a single run (which decides whether the run is
-#: healthy and long, stiff, or collapsing; see the module docstring).
+#: Steps a lane may take inside a batch (with the default ``max_steps``) before it is handed to a single run, which
+#: decides whether the run is healthy and long, stiff, or collapsing (see the module docstring).
 BATCH_STEPS = 100_000
+#: A batch runs in chunks of steps (growing 4x from this many); between chunks, a lane that at its current step
+#: size would need more than the step cap is handed to a single run early.
+CHUNK_STEPS = 2048
 DEFAULT_MAX_STEPS = 50_000_000
 
 _CACHE: dict = {}
@@ -368,7 +373,7 @@ def integrate_ensemble(
         n_batches = -(-k // B)
         # a thread pool costs about half a millisecond to start: by default, threads only for two batches each
         used_workers = min(workers, n_batches) if workers else max(1, min(os.cpu_count() or 1, n_batches // 2))
-        cap = min(BATCH_STEPS, max_steps or DEFAULT_MAX_STEPS)
+        cap = BATCH_STEPS if max_steps is None else int(max_steps)
         handed = _run_batches(ta, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, used_workers,
                               res, progress)
         path = "batch"
@@ -499,19 +504,24 @@ def _record_lane(res, i, lane, kind, ta, out, Ynat, tgrid, t0n, direction, simpl
 
 
 def _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, event_info, cap, t_end, success_msg):
-    """Finish a batch (final-time run) after one lane stopped it: record the lanes that finished or met a terminal
-    event, park them at the final time on a finite state (they take no more steps), and go on with the others.
+    """Finish a batch (final-time run) that did not finish in one go.
 
-    heyoka's step size depends on the current state only, so a lane that goes on takes the steps it would have
-    taken without the stop. Lanes that became non-finite or exceeded the step cap are returned (single runs).
+    Either a lane stopped the batch (a terminal event, a non-finite state) or the batch used up its chunk of
+    :data:`CHUNK_STEPS` steps. Lanes that finished or met a terminal event are recorded and parked at the final time
+    on a finite state (they take no more steps); the others go on. heyoka's step size depends on the current state
+    alone, so a lane that goes on takes the steps it would have taken without the stop. Returned (for single runs):
+    the lanes that became non-finite, and those that at their current step size would need more than ``cap``
+    steps in all (a long, stiff or collapsing run: the single run's guard decides which).
     """
     B = len(idx)
     decided = np.zeros(B, dtype=bool)
     steps = np.zeros(B, dtype=np.int64)
     handed = []
     n_events = len(event_info)
+    chunk = CHUNK_STEPS
     while True:
         times = np.array(ta.time, copy=True)
+        last_h = np.abs(np.array(ta.last_h, dtype=np.float64))
         parked = False
         for lane in range(B):
             if decided[lane]:
@@ -519,14 +529,20 @@ def _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, even
             outcome, _hmin, _hmax, nsteps = prs[lane]
             steps[lane] += nsteps
             kind = _outcome_kind(outcome, n_events)
-            if kind == "interrupted" and not str(outcome).endswith("step_limit"):
-                continue  # stopped by another lane: goes on
+            if kind == "interrupted" and times[lane] == t_end:
+                kind = "done"  # finished while the batch ran out of its chunk of steps
+            if kind == "interrupted":
+                if not str(outcome).endswith("step_limit"):
+                    continue  # stopped by another lane: goes on
+                left = abs(float(t_end) - float(times[lane]))
+                if last_h[lane] > 0 and steps[lane] + left / last_h[lane] <= cap:
+                    continue  # healthy: goes on in the next chunk
             decided[lane] = True
             if lane < nl:
-                if kind in ("done",) or isinstance(kind, int):
+                if kind == "done" or isinstance(kind, int):
                     _record_lane(res, lo + lane, lane, kind, ta, None, Ynat, tgrid, t0n, direction, True,
                                  event_info, int(steps[lane]), success_msg)
-                else:  # non-finite, or over the step cap
+                else:  # non-finite, or too many steps ahead
                     handed.append(lo + lane)
             if kind != "done":
                 times[lane] = t_end
@@ -547,7 +563,8 @@ def _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, even
         if left <= 0:  # the cap is reached: what is left goes to single runs
             handed.extend(lo + lane for lane in range(nl) if not decided[lane])
             return handed
-        ta.propagate_until(t_end, max_steps=left)
+        chunk = min(4 * chunk, 1 << 20)
+        ta.propagate_until(t_end, max_steps=min(left, chunk))
         prs = ta.propagate_res
 
 
@@ -594,7 +611,7 @@ def _run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap,
             if event_info:
                 ta.reset_cooldowns()
             if simple:
-                ta.propagate_until(t_end, max_steps=cap)
+                ta.propagate_until(t_end, max_steps=min(cap, CHUNK_STEPS))
                 out = None
             else:
                 out = ta.propagate_grid(grid, max_steps=cap)[-1]
@@ -625,6 +642,8 @@ def _run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap,
                 for lane in range(nl):
                     i = lo + lane
                     kind = _outcome_kind(outcomes[lane], len(event_info))
+                    if kind == "interrupted" and ta.time[lane] == t_end:
+                        kind = "done"  # finished while the batch ran out of steps
                     if kind in ("interrupted", "non_finite"):
                         mine.append(i)
                         continue

@@ -162,6 +162,30 @@ def test_non_finite_member_next_to_finite_ones():
     assert es.stats["single_runs"] >= 2
 
 
+def test_stiff_member_handed_to_its_single_run_and_long_runs_in_chunks():
+    # damping 1e5 makes the body stiff (the single run stops with step_collapse); damping 0 is the free body
+    bodies = [ls.DampedEulerPoisson((1, 2, 3), damping=d) for d in (100000, 0, 100000)]
+    om = [1.0, 0.1, 0.5]
+    Y0 = np.stack([b.initial_state(om) for b in bodies])
+    es = run(bodies, Y0, 10.0)
+    singles = [ls.integrate(b, y0, 10.0) for b, y0 in zip(bodies, Y0)]
+    assert list(es.status) == [s.status for s in singles] == ["step_collapse", "success", "step_collapse"]
+    assert es.stats["single_runs"] == 2 and "stiff" in es.message[0]
+    assert close(es.y[1], singles[1].y, 0) <= 64 * EPS
+    # about 4800 steps: the batch goes on over several chunks of steps, each lane as its single run
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    oms = omegas(3, seed=5)
+    es = run(body, body_states(body, oms), 2000.0)
+    assert es.success and es.stats["single_runs"] == 0 and min(es.stats["steps"]) > 2048
+    for i in range(3):
+        sol = ls.integrate(body, body_states(body, oms)[i], 2000.0)
+        assert es.stats["steps"][i] == sol.stats.steps
+        with mp.workdps(30):
+            ref = [float(v) for v in ls.exact.euler_poisson((1, 2, 3), list(oms[i]), 2000, dps=30)]
+        # rounding errors grow over 2000 time units: the member is as close to the closed form as its single run
+        assert close(es.y[i, 1], ref, 0) <= max(4 * close(sol.y[1], ref, 0), 1e-12)
+
+
 def test_long_double_members_equal_single_runs():
     body = ls.EulerPoisson(inertia=(1, 2, 3))
     Y0 = body_states(body, omegas(3, seed=2), precision="long double")
