@@ -9,10 +9,13 @@ Paths
     releases the GIL while it integrates). Each thread works on its own copy of the cached compiled integrator
     (integrators are not thread-safe); one copy per thread, not per batch, because copying an integrator costs
     about as much as integrating eight rigid bodies to T = 20.
-``"long double"``, ``"quad"``, bits (arbitrary precision)
-    heyoka has no batch mode in these types: every member is a single run (``single_run``, normally
-    :func:`lieseries.integrate`), one after another, or in ``workers`` processes when ``workers`` > 1 (each
-    process compiles once and keeps its own cache).
+``"long double"``, ``"quad"``
+    heyoka has no batch mode in these types: the members run one by one on the scalar integrator a single run
+    uses (same compiled code, hence bit for bit the single run's result), over ``workers`` threads, each with its
+    own copy.
+bits (arbitrary precision)
+    every member is a single run (``single_run``, normally :func:`lieseries.integrate`), one after another, or in
+    ``workers`` spawned processes when ``workers`` > 1 (each process compiles once and keeps its own cache).
 
 Statuses and the guards
 -----------------------
@@ -61,7 +64,8 @@ from .precision import Precision, resolve_precision, to_fraction
 from .solution import EnsembleSolution
 from .timegrid import parse_times
 
-__all__ = ["integrate_ensemble", "build_batch_integrator", "clear_batch_cache", "BATCH_STEPS"]
+__all__ = ["integrate_ensemble", "build_batch_integrator", "build_scalar_integrator", "clear_batch_cache",
+           "BATCH_STEPS"]
 
 #: Steps a lane may take inside a batch (with the default ``max_steps``) before it is handed to a single run, which
 #: decides whether the run is healthy and long, stiff, or collapsing (see the module docstring).
@@ -127,6 +131,43 @@ def build_batch_integrator(system, tol=None, batch_size=None, *, compact_mode=No
             kwargs["pars"] = np.repeat(np.array([float(v) for v in ps.parameter_values]), B).reshape(npar, B)
         start = _time.perf_counter()
         ta = hy.taylor_adaptive_batch(ps.ode_system, np.zeros((n, B)), **kwargs)
+        build = _time.perf_counter() - start
+        info = [(e[1], e[2]) for e in evs]
+        if len(_CACHE) >= _CACHE_MAX:
+            old = _CACHE.pop(next(iter(_CACHE)))
+            _SPARE.pop(id(old[0]), None)
+        _CACHE[key] = (ta, info)
+        return ta, build, info
+
+
+def build_scalar_integrator(system, precision, tol=None, *, compact_mode=None, high_accuracy=False):
+    """heyoka's scalar ``taylor_adaptive`` in ``precision`` ("long double" or "quad") with the options of a single
+    run (same compiled code, hence the same steps), from this process's cache; copy it before use in a thread.
+
+    Returns (ta, build_time, event_info) as :func:`build_batch_integrator`.
+    """
+    ps = as_poisson_system(system)
+    prec = resolve_precision(precision)
+    if prec.name not in ("long double", "quad"):
+        raise ValueError(f"`precision` must be 'long double' or 'quad' here; got {prec.name!r}")
+    tolf = _tol_value(tol, prec)
+    evs = system.events() if isinstance(system, Model) else []
+    if compact_mode is None:
+        compact_mode = True  # as a single run: LLVM is slow on unrolled long-double and quad code
+    key = ("scalar", ps.key, prec.name, tolf, tuple(str(e[0]) for e in evs), bool(compact_mode),
+           bool(high_accuracy))
+    with _CACHE_LOCK:
+        hit = _CACHE.get(key)
+        if hit is not None:
+            return hit[0], 0.0, hit[1]
+        kwargs = dict(tol=prec.to_native(tolf), compact_mode=bool(compact_mode), high_accuracy=bool(high_accuracy),
+                      fp_type=prec.fp_type)
+        if evs:
+            kwargs["t_events"] = [hy.t_event(e[0], fp_type=prec.fp_type) for e in evs]
+        if ps.parameter_values:
+            kwargs["pars"] = prec.array(ps.parameter_values)
+        start = _time.perf_counter()
+        ta = hy.taylor_adaptive(ps.ode_system, prec.array([0] * ps.dimension), **kwargs)
         build = _time.perf_counter() - start
         info = [(e[1], e[2]) for e in evs]
         if len(_CACHE) >= _CACHE_MAX:
@@ -287,8 +328,9 @@ def integrate_ensemble(
         Per-member values of the system's runtime parameters, in the order of
         ``system.poisson.parameter_names`` (for EulerPoisson the entries of I^-1).
     workers : int, optional
-        Threads for the batch path (default: the number of CPUs, with at least two batches per thread);
-        processes for the other precisions (default 1: one after another in this process).
+        Threads for double (default: the number of CPUs, with at least two batches per thread), long double and
+        quad (default: the CPUs, at least two members per thread); processes for arbitrary precision (default 1:
+        one after another in this process).
     client : dask.distributed.Client, optional
         Run the chunks on a Dask cluster (module docstring).
     chunk_size : int, optional
@@ -377,6 +419,15 @@ def integrate_ensemble(
         handed = _run_batches(ta, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, used_workers,
                               res, progress)
         path = "batch"
+    elif prec.name in ("long double", "quad") and max_time is None and min_step is None:
+        ta, build, event_info = build_scalar_integrator(structure, prec, tolf, compact_mode=compact_mode,
+                                                        high_accuracy=high_accuracy)
+        order = int(ta.order)
+        used_workers = min(workers, k) if workers else max(1, min(os.cpu_count() or 1, k // 2))
+        cap = BATCH_STEPS if max_steps is None else int(max_steps)
+        handed = _run_scalar(ta, event_info, Ynat, pars, ps, prec, tgrid, t0n, direction, cap, used_workers,
+                             res, progress)
+        path = "threads"
     else:
         handed = list(range(k))
         used_workers, path, order = (workers or 1), "single", 0
@@ -657,6 +708,104 @@ def _run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap,
                 done[0] += hi - lo - len(mine)
                 if progress is not None:
                     progress(done[0], k)
+
+    if n_threads <= 1:
+        work(0)
+    else:
+        with ThreadPoolExecutor(max_workers=n_threads) as pool:
+            list(pool.map(work, range(n_threads)))
+    return sorted(handed)
+
+
+def _run_scalar(ta0, event_info, Ynat, pars, ps, prec, tgrid, t0n, direction, cap, n_threads, res, progress):
+    """Every member with the scalar integrator ``ta0`` (a private copy per thread); return the members to hand over.
+
+    The same decisions as a batch lane: finished or stopped by a terminal event is recorded; non-finite, or more
+    than ``cap`` steps ahead at the current step size (checked between chunks of steps), goes to a single run.
+    """
+    k, n = Ynat.shape
+    npar = len(ps.parameter_values)
+    par_native = None
+    if npar:
+        par_native = [prec.array(ps.parameter_values if pars is None else pars[i]) for i in range(k)] \
+            if pars is not None else [prec.array(ps.parameter_values)] * k
+    simple = len(tgrid) == 2 and tgrid[0] == t0n
+    t0_nat = prec.time(t0n)
+    t_end = prec.time(tgrid[-1])
+    if not simple:
+        lead = tgrid[0] != t0n
+        grid = prec.array([t0n] * lead + list(tgrid))
+    success_msg = f"Reached t = {float(tgrid[-1]):.17g}."
+    counter = iter(range(k))
+    lock = threading.Lock()
+    handed = []
+    done = [0]
+    n_events = len(event_info)
+
+    def one(ta, i):
+        ta.time = t0_nat
+        ta.state[:] = Ynat[i]
+        if npar:
+            ta.pars[:] = par_native[i]
+        if n_events:
+            ta.reset_cooldowns()
+        steps = 0
+        out = None
+        if simple:
+            chunk = CHUNK_STEPS
+            while True:
+                outcome, _hmin, _hmax, nsteps = ta.propagate_until(t_end, max_steps=min(cap - steps, chunk))[:4]
+                steps += nsteps
+                kind = _outcome_kind(outcome, n_events)
+                if kind != "interrupted":
+                    break
+                h = abs(float(ta.last_h))
+                left = abs(float(t_end) - float(ta.time))
+                if not str(outcome).endswith("step_limit") or steps >= cap or not h > 0 or steps + left / h > cap:
+                    return False
+                chunk = min(4 * chunk, 1 << 20)
+        else:
+            r = ta.propagate_grid(grid, max_steps=cap)
+            outcome, steps, out = r[0], int(r[3]), r[-1][int(lead):]
+            kind = _outcome_kind(outcome, n_events)
+        if kind in ("interrupted", "non_finite"):
+            return False
+        t_r = to_fraction(ta.time)
+        y_r = np.array(ta.state, copy=True)
+        m = 0
+        for j, tj in enumerate(tgrid):
+            if (tj - t0n) * direction > (t_r - t0n) * direction:
+                break
+            res.y[i, j] = Ynat[i] if tj == t0n else (y_r if tj == t_r else out[j])
+            m = j + 1
+        res.rows[i] = m
+        if kind == "done":
+            res.finish(i, "success", success_msg, t_r, y_r, steps)
+        else:
+            status, msg = event_info[kind]
+            h = abs(float(ta.last_h))
+            res.finish(i, status, f"Stopped at t = {float(t_r):.17g} (last step size {h:.3g}): {msg}.", t_r, y_r,
+                       steps)
+        return True
+
+    def work(_):
+        ta = _borrow(ta0)
+        try:
+            while True:
+                with lock:
+                    i = next(counter, None)
+                if i is None:
+                    return
+                ok = one(ta, i)
+                with lock:
+                    if ok:
+                        done[0] += 1
+                    else:
+                        handed.append(i)
+                    if progress is not None and ok:
+                        progress(done[0], k)
+        finally:
+            _give_back(ta0, ta)
 
     if n_threads <= 1:
         work(0)

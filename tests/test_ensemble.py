@@ -189,21 +189,44 @@ def test_stiff_member_handed_to_its_single_run_and_long_runs_in_chunks():
 def test_long_double_members_equal_single_runs():
     body = ls.EulerPoisson(inertia=(1, 2, 3))
     Y0 = body_states(body, omegas(3, seed=2), precision="long double")
-    es = run(body, Y0, 5.0, precision="long double")
-    assert es.y.dtype == np.longdouble and es.success and es.stats["path"] == "single"
+    es = run(body, Y0, 5.0, precision="long double", workers=2)
+    assert es.y.dtype == np.longdouble and es.success and es.stats["path"] == "threads"
     for i in range(3):
         sol = ls.integrate(body, Y0[i], 5.0, precision="long double")
-        assert np.array_equal(es.y[i], sol.y)
+        assert np.array_equal(es.y[i], sol.y) and es.stats["steps"][i] == sol.stats.steps  # the same compiled code
+
+
+def test_long_double_sphere_edge_and_grid():
+    sphere = ls.Sphere()
+    S0 = np.stack([sphere.initial_state(x=("0.6", 0, "0.8"), v=("0.8", 0, "-0.6"), precision="long double"),
+                   sphere.initial_state(x=("0.6", 0, "0.8"), v=(0, "0.2", 0), precision="long double")])
+    for t in ([0.5, 1.0, 2.0], 2.0):
+        es = run(sphere, S0, t, precision="long double")
+        assert list(es.status) == ["chart_edge", "success"]
+        for i in range(2):
+            sol = ls.integrate(sphere, S0[i], t, precision="long double")
+            assert sol.status == es.status[i] and es.rows[i] == len(sol.t)
+            assert np.array_equal(es.y[i, : len(sol.t)], sol.y) and np.array_equal(es.y_reached[i], sol.y_reached)
+            assert es.t_reached[i] == sol.t_reached
 
 
 @pytest.mark.slow
-def test_quad_members_in_processes_equal_single_runs():
+def test_real_precision_members_in_processes_equal_single_runs():
     body = ls.EulerPoisson(inertia=(1, 2, 3))
-    Y0 = body_states(body, omegas(3, seed=4), precision="quad")
-    es = run(body, Y0, 2.0, precision="quad", workers=2)  # spawned processes, each with its own cache
+    Y0 = body_states(body, omegas(3, seed=4), precision=80)
+    es = run(body, Y0, 2.0, precision=80, workers=2)  # spawned processes, each with its own cache
     assert es.stats["path"] == "single" and es.stats["workers"] == 2 and es.success
     for i in range(3):
-        assert np.array_equal(es.y[i], ls.integrate(body, Y0[i], 2.0, precision="quad").y)
+        assert np.array_equal(es.y[i], ls.integrate(body, Y0[i], 2.0, precision=80).y)
+
+
+def test_quad_members_equal_single_runs():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Y0 = [[1, 0, 0, 0, 1, 0, 0, 0, 1, 1, "0.2", "1.5"], [1, 0, 0, 0, 1, 0, 0, 0, 1, "1.1", "0.2", "1.5"]]
+    es = run(body, Y0, 1.0, precision="quad")
+    assert es.stats["path"] == "threads" and es.y.dtype == np.dtype(hy.real128)
+    for i in range(2):
+        assert np.array_equal(es.y[i], ls.integrate(body, Y0[i], 1.0, precision="quad").y)
 
 
 def test_progress_and_single_run_options():
@@ -224,7 +247,7 @@ def test_nothing_to_integrate_and_without_single_run():
     es = run(body, Y0, 0.0)
     assert es.success and np.array_equal(es.y[:, 0], Y0) and np.array_equal(es.y_reached, Y0)
     with pytest.raises(RuntimeError, match="single_run"):
-        integrate_ensemble(body, Y0, 1.0, precision="quad")
+        integrate_ensemble(body, Y0, 1.0, precision=80)
 
 
 @pytest.mark.parametrize(
