@@ -308,7 +308,7 @@ def integrate_ensemble(
     compact_mode=None,
     high_accuracy: bool = False,
     dense: bool = False,
-    atlas: bool = False,
+    atlas: bool | None = None,
     events=None,
 ) -> EnsembleSolution:
     """Integrate ``system`` from each row of ``Y0``; every member as its single run would.
@@ -346,7 +346,11 @@ def integrate_ensemble(
         batch mode, or a RuntimeError says which member needed a single run.
     min_step, compact_mode, high_accuracy
         As for :func:`lieseries.integrate` (with ``min_step`` every member runs as a single run).
-    dense, atlas, events
+    atlas : bool, optional
+        As for :func:`lieseries.integrate` (default: the model's own ``atlas`` attribute, off when it has none).
+        Members that start in their best chart and never come near its edge run in the batch; the others (those
+        that would switch charts) run as single runs across the atlas.
+    dense, events
         Not available for ensembles: a ValueError says what to do instead.
 
     Returns
@@ -368,28 +372,39 @@ def integrate_ensemble(
         raise ValueError(f"`max_time` must be a positive number of seconds; got {max_time!r}")
     if progress is not None and not callable(progress):
         raise TypeError(f"`progress` must be a callable progress(fraction_done); got {type(progress).__name__}")
-    for name, value in (("dense", dense), ("atlas", atlas)):
-        if value:
-            raise ValueError(f"`{name}=True` is not available for an ensemble (`Y0` of shape (k, n)); run the "
-                             "members you need it for one by one with lieseries.integrate")
+    if dense:
+        raise ValueError("`dense=True` is not available for an ensemble (`Y0` of shape (k, n)); run the members you "
+                         "need it for one by one with lieseries.integrate")
+    if atlas is None:
+        atlas = bool(getattr(structure, "atlas", False))  # as a single run: a model may switch charts by default
+    atlas = bool(atlas)
+    if atlas and not (hasattr(structure, "for_chart") and hasattr(structure, "ATLAS_SWITCH")):
+        raise ValueError(f"`atlas` needs a model with an atlas of charts (Sphere); {type(structure).__name__} has "
+                         "one global chart")
     if events is not None:
         raise ValueError("`events` are not available for an ensemble (`Y0` of shape (k, n)) yet; run the members "
                          "one by one with lieseries.integrate, or use a model's terminal events")
     if min_step is not None and not (isinstance(min_step, numbers.Real) and min_step > 0):
         raise ValueError(f"`min_step` must be positive; got {min_step!r}")
-    user_progress = progress
-    progress = None if user_progress is None else (lambda done, total: user_progress(done / total))
+    progress = None if progress is None else _Monotone(progress)
     Ynat = _states(model, ps, Y0, prec)
     k = Ynat.shape[0]
     pars = _parameters(ps, params, members, k, prec)
 
     if client is not None:
         return _run_dask(client, structure, Ynat, pars, t, t0, dict(
-            tol=tol, precision=precision, max_steps=max_steps, max_time=max_time, batch_size=batch_size,
-            single_run=single_run, min_step=min_step, compact_mode=compact_mode, high_accuracy=high_accuracy),
-            chunk_size, progress, k)
+            tol=tol, precision=prec, max_steps=max_steps, max_time=max_time, batch_size=batch_size,
+            single_run=single_run, min_step=min_step, compact_mode=compact_mode, high_accuracy=high_accuracy,
+            atlas=atlas), chunk_size, progress, k)
 
-    opts = dict(tol=tol, precision=prec, t0=t0, max_steps=max_steps, max_time=max_time)
+    opts = dict(tol=tol, precision=prec, t0=t0, max_steps=max_steps, max_time=max_time, atlas=atlas)
+    # With an atlas, the batch runs the model with the atlas's switching edge as its terminal event: a member that
+    # starts in the model's chart and never reaches that edge is exactly the atlas run's first (and only) segment;
+    # the others run as single runs across the atlas.
+    run_system = structure
+    if atlas:
+        run_system = structure.for_chart(structure.chart, edge=structure.ATLAS_SWITCH)
+    ps_run = as_poisson_system(run_system)
     for name, value in (("min_step", min_step), ("compact_mode", compact_mode)):
         if value is not None:
             opts[name] = value
@@ -408,29 +423,38 @@ def integrate_ensemble(
             res.y[i, :] = Ynat[i]
             res.finish(i, "success", f"Reached t = {float(t0f):.17g}.", t0n, Ynat[i], 0)
         used_workers, path, order = 1, "none", 0
+    elif atlas and pars is not None:
+        handed = list(range(k))  # per-member parameters across an atlas: single runs
+        used_workers, path, order = 1, "single", 0
     elif prec.name == "double" and max_time is None and min_step is None:
-        ta, build, event_info = build_batch_integrator(structure, tolf, B, compact_mode=compact_mode,
+        ta, build, event_info = build_batch_integrator(run_system, tolf, B, compact_mode=compact_mode,
                                                        high_accuracy=high_accuracy)
         order = int(ta.order)
         n_batches = -(-k // B)
         # a thread pool costs about half a millisecond to start: by default, threads only for two batches each
         used_workers = min(workers, n_batches) if workers else max(1, min(os.cpu_count() or 1, n_batches // 2))
         cap = BATCH_STEPS if max_steps is None else int(max_steps)
-        handed = _run_batches(ta, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, used_workers,
+        handed = _run_batches(ta, event_info, Ynat, pars, ps_run, tgrid, t0n, direction, B, cap, used_workers,
                               res, progress)
         path = "batch"
     elif prec.name in ("long double", "quad") and max_time is None and min_step is None:
-        ta, build, event_info = build_scalar_integrator(structure, prec, tolf, compact_mode=compact_mode,
+        ta, build, event_info = build_scalar_integrator(run_system, prec, tolf, compact_mode=compact_mode,
                                                         high_accuracy=high_accuracy)
         order = int(ta.order)
         used_workers = min(workers, k) if workers else max(1, min(os.cpu_count() or 1, k // 2))
         cap = BATCH_STEPS if max_steps is None else int(max_steps)
-        handed = _run_scalar(ta, event_info, Ynat, pars, ps, prec, tgrid, t0n, direction, cap, used_workers,
+        handed = _run_scalar(ta, event_info, Ynat, pars, ps_run, prec, tgrid, t0n, direction, cap, used_workers,
                              res, progress)
         path = "threads"
     else:
         handed = list(range(k))
         used_workers, path, order = (workers or 1), "single", 0
+    if atlas and path in ("batch", "threads"):
+        # members that reached the switching edge, or that an atlas run would start in another chart
+        x = np.abs(np.asarray(Ynat[:, :3], dtype=np.float64))
+        other_chart = np.argmax(x, axis=1) != structure.chart
+        switch_status = {info[0] for info in event_info}
+        handed = sorted(set(handed) | {i for i in range(k) if other_chart[i] or res.status[i] in switch_status})
     if handed:
         if single_run is None:
             why = f"precision {prec.name}" if path == "single" else "batch mode could not decide it"
@@ -455,6 +479,21 @@ def integrate_ensemble(
                             rows=res.rows, method="taylor (heyoka)")
 
 
+class _Monotone:
+    """``progress(done, total)`` -> the user's ``progress(fraction)``, never going back (members handed from the
+    batch to single runs are counted once)."""
+
+    def __init__(self, fn):
+        self.fn = fn
+        self.best = -1.0
+
+    def __call__(self, done, total):
+        f = done / total
+        if f > self.best:
+            self.best = f
+            self.fn(f)
+
+
 class _Result:
     """Per-member outputs being filled in (NaN rows where a member did not get to)."""
 
@@ -477,7 +516,8 @@ class _Result:
 
     def take(self, i, sol, tgrid):
         m = len(sol.t)
-        self.y[i, :m] = sol.y
+        self.y[i] = _nan_array(self.y.shape[1:], self.prec)
+        self.y[i, :m] = np.asarray(sol.y)
         self.rows[i] = m
         self.finish(i, sol.status, sol.message, sol.t_reached, sol.y_reached, sol.stats.steps)
 

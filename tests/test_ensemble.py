@@ -109,11 +109,11 @@ def test_sphere_member_stops_at_chart_edge_others_succeed():
               sphere.initial_state(x=(0, 0.6, 0.8), v=(0.3, 0, 0)),
               sphere.initial_state(x=(0.6, 0, 0.8), v=(0, 0.2, 0))]
     t = [0.5, 1.0, 2.0]
-    es = run(sphere, np.stack(states), t)
+    es = run(sphere, np.stack(states), t, atlas=False)
     assert list(es.status) == ["chart_edge", "success", "success"]
     assert not es.success and list(es.succeeded) == [False, True, True]
     for i, y0 in enumerate(states):
-        sol = ls.integrate(sphere, y0, t)
+        sol = ls.integrate(sphere, y0, t, atlas=False)
         assert sol.status == es.status[i]
         assert es.rows[i] == len(sol.t)
         assert close(es.y[i, : len(sol.t)], sol.y, 0) <= 64 * EPS
@@ -124,10 +124,10 @@ def test_sphere_member_stops_at_chart_edge_others_succeed():
     assert np.isnan(es.y[0, es.rows[0]:]).all()
     assert es.rows[0] == 1 and "chart" in es.message[0]
     # to a final time, the lanes the stop interrupted go on in the batch (no single run), as their single runs
-    fin = run(sphere, np.stack(states * 3), 2.0, batch_size=4)
+    fin = run(sphere, np.stack(states * 3), 2.0, batch_size=4, atlas=False)
     assert fin.stats["single_runs"] == 0 and list(fin.status) == ["chart_edge", "success", "success"] * 3
     for i, y0 in enumerate(states * 3):
-        sol = ls.integrate(sphere, y0, 2.0)
+        sol = ls.integrate(sphere, y0, 2.0, atlas=False)
         assert fin.stats["steps"][i] == sol.stats.steps and fin.t_reached[i] == sol.t_reached
         assert close(fin.y_reached[i], sol.y_reached, 0) <= 64 * EPS
     # the stop is where the great circle (closed form) has x3 = 0.05, and the state is the closed form's there
@@ -139,6 +139,23 @@ def test_sphere_member_stops_at_chart_edge_others_succeed():
         x_ref, _ = ls.exact.sphere(1, ["0.6", 0, "0.8"] if i == 2 else [0, "0.6", "0.8"],
                                    [0, "0.2", 0] if i == 2 else ["0.3", 0, 0], 2, dps=30)
         assert close(es.y[i, -1, :3], [float(v) for v in x_ref], 0) <= 1e-14
+
+
+def test_sphere_atlas_members_equal_atlas_single_runs():
+    sphere = ls.Sphere()
+    states = [sphere.initial_state(x=(0.6, 0, 0.8), v=(0.8, 0, -0.6)),  # leaves |x3| > 0.5 |x|: switches charts
+              sphere.initial_state(x=(0.6, 0, 0.8), v=(0, 0.2, 0)),  # stays near the pole
+              sphere.initial_state(x=(0.6, 0, 0.8), v=(0.1, 0, -0.075))]  # slow: stays in the chart
+    for t in (3.0, [1.0, 3.0]):
+        es = run(sphere, np.stack(states), t, atlas=True)
+        assert list(es.status) == ["success"] * 3
+        assert es.stats["single_runs"] == 1  # only the member that switches charts
+        for i, y0 in enumerate(states):
+            sol = ls.integrate(sphere, y0, t, atlas=True)
+            assert sol.status == es.status[i]
+            assert close(es.y[i], np.asarray(sol.y, dtype=np.float64), 0) <= 64 * EPS
+    with pytest.raises(ValueError, match="`atlas` needs a model with an atlas"):
+        run(ls.EulerPoisson(), np.zeros((1, 12)), 1.0, atlas=True)
 
 
 def test_non_finite_member_next_to_finite_ones():
@@ -201,10 +218,10 @@ def test_long_double_sphere_edge_and_grid():
     S0 = np.stack([sphere.initial_state(x=("0.6", 0, "0.8"), v=("0.8", 0, "-0.6"), precision="long double"),
                    sphere.initial_state(x=("0.6", 0, "0.8"), v=(0, "0.2", 0), precision="long double")])
     for t in ([0.5, 1.0, 2.0], 2.0):
-        es = run(sphere, S0, t, precision="long double")
+        es = run(sphere, S0, t, precision="long double", atlas=False)
         assert list(es.status) == ["chart_edge", "success"]
         for i in range(2):
-            sol = ls.integrate(sphere, S0[i], t, precision="long double")
+            sol = ls.integrate(sphere, S0[i], t, precision="long double", atlas=False)
             assert sol.status == es.status[i] and es.rows[i] == len(sol.t)
             assert np.array_equal(es.y[i, : len(sol.t)], sol.y) and np.array_equal(es.y_reached[i], sol.y_reached)
             assert es.t_reached[i] == sol.t_reached
@@ -329,7 +346,8 @@ def test_dask_equals_local(client):
     sphere = ls.Sphere()
     S0 = np.stack([sphere.initial_state(x=(0.6, 0, 0.8), v=(0.8, 0, -0.6)),
                    sphere.initial_state(x=(0.6, 0, 0.8), v=(0, 0.2, 0))])
-    a, b = run(sphere, S0, 2.0), run(sphere, S0, 2.0, client=client, chunk_size=1)
+    a = run(sphere, S0, 2.0, atlas=False)
+    b = run(sphere, S0, 2.0, client=client, chunk_size=1, atlas=False)
     assert list(b.status) == list(a.status) == ["chart_edge", "success"]
     assert np.array_equal(a.y_reached, b.y_reached, equal_nan=True)
     ps = blowup_system()
