@@ -52,6 +52,7 @@ import numbers
 import os
 import threading
 import time as _time
+import warnings
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from fractions import Fraction
 
@@ -60,7 +61,8 @@ import numpy as np
 
 from .models.base import Model, state_fractions
 from .poisson import PoissonSystem, as_poisson_system
-from .precision import Precision, resolve_precision, to_fraction
+from . import precision as _precision_module
+from .precision import Precision, precision_of_dtype, resolve_precision, to_fraction
 from .solution import EnsembleSolution
 from .timegrid import parse_times
 
@@ -252,6 +254,52 @@ def _states(model, ps, Y0, prec: Precision):
     return np.stack([prec.array(r) for r in rows])
 
 
+def _exact_rows(Y0):
+    """A list of states that carry their exact values (``state.exact``) as rows of those exact values."""
+    if isinstance(Y0, (list, tuple)) and Y0 and all(getattr(r, "exact", None) is not None for r in Y0):
+        return [list(r.exact) for r in Y0]
+    return Y0
+
+
+def _infer_precision(precision, Y0) -> Precision:
+    """``precision``, or when it is None the precision of the data (as a single run): the dtype of a numeric
+    array, the type of heyoka.real / real128 / long double entries, else double."""
+    if precision is not None:
+        return resolve_precision(precision)
+    if isinstance(Y0, np.ndarray) and Y0.dtype != object:
+        return precision_of_dtype(Y0.dtype) or resolve_precision("double")
+    try:
+        first = np.asarray(Y0, dtype=object).ravel()[0]
+    except (ValueError, IndexError):
+        return resolve_precision("double")
+    if isinstance(first, hy.real):
+        return resolve_precision(int(first.prec))
+    if isinstance(first, hy.real128):
+        return resolve_precision("quad")
+    if isinstance(first, np.longdouble) and np.finfo(np.longdouble).nmant > 52:
+        return resolve_precision("long double")
+    return resolve_precision("double")
+
+
+def _warn_coarse(Y0, prec: Precision) -> None:
+    """One warning when binary doubles feed a run of more bits (their digits beyond 53 bits are zeros)."""
+    if prec.bits <= 53:
+        return
+    arr = Y0 if isinstance(Y0, np.ndarray) else None
+    binary = arr is not None and arr.dtype in (np.float64, np.float32)
+    if arr is None:
+        try:
+            binary = any(isinstance(v, (float, np.float64, np.float32)) and not float(v).is_integer()
+                         for v in np.asarray(Y0, dtype=object).ravel())
+        except ValueError:
+            binary = False
+    if binary:
+        category = getattr(_precision_module, "PrecisionWarning", UserWarning)
+        warnings.warn(f"`Y0` holds binary doubles (53 bits) and the run uses {prec.bits} bits: each entry is taken "
+                      "at its binary value. Pass exact input (str, Fraction) or states built with "
+                      f"`precision=` to start from {prec.bits}-bit data.", category, stacklevel=3)
+
+
 def _parameters(ps, params, members, k, prec: Precision):
     """Per-member parameter values (exact Fractions, (k, npar)) or None when every member uses the system's own."""
     npar = len(ps.parameter_values)
@@ -293,7 +341,7 @@ def integrate_ensemble(
     t,
     *,
     tol=None,
-    precision="double",
+    precision=None,
     t0=0,
     params=None,
     workers=None,
@@ -322,8 +370,10 @@ def integrate_ensemble(
         precision; float64 entries are their binary values.
     t : float or sequence
         Final time or output times, as for :func:`lieseries.integrate` (the same for every member).
-    tol, precision, t0, max_steps, max_time
+    tol, t0, max_steps, max_time
         As for :func:`lieseries.integrate`, per member.
+    precision : "double" | "long double" | "quad" | int bits, optional
+        Default: the precision of ``Y0`` (the dtype of a numeric array; double for exact input and floats).
     params : array-like, shape (k, npar), optional
         Per-member values of the system's runtime parameters, in the order of
         ``system.poisson.parameter_names`` (for EulerPoisson the entries of I^-1).
@@ -360,7 +410,8 @@ def integrate_ensemble(
     structure, members = _structure(system)
     ps = as_poisson_system(structure)
     model = structure if isinstance(structure, Model) else None
-    prec = resolve_precision(precision)
+    Y0 = _exact_rows(Y0)
+    prec = _infer_precision(precision, Y0)
     grid, direction, t0f = parse_times(t, t0)
     tolf = _tol_value(tol, prec)
     workers = _check_count(workers, "workers")
@@ -388,6 +439,7 @@ def integrate_ensemble(
         raise ValueError(f"`min_step` must be positive; got {min_step!r}")
     progress = None if progress is None else _Monotone(progress)
     Ynat = _states(model, ps, Y0, prec)
+    _warn_coarse(Y0, prec)
     k = Ynat.shape[0]
     pars = _parameters(ps, params, members, k, prec)
 

@@ -264,7 +264,16 @@ def test_nothing_to_integrate_and_without_single_run():
     es = run(body, Y0, 0.0)
     assert es.success and np.array_equal(es.y[:, 0], Y0) and np.array_equal(es.y_reached, Y0)
     with pytest.raises(RuntimeError, match="single_run"):
-        integrate_ensemble(body, Y0, 1.0, precision=80)
+        integrate_ensemble(body, body_states(body, omegas(2), precision=80), 1.0, precision=80)
+
+
+def test_precision_from_the_data_and_coarse_data_warned():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Yld = body_states(body, omegas(2), precision="long double")
+    assert run(body, Yld, 1.0).stats["precision"] == "long double"  # precision=None: the data's own
+    assert run(body, Yld.astype(np.float64), 1.0).stats["precision"] == "double"
+    with pytest.warns(UserWarning, match="`Y0` holds binary doubles"):
+        run(body, Yld.astype(np.float64), 1.0, precision="long double")
 
 
 @pytest.mark.parametrize(
