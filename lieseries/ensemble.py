@@ -740,17 +740,24 @@ def _run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap,
             _give_back(ta0, ta)
 
     def _work(ta):
+        state, t0f = ta.state, float(t0n)
+        if npar and pars is None:
+            ta.pars[:] = par_rows[:B].T if k >= B else par_rows[[0] * B].T  # the same for every member
         while True:
             with lock:
                 b = next(counter, None)
             if b is None:
                 return
             lo, hi = b * B, min(k, b * B + B)
-            idx = list(range(lo, hi)) + [lo] * (B - (hi - lo))  # pad the last batch with copies of its first lane
-            ta.set_time(float(t0n))
-            ta.state[:] = Ynat[idx].T
-            if npar:
-                ta.pars[:] = par_rows[idx].T
+            if hi - lo == B:
+                idx = range(lo, hi)
+                state[:] = Ynat[lo:hi].T
+            else:
+                idx = list(range(lo, hi)) + [lo] * (B - (hi - lo))  # pad the last batch with copies of its first
+                state[:] = Ynat[idx].T
+            ta.set_time(t0f)
+            if npar and pars is not None:
+                ta.pars[:] = par_rows[list(idx)].T
             if event_info:
                 ta.reset_cooldowns()
             if simple:
