@@ -324,8 +324,13 @@ def _member_system(system, ps, values):
     """The system with the parameter values of one member (the system itself when they are its own)."""
     if values is None or tuple(values) == tuple(ps.parameter_values):
         return system
+    # Same structure, other runtime parameter values (no recompilation). PoissonSystem has no public way to do this
+    # yet: a shallow copy with new values, and every per-instance cache of values derived from the old ones reset.
     ps2 = copy.copy(ps)
-    ps2._param_values = tuple(values)  # same structure, other runtime parameter values (no recompilation)
+    ps2._param_values = tuple(values)
+    for name, value in list(vars(ps2).items()):
+        if name != "_casimirs" and isinstance(value, dict):
+            setattr(ps2, name, {})  # e.g. parameters rounded per precision
     if isinstance(system, PoissonSystem):
         return ps2
     model = copy.copy(system)

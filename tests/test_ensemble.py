@@ -189,6 +189,11 @@ def test_stiff_member_handed_to_its_single_run_and_long_runs_in_chunks():
     assert list(es.status) == [s.status for s in singles] == ["step_collapse", "success", "step_collapse"]
     assert es.stats["single_runs"] == 2 and "stiff" in es.message[0]
     assert close(es.y[1], singles[1].y, 0) <= 64 * EPS
+    # the same members through `params=` on one model: the single runs must use each member's own values
+    params = [list(b.poisson.parameter_values) for b in bodies[::-1]]
+    es2 = run(bodies[1], Y0[::-1], 10.0, params=params)
+    assert list(es2.status) == list(es.status)[::-1]
+    assert es2.t_reached[0] == singles[2].t_reached and es2.t_reached[2] == singles[0].t_reached
     # about 4800 steps: the batch goes on over several chunks of steps, each lane as its single run
     body = ls.EulerPoisson(inertia=(1, 2, 3))
     oms = omegas(3, seed=5)
