@@ -21,7 +21,7 @@ from .events import Event
 from .models import DampedEulerPoisson, EulerPoisson, Model, Sphere, SphereDirac
 from .poisson import PoissonSystem
 from .precision import Precision, PrecisionWarning, resolve_precision
-from .solution import Solution, Stats
+from .solution import EnsembleSolution, Solution, Stats
 from .lie.integrator import lie_integrate
 from .lie.operator import LieSeries, lie_series
 from .lie.symbolic import rigid_body_series
@@ -42,6 +42,7 @@ __all__ = [
     "Precision",
     "resolve_precision",
     "Solution",
+    "EnsembleSolution",
     "Stats",
     "integrate",
     "lie_series",

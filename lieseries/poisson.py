@@ -28,6 +28,7 @@ as a parameter.
 
 from __future__ import annotations
 
+import copy
 from fractions import Fraction
 from typing import Mapping, Sequence
 
@@ -255,6 +256,16 @@ class PoissonSystem:
             if e is not None
         ]
         return hy.sum(terms) if terms else hy.expression(0.0)
+
+    def with_parameters(self, values) -> "PoissonSystem":
+        """The same system (same structure, same compiled integrators) with other runtime parameter values."""
+        values = tuple(to_fraction(v, f"parameters[{i}]") for i, v in enumerate(values))
+        if len(values) != len(self._param_values):
+            raise ValueError(f"`values` must give {len(self._param_values)} parameters; got {len(values)}")
+        other = copy.copy(self)
+        other._param_values = values
+        other._native_params = {}
+        return other
 
     def native_parameters(self, prec):
         """The parameter values rounded once to the :class:`~lieseries.precision.Precision` ``prec`` (kept per

@@ -41,6 +41,7 @@ __all__ = [
     "thread_mp",
     "export_mpf",
     "check_dps",
+    "check_tolerance",
     "check_order",
     "Precision",
     "resolve_precision",
@@ -122,6 +123,24 @@ def check_count(value, argname: str, *, low: int = 1, high: int | None = None) -
         bound = f"in [{low}, {high}]" if high is not None else f">= {low}"
         raise ValueError(f"`{argname}` must be an integer {bound}; got {value}")
     return value
+
+
+def check_tolerance(tol, prec: "Precision") -> Fraction:
+    """A tolerance in (0, 1), at least the epsilon of ``prec`` (default: that epsilon), as an exact Fraction."""
+    eps = Fraction(1, 2 ** (prec.bits - 1))
+    if tol is None:
+        return eps
+    f = to_fraction(tol, "tol")
+    if f <= 0:
+        raise ValueError(f"`tol` must be positive; got {float(f)}. Leave it out to use the precision's epsilon.")
+    if f >= 1:
+        raise ValueError(f"`tol` must be below 1 (it is a relative and absolute tolerance); got {float(f)}")
+    if f < eps:
+        raise ValueError(
+            f"`tol` = {float(f):.3g} is below the epsilon of {prec.name} ({float(eps):.3g}): no run in that "
+            "precision can reach it. Raise `tol`, or choose a higher `precision`."
+        )
+    return f
 
 
 def check_seconds(value, argname: str):

@@ -199,3 +199,96 @@ def as_float_array(values) -> np.ndarray:
     if arr.dtype == np.float64:
         return arr
     return np.vectorize(float, otypes=[np.float64])(arr) if arr.size else arr.astype(np.float64)
+
+
+class EnsembleSolution:
+    """The result of an ensemble run (:func:`lieseries.integrate` with ``Y0`` of shape (k, n)).
+
+    Attributes
+    ----------
+    t : ndarray, shape (m,)
+        The output times asked for (the same for every member), in the run's precision.
+    y : ndarray, shape (k, m, n)
+        ``y[i, j]`` is member i's state at ``t[j]``; NaN in the rows after a member stopped early.
+    status : ndarray of str, shape (k,)
+        Each member's status (one of :data:`STATUSES`).
+    message : list of str
+        Each member's message: what happened and, for an early stop, where and what to do.
+    t_reached : ndarray of Fraction, shape (k,)
+        The time each member reached (exact).
+    y_reached : ndarray, shape (k, n)
+        The state at ``t_reached`` (for a member that stopped early, its last good state).
+    rows : ndarray of int, shape (k,)
+        How many output rows each member reached.
+    stats : dict
+        ``steps`` (array, per member), ``order``, ``build_time``, ``run_time``, ``workers``, ``batch_size``,
+        ``path`` ("batch" or "single"), ``single_runs`` (members run one by one), ``precision``, ``tol``.
+    """
+
+    def __init__(self, t, y, status, message, t_reached, y_reached, stats: dict, rows=None,
+                 method: str = "taylor (heyoka)"):
+        self.t = t
+        self.y = y
+        self.status = np.asarray(status, dtype=object)
+        for s in self.status:
+            if s not in STATUSES:  # pragma: no cover - programming error
+                raise ValueError(f"unknown status {s!r}")
+        self.message = list(message)
+        self.t_reached = np.asarray(t_reached, dtype=object)
+        self.y_reached = y_reached
+        self.stats = stats
+        self.method = method
+        self.rows = np.full(len(self.status), len(t), dtype=np.int64) if rows is None else np.asarray(rows)
+
+    def __len__(self) -> int:
+        return len(self.status)
+
+    @property
+    def success(self) -> bool:
+        """True when every member reached the final time."""
+        return bool(all(s == "success" for s in self.status))
+
+    @property
+    def succeeded(self) -> np.ndarray:
+        """Boolean mask of the members that reached the final time."""
+        return np.array([s == "success" for s in self.status], dtype=bool)
+
+    def member(self, i: int) -> Solution:
+        """Member ``i`` as a :class:`Solution` (its output rows up to where it stopped)."""
+        k = len(self.status)
+        if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not -k <= i < k:
+            raise IndexError(f"`i` must be an integer member index in [0, {k}); got {i!r}")
+        i = int(i) % k
+        m = int(self.rows[i])
+        steps = self.stats.get("steps")
+        st = Stats(method=self.method, precision=str(self.stats.get("precision", "")),
+                   tol=float(self.stats.get("tol", float("nan"))),
+                   steps=int(steps[i]) if steps is not None else 0, order=int(self.stats.get("order", 0)),
+                   extra={"ensemble": True})
+        return Solution(self.t[:m], self.y[i, :m], st, str(self.status[i]), self.message[i], self.t_reached[i],
+                        y_reached=self.y_reached[i])
+
+    @classmethod
+    def concatenate(cls, parts):
+        """One ensemble from consecutive chunks run with the same times and options."""
+        parts = list(parts)
+        if not parts:
+            raise ValueError("`parts` must hold at least one EnsembleSolution")
+        first = parts[0]
+        stats = dict(first.stats)
+        stats["steps"] = np.concatenate([p.stats["steps"] for p in parts])
+        stats["build_time"] = max(p.stats.get("build_time", 0.0) for p in parts)
+        stats["run_time"] = sum(p.stats.get("run_time", 0.0) for p in parts)
+        stats["single_runs"] = sum(p.stats.get("single_runs", 0) for p in parts)
+        stats["order"] = max(p.stats.get("order", 0) for p in parts)
+        return cls(first.t, np.concatenate([p.y for p in parts]),
+                   np.concatenate([p.status for p in parts]), [m for p in parts for m in p.message],
+                   np.concatenate([p.t_reached for p in parts]), np.concatenate([p.y_reached for p in parts]),
+                   stats, rows=np.concatenate([p.rows for p in parts]), method=first.method)
+
+    def __repr__(self) -> str:
+        counts = {}
+        for s in self.status:
+            counts[s] = counts.get(s, 0) + 1
+        return (f"EnsembleSolution(members={len(self.status)}, outputs={len(self.t)}, status={counts}, "
+                f"precision={self.stats.get('precision')!r})")

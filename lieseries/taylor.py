@@ -54,6 +54,7 @@ from .precision import (
     check_callable,
     check_count,
     check_seconds,
+    check_tolerance,
     data_bits,
     precision_of_dtype,
     resolve_precision,
@@ -92,23 +93,6 @@ def cache_info() -> dict:
     return {"size": len(_CACHE)}
 
 
-def _tol_value(tol, prec: Precision) -> Fraction:
-    eps = Fraction(1, 2 ** (prec.bits - 1))
-    if tol is None:
-        return eps
-    f = to_fraction(tol, "tol")
-    if f <= 0:
-        raise ValueError(f"`tol` must be positive; got {float(f)}. Leave it out to use the precision's epsilon.")
-    if f >= 1:
-        raise ValueError(f"`tol` must be below 1 (it is a relative and absolute tolerance); got {float(f)}")
-    if f < eps:
-        raise ValueError(
-            f"`tol` = {float(f):.3g} is below the epsilon of {prec.name} ({float(eps):.3g}): no run in that "
-            "precision can reach it. Raise `tol`, or choose a higher `precision`."
-        )
-    return f
-
-
 class _Recorder:
     """Callback of a non-terminal heyoka event: records the time and the state of every crossing."""
 
@@ -137,7 +121,7 @@ def build_integrator(system, precision="double", tol=None, *, events=True, user_
     """
     ps = as_poisson_system(system)
     prec = resolve_precision(precision)
-    tolf = _tol_value(tol, prec)
+    tolf = check_tolerance(tol, prec)
     model = system if isinstance(system, Model) else None
     evs = model.events() if (model is not None and events) else []
     n = ps.dimension
@@ -224,7 +208,7 @@ def _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events
         if hit is not None and hit[0] is system:
             return hit[1]
     grid, direction, t0f = parse_times(t, t0)
-    tolf = _tol_value(tol, prec)
+    tolf = check_tolerance(tol, prec)
     grid_native = [prec.time(g) for g in grid]
     plan = dict(
         grid=grid, direction=direction, t0f=t0f, tolf=tolf, grid_native=grid_native,
@@ -296,7 +280,12 @@ def integrate(
     atlas: bool | None = None,
     progress=None,
     events=None,
-) -> Solution:
+    params=None,
+    workers: int | None = None,
+    client=None,
+    chunk_size: int | None = None,
+    batch_size: int | None = None,
+):
     """Integrate ``dz/dt = X_H(z)`` with heyoka's adaptive Taylor method.
 
     Parameters
@@ -337,12 +326,27 @@ def integrate(
     events : list of :class:`lieseries.Event`, optional
         Zero crossings to record (``sol.events[name]``: times and states) or, for a terminal event, to stop at
         (status ``event``), found by heyoka's polynomial root finding on every step.
+    params, workers, client, chunk_size, batch_size :
+        For an ensemble: ``y0`` of shape (k, n) (or ``system`` a list of models of one structure, or ``params``
+        of shape (k, npar)) integrates k members and returns an :class:`~lieseries.solution.EnsembleSolution`
+        (:func:`lieseries.ensemble.integrate_ensemble`: heyoka's batch mode in double over ``workers`` threads;
+        ``client`` a ``dask.distributed.Client`` to run on a cluster).
 
     Returns
     -------
     Solution
         ``sol.t``, ``sol.y`` (one row per output time reached), ``sol.stats``, ``sol.status``, ``sol.message``.
     """
+    if (client is not None or params is not None or workers is not None or isinstance(system, (list, tuple))
+            or (y0.ndim == 2 if isinstance(y0, np.ndarray)
+                else isinstance(y0, (list, tuple)) and len(y0) > 0 and np.ndim(y0[0]) == 1)):
+        from .ensemble import integrate_ensemble
+
+        return integrate_ensemble(system, y0, t, tol=tol, precision=precision, t0=t0, params=params,
+                                  workers=workers, client=client, max_steps=max_steps, max_time=max_time,
+                                  chunk_size=chunk_size, batch_size=batch_size, progress=progress,
+                                  min_step=min_step, compact_mode=compact_mode, high_accuracy=high_accuracy,
+                                  dense=dense, atlas=atlas, events=events, single_run=integrate)
     if atlas is None:
         atlas = bool(getattr(system, "atlas", False))  # a Sphere says (True unless built with atlas=False)
     prec = infer_precision(precision, y0)

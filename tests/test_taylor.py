@@ -179,7 +179,7 @@ def body():
     "y0,match",
     [
         (np.zeros(11), "`y0` must be a 1-d sequence of 12"),
-        (np.zeros((2, 12)), "`y0` must be a 1-d"),
+        (np.zeros((2, 3, 12)), "`y0` must be a 1-d"),
         (np.r_[np.eye(3).ravel(), 1.0, np.nan, 0.0], r"`y0\[10\]` must be finite"),
         (np.r_[np.eye(3).ravel(), 1.0, np.inf, 0.0], r"`y0\[10\]`"),
     ],

@@ -1,0 +1,371 @@
+"""Ensembles (lieseries.ensemble): every member against its single run and against closed forms; early stops per
+member; per-member parameters; the Dask path against the local one; pickling; input errors."""
+
+import pickle
+import sys
+from fractions import Fraction
+
+import heyoka as hy
+import mpmath as mp
+import numpy as np
+import pytest
+
+import lieseries as ls
+from lieseries.ensemble import integrate_ensemble
+from lieseries.solution import EnsembleSolution
+
+EPS = 2.0**-52
+
+
+def run(system, Y0, t, **kw):
+    return integrate_ensemble(system, Y0, t, single_run=ls.integrate, **kw)
+
+
+def omegas(k, seed=0):
+    rng = np.random.default_rng(seed)
+    return np.array([1.0, 0.1, 0.5]) + 0.05 * rng.standard_normal((k, 3))
+
+
+def body_states(body, oms, precision="double"):
+    return np.stack([body.initial_state(o, precision=precision) for o in oms])
+
+
+def blowup_system():
+    """dq/dt = q^2, dp/dt = -2 p q (H = p q^2, canonical): q(t) = q0 / (1 - q0 t) blows up at t = 1/q0."""
+    q, p = hy.make_vars("q", "p")
+    return ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p * q**2, name="blow-up")
+
+
+def close(a, b, rtol):
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    return np.max(np.abs(a - b) / np.maximum(1.0, np.abs(b)))
+
+
+def test_members_equal_single_runs_and_closed_form():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    oms = omegas(11)  # not a multiple of the batch size: the last batch is padded
+    Y0 = body_states(body, oms)
+    es = run(body, Y0, 20.0, batch_size=4, workers=2)
+    assert isinstance(es, EnsembleSolution) and es.success and es.y.shape == (11, 2, 12)
+    assert es.stats["path"] == "batch" and es.stats["single_runs"] == 0
+    for i in range(11):
+        sol = ls.integrate(body, Y0[i], 20.0)
+        assert close(es.y[i], sol.y, 0) <= 64 * EPS
+        assert es.stats["steps"][i] == sol.stats.steps  # each lane steps as its single run
+        assert es.t_reached[i] == sol.t_reached == 20
+    with mp.workdps(30):
+        for i in (0, 5, 10):
+            ref = ls.exact.euler_poisson((1, 2, 3), list(oms[i]), 20, dps=30)
+            assert close(es.y[i, 1], [float(v) for v in ref], 0) <= 2e-13
+
+
+def test_output_grid_and_backward():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Y0 = body_states(body, omegas(5, seed=1))
+    grid = [1, 2.5, "3.7", 8]  # t0 = 0 not in the grid: the batch adds it in front and drops it
+    es = run(body, Y0, grid)
+    assert es.y.shape == (5, 4, 12) and es.success
+    back = run(body, Y0, -3.0)
+    for i in range(5):
+        sol = ls.integrate(body, Y0[i], grid)
+        assert close(es.y[i], sol.y, 0) <= 64 * EPS
+        sb = ls.integrate(body, Y0[i], -3.0)
+        assert close(back.y[i], sb.y, 0) <= 64 * EPS and back.t_reached[i] == -3
+
+
+def test_exact_input_rounded_once():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    y_str = [1, 0, 0, 0, 1, 0, 0, 0, 1, "1", "0.2", "1.5"]
+    y_frac = [Fraction(v) for v in y_str]
+    es = run(body, [y_str, y_frac], 4.0)
+    sol = ls.integrate(body, y_str, 4.0)
+    assert np.array_equal(es.y[0, 0], es.y[1, 0]) and es.y[0, 0, 10] == 0.2
+    assert close(es.y[0], sol.y, 0) <= 64 * EPS and close(es.y[1], sol.y, 0) <= 64 * EPS
+
+
+def test_per_member_inertia_list_and_params():
+    inertias = [(1, 2, 3), (2, 3, 4), ("1.5", 2, "2.5")]
+    bodies = [ls.EulerPoisson(inertia=I) for I in inertias]
+    om = [1.0, 0.1, 0.5]
+    Y0 = np.stack([b.initial_state(om) for b in bodies])
+    es = run(bodies, Y0, 10.0)
+    params = [[Fraction(1) / Fraction(v) for v in I] for I in inertias]  # entries of I^-1 (diagonal bodies)
+    es2 = run(bodies[0], Y0, 10.0, params=params)
+    assert np.array_equal(es.y, es2.y)
+    for i, (b, I) in enumerate(zip(bodies, inertias)):
+        sol = ls.integrate(b, Y0[i], 10.0)
+        assert close(es.y[i], sol.y, 0) <= 64 * EPS
+        with mp.workdps(30):
+            ref = ls.exact.euler_poisson(I, om, 10, dps=30)
+        assert close(es.y[i, 1], [float(v) for v in ref], 0) <= 2e-13
+
+
+def test_sphere_member_stops_at_chart_edge_others_succeed():
+    sphere = ls.Sphere(mass=1, radius=1)
+    # the first member runs down a meridian to the chart's edge |x3| = 0.05 at t = asin(0.8) - asin(0.05) = 0.877;
+    # the other two move slowly and stay far from it up to t = 2
+    states = [sphere.initial_state(x=(0.6, 0, 0.8), v=(0.8, 0, -0.6)),
+              sphere.initial_state(x=(0, 0.6, 0.8), v=(0.3, 0, 0)),
+              sphere.initial_state(x=(0.6, 0, 0.8), v=(0, 0.2, 0))]
+    t = [0.5, 1.0, 2.0]
+    es = run(sphere, np.stack(states), t, atlas=False)
+    assert list(es.status) == ["chart_edge", "success", "success"]
+    assert not es.success and list(es.succeeded) == [False, True, True]
+    for i, y0 in enumerate(states):
+        sol = ls.integrate(sphere, y0, t, atlas=False)
+        assert sol.status == es.status[i]
+        assert es.rows[i] == len(sol.t)
+        assert close(es.y[i, : len(sol.t)], sol.y, 0) <= 64 * EPS
+        assert close(es.y_reached[i], sol.y_reached, 0) <= 64 * EPS
+        assert abs(float(es.t_reached[i] - sol.t_reached)) <= 64 * EPS
+        m = es.member(i)
+        assert m.status == sol.status and len(m.t) == len(sol.t)
+    assert np.isnan(es.y[0, es.rows[0]:]).all()
+    assert es.rows[0] == 1 and "chart" in es.message[0]
+    # to a final time, the lanes the stop interrupted go on in the batch (no single run), as their single runs
+    fin = run(sphere, np.stack(states * 3), 2.0, batch_size=4, atlas=False)
+    assert fin.stats["single_runs"] == 0 and list(fin.status) == ["chart_edge", "success", "success"] * 3
+    for i, y0 in enumerate(states * 3):
+        sol = ls.integrate(sphere, y0, 2.0, atlas=False)
+        assert fin.stats["steps"][i] == sol.stats.steps and fin.t_reached[i] == sol.t_reached
+        assert close(fin.y_reached[i], sol.y_reached, 0) <= 64 * EPS
+    # the stop is where the great circle (closed form) has x3 = 0.05, and the state is the closed form's there
+    t_edge = float(es.t_reached[0])
+    assert abs(t_edge - (np.arcsin(0.8) - np.arcsin(0.05))) <= 1e-12
+    x_ref, _ = ls.exact.sphere(1, (0.6, 0, 0.8), (0.8, 0, -0.6), es.t_reached[0], dps=30)
+    assert close(es.y_reached[0, :3], [float(v) for v in x_ref], 0) <= 1e-13
+    for i in (1, 2):
+        x_ref, _ = ls.exact.sphere(1, ["0.6", 0, "0.8"] if i == 2 else [0, "0.6", "0.8"],
+                                   [0, "0.2", 0] if i == 2 else ["0.3", 0, 0], 2, dps=30)
+        assert close(es.y[i, -1, :3], [float(v) for v in x_ref], 0) <= 1e-14
+
+
+def test_sphere_atlas_members_equal_atlas_single_runs():
+    sphere = ls.Sphere()
+    states = [sphere.initial_state(x=(0.6, 0, 0.8), v=(0.8, 0, -0.6)),  # leaves |x3| > 0.5 |x|: switches charts
+              sphere.initial_state(x=(0.6, 0, 0.8), v=(0, 0.2, 0)),  # stays near the pole
+              sphere.initial_state(x=(0.6, 0, 0.8), v=(0.1, 0, -0.075))]  # slow: stays in the chart
+    for t in (3.0, [1.0, 3.0]):
+        es = run(sphere, np.stack(states), t, atlas=True)
+        assert list(es.status) == ["success"] * 3
+        assert es.stats["single_runs"] == 1  # only the member that switches charts
+        for i, y0 in enumerate(states):
+            sol = ls.integrate(sphere, y0, t, atlas=True)
+            assert sol.status == es.status[i]
+            assert close(es.y[i], np.asarray(sol.y, dtype=np.float64), 0) <= 64 * EPS
+    with pytest.raises(ValueError, match="`atlas` needs a model with an atlas"):
+        run(ls.EulerPoisson(), np.zeros((1, 12)), 1.0, atlas=True)
+
+
+def test_non_finite_member_next_to_finite_ones():
+    ps = blowup_system()
+    # q0 = 1e200: q^2 overflows in the first step (non_finite at t = 0, the last finite state is y0);
+    # q0 = 1: the solution blows up at t = 1 (the single run's guard stops it there); the others are finite
+    Y0 = [["1e200", 1], [1, 1], [-1, 1], ["0.25", 1]]
+    es = run(ps, Y0, 2.0)
+    assert es.status[0] == "non_finite" and es.status[1] != "success"
+    assert list(es.status[2:]) == ["success", "success"]
+    for i, y0 in enumerate(Y0):
+        sol = ls.integrate(ps, y0, 2.0)
+        assert sol.status == es.status[i] and sol.message == es.message[i]
+        assert close(es.y_reached[i], sol.y_reached, 0) <= 64 * EPS
+        assert es.t_reached[i] == sol.t_reached
+    assert es.t_reached[0] == 0 and es.y_reached[0, 0] == 1e200
+    assert 0.99 < es.t_reached[1] <= 1
+    # q(2) = q0 / (1 - 2 q0): -1/3 and 0.5, against the closed form
+    assert abs(es.y[2, 1, 0] + 1 / 3) <= 8 * EPS and abs(es.y[3, 1, 0] - 0.5) <= 8 * EPS
+    assert np.isnan(es.y[:2, 1]).all() and list(es.rows) == [1, 1, 2, 2]
+    assert es.stats["single_runs"] >= 2
+
+
+def test_stiff_member_handed_to_its_single_run_and_long_runs_in_chunks():
+    # damping 1e5 makes the body stiff (the single run stops with step_collapse); damping 0 is the free body
+    bodies = [ls.DampedEulerPoisson((1, 2, 3), damping=d) for d in (100000, 0, 100000)]
+    om = [1.0, 0.1, 0.5]
+    Y0 = np.stack([b.initial_state(om) for b in bodies])
+    es = run(bodies, Y0, 10.0)
+    singles = [ls.integrate(b, y0, 10.0) for b, y0 in zip(bodies, Y0)]
+    assert list(es.status) == [s.status for s in singles] == ["step_collapse", "success", "step_collapse"]
+    assert es.stats["single_runs"] == 2 and "stiff" in es.message[0]
+    assert close(es.y[1], singles[1].y, 0) <= 64 * EPS
+    # the same members through `params=` on one model: the single runs must use each member's own values
+    params = [list(b.poisson.parameter_values) for b in bodies[::-1]]
+    es2 = run(bodies[1], Y0[::-1], 10.0, params=params)
+    assert list(es2.status) == list(es.status)[::-1]
+    assert es2.t_reached[0] == singles[2].t_reached and es2.t_reached[2] == singles[0].t_reached
+    # about 4800 steps: the batch goes on over several chunks of steps, each lane as its single run
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    oms = omegas(3, seed=5)
+    es = run(body, body_states(body, oms), 2000.0)
+    assert es.success and es.stats["single_runs"] == 0 and min(es.stats["steps"]) > 2048
+    for i in range(3):
+        sol = ls.integrate(body, body_states(body, oms)[i], 2000.0)
+        assert es.stats["steps"][i] == sol.stats.steps
+        with mp.workdps(30):
+            ref = [float(v) for v in ls.exact.euler_poisson((1, 2, 3), list(oms[i]), 2000, dps=30)]
+        # rounding errors grow over 2000 time units: the member is as close to the closed form as its single run
+        assert close(es.y[i, 1], ref, 0) <= max(4 * close(sol.y[1], ref, 0), 1e-12)
+
+
+def test_long_double_members_equal_single_runs():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Y0 = body_states(body, omegas(3, seed=2), precision="long double")
+    es = run(body, Y0, 5.0, precision="long double", workers=2)
+    assert es.y.dtype == np.longdouble and es.success and es.stats["path"] == "threads"
+    for i in range(3):
+        sol = ls.integrate(body, Y0[i], 5.0, precision="long double")
+        assert np.array_equal(es.y[i], sol.y) and es.stats["steps"][i] == sol.stats.steps  # the same compiled code
+
+
+def test_long_double_sphere_edge_and_grid():
+    sphere = ls.Sphere()
+    S0 = np.stack([sphere.initial_state(x=("0.6", 0, "0.8"), v=("0.8", 0, "-0.6"), precision="long double"),
+                   sphere.initial_state(x=("0.6", 0, "0.8"), v=(0, "0.2", 0), precision="long double")])
+    for t in ([0.5, 1.0, 2.0], 2.0):
+        es = run(sphere, S0, t, precision="long double", atlas=False)
+        assert list(es.status) == ["chart_edge", "success"]
+        for i in range(2):
+            sol = ls.integrate(sphere, S0[i], t, precision="long double", atlas=False)
+            assert sol.status == es.status[i] and es.rows[i] == len(sol.t)
+            assert np.array_equal(es.y[i, : len(sol.t)], sol.y) and np.array_equal(es.y_reached[i], sol.y_reached)
+            assert es.t_reached[i] == sol.t_reached
+
+
+@pytest.mark.slow
+def test_real_precision_members_in_processes_equal_single_runs():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Y0 = body_states(body, omegas(3, seed=4), precision=80)
+    es = run(body, Y0, 2.0, precision=80, workers=2)  # spawned processes, each with its own cache
+    assert es.stats["path"] == "single" and es.stats["workers"] == 2 and es.success
+    for i in range(3):
+        assert np.array_equal(es.y[i], ls.integrate(body, Y0[i], 2.0, precision=80).y)
+
+
+def test_quad_members_equal_single_runs():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Y0 = [[1, 0, 0, 0, 1, 0, 0, 0, 1, 1, "0.2", "1.5"], [1, 0, 0, 0, 1, 0, 0, 0, 1, "1.1", "0.2", "1.5"]]
+    es = run(body, Y0, 1.0, precision="quad")
+    assert es.stats["path"] == "threads" and es.y.dtype == np.dtype(hy.real128)
+    for i in range(2):
+        assert np.array_equal(es.y[i], ls.integrate(body, Y0[i], 1.0, precision="quad").y)
+
+
+def test_progress_and_single_run_options():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Y0 = body_states(body, omegas(20))
+    seen = []
+    es = run(body, Y0, 2.0, progress=seen.append, batch_size=4, workers=1)
+    assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) == 5
+    # min_step routes every member through its single run, with the single run's own check
+    es2 = run(body, Y0[:2], 2.0, min_step=1e-300)
+    assert es2.stats["path"] == "single" and es2.stats["single_runs"] == 2
+    assert close(es2.y, es.y[:2], 0) <= 64 * EPS
+
+
+def test_nothing_to_integrate_and_without_single_run():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Y0 = body_states(body, omegas(2))
+    es = run(body, Y0, 0.0)
+    assert es.success and np.array_equal(es.y[:, 0], Y0) and np.array_equal(es.y_reached, Y0)
+    with pytest.raises(RuntimeError, match="single_run"):
+        integrate_ensemble(body, body_states(body, omegas(2), precision=80), 1.0, precision=80)
+
+
+def test_precision_from_the_data_and_coarse_data_warned():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Yld = body_states(body, omegas(2), precision="long double")
+    assert run(body, Yld, 1.0).stats["precision"] == "long double"  # precision=None: the data's own
+    assert run(body, Yld.astype(np.float64), 1.0).stats["precision"] == "double"
+    with pytest.warns(UserWarning, match="`Y0` holds binary doubles"):
+        run(body, Yld.astype(np.float64), 1.0, precision="long double")
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(Y0=[[1, 2, 3]]), "`Y0` must have shape"),
+        (dict(Y0=np.zeros(12)), "`Y0` must have shape"),
+        (dict(params=[[1, 2]]), "`params` must have shape"),
+        (dict(workers=0), "`workers` must be a positive integer"),
+        (dict(workers=1.5), "`workers` must be a positive integer"),
+        (dict(batch_size=0), "`batch_size` must be a positive integer"),
+        (dict(chunk_size=-1), "`chunk_size` must be a positive integer"),
+        (dict(client="tcp://127.0.0.1:8786"), "`client` must be a dask.distributed.Client"),
+        (dict(Y0=[[np.nan] + [0] * 11]), r"`Y0\[0\]\[0\]` must be finite"),
+        (dict(dense=True), "`dense=True` is not available for an ensemble"),
+        (dict(events=[]), "`events` are not available for an ensemble"),
+        (dict(progress=3), "`progress` must be a callable"),
+    ],
+)
+def test_bad_input_names_the_argument(kwargs, match):
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    args = dict(Y0=body_states(body, omegas(1)))
+    args.update(kwargs)
+    Y0 = args.pop("Y0")
+    with pytest.raises((ValueError, TypeError), match=match):
+        run(body, Y0, 1.0, **args)
+
+
+def test_bad_model_list():
+    with pytest.raises(ValueError, match=r"`system\[1\]`"):
+        run([ls.EulerPoisson(), ls.Sphere()], np.zeros((2, 12)), 1.0)
+
+
+def test_client_without_dask_says_how_to_install(monkeypatch):
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed now raises ImportError
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    with pytest.raises(ImportError, match=r"pip install 'lieseries\[distributed\]'"):
+        run(body, body_states(body, omegas(1)), 1.0, client=object())
+
+
+def test_models_systems_and_solutions_pickle():
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    for system in (body, ls.DampedEulerPoisson(), ls.Sphere(), ls.SphereDirac(), blowup_system()):
+        ps = system.poisson if hasattr(system, "poisson") else system
+        ps.vector_field  # the cached field must pickle too
+        copy = pickle.loads(pickle.dumps(system))
+        ps2 = copy.poisson if hasattr(copy, "poisson") else copy
+        assert ps2.key == ps.key and ps2.parameter_values == ps.parameter_values
+    y0 = body.initial_state((1, 0.1, 0.5))
+    again = pickle.loads(pickle.dumps(body))
+    assert np.array_equal(ls.integrate(again, y0, 3.0).y, ls.integrate(body, y0, 3.0).y)
+    es = run(body, body_states(body, omegas(3)), 2.0)
+    es2 = pickle.loads(pickle.dumps(es))
+    assert np.array_equal(es2.y, es.y) and list(es2.status) == list(es.status)
+    assert es2.member(1).status == "success"
+
+
+# -- Dask --------------------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def client():
+    distributed = pytest.importorskip("distributed")
+    cluster = distributed.LocalCluster(processes=True, n_workers=2, threads_per_worker=1, host="127.0.0.1",
+                                       dashboard_address=None)
+    cl = distributed.Client(cluster)
+    yield cl
+    cl.close()
+    cluster.close()
+
+
+def test_dask_equals_local(client):
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Y0 = body_states(body, omegas(20, seed=3))
+    local = run(body, Y0, [5, 10])
+    dist = run(body, Y0, [5, 10], client=client, chunk_size=8)
+    assert dist.stats["chunks"] == 3
+    assert np.array_equal(dist.y, local.y) and list(dist.status) == list(local.status)
+    assert list(dist.t_reached) == list(local.t_reached)
+    # early stops on the workers: a chart edge (batch) and a non-finite blow-up (single run on the worker)
+    sphere = ls.Sphere()
+    S0 = np.stack([sphere.initial_state(x=(0.6, 0, 0.8), v=(0.8, 0, -0.6)),
+                   sphere.initial_state(x=(0.6, 0, 0.8), v=(0, 0.2, 0))])
+    a = run(sphere, S0, 2.0, atlas=False)
+    b = run(sphere, S0, 2.0, client=client, chunk_size=1, atlas=False)
+    assert list(b.status) == list(a.status) == ["chart_edge", "success"]
+    assert np.array_equal(a.y_reached, b.y_reached, equal_nan=True)
+    ps = blowup_system()
+    Y0 = [["1e200", 1], [-1, 1]]
+    a, b = run(ps, Y0, 2.0), run(ps, Y0, 2.0, client=client)
+    assert list(b.status) == list(a.status) == ["non_finite", "success"]
+    assert np.array_equal(a.y, b.y, equal_nan=True)
