@@ -2,20 +2,6 @@
 
 The methods and their settings are those of :mod:`lieseries.methods`.
 
-Methods
--------
-``{"method": "taylor", "precision": P, "tol": T}``
-    heyoka's adaptive Taylor method through :func:`lieseries.integrate`, P = "double" | "long double" | "quad" |
-    int bits; T a tolerance (default: the precision's epsilon).
-``{"method": "lie", "dps": D, "tol": T, "order": N}``
-    the Lie-series integrator :func:`lieseries.lie_integrate` (mpmath); ``tol`` and ``order`` optional.
-``{"method": "scipy", "rtol": R, "atol": A}``
-    scipy's ``solve_ivp(method="DOP853")`` on a right-hand side compiled from the system's heyoka vector field
-    with ``heyoka.cfunc`` (parameters in double). ``atol`` defaults to ``rtol``.
-``{"method": "mpmath", "dps": D, "t_max": S}``
-    ``mpmath.odefun`` (a Taylor method in pure mpmath) on a pure-mpmath right-hand side. It is slow: the run is
-    capped at ``|t| <= t_max`` (default 2) and its error is measured at the time it reached.
-
 In :func:`work_precision` any of ``tol``, ``rtol``, ``dps`` (and ``precision``) may be a list: one row per value.
 
 Timing: ``run_time`` is the wall time of the call, best of ``repeat`` (repeats stop once a method has used two
