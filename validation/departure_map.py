@@ -111,7 +111,9 @@ def main(argv=None) -> int:
         f"12-number state differs from it by more than {m.threshold:g} (max norm).",
         "",
         f"Regenerate: `.venv/bin/python validation/departure_map.py --grid {args.grid[0]} {args.grid[1]} "
-        f"--T {m.T:g} --samples {args.samples} --overwrite` ({wall:.0f} s on the project's 2-core machine, "
+        f"--T {m.T:g} --samples {args.samples} --threshold {args.threshold} --precisions "
+        f"{' '.join(repr(p) if ' ' in str(p) else str(p) for p in args.precisions)} --overwrite` ({wall:.0f} s on "
+        "the project's 2-core machine, "
         f"{platform.python_version()}).",
         "",
         "![departure map](departure.png)",
