@@ -301,3 +301,13 @@ def test_numpy_integers_are_counts_everywhere():
     sol = ls.lie_integrate(body, y0, t=5, dps=20, max_steps=np.int64(2))  # before: refused
     assert sol.status == "step_budget" and sol.stats.steps == 2
     assert ls.integrate(body, y0, t=5, max_steps=np.int64(3)).status == "step_budget"
+
+
+def test_invariants_of_an_exact_state_are_exact_to_far_beyond_quad():
+    """An ExactState has no format: its invariants are evaluated well above quad (they were once taken at the
+    float64 view's 69 bits, which made quad runs' invariant drift read 1e-22 in reports)."""
+    body = ls.EulerPoisson(INERTIA)
+    inv = body.invariants(body.initial_state(omega=OMEGA))
+    with mp.workdps(80):
+        assert abs(inv["energy"] - mp.mpf(177) / 200) < 1e-70  # (1 + 2 * 0.01 + 3 * 0.25) / 2
+        assert abs(inv["M2"] - mp.mpf(329) / 100) < 1e-70      # 1 + 0.04 + 2.25

@@ -114,8 +114,15 @@ def state_fractions(y, n: int, argname: str = "y0") -> list:
     return out
 
 
+#: Bits at which helpers evaluate an exact state (it has no format of its own; well above quad).
+EXACT_STATE_BITS = 256
+
+
 def state_bits(y) -> int:
-    """The precision (bits) a state is stored in: 53 for float64, 113 for quad, the ``real`` precision, ..."""
+    """The precision (bits) a state is stored in: 53 for float64, 113 for quad, the ``real`` precision, ...;
+    EXACT_STATE_BITS for an :class:`ExactState`."""
+    if getattr(y, "exact", None) is not None:
+        return EXACT_STATE_BITS
     arr = np.asarray(y) if not isinstance(y, np.ndarray) else y
     prec = precision_of_dtype(arr.dtype)
     if prec is not None:
