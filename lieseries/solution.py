@@ -7,7 +7,7 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["Solution", "Stats", "STATUSES", "ChartRows"]
+__all__ = ["Solution", "Stats", "STATUSES", "ChartRows", "plain_ufunc"]
 
 #: Every status a run can end with, and what it means.
 STATUSES = {
@@ -148,6 +148,15 @@ class Solution:
         )
 
 
+def plain_ufunc(cls, ufunc, method, inputs, kwargs):
+    """Run a numpy ufunc on the plain-array views of ``cls`` instances: arithmetic on a state subclass gives a
+    plain array, which carries none of the subclass's metadata (exact values, charts)."""
+    inputs = tuple(np.asarray(x) if isinstance(x, cls) else x for x in inputs)
+    if "out" in kwargs:
+        kwargs["out"] = tuple(np.asarray(o) if isinstance(o, cls) else o for o in kwargs["out"])
+    return getattr(ufunc, method)(*inputs, **kwargs)
+
+
 class ChartRows(np.ndarray):
     """States of a run across an atlas of charts: ``charts`` gives the chart of each row.
 
@@ -165,10 +174,7 @@ class ChartRows(np.ndarray):
         self.charts = None
 
     def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
-        inputs = tuple(np.asarray(x) if isinstance(x, ChartRows) else x for x in inputs)
-        if "out" in kwargs:
-            kwargs["out"] = tuple(np.asarray(o) if isinstance(o, ChartRows) else o for o in kwargs["out"])
-        return getattr(ufunc, method)(*inputs, **kwargs)
+        return plain_ufunc(ChartRows, ufunc, method, inputs, kwargs)
 
     def __getitem__(self, key):
         out = np.ndarray.__getitem__(self, key)

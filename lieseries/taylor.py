@@ -615,9 +615,6 @@ class _Keeper:
         self.t = ta.time
         return True
 
-    def pre_hook(self, ta):  # pragma: no cover - heyoka API
-        pass
-
 
 def _relative_change(a, b) -> float:
     """Largest change of one component relative to its own size: max_i |a_i - b_i| / max(|a_i|, |b_i|, s / 100),

@@ -209,7 +209,7 @@ def _apriori(prog, z, pars, consts, span, flint, tries: int = 4):
 
 
 # -- the driver ------------------------------------------------------------------------------------------------------
-def _initial_balls(system, y0, n, bits, flint):
+def _initial_balls(system, y0, n, flint):
     """Balls of the initial state: exact values (rounded outward once), or the user's (value, radius) / arb."""
     arb = flint.arb
     entries = list(y0.exact) if getattr(y0, "exact", None) is not None else list(np.asarray(y0, dtype=object)) \
@@ -284,7 +284,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     start = _time.perf_counter()
     with _working_precision(bits, cap=N + 4) as flint:
         arb = flint.arb
-        z = _initial_balls(system, y0, ps.dimension, bits, flint)
+        z = _initial_balls(system, y0, ps.dimension, flint)
         pars = [arb(flint.fmpq(p.numerator, p.denominator)) for p in ps.parameter_values]
         consts = [(slot, _constant(c, flint)) for slot, c in prog.constants]
         width_cap = None if max_width is None else arb(flint.fmpq(*to_fraction(max_width, "max_width").as_integer_ratio()))

@@ -8,7 +8,7 @@ from ..precision import thread_mp as mp
 import numpy as np
 
 from ..poisson import PoissonSystem
-from ..solution import ChartRows, Solution
+from ..solution import ChartRows, Solution, plain_ufunc
 from ..precision import export_mpf, precision_of_dtype, resolve_precision, to_fraction
 
 __all__ = ["Model", "ExactState", "make_state", "state_fractions", "state_bits"]
@@ -41,10 +41,7 @@ class ExactState(np.ndarray):
         self._native = {}
 
     def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
-        inputs = tuple(np.asarray(x) if isinstance(x, ExactState) else x for x in inputs)
-        if "out" in kwargs:
-            kwargs["out"] = tuple(np.asarray(o) if isinstance(o, ExactState) else o for o in kwargs["out"])
-        return getattr(ufunc, method)(*inputs, **kwargs)
+        return plain_ufunc(ExactState, ufunc, method, inputs, kwargs)
 
     def __getitem__(self, key):
         out = np.ndarray.__getitem__(self, key)
