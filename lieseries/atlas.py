@@ -11,6 +11,7 @@ The driver is shared by both integrators: it calls the integrator on each chart 
 
 from __future__ import annotations
 
+from dataclasses import replace
 
 import numpy as np
 
@@ -86,7 +87,7 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, **kwarg
         z = current.change_chart(sol.y_reached, chart, bits)
         current = model.for_chart(chart, edge=switch)
         switches += 1
-    stats.extra["chart_switches"] = switches
+    stats = replace(stats, extra={**stats.extra, "chart_switches": switches})
     y = np.stack(rows_y) if rows_y else np.empty((0, model.dimension), dtype=sol.y.dtype)
     tarr = np.array([float(v) for v in rows_t])
     return Solution(tarr, ChartRows(y, rows_c), stats, status, f"{message} ({switches} chart switches)",
@@ -107,18 +108,17 @@ def _merge_events(total, part, chart):
 
 def _merge(total: Stats | None, part: Stats) -> Stats:
     if total is None:
-        return part.thawed()
-    total.steps += part.steps
-    total.order = max(total.order, part.order)
-    total.build_time += part.build_time
-    total.run_time += part.run_time
-    total.cached = total.cached and part.cached
-    total.min_step = np.nanmin([total.min_step, part.min_step])
-    total.max_step = np.nanmax([total.max_step, part.max_step])
-    total.error_estimates.extend(part.error_estimates)
+        return replace(part, extra=dict(part.extra))
+    extra = dict(total.extra)
     for k, v in part.extra.items():
-        if isinstance(v, (int, float)) and isinstance(total.extra.get(k), (int, float)):
-            total.extra[k] = max(total.extra[k], v)
+        if isinstance(v, (int, float)) and isinstance(extra.get(k), (int, float)):
+            extra[k] = max(extra[k], v)
         else:
-            total.extra.setdefault(k, v)
-    return total
+            extra.setdefault(k, v)
+    return replace(
+        total, steps=total.steps + part.steps, order=max(total.order, part.order),
+        build_time=total.build_time + part.build_time, run_time=total.run_time + part.run_time,
+        cached=total.cached and part.cached, min_step=float(np.nanmin([total.min_step, part.min_step])),
+        max_step=float(np.nanmax([total.max_step, part.max_step])),
+        error_estimates=total.error_estimates + part.error_estimates, extra=extra,
+    )

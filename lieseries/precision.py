@@ -369,6 +369,8 @@ def to_fraction(value, argname: str = "value") -> Fraction:
     ValueError
         When ``value`` is NaN or infinite, naming ``argname``.
     """
+    if type(value) is float and math.isfinite(value):  # the common case, within bounds by construction
+        return Fraction(*value.as_integer_ratio())
     return _bounded(_exact_value(value, argname), argname)
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -24,7 +24,7 @@ STATUSES = {
 }
 
 
-@dataclass
+@dataclass(frozen=True, init=False)
 class Stats:
     """Run statistics.
 
@@ -39,7 +39,10 @@ class Stats:
     run_time : float        seconds spent integrating
     cached : bool           the integrator came from the cache
     min_step, max_step : float   smallest and largest step size taken
-    error_estimates : list  per-step error estimates (Lie-series runs)
+    error_estimates : tuple per-step error estimates (Lie-series runs)
+    extra : dict            engine-specific figures (chart switches, certified widths, ...)
+
+    Immutable: an engine builds it once, when the run is over (``dataclasses.replace`` gives a changed copy).
     """
 
     method: str
@@ -52,23 +55,17 @@ class Stats:
     cached: bool = False
     min_step: float = float("nan")
     max_step: float = float("nan")
-    error_estimates: list = field(default_factory=list)
+    error_estimates: tuple = ()
     extra: dict = field(default_factory=dict)
 
-    def __setattr__(self, name, value):
-        if self.__dict__.get("_frozen"):
-            raise AttributeError(f"the stats of a returned Solution are immutable; `{name}` cannot be set")
-        object.__setattr__(self, name, value)
-
-    def freeze(self) -> "Stats":
-        """Make the attributes read-only (a Solution freezes the Stats it holds)."""
-        object.__setattr__(self, "error_estimates", tuple(self.error_estimates))
-        object.__setattr__(self, "_frozen", True)
-        return self
-
-    def thawed(self) -> "Stats":
-        """A mutable copy (for drivers that merge the stats of several runs)."""
-        return replace(self, error_estimates=list(self.error_estimates), extra=dict(self.extra))
+    def __init__(self, method, precision, tol, steps=0, order=0, build_time=0.0, run_time=0.0, cached=False,
+                 min_step=float("nan"), max_step=float("nan"), error_estimates=(), extra=None):
+        # one dict update instead of a frozen __setattr__ per field: a Stats is built on every run
+        self.__dict__.update(
+            method=method, precision=precision, tol=tol, steps=steps, order=order, build_time=build_time,
+            run_time=run_time, cached=cached, min_step=min_step, max_step=max_step,
+            error_estimates=tuple(error_estimates), extra={} if extra is None else extra,
+        )
 
     def as_dict(self) -> dict:
         d = asdict(self)
@@ -102,21 +99,14 @@ class Solution:
                  t_requested=None, y_reached=None, charts=None, chart_reached=None, events=None):
         if status not in STATUSES:  # pragma: no cover - programming error
             raise ValueError(f"unknown status {status!r}")
-        set_ = object.__setattr__
-        set_(self, "t", _read_only(t))
-        set_(self, "y", _read_only(y))
-        set_(self, "stats", stats.freeze())
-        set_(self, "status", status)
-        set_(self, "message", message)
-        set_(self, "t_reached", t_reached)
-        set_(self, "t_requested", tuple(t_requested) if t_requested is not None else None)
-        set_(self, "y_reached", _read_only(y_reached))
-        #: For an atlas run: the chart each output row is written in (else None), and the chart of y_reached.
-        set_(self, "charts", _read_only(charts))
-        set_(self, "chart_reached", chart_reached)
-        set_(self, "_dense", dense)
-        #: ``{name: {"t": times, "y": states}}`` of the events asked for (``events=``), else None.
-        set_(self, "events", events)
+        self.__dict__.update(
+            t=_read_only(t), y=_read_only(y), stats=stats, status=status, message=message, t_reached=t_reached,
+            t_requested=tuple(t_requested) if t_requested is not None else None, y_reached=_read_only(y_reached),
+            # for an atlas run: the chart each output row is written in (else None), and the chart of y_reached
+            charts=_read_only(charts), chart_reached=chart_reached, _dense=dense,
+            # ``{name: {"t": times, "y": states}}`` of the events asked for (``events=``), else None
+            events=events,
+        )
 
     def __setattr__(self, name, value):
         raise AttributeError(f"a Solution is immutable; `{name}` cannot be set")
@@ -195,7 +185,7 @@ class ChartRows(np.ndarray):
 
 def _read_only(a):
     if isinstance(a, np.ndarray):
-        a.flags.writeable = False
+        a.setflags(write=False)
     return a
 
 

@@ -47,7 +47,7 @@ import heyoka as hy
 import numpy as np
 
 from .events import resolve_events
-from .models.base import Model, state_fractions
+from .models.base import ExactState, Model, state_fractions
 from .poisson import as_poisson_system
 from .precision import (
     Precision,
@@ -169,20 +169,20 @@ def _checkout(template):
     """An integrator of the same key as ``template`` that no other run is using, and the list to return it to.
 
     The template itself (what :func:`build_integrator` returns) is never run here, so a caller holding it cannot
-    disturb a run; a copy is made only when more runs of one key overlap than there are free copies.
+    disturb a run; a copy is made only when more runs of one key overlap than there are free copies. (``list.pop``
+    and ``list.append`` are atomic: no lock is needed on this path.)
     """
-    with _LOCK:
-        entry = _FREE.get(id(template))
-        free = entry[1] if entry is not None and entry[0] is template else []
-        if free:
-            return free.pop(), free
-    return copy.deepcopy(template), free
+    entry = _FREE.get(id(template))
+    free = entry[1] if entry is not None and entry[0] is template else []
+    try:
+        return free.pop(), free
+    except IndexError:
+        return copy.deepcopy(template), free
 
 
 def _release(ta, free) -> None:
-    with _LOCK:
-        if len(free) < 8:
-            free.append(ta)
+    if len(free) < 8:
+        free.append(ta)
 
 
 #: Steps in the first chunk of a run, by precision (later chunks grow fourfold, up to about CHUNK_SECONDS of work
@@ -212,7 +212,8 @@ def _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events
     grid_native = [prec.time(g) for g in grid]
     plan = dict(
         grid=grid, direction=direction, t0f=t0f, tolf=tolf, grid_native=grid_native,
-        grid_exact=[to_fraction(g) for g in grid_native], t0_native=prec.time(t0f),
+        grid_exact=[to_fraction(g) for g in grid_native], t0_native=prec.time(t0f), reached=_reached(grid_native[-1]),
+        tol_float=float(tolf), sqrt_tol=math.sqrt(float(tolf)),
         build=build_integrator(system, prec, tolf, user_events=user_events, compact_mode=compact_mode,
                                high_accuracy=high_accuracy),
     )
@@ -252,15 +253,18 @@ def infer_precision(precision, y0) -> Precision:
     return resolve_precision("double")
 
 
-def warn_coarse_inputs(ps, y0, times, work_bits: int, *, stacklevel: int = 4) -> None:
-    """One :class:`~lieseries.precision.PrecisionWarning` per input that carries fewer bits than the run uses."""
+def warn_coarse_inputs(ps, y0, times, work_bits: int, *, stacklevel: int = 4) -> bool:
+    """One :class:`~lieseries.precision.PrecisionWarning` per input that carries fewer bits than the run uses.
+    True when there was one."""
     if work_bits <= 53 and data_bits(y0) is None:
-        return
-    warn_if_coarse(data_bits(y0), work_bits, "y0", stacklevel=stacklevel)
-    warn_if_coarse(data_bits(times), work_bits, "t", stacklevel=stacklevel)
+        return False
+    coarse = [(data_bits(y0), "y0"), (data_bits(times), "t")]
     if work_bits > 53:
-        for name, bits in ps.coarse_data().items():
-            warn_if_coarse(bits, work_bits, name, stacklevel=stacklevel)
+        coarse += [(bits, name) for name, bits in ps.coarse_data().items()]
+    coarse = [(bits, name) for bits, name in coarse if bits is not None and bits < work_bits]
+    for bits, name in coarse:
+        warn_if_coarse(bits, work_bits, name, stacklevel=stacklevel)
+    return bool(coarse)
 
 
 def integrate(
@@ -347,43 +351,98 @@ def integrate(
                                   chunk_size=chunk_size, batch_size=batch_size, progress=progress,
                                   min_step=min_step, compact_mode=compact_mode, high_accuracy=high_accuracy,
                                   dense=dense, atlas=atlas, events=events, single_run=integrate)
-    if atlas is None:
-        atlas = bool(getattr(system, "atlas", False))  # a Sphere says (True unless built with atlas=False)
-    prec = infer_precision(precision, y0)
-    check_callable(progress, "progress")
-    max_time = check_seconds(max_time, "max_time")
-    default_budget = max_steps is None
-    max_steps = DEFAULT_MAX_STEPS if default_budget else check_count(max_steps, "max_steps")
-    if min_step is not None:
-        min_step = float(to_fraction(min_step, "min_step"))
-        if not min_step > 0:
-            raise ValueError(f"`min_step` must be positive; got {min_step!r}")
-    if atlas:
-        from .atlas import run_atlas
-
+    key = _call_key(system, y0, t, t0, tol, precision, dense, max_steps, max_time, min_step, compact_mode,
+                    high_accuracy) if events is None and progress is None and atlas is not True else None
+    call = _CALLS.get(key) if key is not None else None
+    if call is None or call.system is not system or (call.y0 is not y0 and type(y0) is ExactState):
+        if atlas is None:
+            atlas = bool(getattr(system, "atlas", False))  # a Sphere says (True unless built with atlas=False)
+        prec = infer_precision(precision, y0)
+        check_callable(progress, "progress")
+        max_time = check_seconds(max_time, "max_time")
+        default_budget = max_steps is None
+        max_steps = DEFAULT_MAX_STEPS if default_budget else check_count(max_steps, "max_steps")
+        if min_step is not None:
+            min_step = float(to_fraction(min_step, "min_step"))
+            if not min_step > 0:
+                raise ValueError(f"`min_step` must be positive; got {min_step!r}")
         ps = as_poisson_system(system)
-        warn_coarse_inputs(ps, y0, [t, t0], prec.bits)
-        return run_atlas(integrate, system, y0, t, t0=t0, bits=prec.bits, dense=dense, tol=tol,
-                         precision=prec, max_steps=None if default_budget else max_steps, max_time=max_time,
-                         min_step=min_step, compact_mode=compact_mode, high_accuracy=high_accuracy,
-                         progress=progress, events=events)
-    ps = as_poisson_system(system)
-    model = system if isinstance(system, Model) else None
-    z0 = model.check_state(y0, "y0") if model is not None else state_fractions(y0, ps.dimension, "y0")
-    user_events = resolve_events(events, system, ps)
-    plan = _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events)
-    grid, direction, tolf = plan["grid"], plan["direction"], plan["tolf"]
-    grid_native, t0_native = plan["grid_native"], plan["t0_native"]
-    warn_coarse_inputs(ps, y0, [t, t0], prec.bits)
-    y0_native = y0.native(prec) if getattr(y0, "exact", None) is not None else prec.array(z0, "y0")
+        if atlas:
+            from .atlas import run_atlas
+
+            warn_coarse_inputs(ps, y0, [t, t0], prec.bits)
+            return run_atlas(integrate, system, y0, t, t0=t0, bits=prec.bits, dense=dense, tol=tol,
+                             precision=prec, max_steps=None if default_budget else max_steps, max_time=max_time,
+                             min_step=min_step, compact_mode=compact_mode, high_accuracy=high_accuracy,
+                             progress=progress, events=events)
+        model = system if isinstance(system, Model) else None
+        z0 = model.check_state(y0, "y0") if model is not None else state_fractions(y0, ps.dimension, "y0")
+        warned = warn_coarse_inputs(ps, y0, [t, t0], prec.bits)
+        user_events = resolve_events(events, system, ps)
+        plan = _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events)
+        call = _Call(
+            system=system, y0=y0, ps=ps, prec=prec, plan=plan, user_events=user_events,
+            y0_native=y0.native(prec) if type(y0) is ExactState else prec.array(z0, "y0"),
+            pars_native=ps.native_parameters(prec) if ps.parameter_values else None,
+            max_steps=max_steps, stiff_steps=min(max_steps, STIFF_STEPS) if default_budget else max_steps,
+            max_time=max_time, min_step=min_step, dense=dense, dtype=prec.numpy_dtype,
+            first_chunk=FIRST_CHUNK.get(prec.name, FIRST_CHUNK_REAL),
+        )
+        if key is not None and not warned:
+            with _LOCK:
+                if len(_CALLS) >= _CALLS_MAX:
+                    _CALLS.pop(next(iter(_CALLS)))
+                _CALLS[key] = call
+    return _execute(call, progress)
+
+
+class _Call:
+    """Everything about a call of :func:`integrate` that depends only on its (validated) arguments: computed once
+    and memoised for repeated calls with the same system, exact state and options (see :func:`_call_key`)."""
+
+    __slots__ = ("system", "y0", "ps", "prec", "plan", "user_events", "y0_native", "pars_native", "max_steps",
+                 "stiff_steps", "max_time", "min_step", "dense", "energy", "dtype", "first_chunk")
+
+    def __init__(self, **kw):
+        self.energy = None  # (compiled H, parameters, H(y0)) once a run needs the energy check
+        for k, v in kw.items():
+            setattr(self, k, v)
+
+
+_CALLS: dict = {}
+_CALLS_MAX = 256
+_KEY_SCALARS = (type(None), int, float, str, bool)
+
+
+def _call_key(system, y0, *options):
+    """The memo key of a call, or None when it cannot be memoised: ``y0`` must be an
+    :class:`~lieseries.models.base.ExactState` (immutable; the memo keeps it, so its id cannot be reused) or a 1-d
+    float64 array (keyed by its bytes), and every option a plain scalar."""
+    if type(y0) is ExactState:
+        ykey = id(y0)
+    elif type(y0) is np.ndarray and y0.dtype == np.float64 and y0.ndim == 1:
+        ykey = y0.tobytes()
+    else:
+        return None
+    for v in options:
+        if type(v) not in _KEY_SCALARS:
+            return None
+    return (id(system), ykey, *options)
+
+
+def _execute(call, progress):
+    """Run a prepared call: one integration and its checks, into a :class:`Solution`."""
+    ps, prec, plan, user_events = call.ps, call.prec, call.plan, call.user_events
+    grid, direction = plan["grid"], plan["direction"]
+    grid_native, t0_native, y0_native = plan["grid_native"], plan["t0_native"], call.y0_native
+    dense, max_steps = call.dense, call.max_steps
     template, build, cached, event_info = plan["build"]
-    if cached or plan.get("used"):
-        build, cached = 0.0, True
-    plan["used"] = True
-    stats = Stats(method="taylor (heyoka)", precision=prec.name, tol=float(tolf), order=int(template.order),
-                  build_time=build, cached=cached)
+    if not cached:
+        if plan.get("used"):
+            build, cached = 0.0, True
+        plan["used"] = True  # only the first run of a new integrator reports its build time
+    run_time = 0.0
     if direction == 0:
-        ta = None
         run = _Run(ta=None, direction=0)
         recorders = []
         run.t_reached, run.y_reached = t0_native, y0_native
@@ -392,8 +451,8 @@ def integrate(
         try:
             ta.time = t0_native
             ta.state[:] = y0_native
-            if ps.parameter_values:
-                ta.pars[:] = ps.native_parameters(prec)
+            if call.pars_native is not None:
+                ta.pars[:] = call.pars_native
             if event_info or user_events:
                 ta.reset_cooldowns()
             recorders = [ev.callback for ev in ta.nt_events] if user_events else []
@@ -401,16 +460,17 @@ def integrate(
                 rec.sink = []
             run = _Run(ta, direction, recorders)
             start = _time.perf_counter()
-            run.go(grid_native, t0_native, dense, max_steps, max_time, min_step,
-                   stiff_steps=min(max_steps, STIFF_STEPS) if default_budget else max_steps,
-                   first_chunk=FIRST_CHUNK.get(prec.name, FIRST_CHUNK_REAL), progress=progress)
-            stats.run_time = _time.perf_counter() - start
+            run.go(grid_native, t0_native, y0_native, dense, max_steps, call.max_time, call.min_step,
+                   stiff_steps=call.stiff_steps, first_chunk=call.first_chunk, progress=progress)
+            run_time = _time.perf_counter() - start
         finally:
             _release(ta, free)
-    stats.steps = run.steps
-    stats.min_step, stats.max_step = run.min_h, run.max_h
+    stats = Stats(method="taylor (heyoka)", precision=prec.name, tol=plan["tol_float"], order=template.order,
+                  build_time=build, cached=cached, run_time=run_time, steps=run.steps, min_step=run.min_h,
+                  max_step=run.max_h)
 
-    t_reached = to_fraction(run.t_reached)
+    # the exact value of the time reached (the exact grid's when the run got to the end)
+    t_reached = plan["grid_exact"][-1] if run.t_reached == grid_native[-1] else to_fraction(run.t_reached)
     rows_t, rows_y = [], []
     # heyoka's clock runs in the working precision ("0.1" is not a double): compare the rounded times, exactly,
     # in that format
@@ -429,15 +489,21 @@ def integrate(
         else:
             yk = run.dense_at(tk)
         rows_t.append(tk)
-        rows_y.append(np.array(yk, copy=True))
-    status, message = _status(run, event_info, t_reached, grid_native[-1], max_steps)
+        rows_y.append(yk)
+    if run.reason is None and run.outcome == _OUTCOME.time_limit:
+        status, message = "success", plan["reached"]
+    else:
+        status, message = _status(run, event_info, t_reached, grid_native[-1], max_steps)
     if status == "success" and direction != 0 and ps.is_hamiltonian:
-        status, message = _energy_check(ps, prec, tolf, y0_native, run.y_reached, run.steps, status, message)
-    y = np.stack(rows_y) if rows_y else np.empty((0, ps.dimension), dtype=prec.numpy_dtype)
-    tarr = _time_array(rows_t, prec)
+        if call.energy is None:
+            call.energy = _energy_function(ps, prec, y0_native)
+        status, message = _energy_check(call.energy, plan["sqrt_tol"], run.y_reached, run.steps, status, message)
+    # np.array copies the rows (the run's own arrays, y0's read-only cache)
+    y = np.array(rows_y, dtype=call.dtype) if rows_y else np.empty((0, ps.dimension), dtype=call.dtype)
+    tarr = _time_array(rows_t, prec) if prec.is_real else np.array(rows_t, dtype=call.dtype)
     dense_fn = DenseOutput(run.c_outs, prec) if run.c_outs else None
     return Solution(tarr, y, stats, status, message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
-                    y_reached=np.array(run.y_reached, copy=True),
+                    y_reached=np.array(run.y_reached, copy=True) if run.y_reached is y0_native else run.y_reached,
                     events=_event_records(user_events, recorders, run, status, event_info, prec, ps.dimension)
                     if user_events else None)
 
@@ -477,26 +543,25 @@ def _time_array(natives, prec: Precision) -> np.ndarray:
 class _Run:
     """One integration from the integrator's current time and state, in chunks of steps (module docstring)."""
 
+    steps = 0
+    min_h, max_h = math.inf, 0.0
+    outcome = reason = rows = None
+    change = h_last = math.nan
+    stiff_steps = 0
+    t_reached = y_reached = None
+
     def __init__(self, ta, direction, recorders=()):
         self.ta = ta
         self.direction = direction
-        self.recorders = list(recorders)
-        self.steps = 0
-        self.min_h, self.max_h = math.inf, 0.0
-        self.outcome = None
-        self.reason = None
-        self.rows = None
-        self.c_outs = []
-        self.change = math.nan
-        self.h_last = math.nan
-        self.stiff_steps = 0
-        self.t_reached = self.y_reached = None
+        self.recorders = recorders
+        self.c_outs = []  # the other attributes start at the class's values
 
-    def go(self, grid, t0, dense, max_steps, max_time, min_step, *, stiff_steps, first_chunk, progress):
+    def go(self, grid, t0, y0, dense, max_steps, max_time, min_step, *, stiff_steps, first_chunk, progress):
+        """Integrate from ``t0``, ``y0`` (the integrator's current time and state) to the end of ``grid``."""
         ta = self.ta
+        self.t_reached, self.y_reached = t0, y0
         self.stiff_steps = stiff_steps
         t_end = grid[-1]
-        span = abs(float(t_end) - float(t0))
         use_grid = not dense and not (len(grid) == 2 and grid[0] == t0)
         if use_grid:
             self.rows = []
@@ -508,8 +573,8 @@ class _Run:
         start = _time.perf_counter()
         while True:
             budget = min(chunk, max_steps - self.steps)
-            t_chunk, y_chunk = ta.time, np.array(ta.state, copy=True)
-            marks = [len(r.sink) for r in self.recorders]
+            t_chunk, y_chunk = self.t_reached, self.y_reached  # where this chunk starts
+            marks = [len(r.sink) for r in self.recorders] if self.recorders else ()
             tic = _time.perf_counter()
             if use_grid and not pending:
                 self.outcome = _OUTCOME.time_limit
@@ -560,6 +625,7 @@ class _Run:
                 self.reason = "step_collapse" if h < 1e-2 * h_first else "step_budget"
                 return
             if progress is not None:
+                span = abs(float(t_end) - float(t0))
                 progress(min(1.0, abs(float(ta.time) - float(t0)) / span) if span else 1.0)
             per_step = elapsed / max(int(res[3]), 1)
             chunk = int(min(4 * chunk, max(16, CHUNK_SECONDS / max(per_step, 1e-9)), 1 << 20))
@@ -643,11 +709,15 @@ def _finite(v) -> bool:
         return False
 
 
+def _reached(t_end) -> str:
+    return f"Reached t = {float(t_end):.17g}."
+
+
 def _status(run, event_info, t_reached, t_end, max_steps):
     if run.direction == 0:
         return "success", f"Nothing to integrate: t equals t0 = {float(t_reached):.17g}."
     if run.reason is None and run.outcome == _OUTCOME.time_limit:
-        return "success", f"Reached t = {float(t_end):.17g}."
+        return "success", _reached(t_end)
     ta = run.ta
     h = abs(float(ta.last_h)) if _finite(ta.last_h) else float("nan")
     where = f"t = {float(t_reached):.17g} (last step size {h:.3g})"
@@ -676,7 +746,7 @@ def _status(run, event_info, t_reached, t_end, max_steps):
             f"Stopped early at {where}: {need}, more than the budget max_steps = {max_steps}. Raise `max_steps`."
         )
     if outcome == _OUTCOME.time_limit:
-        return "success", f"Reached t = {float(t_end):.17g}."
+        return "success", _reached(t_end)
     if outcome == _OUTCOME.err_nf_state:
         return "non_finite", (
             f"The state became non-finite (NaN or infinity) in the step after t = {float(t_reached):.17g}; the "
@@ -695,35 +765,31 @@ def _status(run, event_info, t_reached, t_end, max_steps):
 _ENERGY: dict = {}
 
 
-def _energy_check(ps, prec, tolf, y_start, y_end, steps, status, message):
-    """``invariant_drift`` when the Hamiltonian changed beyond sqrt(tol) * max(|H|, 1) over a successful run."""
+def _energy_function(ps, prec, y0):
+    """(compiled H, the system's parameters in the working format, H(y0)) for the energy check of a call."""
     key = (ps.key, prec.name)
-    fn = _ENERGY.get(key)
-    if fn is None:
+    entry = _ENERGY.get(key)
+    if entry is None:
         kwargs = {} if prec.name == "double" else {"fp_type": prec.fp_type}
         if prec.is_real:
             kwargs["prec"] = prec.bits
         npar = 1 + max((int(str(p)[1:]) for p in hy.get_params([ps.hamiltonian])), default=-1)
         fn = hy.cfunc([ps.hamiltonian], ps.variables, compact_mode=prec.name != "double", **kwargs)
-        _ENERGY[key] = fn = (fn, npar, {})
-    fn, npar, pars_by_system = fn
-    both = np.empty((len(y_start), 2), dtype=prec.numpy_dtype)  # one batched call for both ends
-    both[:, 0], both[:, 1] = y_start, y_end
-    if npar:
-        pars = pars_by_system.get(id(ps))
-        if pars is None or pars[0] is not ps:
-            if len(pars_by_system) > 64:
-                pars_by_system.clear()
-            native = ps.native_parameters(prec)[:npar]
-            pars = pars_by_system[id(ps)] = (ps, np.repeat(native[:, None], 2, axis=1))
-        values = fn(both, pars=pars[1])
-    else:
-        values = fn(both)
-    e0, e1 = float(values[0, 0]), float(values[0, 1])
+        with _LOCK:
+            entry = _ENERGY.setdefault(key, (fn, npar))
+    fn, npar = entry
+    pars = ps.native_parameters(prec)[:npar] if npar else None
+    h0 = float((fn(y0) if pars is None else fn(y0, pars=pars))[0])
+    return fn, pars, h0
+
+
+def _energy_check(energy, sqrt_tol, y_end, steps, status, message):
+    """``invariant_drift`` when the Hamiltonian changed beyond sqrt(tol) * max(|H|, 1) over a successful run."""
+    fn, pars, e0 = energy
+    e1 = float((fn(y_end) if pars is None else fn(y_end, pars=pars))[0])
     if not (math.isfinite(e0) and math.isfinite(e1)):
         return status, message
-    change = abs(e1 - e0)
-    if change <= math.sqrt(float(tolf)) * max(abs(e0), abs(e1), 1.0):
+    if abs(e1 - e0) <= sqrt_tol * max(abs(e0), abs(e1), 1.0):
         return status, message
     return "invariant_drift", (
         f"{message[:-1]}, but the result is wrong: the energy H, which the equations conserve, went from "

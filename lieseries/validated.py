@@ -288,7 +288,6 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
         pars = [arb(flint.fmpq(p.numerator, p.denominator)) for p in ps.parameter_values]
         consts = [(slot, _constant(c, flint)) for slot, c in prog.constants]
         width_cap = None if max_width is None else arb(flint.fmpq(*to_fraction(max_width, "max_width").as_integer_ratio()))
-        stats = Stats(method="validated lie series (arb)", precision=f"{dps} dps", tol=10.0 ** -dps, order=N)
         rows_t, rows_y, widths, tails = [], [], [], []
         tcur = t0f
         status, message = "success", ""
@@ -376,11 +375,9 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 break
         if status == "success":
             message = f"Reached t = {float(t_end):.17g}; every row is a proven enclosure."
-        stats.steps = steps
-        stats.run_time = _time.perf_counter() - start
-        stats.extra["widths"] = widths
-        stats.extra["tail_bounds"] = tails
-        stats.extra["max_width"] = max(widths) if widths else 0.0
+        stats = Stats(method="validated lie series (arb)", precision=f"{dps} dps", tol=10.0 ** -dps, order=N,
+                      steps=steps, run_time=_time.perf_counter() - start,
+                      extra={"widths": widths, "tail_bounds": tails, "max_width": max(widths) if widths else 0.0})
         y = np.empty((len(rows_y), ps.dimension), dtype=object)
         for i, row in enumerate(rows_y):
             for j, v in enumerate(row):

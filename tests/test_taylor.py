@@ -9,7 +9,7 @@ import pytest
 
 import lieseries as ls
 from lieseries.taylor import build_integrator
-from problems import mpf
+from problems import mpf, rigid_error
 
 
 def great_circle(x0, v0, t):
@@ -91,6 +91,28 @@ def test_second_call_reuses_the_compiled_integrator():
     # and the parameters really are the new ones: energy of the new body is conserved
     e = other.invariants(sol.y)["energy"]
     assert abs(e[1] - e[0]) < 1e-13 and abs(e[0] - 0.5 * (2 + 3 * 0.01 + 4 * 0.25)) < 1e-15
+
+
+def test_repeated_calls_follow_their_arguments():
+    """A repeated call reuses its validated arguments; a changed argument (a mutated array, another state, other
+    options) must still give that argument's answer, checked against the closed form."""
+    body = ls.EulerPoisson((1, 2, 3))
+    exact = body.initial_state(omega=(1, "0.1", "0.5"))
+    y = np.array(exact, dtype=float)  # a plain array the caller owns and changes
+    errs = []
+    for _ in range(3):
+        sol = ls.integrate(body, exact, t=5)
+        errs.append(rigid_error(sol.y[-1], 5))
+    assert max(errs) < 1e-13 and sol.success
+    first = ls.integrate(body, y, t=5).y[-1].copy()
+    y[9:] = 0.0, 0.2, 1.5  # the caller changes M in place: now M = I omega for omega = (0, 0.1, 0.5)
+    second = ls.integrate(body, y, t=5)
+    assert rigid_error(second.y[-1], 5, omega=(0, "0.1", "0.5")) < 1e-13
+    assert np.max(np.abs(second.y[-1] - first)) > 1e-2
+    # other options, same state: a coarser tolerance is honoured, not served from the memo
+    coarse = ls.integrate(body, exact, t=5, tol=1e-6)
+    assert coarse.stats.tol == 1e-6 and coarse.stats.order < sol.stats.order
+    assert 1e-13 < rigid_error(coarse.y[-1], 5) < 1e-4
 
 
 def test_non_finite_state_is_reported():

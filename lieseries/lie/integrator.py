@@ -160,8 +160,7 @@ def lie_integrate(
 
     prog = ps.program
     start = _time.perf_counter()
-    stats = Stats(method="lie series (mpmath)", precision=f"{dps} dps", tol=float(tolm), order=N)
-    stats.extra["data_bits"] = bits
+    estimates, extra = [], {"data_bits": bits}
     events = _event_checks(model, ps, wdps)
     user_events = resolve_events(user_events_arg, system, ps)
 
@@ -237,9 +236,9 @@ def lie_integrate(
             emit_until(tnew, coeffs, tcur)
             if segments is not None:
                 segments.append((tcur, tnew, coeffs))
-            stats.error_estimates.append(float(err))
+            estimates.append(float(err))
             ratio = float(h / rho) if rho != mp.inf else 0.0
-            stats.extra["max_step_over_radius"] = max(stats.extra.get("max_step_over_radius", 0.0), ratio)
+            extra["max_step_over_radius"] = max(extra.get("max_step_over_radius", 0.0), ratio)
             hmin, hmax = min(hmin, h), max(hmax, h)
             nsteps += 1
             z, tcur = znew, tnew
@@ -260,10 +259,9 @@ def lie_integrate(
         t_reached = to_fraction(tcur)
         prec = dps_to_bits(dps)
         y_rows = [export_mpf(np.array(row, dtype=object), prec) for row in out_y]
-    stats.steps = nsteps
-    stats.run_time = _time.perf_counter() - start
-    stats.min_step = float(hmin) if nsteps else float("nan")
-    stats.max_step = float(hmax) if nsteps else float("nan")
+    stats = Stats(method="lie series (mpmath)", precision=f"{dps} dps", tol=float(tolm), order=N, steps=nsteps,
+                  run_time=_time.perf_counter() - start, min_step=float(hmin) if nsteps else float("nan"),
+                  max_step=float(hmax) if nsteps else float("nan"), error_estimates=tuple(estimates), extra=extra)
     y = np.stack(y_rows) if y_rows else np.empty((0, ps.dimension), dtype=object)
     tarr = np.array([float(v) for v in out_t])
     dense_fn = _Dense(segments, dps, sgn) if segments is not None else None
