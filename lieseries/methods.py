@@ -11,6 +11,10 @@ Methods
 ``{"method": "scipy", "rtol": R, "atol": A}``
     scipy's ``solve_ivp(method="DOP853")`` on a right-hand side compiled from the system's heyoka vector field
     with ``heyoka.cfunc`` (parameters in double). ``atol`` defaults to ``rtol``.
+``{"method": "validated", "dps": D, "order": N}``
+    certified enclosures in Arb ball arithmetic, :func:`lieseries.validated_integrate`: the states are the balls'
+    midpoints (as mpf) and ``extra`` holds ``certified_digits`` (at each output time) and ``max_radius``; the
+    enclosures provably contain the exact solution, which the run's error against the reference confirms.
 ``{"method": "mpmath", "dps": D, "t_max": S}``
     ``mpmath.odefun`` (a Taylor method in pure mpmath) on a pure-mpmath right-hand side. It is slow: the run is
     capped at ``|t| <= t_max`` (default 2) and its error is measured at the time it reached.
@@ -55,6 +59,7 @@ METHODS = {
     "lie": {"dps": 30, "tol": None, "order": None},
     "scipy": {"rtol": 1e-10, "atol": None},
     "mpmath": {"dps": 15, "t_max": 2.0},
+    "validated": {"dps": 30, "order": None},
 }
 
 #: Keys that may be lists in :func:`work_precision` (one run per value).
@@ -85,6 +90,7 @@ class MethodRun:
     core_time : float or None    heyoka's own propagation time (Taylor runs)
     status : str                 "success", a heyoka/Lie status, "failed", "skipped" or "error"
     message : str
+    extra : dict                 method-specific figures (validated runs: certified digits, widest radius)
     """
 
     method: str
@@ -104,6 +110,7 @@ class MethodRun:
     core_time: float | None = None
     status: str = "success"
     message: str = ""
+    extra: dict = field(default_factory=dict)
 
     @property
     def y_final(self):
@@ -173,6 +180,8 @@ def method_label(spec: dict) -> str:
         return f"Lie series {spec['dps']} dps"
     if m == "scipy":
         return "scipy DOP853"
+    if m == "validated":
+        return f"validated (Arb) {spec['dps']} dps"
     return f"mpmath odefun {spec['dps']} dps"
 
 
@@ -309,6 +318,8 @@ def run_method(system, y0, t, spec: dict, *, times=None, repeat: int = 1) -> Met
             return _run_scipy(system, y0, tf, grid, spec, label, repeat)
         if m == "lie":
             return _run_lie(system, y0, tf, grid, spec, label, repeat)
+        if m == "validated":
+            return _run_validated(system, y0, tf, grid, spec, label, repeat)
         return _run_mpmath(system, y0, tf, grid, spec, label, repeat)
     except Exception as err:  # a failing method is a row of the study, not the end of it
         return MethodRun(m, label, precision_name(spec), setting(spec), float(tf), float(tf), status="error",
@@ -336,7 +347,7 @@ def setting(spec) -> str:
     if m == "scipy":
         atol = spec["atol"]
         return f"rtol={_fmt_num(spec['rtol'])}" + ("" if atol is None else f", atol={_fmt_num(atol)}")
-    if m == "lie":
+    if m in ("lie", "validated"):
         parts = [f"dps={spec['dps']}"]
         if spec.get("tol") is not None:
             parts.append(f"tol={_fmt_num(spec['tol'])}")
@@ -424,6 +435,26 @@ def _run_lie(system, y0, tf, grid, spec, label, repeat):
     )
 
 
+def _run_validated(system, y0, tf, grid, spec, label, repeat):
+    from .validated import certified_digits, midpoints, validated_integrate
+
+    kwargs = {"dps": int(spec["dps"])}
+    if spec.get("order") is not None:
+        kwargs["order"] = int(spec["order"])
+    t_arg = grid if grid is not None else tf
+    sol, walls = best_of(lambda: validated_integrate(system, y0, t_arg, **kwargs), repeat)
+    times = [to_fraction(v) for v in sol.t]
+    states = [list(row) for row in midpoints(sol, as_mpf=True)]
+    digits = [float(d) for d in certified_digits(sol)] if len(sol.y) else []
+    return MethodRun(
+        "validated", label, precision_name(spec), setting(spec), float(times[-1]) if times else 0.0, float(tf),
+        t_exact=times[-1] if times else None, times=[float(v) for v in times], states=states,
+        steps=int(sol.stats.steps), order=int(sol.stats.order), build_time=None, run_time=float(min(walls)),
+        core_time=float(sol.stats.run_time), status=sol.status, message=sol.message,
+        extra={"certified_digits": digits, "max_radius": float(sol.stats.extra.get("max_width", 0.0))},
+    )
+
+
 def _run_mpmath(system, y0, tf, grid, spec, label, repeat):
     ps = as_poisson_system(system)
     dps = int(spec["dps"])
@@ -470,7 +501,7 @@ def _digits_needed(spec) -> int:
             return bits_to_dps(resolve_precision(spec["precision"]).bits)
         except (TypeError, ValueError):
             return 16
-    if m in ("lie", "mpmath"):
+    if m in ("lie", "mpmath", "validated"):
         return int(spec["dps"])
     return 16
 

@@ -410,6 +410,7 @@ def _do_run(scene, runp, built, bar, notes):
                 extra = extra or {}
             else:
                 run = run_method(model, y0, tf, spec, times=grid, repeat=runp["repeat"])
+                extra = dict(run.extra)
             done += 1
             if run.status == "skipped":
                 note = f"run: {run.label} skipped ({run.message})."

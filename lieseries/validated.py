@@ -32,6 +32,7 @@ import time as _time
 from contextlib import contextmanager
 from fractions import Fraction
 
+import mpmath
 import numpy as np
 
 from .models.base import Model
@@ -47,6 +48,8 @@ SUPPORTED_OPS = ("add", "sub", "neg", "mul", "div", "powi", "pow", "sqrt", "exp"
                  "atan", "sinh", "cosh", "tanh")
 #: Guard bits above the requested digits.
 GUARD_BITS = 32
+#: Each step's remainder bound, relative to the state's size, is at most this times 10^-dps.
+REMAINDER_FACTOR = 1e-4
 
 _LOCK = threading.RLock()
 
@@ -153,58 +156,97 @@ def _check_ops(prog):
                          f"it supports {', '.join(SUPPORTED_OPS)}")
 
 
-def _taylor(prog, z0, pars, consts, order, flint):
-    """Ball Taylor coefficients c_0..c_order of the flow from the balls z0 (Picard iteration on arb_series)."""
-    arb_series = flint.arb_series
+def _taylor(prog, z0, pars, consts, order, flint, *, bits=None):
+    """Ball Taylor coefficients c_0..c_order of the flow from the balls z0: out[i][j] for component i, order j.
+
+    Picard iteration on Arb power series, one coefficient per iteration: the (m-1)-th coefficient of f(z) depends
+    only on c_0..c_{m-1}, so iteration m evaluates f on the series known so far (length m) and appends
+    c_m = f_{m-1} / m, keeping the earlier coefficients. ``bits``: the precision to work at (default: the
+    current one); a lower precision only widens the balls, it never makes them wrong.
+    """
+    arb, arb_series = flint.arb, flint.arb_series
     if flint.ctx.cap < order + 2:
         raise AssertionError("the series cap must exceed the order")  # pragma: no cover - set by the driver
-    z = [arb_series([c], prec=1) for c in z0]
-    for m in range(1, order + 1):
-        zz = [arb_series(s.coeffs()[:m], prec=m) for s in z]
-        one = arb_series([flint.arb(1)], prec=m)
-        f = _evaluate(prog, zz, pars, consts, one)
-        z = []
-        for c, fi in zip(z0, f):
-            if not isinstance(fi, arb_series):
-                fi = arb_series([fi], prec=m)
-            z.append(arb_series([c], prec=m + 1) + fi.integral())
+    saved = flint.ctx.prec
+    flint.ctx.prec = saved if bits is None else bits
+    coeffs = [[c] for c in z0]
+    try:
+        for m in range(1, order + 1):
+            one = arb_series([arb(1)], prec=m)
+            f = _evaluate(prog, [arb_series(cs, prec=m) for cs in coeffs], pars, consts, one)
+            for cs, fi in zip(coeffs, f):
+                if isinstance(fi, arb_series):
+                    got = fi.coeffs()
+                    fk = got[m - 1] if len(got) >= m else arb(0)
+                else:  # a constant component of the field
+                    fk = fi if m == 1 else arb(0)
+                cs.append(fk / m)
+    finally:
+        flint.ctx.prec = saved
+    return coeffs
+
+
+def _horner(C, tau):
+    """The Taylor polynomials sum_j C[i][j] tau^j (tau a ball: an enclosure of their range over it)."""
     out = []
-    for s in z:
-        cs = list(s.coeffs())[: order + 1]
-        out.append(cs + [flint.arb(0)] * (order + 1 - len(cs)))
-    return out  # out[i][j]: component i, order j
+    for cs in C:
+        acc = cs[-1]
+        for c in reversed(cs[:-1]):
+            acc = acc * tau + c
+        out.append(acc)
+    return out
 
 
-def _apriori(prog, z, pars, consts, span, flint, tries: int = 4):
-    """A box B with z + span f(B) inside B (``span`` the ball [0, h] or [h, 0]), or None.
-
-    Starts from z + span f(z), inflated, and grows it a few times (the usual a priori iteration); a box that
-    passes the check encloses every solution from z over the whole span (Picard-Lindelof)."""
+def _enclosure_box(P, flint):
+    """A box around the polynomial range P over a step, a little wider, for the a priori check."""
     arb = flint.arb
-    one = arb(1)
+    return [arb(p.mid(), p.rad() * 1.25 + (abs(p.mid()) + p.rad() + 1) * arb(2) ** -30) for p in P]
 
-    def image(box):
-        try:
-            F = _evaluate(prog, box, pars, consts, one)
-        except (ZeroDivisionError, ValueError):
-            return None
-        F = [f if isinstance(f, arb) else arb(f) for f in F]
-        if not all(f.is_finite() for f in F):
-            return None
-        return [zi + span * f for zi, f in zip(z, F)]
 
-    box = image(z)
-    if box is None:
+def _prove_step(prog, C, pars, consts, span, N, flint):
+    """(the remainder balls c_{N+1}(B) of a step over ``span`` (the ball [0, h]), the largest remainder bound
+    |c_{N+1}(B)| h^(N+1), the box B that holds every solution over the step), or (None, inf, None) when the step
+    is not proved.
+
+    B is a box around the range of the Taylor polynomials over the step. By the high-order enclosure theorem
+    (docs/theory.md), sum_{j<=N} c_j(Z) [0, h]^j + c_{N+1}(B) [0, h]^(N+1) inside B proves that every solution
+    from Z exists over the step and stays in B; c_{N+1}(B) then bounds the Lagrange remainder. B is wide, so its
+    coefficients are computed at 64 bits (outward rounding keeps them rigorous)."""
+    P = _horner(C, span)
+    B = _enclosure_box(P, flint)
+    try:
+        D = _taylor(prog, B, pars, consts, N + 1, flint, bits=64)
+    except (ZeroDivisionError, ValueError):
+        return None, math.inf, None
+    rem = [d[N + 1] for d in D]
+    if not all(r.is_finite() for r in rem):
+        return None, math.inf, None
+    hN = span ** (N + 1)
+    if not all(b.contains(p + r * hN) for b, p, r in zip(B, P, rem)):
+        return None, math.inf, None
+    return rem, max(float((r * hN).abs_upper()) for r in rem), B
+
+
+def _model_events(system, ps):
+    """The model's terminal events (e.g. a sphere chart's edge) as (program, statuses, messages), or None."""
+    evs = system.events() if isinstance(system, Model) else []
+    if not evs:
         return None
-    for _ in range(tries):
-        # inflate: centre, radius doubled plus a little of the magnitude
-        box = [arb(b.mid(), 2 * b.rad() + (abs(b.mid()) + 1) * arb(2) ** -40) for b in box]
-        new = image(box)
-        if new is None:
-            return None
-        if all(b.contains(n) for b, n in zip(box, new)):
-            return box
-        box = [b.union(n) for b, n in zip(box, new)]
+    from .expr import compile_expressions
+
+    prog = compile_expressions(ps.variables, [e[0] for e in evs], len(ps.parameter_values))
+    _check_ops(prog)
+    return prog, [e[1] for e in evs], [e[2] for e in evs]
+
+
+def _event_in(events, B, pars, consts, one):
+    """(status, message) of the first event whose expression may vanish somewhere in the box B, else None: a
+    step whose box reaches an event is not taken (the run stops before it, every row proved)."""
+    prog, statuses, messages = events
+    values = _evaluate(prog, B, pars, consts, one)
+    for v, status, message in zip(values, statuses, messages):
+        if not (v > 0 or v < 0):
+            return status, message
     return None
 
 
@@ -222,7 +264,7 @@ def _initial_balls(system, y0, n, flint):
             if not v.is_finite():
                 raise ValueError(f"`y0[{i}]` must be a finite ball; got {v}")
             balls.append(+v)
-            mids.append(to_fraction(str(v.mid()), f"y0[{i}]") if v.mid().is_exact() else None)
+            mids.append(_exact_mid(v))
             continue
         if isinstance(v, tuple):
             if len(v) != 2:
@@ -287,6 +329,9 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
         z = _initial_balls(system, y0, ps.dimension, flint)
         pars = [arb(flint.fmpq(p.numerator, p.denominator)) for p in ps.parameter_values]
         consts = [(slot, _constant(c, flint)) for slot, c in prog.constants]
+        events = _model_events(system, ps)
+        ev_pars = pars
+        ev_consts = [(slot, _constant(c, flint)) for slot, c in events[0].constants] if events else []
         width_cap = None if max_width is None else arb(flint.fmpq(*to_fraction(max_width, "max_width").as_integer_ratio()))
         rows_t, rows_y, widths, tails = [], [], [], []
         tcur = t0f
@@ -298,7 +343,10 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
             rows_y.append(list(z))
             widths.append(max(float(zi.rad()) for zi in z))
             pending.pop(0)
-        h_prev = 1.0
+        h_prev, grow = 1.0, 1.0
+        # per-step remainder bound, relative: far below 10^-dps, because every step's remainder is then carried
+        # (and widened by the wrapping effect) to the end of the run
+        rem_tol = REMAINDER_FACTOR * 10.0 ** -dps
         tol_f = 10.0 ** -dps
         t_end = grid[-1]
         while direction and (t_end - tcur) * direction > 0:
@@ -312,25 +360,44 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
             C = _taylor(prog, z, pars, consts, N, flint)
             # the step from the coefficients (as lie_integrate chooses it); then proved or halved
             big = max(float(max(abs(C[i][k].mid()) for i in range(len(z)))) for k in (N - 1, N))
-            h_f = min(h_prev * 4, (tol_f * scale / big) ** (1.0 / N) if big > 0 else 1.0, float(abs(t_end - tcur)))
+            h_f = min(h_prev * (grow if steps else 4), (tol_f * scale / big) ** (1.0 / N) if big > 0 else 1.0,
+                      float(abs(t_end - tcur)))
             proved = None
+            event_hit = None
             left = abs(t_end - tcur)
-            while h_f > scale * 2.0**-40 or h_f >= float(left):
+            h_event_start = h_f
+            for _attempt in range(60):
+                if not (h_f > scale * 2.0**-40 or h_f >= float(left)):
+                    break
                 h = left if h_f >= float(left) else Fraction(math.floor(h_f * 2**50), 2**50)
                 if h <= 0:
                     break
                 hs = h * direction
                 hb = arb(flint.fmpq(hs.numerator, hs.denominator))
-                B = _apriori(prog, z, pars, consts, hb / 2 + arb(0, abs(hb) / 2), flint)
-                if B is not None:
-                    D = _taylor(prog, B, pars, consts, N + 1, flint)
-                    rem = [D[i][N + 1] for i in range(len(z))]
-                    if all(r_.is_finite() for r_ in rem):
-                        worst = max(float(abs(r_).abs_upper()) for r_ in rem) * float(abs(hs)) ** (N + 1)
-                        if worst <= 10 * tol_f * scale:
-                            proved = (h, hs, rem)
-                            break
-                h_f /= 2
+                span = hb / 2 + arb(0, abs(hb) / 2)  # the ball [0, h] (or [h, 0])
+                rem, worst, B = _prove_step(prog, C, pars, consts, span, N, flint)
+                hit = _event_in(events, B, ev_pars, ev_consts, arb(1)) if events and rem is not None else None
+                if hit is not None:
+                    # the step's box may reach the event: shorten the step towards it, and stop when that no
+                    # longer helps (the event is closer than 1/1000 of the step)
+                    event_hit = hit
+                    if float(h) < 1e-3 * h_event_start:
+                        break
+                    h_f = float(h) / 2
+                    continue
+                if rem is not None and worst <= rem_tol * scale:
+                    proved = (h, hs, rem)
+                    # the next step: as large as this remainder's margin allows (it scales like h^(N+1))
+                    grow = min(0.95 * (rem_tol * scale / max(worst, 1e-300)) ** (1.0 / (N + 1)), 1.25)
+                    break
+                # the remainder scales like h^(N+1): aim just below the tolerance (halve when unproved)
+                shrink = 0.5 if rem is None else min(0.9 * (rem_tol * scale / worst) ** (1.0 / (N + 1)), 0.9)
+                h_f = float(h) * shrink
+            if proved is None and event_hit is not None:
+                status = event_hit[0]
+                message = (f"Stopped at t = {float(tcur):.17g}: {event_hit[1]} within the next step (validated runs "
+                           "stay in one chart; every row up to here is a proven enclosure).")
+                break
             if proved is None:
                 status = "validation_failed"
                 message = (f"Validation failed at t = {float(tcur):.17g}: no step down to {scale * 2.0**-40:.3g} "
@@ -389,10 +456,23 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                     t_requested=grid, y_reached=y_reached)
 
 
-def midpoints(sol) -> np.ndarray:
-    """The midpoints of a validated solution's balls, as exact Fractions (an object array shaped like ``sol.y``)."""
-    return np.vectorize(lambda v: to_fraction(str(v.mid())) if v.mid().is_exact() else Fraction(float(v.mid())),
-                        otypes=[object])(sol.y)
+def midpoints(sol, as_mpf: bool = False) -> np.ndarray:
+    """The midpoints of a validated solution's balls (an object array shaped like ``sol.y``): exact Fractions, or
+    with ``as_mpf`` mpmath numbers of the same (binary) values, exactly."""
+    if as_mpf:
+        return np.vectorize(_mid_mpf, otypes=[object])(sol.y)
+    return np.vectorize(_exact_mid, otypes=[object])(sol.y)
+
+
+def _mid_mpf(ball):
+    man, exp = (int(v) for v in ball.mid().man_exp())
+    return mpmath.make_mpf(mpmath.libmp.from_man_exp(man, exp))
+
+
+def _exact_mid(ball) -> Fraction:
+    """The midpoint of an arb ball (a binary number), exactly."""
+    man, exp = (int(v) for v in ball.mid().man_exp())
+    return Fraction(man << exp) if exp >= 0 else Fraction(man, 1 << -exp)
 
 
 def radii(sol) -> np.ndarray:

@@ -90,3 +90,56 @@ def test_bad_input_is_named():
         validated_integrate(body, list(y0.exact[:9]) + [(1, -1), 0, 0], t=1)
     with pytest.raises(ValueError, match="`y0`"):
         validated_integrate(body, [1, 2], t=1)
+
+
+def test_sphere_chart_encloses_the_great_circle_and_stops_before_its_edge():
+    """x(t) = (0.6 cos t, sin t, 0.8 cos t) on the unit sphere; the chart x3 != 0 ends where 0.8 cos t = 0.05."""
+    s = ls.Sphere()
+    y0 = s.initial_state(("0.6", "0", "0.8"), ("0", "1", "0"))
+    sol = validated_integrate(s, y0, t=[Fraction(1, 2), Fraction(1), Fraction(8, 5)], dps=15)
+    assert sol.status == "chart_edge" and "x3" in sol.message
+    edge = mp.acos(mp.mpf(1) / 16)
+    reached = mp.mpf(sol.t_reached.numerator) / sol.t_reached.denominator
+    assert edge - mp.mpf("1e-3") < reached <= edge
+    assert len(sol.t) == 2  # t = 1.6 lies beyond the edge: never claimed
+    with mp.workdps(40):
+        for tk, row in zip(sol.t, sol.y):
+            t = mp.mpf(to_fraction(tk).numerator) / to_fraction(tk).denominator
+            ref = [mp.mpf("0.6") * mp.cos(t), mp.sin(t), mp.mpf("0.8") * mp.cos(t)]
+            assert all(inside(b, v) for b, v in zip(row[:3], ref))
+    assert max(radii(sol)[-1]) < 1e-10
+
+
+@pytest.mark.parametrize("inertia, omega", [
+    ((1, 2, 3), ("0.001", 1, "0.001")),  # near the separatrix: close to the unstable rotation about axis 2
+    ([[2, "1/2", 0], ["1/2", 3, "1/4"], [0, "1/4", 4]], (1, "0.1", "0.5")),  # a full inertia tensor
+])
+def test_hard_rigid_bodies_are_enclosed(inertia, omega):
+    body = ls.EulerPoisson(inertia)
+    times = [Fraction(1), Fraction(2)]
+    sol = validated_integrate(body, body.initial_state(omega=omega), t=times, dps=20)
+    assert sol.status == "success", sol.message
+    refs = exact.euler_poisson_many(inertia, omega, times, dps=50)
+    assert all(inside(b, v) for row, ref in zip(sol.y, refs) for b, v in zip(row, ref))
+    assert min(certified_digits(sol)) > 15
+
+
+def test_an_operation_without_a_ball_version_is_refused_by_name():
+    q, p = hy.make_vars("q", "p")
+    sys_ = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p * p / 2 + q * hy.erf(q), name="erf")
+    with pytest.raises(NotImplementedError, match="`erf`"):
+        validated_integrate(sys_, [1, 0], t=1)
+
+
+def test_validated_is_a_method_of_the_registry():
+    """``{"method": "validated"}`` in studies and scenes: midpoints as states, certified digits in ``extra``."""
+    from lieseries.methods import run_method
+    from problems import rigid_error
+
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    run = run_method(body, body.initial_state(omega=RIGID_OMEGA), 1, {"method": "validated", "dps": 20})
+    assert run.status == "success" and run.label == "validated (Arb) 20 dps"
+    digits = run.extra["certified_digits"][-1]
+    assert digits > 15
+    # the midpoint is within the certified radius (relative to max(1, |z|) <= 2) of the closed form
+    assert rigid_error(run.y_final, 1, dps=50) <= 2 * 10.0 ** -digits
