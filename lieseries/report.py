@@ -336,10 +336,15 @@ def _section_run(result, lines, csvs):
                  "(so the rounding of the initial state into each precision is included).")
     lines += ["", markdown_table(h2, r2), ""]
     csvs.append(("run_invariants.csv", h2, r2))
+    certified = [r for r in run["rows"] if r.extra.get("certified_digits")]
+    for r in certified:
+        lines.append(f"- **{r.label}** ({r.model}): every component is proven to lie in its ball; certified "
+                     f"digits at the final time {r.extra['certified_digits'][-1]:.1f} (widest ball "
+                     f"{fmt_sci(r.extra.get('max_radius'))}), so its error above is at most that.")
     bad = [r for r in run["rows"] if r.status != "success"]
     for r in bad:
         lines.append(f"- **{r.label}** ({r.model}): {r.status}: {r.message}")
-    if bad:
+    if bad or certified:
         lines.append("")
 
 

@@ -24,6 +24,7 @@ A scene is a TOML file::
       { method = "lie", dps = 30 },                           # tol, order optional
       { method = "scipy", rtol = 1e-12 },                     # atol optional
       { method = "mpmath", dps = 20, t_max = 1 },             # capped at |t| <= t_max
+      { method = "validated", dps = 30 },                     # Arb balls; order optional
     ]
 
     [studies.error_vs_order]     # t or t_fraction (of the theoretical radius); orders or max_order (with
@@ -345,6 +346,7 @@ def _method_fields(lists: bool) -> dict:
                 "order": (_integer(1, 10_000), None)},
         "scipy": {"rtol": (L(_tol), 1e-10), "atol": (_positive, None)},
         "mpmath": {"dps": (L(_integer(5, 10_000)), 15), "t_max": (_positive, 2.0)},
+        "validated": {"dps": (L(_integer(5, 10_000)), 30), "order": (_integer(1, 10_000), None)},
     }
 
 
@@ -353,7 +355,7 @@ def _method(data, path, lists: bool):
         raise SceneError(f"`{path}` must be a table such as {{ method = \"taylor\", precision = \"double\" }}; "
                          f"got {_show(data)}")
     if "method" not in data:
-        raise SceneError(f"missing required field `{path}.method` (one of taylor, lie, scipy, mpmath)")
+        raise SceneError(f"missing required field `{path}.method` (one of taylor, lie, scipy, mpmath, validated)")
     name = data["method"]
     fields = _method_fields(lists)
     if name not in fields:
@@ -510,6 +512,10 @@ FIELD_DOCS = {
     "method.mpmath": {
         "dps": ("integer", "digits of mpmath.odefun"),
         "t_max": ("positive number", "the run is capped at |t| <= t_max (odefun is slow)"),
+    },
+    "method.validated": {
+        "dps": ("integer", "digits of validated_integrate's ball arithmetic (certified enclosures)"),
+        "order": ("integer", "a fixed series order (default: the automatic one)"),
     },
     "studies.error_vs_order": {
         "t": ("number", "the time at which the truncated series is compared"),
@@ -1005,7 +1011,8 @@ def _thin(values, keep=3):
 def effective_plan(scene: Scene, quick: bool = False):
     """(run, studies) tables as they will be run: ``quick`` scales the studies down for CI.
 
-    Quick mode: at most 41 output times in the run, which ends at ``run.quick_t`` when the scene gives one; error
+    Quick mode: at most 41 output times in the run, which ends at ``run.quick_t`` when the scene gives one (validated
+    runs at most 30 digits); error
     vs order up to half the largest order (at least 12) and at most 40 digits; work-precision with at most three
     values per setting, one repeat and mpmath capped at t = 0.5; drift over a tenth of the time, at most 60
     samples and 4 ensemble members.
@@ -1022,6 +1029,8 @@ def effective_plan(scene: Scene, quick: bool = False):
         for m in run["methods"]:
             if m["method"] == "mpmath":
                 m["t_max"] = min(float(to_fraction(m["t_max"])), 0.5)
+            if m["method"] == "validated":
+                m["dps"] = min(m["dps"], 30)
     ev = studies.get("error_vs_order")
     if ev is not None:
         orders = orders_of(ev)
