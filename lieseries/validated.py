@@ -5,20 +5,22 @@ enclosures: every component at every output time is an Arb ball (``flint.arb``: 
 contains the exact solution of the exact problem (initial data and parameters taken exactly, or as balls when the
 user gives uncertainties). The argument is in ``docs/theory.md`` ("Certified enclosures"); in short, each step
 
-1. computes the Taylor coefficients c_0..c_N of the flow as balls, by Picard iteration on Arb power series
-   (``arb_series``), from the ball enclosure Z of the current state (so they enclose the coefficients of every
-   solution starting in Z);
-2. finds an a priori enclosure: a box B with Z + [0, h] f(B) inside B (checked in ball arithmetic) -- then every
-   solution from Z exists on [0, h] and stays in B (Picard-Lindelof);
-3. encloses z(h) by Taylor's theorem with the Lagrange remainder: sum_{j<=N} c_j(Z) h^j + c_{N+1}(B) h^(N+1),
-   where c_{N+1}(B) encloses the (N+1)-th Taylor coefficient of the flow from any point of B (the remainder is
-   c_{N+1}(z(xi)) h^(N+1) for some xi in [0, h], and z(xi) lies in B).
+The set of states is carried in Lohner's form m + A r (a centre point, an orthogonal matrix, a box around 0), and
+each step
 
-Nothing else is assumed: when the a priori enclosure is not found at the smallest disc, or the widths grow beyond
-``max_width``, the run stops with status ``validation_failed`` and keeps only what it has proved.
+1. computes the Taylor coefficients c_0..c_N of the flow from m as balls, by Picard iteration on Arb power series
+   (``arb_series``), and those up to order 12 from the whole box Z = m + A r;
+2. finds an a priori enclosure by the high-order enclosure theorem: a box B around the polynomials from Z over
+   [0, h] such that sum_{j<=12} c_j(Z) [0, h]^j + c_13(B) [0, h]^13 lies inside B -- then every solution from Z
+   exists on [0, h] and stays in B;
+3. encloses the centre's solution by Taylor's theorem with the Lagrange remainder: sum_{j<=N} c_j h^j +
+   c_{N+1}(B) h^(N+1), c_{N+1}(B) enclosing the (N+1)-th coefficient from any point of B;
+4. encloses the Jacobian of the flow over the step (the variational equation over eight pieces of the step,
+   each in its own narrower box) and moves the set by the mean-value theorem and a QR step.
 
-Propagation uses plain balls (interval Taylor): the dependency ("wrapping") effect makes widths grow from step to
-step; ``sol.stats.extra["widths"]`` records the widest ball at every output time so the growth can be measured.
+Nothing else is assumed: when no step down to the smallest is proved, or the widths grow beyond ``max_width``,
+the run stops with status ``validation_failed`` and keeps only what it has proved.
+``sol.stats.extra["widths"]`` records the widest ball at every output time so the growth can be measured.
 
 python-flint's working precision (``flint.ctx.prec``) is process-wide: a validated run holds a lock for its whole
 duration and restores the precision afterwards, so runs from several threads are safe but run one at a time.
@@ -204,28 +206,100 @@ def _enclosure_box(P, flint):
     return [arb(p.mid(), p.rad() * 1.25 + (abs(p.mid()) + p.rad() + 1) * arb(2) ** -30) for p in P]
 
 
-def _prove_step(prog, C, pars, consts, span, N, flint):
+def _prove_step(prog, CZ, pars, consts, span, N, flint):
     """(the remainder balls c_{N+1}(B) of a step over ``span`` (the ball [0, h]), the largest remainder bound
-    |c_{N+1}(B)| h^(N+1), the box B that holds every solution over the step), or (None, inf, None) when the step
-    is not proved.
+    |c_{N+1}(B)| h^(N+1), (the box B that holds every solution over the step, the coefficients from B through
+    c_{N+1})), or (None, inf, None) when the step is not proved.
 
-    B is a box around the range of the Taylor polynomials over the step. By the high-order enclosure theorem
-    (docs/theory.md), sum_{j<=N} c_j(Z) [0, h]^j + c_{N+1}(B) [0, h]^(N+1) inside B proves that every solution
-    from Z exists over the step and stays in B; c_{N+1}(B) then bounds the Lagrange remainder. B is wide, so its
-    coefficients are computed at 64 bits (outward rounding keeps them rigorous)."""
-    P = _horner(C, span)
+    ``CZ``: the Taylor coefficients c_0..c_K from the whole enclosure Z of the state (K = BOX_ORDER). B is a box
+    around their polynomials' range over the step. By the high-order enclosure theorem (docs/theory.md),
+    sum_{j<=K} c_j(Z) [0, h]^j + c_{K+1}(B) [0, h]^(K+1) inside B proves that every solution from Z exists over
+    the step and stays in B; c_{N+1}(B) then bounds the Lagrange remainder of the order-N polynomial. B is wide,
+    so its coefficients are computed at 64 bits (outward rounding keeps them rigorous)."""
+    K = len(CZ[0]) - 1
+    P = _horner(CZ, span)
     B = _enclosure_box(P, flint)
     try:
         D = _taylor(prog, B, pars, consts, N + 1, flint, bits=64)
     except (ZeroDivisionError, ValueError):
         return None, math.inf, None
     rem = [d[N + 1] for d in D]
-    if not all(r.is_finite() for r in rem):
+    if not all(r.is_finite() and d[K + 1].is_finite() for r, d in zip(rem, D)):
+        return None, math.inf, None
+    if not all(b.contains(p + d[K + 1] * span ** (K + 1)) for b, p, d in zip(B, P, D)):
         return None, math.inf, None
     hN = span ** (N + 1)
-    if not all(b.contains(p + r * hN) for b, p, r in zip(B, P, rem)):
-        return None, math.inf, None
-    return rem, max(float((r * hN).abs_upper()) for r in rem), B
+    return rem, max(float((r * hN).abs_upper()) for r in rem), (B, D)
+
+
+_JACOBIANS: dict = {}
+#: Terms of the interval-matrix exponential that encloses the flow's Jacobian over one piece of a step, and the
+#: number of pieces a step is cut into for it.
+JACOBIAN_TERMS = 10
+JACOBIAN_PIECES = 8
+#: Order of the Taylor polynomials from the whole enclosure that the a priori box is built around.
+BOX_ORDER = 12
+
+
+def _jacobian_program(ps):
+    """The Jacobian of the vector field, d f_i / d z_j (row-major), compiled once per structure."""
+    prog = _JACOBIANS.get(ps.key)
+    if prog is None:
+        import heyoka as hy
+
+        from .expr import compile_expressions
+
+        exprs = [hy.diff(fi, vj) for fi in ps.vector_field for vj in ps.variables]
+        prog = compile_expressions(ps.variables, exprs, len(ps.parameter_values))
+        _check_ops(prog)
+        _JACOBIANS[ps.key] = prog
+    return prog
+
+
+def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint):
+    """An enclosure of every Jacobian d phi_tau(y) / dy of the flow over time ``tau`` (an exact ball) for all
+    starting points y in the enclosure Z, or None when the bound below does not apply.
+
+    ``CZ``: Taylor coefficients c_0..c_K from Z, ``D``: those from the a priori box B (through c_{K+1}). The step is
+    cut into JACOBIAN_PIECES pieces; over piece i every solution lies in B_i = sum_j c_j(Z) T_i^j +
+    c_{K+1}(B) T_i^(K+1) (T_i the piece's time interval; Taylor's theorem), much narrower than B.
+    d phi / dy solves V' = Df(z(t)) V, so over piece i it is multiplied by a matrix of the Peano-Baker series
+    sum_j (dt Df(B_i))^j / j!, truncated after JACOBIAN_TERMS terms with the tail bounded entrywise by
+    mu^(K+1) / (K+1)! / (1 - mu / (K+2)), mu an upper bound of |dt| ||Df(B_i)||_inf (docs/theory.md). Computed at
+    64 bits: the Jacobian multiplies the enclosure's tiny spread only."""
+    arb, arb_mat = flint.arb, flint.arb_mat
+    n = len(CZ)
+    K = len(CZ[0]) - 1
+    eye = arb_mat([[1 if i == j else 0 for j in range(n)] for i in range(n)])
+    fact = arb(1)
+    for j in range(2, JACOBIAN_TERMS + 2):
+        fact *= j
+    saved = flint.ctx.prec
+    flint.ctx.prec = 64
+    try:
+        J = eye
+        dt = tau / JACOBIAN_PIECES
+        for piece in range(JACOBIAN_PIECES):
+            lo, hi = dt * piece, dt * (piece + 1)
+            seg = (lo + hi) / 2 + arb(0, abs(hi - lo) / 2)
+            Bi = [_horner([cz], seg)[0] + d[K + 1] * seg ** (K + 1) for cz, d in zip(CZ, D)]
+            vals = _evaluate(jprog, Bi, pars, consts, arb(1))
+            M = arb_mat([[(v if isinstance(v, arb) else arb(v)) * dt for v in vals[i * n:(i + 1) * n]]
+                         for i in range(n)])
+            if not all(M[i, j].is_finite() for i in range(n) for j in range(n)):
+                return None
+            mu = max(sum((abs(M[i, j]).upper() for j in range(n)), arb(0)) for i in range(n)).upper()
+            if not mu < JACOBIAN_TERMS + 2:
+                return None
+            S, T = eye, eye
+            for j in range(1, JACOBIAN_TERMS + 1):
+                T = T * M / j
+                S = S + T
+            eps = (mu ** (JACOBIAN_TERMS + 1) / fact / (1 - mu / (JACOBIAN_TERMS + 2))).upper()
+            J = (S + arb_mat([[arb(0, eps)] * n for _ in range(n)])) * J
+        return J
+    finally:
+        flint.ctx.prec = saved
 
 
 def _model_events(system, ps):
@@ -349,6 +423,13 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
         ev_pars = pars
         ev_consts = [(slot, _constant(c, flint)) for slot, c in events[0].constants] if events else []
         width_cap = None if max_width is None else arb(flint.fmpq(*to_fraction(max_width, "max_width").as_integer_ratio()))
+        n = ps.dimension
+        jprog = _jacobian_program(ps)
+        jconsts = [(slot, _constant(c, flint)) for slot, c in jprog.constants]
+        # the set of states is m + A r: a centre point, a matrix (the identity to start) and a box around 0
+        m = [arb(zi.mid()) for zi in z]
+        A = flint.arb_mat([[1 if i == j else 0 for j in range(n)] for i in range(n)])
+        r = flint.arb_mat([[zi - mi] for zi, mi in zip(z, m)])
         rows_t, rows_y, widths, tails = [], [], [], []
         tcur = t0f
         status, message = "success", ""
@@ -373,9 +454,10 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 status, message = "time_budget", f"The wall-time budget ran out at t = {float(tcur):.17g}."
                 break
             scale = max([1.0] + [abs(float(zi.mid())) for zi in z])
-            C = _taylor(prog, z, pars, consts, N, flint)
-            # the step from the coefficients (as lie_integrate chooses it); then proved or halved
-            big = max(float(max(abs(C[i][k].mid()) for i in range(len(z)))) for k in (N - 1, N))
+            C = _taylor(prog, m, pars, consts, N, flint)  # from the centre point: narrow balls
+            CZ = _taylor(prog, z, pars, consts, BOX_ORDER, flint, bits=64)  # from the whole enclosure
+            # the step from the coefficients (as lie_integrate chooses it); then proved or shortened
+            big = max(float(max(abs(C[i][k].mid()) for i in range(n))) for k in (N - 1, N))
             h_f = min(h_prev * (grow if steps else 4), (tol_f * scale / big) ** (1.0 / N) if big > 0 else 1.0,
                       float(abs(t_end - tcur)))
             proved = None
@@ -391,7 +473,8 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 hs = h * direction
                 hb = arb(flint.fmpq(hs.numerator, hs.denominator))
                 span = hb / 2 + arb(0, abs(hb) / 2)  # the ball [0, h] (or [h, 0])
-                rem, worst, B = _prove_step(prog, C, pars, consts, span, N, flint)
+                rem, worst, BD = _prove_step(prog, CZ, pars, consts, span, N, flint)
+                B, D = BD if BD is not None else (None, None)
                 hit = _event_in(events, B, ev_pars, ev_consts, arb(1)) if events and rem is not None else None
                 if hit is not None:
                     # the step's box may reach the event: shorten the step towards it, and stop when that no
@@ -401,13 +484,14 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                         break
                     h_f = float(h) / 2
                     continue
-                if rem is not None and worst <= rem_tol * scale:
-                    proved = (h, hs, rem)
+                J = _flow_jacobian(jprog, CZ, D, pars, jconsts, hb, flint) if rem is not None else None
+                if J is not None and worst <= rem_tol * scale:
+                    proved = (h, hs, rem, D, J)
                     # the next step: as large as this remainder's margin allows (it scales like h^(N+1))
                     grow = min(0.95 * (rem_tol * scale / max(worst, 1e-300)) ** (1.0 / (N + 1)), 1.25)
                     break
                 # the remainder scales like h^(N+1): aim just below the tolerance (halve when unproved)
-                shrink = 0.5 if rem is None else min(0.9 * (rem_tol * scale / worst) ** (1.0 / (N + 1)), 0.9)
+                shrink = 0.5 if J is None else min(0.9 * (rem_tol * scale / worst) ** (1.0 / (N + 1)), 0.9)
                 h_f = float(h) * shrink
             if proved is None and event_hit is not None:
                 status = event_hit[0]
@@ -421,30 +505,46 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                            f"the enclosure, or the enclosure is too wide: widest ball "
                            f"{max(float(zi.rad()) for zi in z):.3g}).")
                 break
-            h, hs, rem = proved
+            h, hs, rem, D, J = proved
             h_prev = float(h)
             tnew = tcur + hs
 
-            def enclose(tau: Fraction):
-                """The ball enclosure at tcur + tau (tau between 0 and hs): Taylor polynomial plus remainder."""
+            def point(tau: Fraction):
+                """Enclosure at tcur + tau of the solution from the centre m: Taylor polynomial plus remainder."""
                 ta = arb(flint.fmpq(tau.numerator, tau.denominator))
                 out, tl = [], []
-                for i in range(len(z)):
+                for i in range(n):
                     acc = C[i][N]
                     for j in range(N - 1, -1, -1):
                         acc = acc * ta + C[i][j]
                     tail = rem[i] * ta ** (N + 1)
                     tl.append(float(tail.abs_upper()))
                     out.append(acc + tail)
-                return out, max(tl)
+                return out, max(tl), ta
+
+            def whole(phi, JA):
+                """The box of phi + JA r: every solution from the set m + A r (mean-value theorem)."""
+                spread = JA * r
+                return [phi[i] + spread[i, 0] for i in range(n)]
 
             while pending and (pending[0] - tnew) * direction <= 0:
                 tk = pending.pop(0)
-                yk, _ = enclose(tk - tcur)
+                phi_k, _, ta = point(tk - tcur)
+                Jk = _flow_jacobian(jprog, CZ, D, pars, jconsts, ta, flint)
+                yk = whole(phi_k, Jk * A)
                 rows_t.append(tk)
                 rows_y.append(yk)
                 widths.append(max(float(v.rad()) for v in yk))
-            z, tail = enclose(hs)
+            phi, tail, _ = point(hs)
+            JA = J * A
+            z = whole(phi, JA)
+            # Lohner's QR step: the new set is m' + A' r' with m' the centre of phi, A' the orthogonal factor of
+            # mid(J A) (exact floats) and r' = (A'^-1 J A) r + A'^-1 (phi - m'), A'^-1 enclosed in ball arithmetic
+            m = [arb(v.mid()) for v in phi]
+            Q, _ = np.linalg.qr(np.array([[float(JA[i, j].mid()) for j in range(n)] for i in range(n)]))
+            A = flint.arb_mat([[float(Q[i, j]) for j in range(n)] for i in range(n)])
+            Ainv = A.inv()
+            r = (Ainv * JA) * r + Ainv * flint.arb_mat([[phi[i] - m[i]] for i in range(n)])
             tails.append(tail)
             tcur = tnew
             steps += 1
