@@ -40,7 +40,7 @@ import numpy as np
 from .models.base import Model
 from .poisson import as_poisson_system
 from .precision import check_count, check_dps, check_order, check_seconds, dps_to_bits, to_fraction
-from .solution import Solution, Stats
+from .solution import ChartRows, Solution, Stats
 from .timegrid import parse_times
 
 __all__ = ["validated_integrate", "ball_taylor_coefficients", "SUPPORTED_OPS", "midpoints", "radii",
@@ -189,6 +189,54 @@ def _taylor(prog, z0, pars, consts, order, flint, *, bits=None):
     return coeffs
 
 
+#: Rounds of widening in :func:`_verified_taylor` before it falls back to Picard iteration.
+VERIFY_ROUNDS = 4
+
+
+def _verified_taylor(prog, m, pars, pars_exact, consts, order, flint):
+    """Ball Taylor coefficients c_0..c_order of the flow from the point m (balls of radius 0), computed fast and
+    then proved; Picard iteration (:func:`_taylor`) when the proof does not come.
+
+    The mpmath jets (:mod:`lieseries.lie.jets`, the Lie engine's Taylor-mode recurrence, several times faster than
+    Picard iteration on Arb series) give approximate coefficients; they are widened into balls X (X_0 = m) and
+    the Picard map P(X) = m + int f(X), truncated at ``order``, is evaluated in ball arithmetic. P is triangular
+    (coefficient k of P(X) depends on those below k only), so the exact coefficients c* are its unique fixed point
+    and are reached from any point of X by ``order`` + 1 applications of P. When P(X) lies inside X those
+    iterates never leave X, so c* lies in X, and c* = P(c*) lies in P(X): the balls returned. The widening of
+    coefficient k grows like 4^k, because errors in the coefficients below k feed coefficient k."""
+    from mpmath.libmp import from_man_exp, from_rational, round_nearest
+
+    from .lie.jets import taylor_coefficients_raw
+
+    arb, arb_series = flint.arb, flint.arb_series
+    if any(not v.rad().is_zero() for v in m):
+        return _taylor(prog, m, pars, consts, order, flint)
+    bits = flint.ctx.prec
+    wp = bits + 40
+    try:
+        jets = taylor_coefficients_raw(prog, [from_man_exp(*(int(q) for q in v.mid().man_exp())) for v in m],
+                                       [from_rational(q.numerator, q.denominator, wp, round_nearest)
+                                        for q in pars_exact], order, wp)
+    except (ZeroDivisionError, ValueError, ArithmeticError):
+        return _taylor(prog, m, pars, consts, order, flint)
+    approx = [[arb(mpmath.make_mpf(c)) for c in row] for row in jets]
+    size = [max(float(abs(row[k].mid())) for row in approx) for k in range(order + 1)]
+    room = [2.0 ** (20 - bits) * (size[k] + 2.0 ** -1000) * 4.0 ** k for k in range(order + 1)]
+    X = [[mi] + [arb(c.mid(), room[k]) for k, c in enumerate(row) if k] for mi, row in zip(m, approx)]
+    one = arb_series([arb(1)], prec=order + 1)
+    for _ in range(VERIFY_ROUNDS):
+        f = _evaluate(prog, [arb_series(cs, prec=order + 1) for cs in X], pars, consts, one)
+        Y = []
+        for mi, fi in zip(m, f):
+            got = list(fi.coeffs()) if isinstance(fi, arb_series) else [fi]
+            got += [arb(0)] * (order - len(got))
+            Y.append([mi] + [got[k] / (k + 1) for k in range(order)])
+        if all(x.contains(y) for xs, ys in zip(X, Y) for x, y in zip(xs, ys)):
+            return Y
+        X = [[ys[0]] + [arb(y.mid(), 2 * y.rad() + room[k]) for k, y in enumerate(ys) if k] for ys in Y]
+    return _taylor(prog, m, pars, consts, order, flint)
+
+
 def _horner(C, tau):
     """The Taylor polynomials sum_j C[i][j] tau^j (tau a ball: an enclosure of their range over it)."""
     out = []
@@ -302,6 +350,50 @@ def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint):
         flint.ctx.prec = saved
 
 
+#: A run that switches charts this many times stops (it would be cycling).
+MAX_SWITCHES = 10_000
+_CHART_MAPS: dict = {}
+
+
+def _chart_context(model, flint):
+    """What a run needs of one chart's model, in the current ball precision: (PoissonSystem, program of the field,
+    parameter balls, constant balls, terminal events, their constants, Jacobian program, its constants)."""
+    ps = as_poisson_system(model)
+    prog = ps.program
+    pars = [flint.arb(flint.fmpq(p.numerator, p.denominator)) for p in ps.parameter_values]
+    consts = [(slot, _constant(c, flint)) for slot, c in prog.constants]
+    events = _model_events(model, ps)
+    ev_consts = [(slot, _constant(c, flint)) for slot, c in events[0].constants] if events else []
+    jprog = _jacobian_program(ps)
+    jconsts = [(slot, _constant(c, flint)) for slot, c in jprog.constants]
+    return ps, prog, pars, consts, events, ev_consts, jprog, jconsts
+
+
+def _lohner_set(z, flint):
+    """The box z as a Lohner set m + A r: its centre, the identity, the box around 0."""
+    m = [flint.arb(zi.mid()) for zi in z]
+    n = len(z)
+    A = flint.arb_mat([[1 if i == j else 0 for j in range(n)] for i in range(n)])
+    return m, A, flint.arb_mat([[zi - mi] for zi, mi in zip(z, m)])
+
+
+def _switch_chart(model, current, chart, z, flint):
+    """The balls z (a state in ``current``'s chart) rewritten in chart ``chart``: the model's chart-change map
+    evaluated in ball arithmetic, so the result contains the image of every point of z."""
+    ps = as_poisson_system(current)
+    key = (ps.key, current.chart, chart)
+    prog = _CHART_MAPS.get(key)
+    if prog is None:
+        from .expr import compile_expressions
+
+        prog = compile_expressions(ps.variables, current.chart_change_expressions(chart), len(ps.parameter_values))
+        _CHART_MAPS[key] = prog
+    pars = [flint.arb(flint.fmpq(p.numerator, p.denominator)) for p in ps.parameter_values]
+    consts = [(slot, _constant(c, flint)) for slot, c in prog.constants]
+    out = _evaluate(prog, z, pars, consts, flint.arb(1))
+    return [v if isinstance(v, flint.arb) else flint.arb(v) for v in out]
+
+
 def _model_events(system, ps):
     """The model's terminal events (e.g. a sphere chart's edge) as (program, statuses, messages), or None."""
     evs = system.events() if isinstance(system, Model) else []
@@ -375,7 +467,7 @@ def ball_taylor_coefficients(system, y0, order: int, dps: int = 30) -> list:
 
 
 def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = None, t0=0, max_steps: int = 100_000,
-                        max_time: float | None = None, max_width=None) -> Solution:
+                        max_time: float | None = None, max_width=None, atlas: bool | None = None) -> Solution:
     """Enclose the solution of ``dz/dt = X_H(z)`` in Arb balls that provably contain it (module docstring).
 
     Parameters
@@ -396,6 +488,11 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
         Budgets (statuses ``step_budget``, ``time_budget``).
     max_width : number, optional
         Stop with ``validation_failed`` when a ball grows wider than this (default 1e-3 x max(1, |z|)).
+    atlas : bool, optional
+        For a model with charts (:class:`~lieseries.Sphere`; on by default, the model's ``atlas``): switch to the
+        chart of the largest coordinate when the current one is ending, mapping the enclosure in ball
+        arithmetic; ``sol.charts`` gives each row's chart. With ``atlas=False`` the run stops at the chart's edge
+        (``chart_edge``).
 
     Returns
     -------
@@ -409,34 +506,39 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     max_time = check_seconds(max_time, "max_time")
     N = check_order(order) if order is not None else max(8, math.ceil(math.log(10) * dps / 2) + 1)
     ps = as_poisson_system(system)
-    prog = ps.program
-    _check_ops(prog)
+    _check_ops(ps.program)
+    if atlas is None:
+        atlas = bool(getattr(system, "atlas", False))  # a Sphere says (True unless built with atlas=False)
+    if atlas and not hasattr(system, "chart_change_expressions"):
+        raise ValueError(f"`atlas` needs a model with an atlas of charts (Sphere); {type(system).__name__} has one "
+                         "global chart")
     grid, direction, t0f = parse_times(t, t0)
     bits = dps_to_bits(dps) + GUARD_BITS
     start = _time.perf_counter()
     with _working_precision(bits, cap=N + 4) as flint:
         arb = flint.arb
         z = _initial_balls(system, y0, ps.dimension, flint)
-        pars = [arb(flint.fmpq(p.numerator, p.denominator)) for p in ps.parameter_values]
-        consts = [(slot, _constant(c, flint)) for slot, c in prog.constants]
-        events = _model_events(system, ps)
-        ev_pars = pars
-        ev_consts = [(slot, _constant(c, flint)) for slot, c in events[0].constants] if events else []
         width_cap = None if max_width is None else arb(flint.fmpq(*to_fraction(max_width, "max_width").as_integer_ratio()))
         n = ps.dimension
-        jprog = _jacobian_program(ps)
-        jconsts = [(slot, _constant(c, flint)) for slot, c in jprog.constants]
+        current = system
+        switches = 0
+        if atlas:
+            current = system.for_chart(system.chart, edge=system.ATLAS_SWITCH)
+            best = system.best_chart([_exact_mid(v) for v in z])
+            if best != system.chart:
+                z, current = _switch_chart(system, current, best, z, flint), system.for_chart(best, edge=system.ATLAS_SWITCH)
+        ps, prog, pars, consts, events, ev_consts, jprog, jconsts = _chart_context(current, flint)
+        ev_pars = pars
         # the set of states is m + A r: a centre point, a matrix (the identity to start) and a box around 0
-        m = [arb(zi.mid()) for zi in z]
-        A = flint.arb_mat([[1 if i == j else 0 for j in range(n)] for i in range(n)])
-        r = flint.arb_mat([[zi - mi] for zi, mi in zip(z, m)])
-        rows_t, rows_y, widths, tails = [], [], [], []
+        m, A, r = _lohner_set(z, flint)
+        rows_t, rows_y, widths, tails, rows_c = [], [], [], [], []
         tcur = t0f
         status, message = "success", ""
         steps = 0
         pending = [g for g in grid]
         if pending and pending[0] == t0f:
             rows_t.append(t0f)
+            rows_c.append(getattr(current, "chart", None))
             rows_y.append(list(z))
             widths.append(max(float(zi.rad()) for zi in z))
             pending.pop(0)
@@ -454,7 +556,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 status, message = "time_budget", f"The wall-time budget ran out at t = {float(tcur):.17g}."
                 break
             scale = max([1.0] + [abs(float(zi.mid())) for zi in z])
-            C = _taylor(prog, m, pars, consts, N, flint)  # from the centre point: narrow balls
+            C = _verified_taylor(prog, m, pars, ps.parameter_values, consts, N, flint)  # from the centre
             CZ = _taylor(prog, z, pars, consts, BOX_ORDER, flint, bits=64)  # from the whole enclosure
             # the step from the coefficients (as lie_integrate chooses it); then proved or shortened
             big = max(float(max(abs(C[i][k].mid()) for i in range(n))) for k in (N - 1, N))
@@ -493,10 +595,22 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 # the remainder scales like h^(N+1): aim just below the tolerance (halve when unproved)
                 shrink = 0.5 if J is None else min(0.9 * (rem_tol * scale / worst) ** (1.0 / (N + 1)), 0.9)
                 h_f = float(h) * shrink
+            if proved is None and event_hit is not None and atlas and switches < MAX_SWITCHES:
+                # the chart is ending: rewrite the enclosure in the chart of the largest coordinate (in ball
+                # arithmetic: the box of the map's values over the box) and go on from there
+                best = system.best_chart([_exact_mid(v) for v in z])
+                if best != current.chart:
+                    z = _switch_chart(system, current, best, z, flint)
+                    current = system.for_chart(best, edge=system.ATLAS_SWITCH)
+                    ps, prog, pars, consts, events, ev_consts, jprog, jconsts = _chart_context(current, flint)
+                    ev_pars = pars
+                    m, A, r = _lohner_set(z, flint)
+                    switches += 1
+                    continue
             if proved is None and event_hit is not None:
                 status = event_hit[0]
-                message = (f"Stopped at t = {float(tcur):.17g}: {event_hit[1]} within the next step (validated runs "
-                           "stay in one chart; every row up to here is a proven enclosure).")
+                message = (f"Stopped at t = {float(tcur):.17g}: {event_hit[1]} within the next step (every row up "
+                           "to here is a proven enclosure; `atlas=True` switches charts instead).")
                 break
             if proved is None:
                 status = "validation_failed"
@@ -533,6 +647,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 Jk = _flow_jacobian(jprog, CZ, D, pars, jconsts, ta, flint)
                 yk = whole(phi_k, Jk * A)
                 rows_t.append(tk)
+                rows_c.append(getattr(current, "chart", None))
                 rows_y.append(yk)
                 widths.append(max(float(v.rad()) for v in yk))
             phi, tail, _ = point(hs)
@@ -560,7 +675,8 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
             message = f"Reached t = {float(t_end):.17g}; every row is a proven enclosure."
         stats = Stats(method="validated lie series (arb)", precision=f"{dps} dps", tol=10.0 ** -dps, order=N,
                       steps=steps, run_time=_time.perf_counter() - start,
-                      extra={"widths": widths, "tail_bounds": tails, "max_width": max(widths) if widths else 0.0})
+                      extra={"widths": widths, "tail_bounds": tails, "max_width": max(widths) if widths else 0.0,
+                             "chart_switches": switches})
         y = np.empty((len(rows_y), ps.dimension), dtype=object)
         for i, row in enumerate(rows_y):
             for j, v in enumerate(row):
@@ -568,6 +684,11 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
         y_reached = np.empty(ps.dimension, dtype=object)
         for j, v in enumerate(z):
             y_reached[j] = v
+    if atlas:
+        return Solution(np.array([float(v) for v in rows_t]), ChartRows(y, rows_c), stats, status,
+                        f"{message} ({switches} chart switches)", t_reached=tcur, t_requested=grid,
+                        y_reached=ChartRows(y_reached, current.chart), charts=np.array(rows_c, dtype=int),
+                        chart_reached=current.chart)
     return Solution(np.array([float(v) for v in rows_t]), y, stats, status, message, t_reached=tcur,
                     t_requested=grid, y_reached=y_reached)
 

@@ -92,9 +92,17 @@ def test_bad_input_is_named():
         validated_integrate(body, [1, 2], t=1)
 
 
+def great_circle(tk):
+    """x(t) = (0.6 cos t, sin t, 0.8 cos t): the great circle of the sphere tests, at 40 digits."""
+    q = to_fraction(tk)
+    with mp.workdps(40):
+        t = mp.mpf(q.numerator) / q.denominator
+        return [mp.mpf("0.6") * mp.cos(t), mp.sin(t), mp.mpf("0.8") * mp.cos(t)]
+
+
 def test_sphere_chart_encloses_the_great_circle_and_stops_before_its_edge():
-    """x(t) = (0.6 cos t, sin t, 0.8 cos t) on the unit sphere; the chart x3 != 0 ends where 0.8 cos t = 0.05."""
-    s = ls.Sphere()
+    """In one chart (``atlas=False``) the run stops where the chart x3 != 0 ends: 0.8 cos t = 0.05."""
+    s = ls.Sphere(atlas=False)
     y0 = s.initial_state(("0.6", "0", "0.8"), ("0", "1", "0"))
     sol = validated_integrate(s, y0, t=[Fraction(1, 2), Fraction(1), Fraction(8, 5)], dps=15)
     assert sol.status == "chart_edge" and "x3" in sol.message
@@ -102,12 +110,23 @@ def test_sphere_chart_encloses_the_great_circle_and_stops_before_its_edge():
     reached = mp.mpf(sol.t_reached.numerator) / sol.t_reached.denominator
     assert edge - mp.mpf("1e-3") < reached <= edge
     assert len(sol.t) == 2  # t = 1.6 lies beyond the edge: never claimed
-    with mp.workdps(40):
-        for tk, row in zip(sol.t, sol.y):
-            t = mp.mpf(to_fraction(tk).numerator) / to_fraction(tk).denominator
-            ref = [mp.mpf("0.6") * mp.cos(t), mp.sin(t), mp.mpf("0.8") * mp.cos(t)]
-            assert all(inside(b, v) for b, v in zip(row[:3], ref))
+    for tk, row in zip(sol.t, sol.y):
+        assert all(inside(b, v) for b, v in zip(row[:3], great_circle(tk)))
     assert max(radii(sol)[-1]) < 1e-10
+
+
+def test_sphere_across_the_atlas_encloses_the_great_circle():
+    """By default a Sphere switches charts (the chart map evaluated on balls) and the enclosures go on."""
+    s = ls.Sphere()
+    y0 = s.initial_state(("0.6", "0", "0.8"), ("0", "1", "0"))
+    times = [Fraction(1), Fraction(2)]
+    sol = validated_integrate(s, y0, t=times, dps=15)
+    assert sol.status == "success" and sol.stats.extra["chart_switches"] >= 1, sol.message
+    # |x3| = 0.8 cos t falls to |x| / 2 at t = 0.90, where x2 = sin t is the largest coordinate
+    assert list(sol.charts) == [1, 1] and sol.chart_reached == 1
+    for tk, row in zip(times, sol.y):
+        assert all(inside(b, v) for b, v in zip(row[:3], great_circle(tk)))  # x is x in every chart
+    assert min(certified_digits(sol)) > 8
 
 
 @pytest.mark.parametrize("inertia, omega", [

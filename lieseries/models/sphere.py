@@ -305,6 +305,22 @@ class Sphere(_SphereBase):
             pis = [p[c] - x[c] * p[chart] / x[chart] for c in range(3) if c != chart]
             return export_mpf([+v for v in list(x) + pis])
 
+    def chart_change_expressions(self, chart: int) -> list:
+        """The state written in chart ``chart`` as heyoka expressions of this chart's variables (the map of
+        :meth:`change_chart`, for engines that evaluate it in their own arithmetic, e.g. on balls)."""
+        if chart not in (0, 1, 2) or isinstance(chart, bool):
+            raise ValueError(f"`chart` must be 0, 1 or 2; got {chart!r}")
+        v = self.poisson.variables
+        x = v[:3]
+        a, b = self.free
+        s = x[a] * v[3] + x[b] * v[4]
+        x2 = x[0] ** 2 + x[1] ** 2 + x[2] ** 2
+        p = [None] * 3
+        p[a] = v[3] - x[a] * s / x2
+        p[b] = v[4] - x[b] * s / x2
+        p[self.chart] = -x[self.chart] * s / x2
+        return list(x) + [p[c] - x[c] * p[chart] / x[chart] for c in range(3) if c != chart]
+
     def _xp(self, r):
         """(x, p) as mpf lists from an exact 5-number state (paper eq. dm4 with pi_3 = 0)."""
         z = [mp.mpf(v.numerator) / v.denominator for v in r]
