@@ -212,7 +212,7 @@ def _verified_taylor(prog, m, pars, pars_exact, consts, order, flint):
     if any(not v.rad().is_zero() for v in m):
         return _taylor(prog, m, pars, consts, order, flint)
     bits = flint.ctx.prec
-    wp = bits + 40
+    wp = bits + 10
     try:
         jets = taylor_coefficients_raw(prog, [from_man_exp(*(int(q) for q in v.mid().man_exp())) for v in m],
                                        [from_rational(q.numerator, q.denominator, wp, round_nearest)
