@@ -39,7 +39,16 @@ import numpy as np
 
 from .models.base import Model
 from .poisson import as_poisson_system
-from .precision import check_count, check_dps, check_order, check_seconds, dps_to_bits, to_fraction
+from .precision import (
+    check_count,
+    check_dps,
+    check_order,
+    check_seconds,
+    data_bits,
+    dps_to_bits,
+    to_fraction,
+    warn_if_coarse,
+)
 from .solution import ChartRows, Solution, Stats
 from .timegrid import parse_times
 
@@ -421,10 +430,20 @@ def _event_in(events, B, pars, consts, one):
 def _initial_balls(system, y0, n, flint):
     """Balls of the initial state: exact values (rounded outward once), or the user's (value, radius) / arb."""
     arb = flint.arb
-    entries = list(y0.exact) if getattr(y0, "exact", None) is not None else list(np.asarray(y0, dtype=object)) \
-        if not isinstance(y0, (list, tuple)) else list(y0)
+    if getattr(y0, "exact", None) is not None:
+        entries = list(y0.exact)
+    elif isinstance(y0, (list, tuple)):
+        entries = list(y0)
+    elif np.ndim(y0) == 1:
+        entries = list(np.asarray(y0, dtype=object))
+    else:
+        raise ValueError(f"`y0` must be a sequence of {n} entries (numbers, (value, radius) pairs or arb balls); "
+                         f"got {type(y0).__name__} {y0!r:.60}")
     if len(entries) != n:
         raise ValueError(f"`y0` must have {n} entries; got {len(entries)}")
+    # binary data (0.1 as a double) are enclosed at their binary values: say so when the run has more digits
+    plain = [v for v in entries if not isinstance(v, (tuple, flint.arb))]
+    warn_if_coarse(data_bits(plain), flint.ctx.prec - GUARD_BITS, "y0", stacklevel=4)
     balls, mids = [], []
     for i, v in enumerate(entries):
         if isinstance(v, arb):
@@ -514,6 +533,8 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                          "global chart")
     grid, direction, t0f = parse_times(t, t0)
     bits = dps_to_bits(dps) + GUARD_BITS
+    for name, b in ps.coarse_data().items():  # binary model data (inertia 1.1 as a double) in a longer run
+        warn_if_coarse(b, dps_to_bits(dps), name)
     start = _time.perf_counter()
     with _working_precision(bits, cap=N + 4) as flint:
         arb = flint.arb

@@ -90,6 +90,18 @@ def test_bad_input_is_named():
         validated_integrate(body, list(y0.exact[:9]) + [(1, -1), 0, 0], t=1)
     with pytest.raises(ValueError, match="`y0`"):
         validated_integrate(body, [1, 2], t=1)
+    with pytest.raises(ValueError, match="`y0` must be a sequence"):
+        validated_integrate(body, 5, t=1)
+
+
+def test_binary_data_in_a_longer_run_warn_by_name():
+    """0.2 as a double is enclosed at its binary value; at 30 digits that is not the decimal meant: say so."""
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    with pytest.warns(ls.PrecisionWarning, match="`y0`"):
+        validated_integrate(body, [1, 0, 0, 0, 1, 0, 0, 0, 1, 1.0, 0.2, 1.5], t=Fraction(1, 4), dps=30)
+    tilted = ls.EulerPoisson((1.1, 2, 3))
+    with pytest.warns(ls.PrecisionWarning, match="`inertia`"):
+        validated_integrate(tilted, tilted.initial_state(omega=RIGID_OMEGA), t=Fraction(1, 4), dps=30)
 
 
 def great_circle(tk):
