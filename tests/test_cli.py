@@ -127,3 +127,17 @@ def test_progress_env_switch(monkeypatch):
     assert ProgressBar(stream=io.StringIO()).enabled
     monkeypatch.setenv("LIESERIES_PROGRESS", "0")
     assert not ProgressBar(stream=io.StringIO()).enabled
+
+
+def test_validation_scripts_run_a_scene_into_a_folder(tmp_path):
+    """`make validate` is validation/run_all.py: one quick scene into a fresh folder, exit 0, its report written."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, str(root / "validation" / "run_all.py"), "default", "--quick",
+                          "--no-progress", "--out", str(tmp_path)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert (tmp_path / "default" / "report.md").is_file()
+    assert str(tmp_path / "default") in out.stdout

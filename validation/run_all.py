@@ -16,8 +16,7 @@ import time
 import traceback
 from pathlib import Path
 
-from lieseries.report import summary_text
-from lieseries.report import write_report
+from lieseries.report import summary_text, write_report
 from lieseries.run import run_scene
 from lieseries.scenes import SceneError, builtin_scenes, load_scene
 
@@ -47,13 +46,13 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         try:
             res = run_scene(scene, quick=args.quick, progress=not args.no_progress)
-            write_report(res, out / scene.name, overwrite=True)
+            path = write_report(res, out / scene.name, overwrite=True)
         except Exception:  # keep going: one broken scene must not hide the others
             failed.append(scene.name)
             traceback.print_exc()
             print(f"    FAILED after {time.perf_counter() - t0:.1f} s", flush=True)
             continue
-        print(f"    {time.perf_counter() - t0:.1f} s -> {res.report_path}", flush=True)
+        print(f"    {time.perf_counter() - t0:.1f} s -> {path}", flush=True)
         for note in res.notes:
             print(f"    note: {note}", flush=True)
         if args.summary:
