@@ -1,4 +1,4 @@
-"""Regenerate docs/reports/certified-digits/: certified digits against time from ls.validated_integrate, for the
+"""Regenerate docs/reports/certified-enclosures/: certified digits against time from ls.validated_integrate, for the
 rigid body (exact data and double-width data, near the separatrix, a full inertia tensor) and the sphere across
 its atlas of charts, each enclosure checked against the closed form.
 
@@ -128,7 +128,7 @@ def main(argv=None) -> int:
     ap.add_argument("--dps", type=int, default=50)
     ap.add_argument("--T", default="10")
     ap.add_argument("--every", default="1/4", help="output spacing")
-    ap.add_argument("--out", default=str(ROOT / "docs" / "reports" / "certified-digits"))
+    ap.add_argument("--out", default=str(ROOT / "docs" / "reports" / "certified-enclosures"))
     ap.add_argument("--overwrite", action="store_true")
     args = ap.parse_args(argv)
     try:
