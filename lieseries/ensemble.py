@@ -13,6 +13,9 @@ Paths
     heyoka has no batch mode in these types: the members run one by one on the scalar integrator a single run
     uses (same compiled code, hence bit for bit the single run's result), over ``workers`` threads, each with its
     own copy.
+``events=``
+    every member is a single run (heyoka's batch mode keeps no per-lane record of crossings), in any precision;
+    ``sol.events[i]`` holds member i's crossings.
 bits (arbitrary precision)
     every member is a single run (``single_run``, normally :func:`lieseries.integrate`), one after another, or in
     ``workers`` spawned processes when ``workers`` > 1 (each process compiles once and keeps its own cache).
@@ -58,6 +61,7 @@ from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 import heyoka as hy
 import numpy as np
 
+from .events import resolve_events
 from .models.base import Model, state_fractions
 from .poisson import PoissonSystem, as_poisson_system
 from . import precision as _precision_module
@@ -390,8 +394,12 @@ def integrate_ensemble(
         As for :func:`lieseries.integrate` (default: the model's own ``atlas`` attribute, off when it has none).
         Members that start in their best chart and never come near its edge run in the batch; the others (those
         that would switch charts) run as single runs across the atlas.
-    dense, events
+    dense
         Not available for ensembles: a ValueError says what to do instead.
+    events : list of :class:`lieseries.Event`, optional
+        As for a single run: every member then runs as a single run (heyoka's batch mode has no per-lane event
+        records), and ``sol.events[i]`` holds member i's crossings; a terminal event ends that member with
+        status ``event``.
 
     Returns
     -------
@@ -423,8 +431,7 @@ def integrate_ensemble(
         raise ValueError(f"`atlas` needs a model with an atlas of charts (Sphere); {type(structure).__name__} has "
                          "one global chart")
     if events is not None:
-        raise ValueError("`events` are not available for an ensemble (`Y0` of shape (k, n)) yet; run the members "
-                         "one by one with lieseries.integrate, or use a model's terminal events")
+        resolve_events(events, structure, ps)  # refuse a bad event here, naming it, before any member runs
     if min_step is not None and not (isinstance(min_step, numbers.Real) and min_step > 0):
         raise ValueError(f"`min_step` must be positive; got {min_step!r}")
     progress = None if progress is None else _Monotone(progress)
@@ -437,9 +444,11 @@ def integrate_ensemble(
         return _run_dask(client, structure, Ynat, pars, t, t0, dict(
             tol=tol, precision=prec, max_steps=max_steps, max_time=max_time, batch_size=batch_size,
             single_run=single_run, min_step=min_step, compact_mode=compact_mode, high_accuracy=high_accuracy,
-            atlas=atlas), chunk_size, progress, k)
+            atlas=atlas, events=events), chunk_size, progress, k)
 
     opts = dict(tol=tol, precision=prec, t0=t0, max_steps=max_steps, max_time=max_time, atlas=atlas)
+    if events is not None:
+        opts["events"] = events
     # With an atlas, the batch runs the model with the atlas's switching edge as its terminal event: a member that
     # starts in the model's chart and never reaches that edge is exactly the atlas run's first (and only) segment;
     # the others run as single runs across the atlas.
@@ -459,7 +468,10 @@ def integrate_ensemble(
     start = _time.perf_counter()
     build = 0.0
     handed = []
-    if direction == 0:
+    if events is not None:
+        handed = list(range(k))  # events: every member is a single run, which records its crossings
+        used_workers, path, order = (workers or 1), "single", 0
+    elif direction == 0:
         for i in range(k):
             res.rows[i] = len(grid)
             res.y[i, :] = Ynat[i]
@@ -518,7 +530,7 @@ def integrate_ensemble(
                  batch_size=B if path == "batch" else 1, path=path, single_runs=len(handed))
     tarr = prec.array(tgrid)
     return EnsembleSolution(tarr, res.y, res.status, res.message, res.t_reached, res.y_reached, stats,
-                            rows=res.rows, method="taylor (heyoka)")
+                            rows=res.rows, method="taylor (heyoka)", events=res.events)
 
 
 class _Monotone:
@@ -548,6 +560,7 @@ class _Result:
         self.t_reached = np.empty(k, dtype=object)
         self.steps = np.zeros(k, dtype=np.int64)
         self.rows = np.zeros(k, dtype=np.int64)
+        self.events = None  # per member, when the members record events
 
     def finish(self, i, status, message, t_reached, y_reached, steps):
         self.status[i] = status
@@ -561,6 +574,10 @@ class _Result:
         self.y[i] = _nan_array(self.y.shape[1:], self.prec)
         self.y[i, :m] = np.asarray(sol.y)
         self.rows[i] = m
+        if sol.events is not None:
+            if self.events is None:
+                self.events = [None] * len(self.status)
+            self.events[i] = sol.events
         self.finish(i, sol.status, sol.message, sol.t_reached, sol.y_reached, sol.stats.steps)
 
 

@@ -219,10 +219,12 @@ class EnsembleSolution:
     stats : dict
         ``steps`` (array, per member), ``order``, ``build_time``, ``run_time``, ``workers``, ``batch_size``,
         ``path`` ("batch" or "single"), ``single_runs`` (members run one by one), ``precision``, ``tol``.
+    events : list of dict or None
+        With ``events=``: each member's ``{name: {"t": times, "y": states}}``, as a single run's ``sol.events``.
     """
 
     def __init__(self, t, y, status, message, t_reached, y_reached, stats: dict, rows=None,
-                 method: str = "taylor (heyoka)"):
+                 method: str = "taylor (heyoka)", events=None):
         self.t = t
         self.y = y
         self.status = np.asarray(status, dtype=object)
@@ -235,6 +237,7 @@ class EnsembleSolution:
         self.stats = stats
         self.method = method
         self.rows = np.full(len(self.status), len(t), dtype=np.int64) if rows is None else np.asarray(rows)
+        self.events = None if events is None else list(events)
 
     def __len__(self) -> int:
         return len(self.status)
@@ -262,7 +265,7 @@ class EnsembleSolution:
                    steps=int(steps[i]) if steps is not None else 0, order=int(self.stats.get("order", 0)),
                    extra={"ensemble": True})
         return Solution(self.t[:m], self.y[i, :m], st, str(self.status[i]), self.message[i], self.t_reached[i],
-                        y_reached=self.y_reached[i])
+                        y_reached=self.y_reached[i], events=None if self.events is None else self.events[i])
 
     @classmethod
     def concatenate(cls, parts):
@@ -280,7 +283,8 @@ class EnsembleSolution:
         return cls(first.t, np.concatenate([p.y for p in parts]),
                    np.concatenate([p.status for p in parts]), [m for p in parts for m in p.message],
                    np.concatenate([p.t_reached for p in parts]), np.concatenate([p.y_reached for p in parts]),
-                   stats, rows=np.concatenate([p.rows for p in parts]), method=first.method)
+                   stats, rows=np.concatenate([p.rows for p in parts]), method=first.method,
+                   events=None if first.events is None else [e for p in parts for e in p.events])
 
     def __repr__(self) -> str:
         counts = {}

@@ -334,7 +334,7 @@ def integrate(
         For an ensemble: ``y0`` of shape (k, n) (or ``system`` a list of models of one structure, or ``params``
         of shape (k, npar)) integrates k members and returns an :class:`~lieseries.solution.EnsembleSolution`
         (:func:`lieseries.ensemble.integrate_ensemble`: heyoka's batch mode in double over ``workers`` threads;
-        ``client`` a ``dask.distributed.Client`` to run on a cluster).
+        ``client`` a ``dask.distributed.Client`` to run on a cluster; with ``events``, single runs per member).
 
     Returns
     -------

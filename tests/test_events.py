@@ -103,3 +103,29 @@ def test_event_input_is_checked():
     # a callable builds the expression from the model
     sol = ls.integrate(body, y0, t=T, events=[ls.Event(lambda b: b.poisson.variables[10], name="m2")])
     assert len(sol.events["m2"]["t"]) >= 2
+
+
+def test_ensemble_members_record_their_own_crossings():
+    """Three bodies at once: each member's M2 = 0 crossings are those of its own closed form (found as above),
+    and a terminal event stops only the members that reach it."""
+    body = ls.EulerPoisson(INERTIA)
+    # crossings by t = 8: one, two (a tilted spin about axis 3), none (close to the intermediate axis), two
+    omegas = [OMEGA, ("0.2", "0.1", 1), ("0.01", 1, "0.005"), (1, "-0.3", "0.2")]
+    Y0 = [body.initial_state(omega=w) for w in omegas]
+    Tm = 8
+    sol = ls.integrate(body, Y0, t=Tm, events=[ls.Event(m2, name="m2")])
+    assert sol.success and len(sol.events) == 4
+    for i, w in enumerate(omegas):
+        ts = [mp.mpf(k) / 8 for k in range(0, 8 * Tm + 1)]
+        vals = [s[10] for s in exact.euler_poisson_many(INERTIA, w, ts, dps=20)]
+        refs = [mp.findroot(lambda t: exact.euler_poisson(INERTIA, w, t, dps=40)[10], (a, b), solver="anderson")
+                for a, b, fa, fb in zip(ts, ts[1:], vals, vals[1:]) if fa * fb < 0]
+        got = sol.events[i]["m2"]["t"]
+        assert len(got) == len(refs), (i, got, refs)
+        assert all(abs(float(a) - float(b)) < 1e-12 for a, b in zip(got, refs))
+        assert sol.member(i).events["m2"]["t"].tolist() == list(got)
+    stop = ls.integrate(body, Y0, t=Tm, events=[ls.Event(m2, terminal=True, name="flip")])
+    crossed = [len(e["m2"]["t"]) > 0 for e in sol.events]
+    assert crossed == [True, True, False, True]
+    assert [s == "event" for s in stop.status] == crossed
+    assert all("'flip'" in m for m, c in zip(stop.message, crossed) if c)
