@@ -96,8 +96,7 @@ def build_batch_integrator(system, tol=None, batch_size=None, *, compact_mode=No
     """heyoka's ``taylor_adaptive_batch`` (double) for ``system``, from this process's cache when possible.
 
     The cache key is (system structure, precision, tolerance, terminal events, batch size, compact mode, high
-    accuracy); model
-    parameters are runtime parameters, so bodies of different inertia share one compiled integrator. The
+    accuracy); model parameters are runtime parameters, so bodies of different inertia share one compiled integrator. The
     returned object is the cached one: copy it (``copy.deepcopy``) before integrating in more than one thread.
 
     Returns
@@ -115,25 +114,17 @@ def build_batch_integrator(system, tol=None, batch_size=None, *, compact_mode=No
     if compact_mode is None:
         compact_mode = n > 20
     key = (ps.key, prec.name, tolf, tuple(str(e[0]) for e in evs), B, bool(compact_mode), bool(high_accuracy))
-    with _CACHE_LOCK:
-        hit = _CACHE.get(key)
-        if hit is not None:
-            return hit[0], 0.0, hit[1]
+
+    def make():
         kwargs = dict(tol=float(tolf), compact_mode=bool(compact_mode), high_accuracy=bool(high_accuracy))
         if evs:
             kwargs["t_events"] = [hy.t_event_batch(e[0]) for e in evs]
         npar = len(ps.parameter_values)
         if npar:
             kwargs["pars"] = np.repeat(np.array([float(v) for v in ps.parameter_values]), B).reshape(npar, B)
-        start = _time.perf_counter()
-        ta = hy.taylor_adaptive_batch(ps.ode_system, np.zeros((n, B)), **kwargs)
-        build = _time.perf_counter() - start
-        info = [(e[1], e[2]) for e in evs]
-        if len(_CACHE) >= _CACHE_MAX:
-            old = _CACHE.pop(next(iter(_CACHE)))
-            _SPARE.pop(id(old[0]), None)
-        _CACHE[key] = (ta, info)
-        return ta, build, info
+        return hy.taylor_adaptive_batch(ps.ode_system, np.zeros((n, B)), **kwargs)
+
+    return _cached(key, evs, make)
 
 
 def build_scalar_integrator(system, precision, tol=None, *, compact_mode=None, high_accuracy=False):
@@ -152,18 +143,27 @@ def build_scalar_integrator(system, precision, tol=None, *, compact_mode=None, h
         compact_mode = True  # as a single run: LLVM is slow on unrolled long-double and quad code
     key = ("scalar", ps.key, prec.name, tolf, tuple(str(e[0]) for e in evs), bool(compact_mode),
            bool(high_accuracy))
-    with _CACHE_LOCK:
-        hit = _CACHE.get(key)
-        if hit is not None:
-            return hit[0], 0.0, hit[1]
+
+    def make():
         kwargs = dict(tol=prec.to_native(tolf), compact_mode=bool(compact_mode), high_accuracy=bool(high_accuracy),
                       fp_type=prec.fp_type)
         if evs:
             kwargs["t_events"] = [hy.t_event(e[0], fp_type=prec.fp_type) for e in evs]
         if ps.parameter_values:
             kwargs["pars"] = prec.array(ps.parameter_values)
+        return hy.taylor_adaptive(ps.ode_system, prec.array([0] * ps.dimension), **kwargs)
+
+    return _cached(key, evs, make)
+
+
+def _cached(key, evs, make):
+    """(integrator, build time, event info) from this process's cache, built by ``make()`` on a miss."""
+    with _CACHE_LOCK:
+        hit = _CACHE.get(key)
+        if hit is not None:
+            return hit[0], 0.0, hit[1]
         start = _time.perf_counter()
-        ta = hy.taylor_adaptive(ps.ode_system, prec.array([0] * ps.dimension), **kwargs)
+        ta = make()
         build = _time.perf_counter() - start
         info = [(e[1], e[2]) for e in evs]
         if len(_CACHE) >= _CACHE_MAX:
