@@ -11,8 +11,8 @@ Paths
     about as much as integrating eight rigid bodies to T = 20.
 ``"long double"``, ``"quad"``
     heyoka has no batch mode in these types: the members run one by one on the scalar integrator a single run
-    uses (same compiled code, hence bit for bit the single run's result), over ``workers`` threads, each with its
-    own copy.
+    uses (same compiled code and the same steps as the single run; its output rows may differ from the single
+    run's in the last place), over ``workers`` threads, each with its own copy.
 ``events=``
     every member is a single run (heyoka's batch mode keeps no per-lane record of crossings), in any precision;
     ``sol.events[i]`` holds member i's crossings.

@@ -5,7 +5,8 @@
     out_dir/report.md            title, description, the scene as given, one section per run/study
     out_dir/data.json            everything computed (SceneResult.to_dict())
     out_dir/<table>.csv          one CSV per table
-    out_dir/<plot>.png           the plots the scene asks for (trajectory, error_vs_order, work_precision, drift)
+    out_dir/<plot>.png           the plots the scene asks for (trajectory, error_vs_order, work_precision, drift,
+                                 departure_map)
 
 ``write_stability_report(stability, out_dir)`` writes the stability report (:mod:`lieseries.stability`):
 ``report.md`` with one row per case, ``data.json``, ``stability.csv``, ``stability_all.csv``, the plots of
@@ -22,7 +23,8 @@ import json
 import math
 from pathlib import Path
 
-__all__ = ["write_report", "write_stability_report", "markdown_table", "summary_text", "fmt_sci", "SECTION_TITLES"]
+__all__ = ["write_report", "write_stability_report", "markdown_table", "summary_text", "fmt_sci", "SECTION_TITLES",
+           "plot_departure_map", "departure_map_table", "departure_map_reading"]
 
 #: The H2 headings of the report, by section.
 SECTION_TITLES = {
@@ -32,6 +34,7 @@ SECTION_TITLES = {
     "error_vs_order": "Error vs order",
     "work_precision": "Work-precision",
     "drift": "Invariant drift",
+    "departure_map": "Departure map",
     "notes": "Notes",
     "environment": "Environment",
 }
@@ -264,6 +267,91 @@ def plot_drift(result, path: Path) -> None:
     _save(plt, fig, path)
 
 
+def plot_departure_map(result, path: Path) -> None:
+    """Departure time and digits kept over the (azimuth, polar angle) grid of M0, one column per precision, the
+    separatrix drawn. ``result``: a SceneResult with a departure_map study (its first model) or a DepartureMap."""
+    import numpy as np
+
+    m = result.studies["departure_map"][0][1] if hasattr(result, "studies") else result
+    plt = _pyplot()
+    names = list(m.departure)
+    fig, axes = plt.subplots(2, len(names), figsize=(5.2 * len(names), 8.2), squeeze=False)
+    ph, th = np.degrees(m.phi), np.degrees(m.theta)
+    contour = min(m.energy_ratio.shape) >= 2 and m.energy_ratio.min() < 1 < m.energy_ratio.max()
+    for ax, name in zip(axes[1], names):
+        digits = -np.log10(np.maximum(m.max_error[name], 1e-300))
+        im = ax.pcolormesh(ph, th, digits, shading="nearest", cmap="magma")
+        if contour:
+            ax.contour(ph, th, m.energy_ratio, levels=[1.0], colors="c", linewidths=1.2)
+        ax.set_title(f"{name}: digits kept, -log10 max |y - exact| on [0, {m.T:g}]")
+        ax.set_xlabel("azimuth of M0 (deg)")
+        ax.set_ylabel("polar angle of M0 from axis 3 (deg)")
+        fig.colorbar(im, ax=ax, label="digits")
+    for ax, name in zip(axes[0], names):
+        im = ax.pcolormesh(ph, th, m.departure[name], shading="nearest", cmap="viridis", vmin=0, vmax=m.T)
+        if contour:
+            ax.contour(ph, th, m.energy_ratio, levels=[1.0], colors="w", linewidths=1.2)
+        ys, xs = np.nonzero(m.stayed[name])
+        ax.scatter(ph[xs], th[ys], s=4, c="k", marker=".", label=f"stayed within to T = {m.T:g}")
+        ax.set_title(f"{name}: time before |y - exact| > {m.threshold:g}")
+        ax.set_xlabel("azimuth of M0 (deg)")
+        ax.set_ylabel("polar angle of M0 from axis 3 (deg)")
+        fig.colorbar(im, ax=ax, label="departure time")
+    axes[0][0].legend(loc="lower left", fontsize=7)
+    fig.suptitle(f"Rigid body I = {tuple(m.inertia)}, |M| = 1, R(0) = 1 (white: the separatrix)")
+    _save(plt, fig, path)
+
+
+def departure_map_table(m):
+    """(headers, rows): one row per precision of a DepartureMap."""
+    import numpy as np
+
+    h = ["precision", "members that departed before T", "earliest departure", "median departure (departed)",
+         "fewest digits kept (where)", "most digits kept", "statuses other than success", "integration time"]
+    rows = []
+    for name, dep in m.departure.items():
+        gone = ~m.stayed[name]
+        bad = [s for s in m.statuses[name] if s != "success"]
+        med = f"{np.median(dep[gone]):.1f}" if gone.any() else "-"
+        err = m.max_error[name]
+        i, j = np.unravel_index(np.argmax(err), err.shape)
+        rows.append([name, f"{int(gone.sum())} / {dep.size}", f"{dep.min():.1f}", med,
+                     f"{-np.log10(err.max()):.1f} (2 H I2 / abs(M)^2 = {m.energy_ratio[i, j]:.3f})",
+                     f"{-np.log10(err.min()):.1f}" if err.min() > 0 else "all (no difference)", str(len(bad)),
+                     f"{m.run_time[name]:.2f} s"])
+    return h, rows
+
+
+def departure_map_reading() -> str:
+    """How to read a departure map (a paragraph for reports)."""
+    return ("How to read it: near the separatrix (white curve, 2 H I2 = |M|^2) the motion passes close to the "
+            "unstable rotation about the intermediate axis, where errors grow like exp(lambda t); there every "
+            "precision departs, and a wider format buys only time proportional to its number of digits "
+            "(ln(threshold / eps) / lambda). Away from it errors grow only linearly (a phase drift) and the runs "
+            "stay within the threshold to T.")
+
+
+def _section_departure_map(result, lines, csvs, plotted):
+    items = result.studies.get("departure_map", [])
+    lines += [f"## {SECTION_TITLES['departure_map']}", ""]
+    for mlabel, m in items:
+        n_theta, n_phi = m.energy_ratio.shape
+        lines.append(f"**{mlabel}**: I = {tuple(m.inertia)}, R(0) = 1, initial angular momentum M0 on |M| = 1 over "
+                     f"a {n_theta} x {n_phi} grid of directions (both sides of the separatrix), one ensemble run "
+                     f"of `ls.integrate` at tol = eps per precision, compared up to T = {m.T:g} with the closed "
+                     "form (`ls.exact.euler_poisson_many`, at least 10 digits beyond the finest precision). "
+                     "Departure: the first output time where the 12-number "
+                     f"state differs from it by more than {m.threshold:g} (max norm).")
+        lines.append("")
+        h, rows = departure_map_table(m)
+        lines += [markdown_table(h, rows), ""]
+        tag = "" if len(items) == 1 else "_" + "".join(c if c.isalnum() else "_" for c in mlabel)
+        csvs.append((f"departure_map{tag}.csv", h, rows))
+    lines += [departure_map_reading(), ""]
+    if "departure_map" in plotted:
+        lines += ["![departure map](departure_map.png)", ""]
+
+
 def _wrap(text: str, width: int) -> str:
     import textwrap
 
@@ -275,13 +363,14 @@ def _fmt_p(p):
 
 
 _CSV_NAMES = ("run.csv", "run_invariants.csv", "error_vs_order.csv", "error_vs_order_fit.csv", "work_precision.csv",
-              "drift.csv")
+              "drift.csv", "departure_map.csv")
 
 _PLOTTERS = {
     "trajectory": plot_trajectory,
     "error_vs_order": plot_error_vs_order,
     "work_precision": plot_work_precision,
     "drift": plot_drift,
+    "departure_map": plot_departure_map,
 }
 
 
@@ -557,6 +646,8 @@ def write_report(result, out_dir, overwrite: bool = False) -> Path:
         _section_work_precision(result, lines, csvs, plotted)
     if "drift" in result.studies:
         _section_drift(result, lines, csvs, plotted)
+    if "departure_map" in result.studies:
+        _section_departure_map(result, lines, csvs, plotted)
     if result.notes:
         lines += [f"## {SECTION_TITLES['notes']}", ""] + [f"- {n}" for n in result.notes] + [""]
     env = result.environment
@@ -605,6 +696,13 @@ def summary_text(result) -> str:
         final = fmt_sci(energy[-1]) if energy else "n/a"
         lines.append(f"drift ({mlabel}): {dr.total_steps} steps, energy drift {final}, "
                      f"exponent {_fmt_p(p)} ({_verdict(p)})")
+    for mlabel, m in result.studies.get("departure_map", []):
+        for name, dep in m.departure.items():
+            gone = int((~m.stayed[name]).sum())
+            bad = sum(1 for st in m.statuses[name] if st != "success")
+            lines.append(f"departure map ({mlabel}, {name}): {gone} / {dep.size} departed before T = {m.T:g}, "
+                         f"earliest {dep.min():.4g}, worst error {fmt_sci(float(m.max_error[name].max()))}"
+                         + (f", {bad} runs not successful" if bad else ""))
     for n in result.notes:
         lines.append(f"note: {n}")
     return "\n".join(lines)

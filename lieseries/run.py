@@ -533,6 +533,22 @@ def _study_drift(opts, built, scene, bar, notes):
     return out
 
 
+def _study_departure_map(opts, built, scene, bar, notes):
+    """[(model label, DepartureMap)]: the scene's rigid bodies (principal inertia, checked by the scene)."""
+    from .studies.departure import departure_map
+
+    out = []
+    for i, (lab, model) in enumerate(built):
+        def prog(done, total, label, _i=i, _lab=lab):
+            bar(_i * total + done, len(built) * total, f"{_lab}: {label}")
+
+        inertia = tuple(model.inertia_exact[j][j] for j in range(3))
+        out.append((lab, departure_map(inertia, grid=tuple(opts["grid"]), T=opts["T"], samples=opts["samples"],
+                                       precisions=opts["precisions"], threshold=opts["threshold"], dps=opts["dps"],
+                                       progress=prog)))
+    return out
+
+
 def run_scene(scene, quick: bool = False, progress=True) -> SceneResult:
     """Compute what ``scene`` asks for, and nothing else.
 
@@ -581,8 +597,10 @@ def run_scene(scene, quick: bool = False, progress=True) -> SceneResult:
                 items = _study_error_vs_order(studies[name], built, scene, bar, result.notes)
             elif name == "work_precision":
                 items = _study_work_precision(studies[name], built, scene, bar, result.notes, quick)
-            else:
+            elif name == "drift":
                 items = _study_drift(studies[name], built, scene, bar, result.notes)
+            else:
+                items = _study_departure_map(studies[name], built, scene, bar, result.notes)
         finally:
             bar.close()
         result.studies[name] = items

@@ -31,9 +31,12 @@ A scene is a TOML file::
                                  # min_order, step); dps; fit_min_order (default: fit the upper half)
     [studies.work_precision]     # t (default run.t), methods (settings may be lists), repeat
     [studies.drift]              # t, precision, samples, tol, ensemble, perturbation, seed, first
+    [studies.departure_map]      # grid = [n_theta, n_phi], T, samples, precisions, threshold, dps: how long each
+                                 # precision stays on the closed form over |M0| = 1 (free rigid body, principal
+                                 # inertia, Chetaev bracket; [initial] is not used by it)
 
     [report]
-    plots = ["trajectory", "error_vs_order", "work_precision", "drift"]   # default: one per study present
+    plots = ["trajectory", "error_vs_order", "work_precision", "drift", "departure_map"]   # default: one per study
 
     [stability]                  # optional: how the stability study (lieseries.stability) reads the scene
     analysis = "saddle"          # "none" | "saddle" | "scaled" | "drift" | "stiff" | "divergence" | "atlas"
@@ -87,8 +90,8 @@ __all__ = [
 ]
 
 MODEL_KINDS = ("euler_poisson", "damped_euler_poisson", "sphere", "sphere_dirac", "python")
-STUDIES = ("error_vs_order", "work_precision", "drift")
-PLOTS = ("trajectory", "error_vs_order", "work_precision", "drift")
+STUDIES = ("error_vs_order", "work_precision", "drift", "departure_map")
+PLOTS = ("trajectory", "error_vs_order", "work_precision", "drift", "departure_map")
 _FAMILY = {"euler_poisson": "rigid_body", "damped_euler_poisson": "rigid_body", "sphere": "sphere", "python": "state",
            "sphere_dirac": "sphere"}
 #: Sub-folder of the scenes folder holding the extreme and stiff cases (scenes with a [stability] table).
@@ -284,6 +287,15 @@ def _plots(value, path):
     return value
 
 
+def _grid(value, path):
+    """[n_theta, n_phi] of the departure map: at most 64 x 128 directions (as lieseries.studies.departure)."""
+    if not isinstance(value, list) or len(value) != 2:
+        _fail(path, "a list [n_theta, n_phi] of two integers", value)
+    _integer(1, 64)(value[0], f"{path}[0]")
+    _integer(1, 128)(value[1], f"{path}[1]")
+    return value
+
+
 _REQUIRED = object()
 
 
@@ -435,6 +447,14 @@ _STUDY_FIELDS = {
         "seed": (_integer(0), 0),
         "first": (_positive, None),
     },
+    "departure_map": {
+        "grid": (_grid, [8, 16]),
+        "T": (_positive, 100),
+        "samples": (_integer(2, 100_000), 100),
+        "precisions": (_list_of(_precision, allow_scalar=False), ["double", "quad"]),
+        "threshold": (_positive, "1e-6"),
+        "dps": (_integer(15, 1000), 30),
+    },
 }
 
 
@@ -450,7 +470,7 @@ FIELD_DOCS = {
         "models": ("array of tables", "several models sharing [initial], each with a `label`"),
         "initial": ("table", "the initial state (fields by model family below)"),
         "run": ("table", "methods run side by side against the reference"),
-        "studies": ("table of tables", "studies to run: error_vs_order, work_precision, drift"),
+        "studies": ("table of tables", "studies to run: error_vs_order, work_precision, drift, departure_map"),
         "report": ("table", "what the report plots"),
         "stability": ("table", "for the extreme and stiff cases: how lieseries.stability reads the scene"),
     },
@@ -542,8 +562,18 @@ FIELD_DOCS = {
         "seed": ("integer >= 0", "the seed of the perturbations"),
         "first": ("positive number", "the first sample time (default t / 1000)"),
     },
+    "studies.departure_map": {
+        "grid": ("[integer 1..64, integer 1..128]", "n_theta x n_phi directions of M0 on abs(M) = 1 (polar angle "
+                 "from axis 3, azimuth)"),
+        "T": ("positive number", "the final time"),
+        "samples": ("integer 2..100000", "equally spaced output times where the state is compared"),
+        "precisions": ("list of precisions", "'double', 'long double', 'quad' or bits: one ensemble run each"),
+        "threshold": ("positive number", "departure: the first output time with max abs(y - y_exact) > threshold"),
+        "dps": ("integer 15..1000", "digits of the closed-form reference and of the exact initial data"),
+    },
     "report": {
-        "plots": ("list of names", "trajectory, error_vs_order, work_precision, drift (default: one per study)"),
+        "plots": ("list of names", "trajectory, error_vs_order, work_precision, drift, departure_map (default: one "
+                  "per study)"),
     },
     "stability": {
         "analysis": ("name", "none | saddle | scaled | drift | stiff | divergence | atlas"),
@@ -809,7 +839,7 @@ def parse_scene(data, source: str = "<scene>", path: str | None = None) -> Scene
             raise SceneError(f"`report.plots[{i}]` asks for {p!r} but the scene has no [studies.{p}] table")
     if run is None and not studies:
         raise SceneError("the scene asks for nothing: add a [run] table or a [studies.*] table")
-    _check_studies(studies, run, models)
+    _check_studies(studies, run, models, "model" if d["model"] is not None else "models")
     stability = None
     if d["stability"] is not None:
         stability = _table(d["stability"], "stability", _stability_fields())
@@ -824,7 +854,7 @@ def parse_scene(data, source: str = "<scene>", path: str | None = None) -> Scene
     return scene
 
 
-def _check_studies(studies, run, models):
+def _check_studies(studies, run, models, where="model"):
     ev = studies.get("error_vs_order")
     if ev is not None:
         if (ev["t"] is None) == (ev["t_fraction"] is None):
@@ -837,11 +867,30 @@ def _check_studies(studies, run, models):
         if ev["t_fraction"] is not None and all(m.kind == "sphere_dirac" for m in models):
             raise SceneError("`studies.error_vs_order.t_fraction` needs a theoretical radius, which the Dirac form "
                              "does not have; give `t` instead")
+    if "departure_map" in studies:
+        _check_departure_map(models, where)
     wp = studies.get("work_precision")
     if wp is not None and wp["t"] is None:
         if run is None:
             raise SceneError("missing required field `studies.work_precision.t` (there is no [run] to take it from)")
         wp["t"] = run["t"]
+
+
+def _check_departure_map(models, where):
+    """The departure map integrates the free rigid body with principal inertia against its closed form."""
+    for i, m in enumerate(models):
+        path = where if where == "model" else f"models[{i}]"
+        if m.kind != "euler_poisson":
+            raise SceneError(f"`studies.departure_map` needs a free rigid body: `{path}.kind` must be "
+                             f"'euler_poisson'; got {_show(m.kind)}")
+        if m.params["bracket"] != "chetaev":
+            raise SceneError(f"`studies.departure_map` integrates the Chetaev form: `{path}.bracket` must be "
+                             f"'chetaev'; got {_show(m.params['bracket'])}")
+        inertia = m.params["inertia"]
+        if isinstance(inertia[0], list) and any(to_fraction(inertia[r][c]) != 0
+                                                for r in range(3) for c in range(3) if r != c):
+            raise SceneError(f"`studies.departure_map` needs principal moments: `{path}.inertia` must be 3 "
+                             "numbers or a diagonal 3x3 tensor; got one with off-diagonal entries")
 
 
 def _check_stability(st, run, studies, plots, models):
@@ -1015,7 +1064,8 @@ def effective_plan(scene: Scene, quick: bool = False):
     runs at most 30 digits); error
     vs order up to half the largest order (at least 12) and at most 40 digits; work-precision with at most three
     values per setting, one repeat and mpmath capped at t = 0.5; drift over a tenth of the time, at most 60
-    samples and 4 ensemble members.
+    samples and 4 ensemble members; the departure map on at most a 3 x 6 grid, over a tenth of the time with at
+    most 20 output times.
     """
     run = copy.deepcopy(scene.run)
     studies = copy.deepcopy(scene.studies)
@@ -1057,6 +1107,11 @@ def effective_plan(scene: Scene, quick: bool = False):
         dr["ensemble"] = min(dr["ensemble"], 4)
         if dr["first"] is not None:
             dr["first"] = min(float(to_fraction(dr["first"])), dr["t"] / 100)
+    dm = studies.get("departure_map")
+    if dm is not None:
+        dm["grid"] = [min(dm["grid"][0], 3), min(dm["grid"][1], 6)]
+        dm["T"] = float(to_fraction(dm["T"])) / 10
+        dm["samples"] = min(dm["samples"], 20)
     return run, studies
 
 

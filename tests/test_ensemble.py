@@ -294,7 +294,8 @@ def test_precision_from_the_data_and_coarse_data_warned():
         (dict(client="tcp://127.0.0.1:8786"), "`client` must be a dask.distributed.Client"),
         (dict(Y0=[[np.nan] + [0] * 11]), r"`Y0\[0\]\[0\]` must be finite"),
         (dict(dense=True), "`dense=True` is not available for an ensemble"),
-        (dict(events=["x"]), r"`events\[0\]` must be an ls.Event"),
+        (dict(events=["M2"]), r"`events\[0\]` must be an ls.Event"),
+        (dict(events=[ls.Event(hy.make_vars("q"))]), r"`events\[0\]` uses variables \['q'\]"),
         (dict(progress=3), "`progress` must be a callable"),
     ],
 )

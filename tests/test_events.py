@@ -106,8 +106,8 @@ def test_event_input_is_checked():
 
 
 def test_ensemble_members_record_their_own_crossings():
-    """Three bodies at once: each member's M2 = 0 crossings are those of its own closed form (found as above),
-    and a terminal event stops only the members that reach it."""
+    """Four bodies at once: each member's M2 = 0 crossings are those of its own closed form (found as above) and
+    exactly its single run's; a terminal event ends only the members that reach it, at their first crossing."""
     body = ls.EulerPoisson(INERTIA)
     # crossings by t = 8: one, two (a tilted spin about axis 3), none (close to the intermediate axis), two
     omegas = [OMEGA, ("0.2", "0.1", 1), ("0.01", 1, "0.005"), (1, "-0.3", "0.2")]
@@ -115,17 +115,28 @@ def test_ensemble_members_record_their_own_crossings():
     Tm = 8
     sol = ls.integrate(body, Y0, t=Tm, events=[ls.Event(m2, name="m2")])
     assert sol.success and len(sol.events) == 4
+    firsts = []
     for i, w in enumerate(omegas):
         ts = [mp.mpf(k) / 8 for k in range(0, 8 * Tm + 1)]
         vals = [s[10] for s in exact.euler_poisson_many(INERTIA, w, ts, dps=20)]
         refs = [mp.findroot(lambda t: exact.euler_poisson(INERTIA, w, t, dps=40)[10], (a, b), solver="anderson")
                 for a, b, fa, fb in zip(ts, ts[1:], vals, vals[1:]) if fa * fb < 0]
+        firsts.append(refs[0] if refs else None)
         got = sol.events[i]["m2"]["t"]
         assert len(got) == len(refs), (i, got, refs)
         assert all(abs(float(a) - float(b)) < 1e-12 for a, b in zip(got, refs))
         assert sol.member(i).events["m2"]["t"].tolist() == list(got)
-    stop = ls.integrate(body, Y0, t=Tm, events=[ls.Event(m2, terminal=True, name="flip")])
-    crossed = [len(e["m2"]["t"]) > 0 for e in sol.events]
+        single = ls.integrate(body, Y0[i], t=Tm, events=[ls.Event(m2, name="m2")])
+        assert [to_fraction(v) for v in got] == [to_fraction(v) for v in single.events["m2"]["t"]]
+    grid = [1, 2, 4, Tm]
+    stop = ls.integrate(body, Y0, t=grid, events=[ls.Event(m2, terminal=True, name="flip")])
+    crossed = [f is not None for f in firsts]
     assert crossed == [True, True, False, True]
     assert [s == "event" for s in stop.status] == crossed
-    assert all("'flip'" in m for m, c in zip(stop.message, crossed) if c)
+    for i, first in enumerate(firsts):
+        if first is None:
+            assert stop.rows[i] == len(grid)
+            continue
+        assert "'flip'" in stop.message[i] and abs(float(stop.t_reached[i]) - float(first)) < 1e-12
+        assert stop.rows[i] == sum(1 for t in grid if t < first)  # rows after the stop are not reached
+        assert abs(float(stop.y_reached[i][10])) < 1e-12

@@ -11,6 +11,8 @@ from lieseries.report import SECTION_TITLES, markdown_table
 from lieseries.report import FolderError, write_report
 from lieseries.run import run_scene
 from lieseries.scenes import (
+    PLOTS,
+    STUDIES,
     SceneError,
     builtin_scenes,
     effective_plan,
@@ -187,10 +189,10 @@ def test_builtin_scene_quick_report_has_what_it_asks_for(name, tmp_path):
     heads = headings(md)
     assert SECTION_TITLES["scene"] in heads
     assert (SECTION_TITLES["run"] in heads) == (scene.run is not None)
-    for study in ("error_vs_order", "work_precision", "drift"):
+    for study in STUDIES:
         assert (SECTION_TITLES[study] in heads) == (study in scene.studies), study
         assert (study in res.studies) == (study in scene.studies)
-    for plot in ("trajectory", "error_vs_order", "work_precision", "drift"):
+    for plot in PLOTS:
         expected = plot in scene.plots
         assert (tmp_path / f"{plot}.png").is_file() == expected, plot
         assert (f"({plot}.png)" in md) == expected, plot
