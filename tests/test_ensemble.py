@@ -357,6 +357,17 @@ def test_dask_equals_local(client):
     assert dist.stats["chunks"] == 3
     assert np.array_equal(dist.y, local.y) and list(dist.status) == list(local.status)
     assert list(dist.t_reached) == list(local.t_reached)
+    # events travel with the chunks: each member's crossings and a terminal stop, as in the local run
+    m2 = hy.make_vars("M2")
+    stops = []
+    for ev in (ls.Event(m2, name="m2"), ls.Event(m2, terminal=True, name="flip")):
+        a = run(body, Y0[:6], [5, 10], events=[ev])
+        b = run(body, Y0[:6], [5, 10], events=[ev], client=client, chunk_size=4)
+        assert list(b.status) == list(a.status) and np.array_equal(a.y, b.y, equal_nan=True)
+        assert [list(e[ev.name]["t"]) for e in b.events] == [list(e[ev.name]["t"]) for e in a.events]
+        assert list(b.t_reached) == list(a.t_reached)
+        stops.append(list(b.status).count("event"))
+    assert stops[0] == 0 and stops[1] > 0  # the terminal event ends members on the workers
     # early stops on the workers: a chart edge (batch) and a non-finite blow-up (single run on the worker)
     sphere = ls.Sphere()
     S0 = np.stack([sphere.initial_state(x=(0.6, 0, 0.8), v=(0.8, 0, -0.6)),
