@@ -212,12 +212,8 @@ def precision_eps(precision: str, working: bool = False) -> float | None:
 
 
 def saddle_rate(model, y0) -> float:
-    """lambda = (|M| / I2) sqrt((I2 - I1)(I3 - I2) / (I1 I3)): the growth rate of a perturbation of the rotation
-    about the intermediate principal axis with angular momentum |M| (principal moments I1 < I2 < I3)."""
-    I1, I2, I3 = sorted(float(v) for v in model.principal_moments)
-    M = np.array([float(v) for v in np.asarray(y0)[9:12]])
-    L = float(np.linalg.norm(M))
-    return (L / I2) * math.sqrt((I2 - I1) * (I3 - I2) / (I1 * I3))
+    """The model's :meth:`~lieseries.EulerPoisson.saddle_rate` for the angular momentum |M| of the state ``y0``."""
+    return model.saddle_rate(float(np.linalg.norm([float(v) for v in np.asarray(y0)[9:12]])))
 
 
 def _drift_scale(name, inv0) -> float:

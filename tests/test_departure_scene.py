@@ -38,7 +38,7 @@ def test_builtin_scene_is_listed_and_validates():
     scene = load_scene("departure-map")
     assert scene.description
     dm = scene.studies["departure_map"]
-    assert dm["grid"] == [12, 24] and dm["T"] == 200 and dm["samples"] == 100
+    assert dm["grid"] == [15, 24] and dm["T"] == 200 and dm["samples"] == 100
     assert dm["precisions"] == ["double", "long double", "quad"] and dm["threshold"] == "1e-6"
     assert scene.plots == ["departure_map"]
     _run, studies = effective_plan(scene, quick=True)
@@ -122,6 +122,13 @@ def test_small_map_against_the_closed_form_facts(tmp_path):
     assert (tmp_path / "rep" / "departure_map.png").stat().st_size > 0
     assert (tmp_path / "rep" / "departure_map.csv").is_file()
     assert "departure map (rigid body, double): 4 / 6 departed before T = 50" in summary_text(res)
+    # the reading says what the data show: lambda from the principal moments, the growth times, the departures
+    lam = math.sqrt((1 / I[0] - 1 / I[1]) * (1 / I[1] - 1 / I[2]))
+    assert m.saddle_rate == pytest.approx(lam, rel=1e-12)
+    assert m.predicted["double"] == pytest.approx(math.log(1e-12 / 2.0**-52) / lam, rel=1e-12)
+    assert "4 grid directions lie on the separatrix" in md
+    assert f"double: 4 of 6 departed, the earliest at {dd[on].min():.1f}; on the separatrix" in md
+    assert "quad: no direction departed by T = 50" in md
 
 
 @pytest.mark.slow

@@ -18,6 +18,7 @@ parameters, computed exactly (rational arithmetic) and rounded once to the worki
 
 from __future__ import annotations
 
+import math
 import warnings
 from fractions import Fraction
 
@@ -278,6 +279,14 @@ class EulerPoisson(Model):
                 out.append([mp.fsum(Iinv[i][j] * M[j] for j in range(3)) for i in range(3)])
         like = y if isinstance(y, np.ndarray) else np.asarray(y, dtype=object)
         return self._out_array(out, bits, was_1d, like)
+
+    def saddle_rate(self, momentum=1) -> float:
+        """lambda = (|M| / I2) sqrt((I2 - I1)(I3 - I2) / (I1 I3)): the rate exp(lambda t) at which a perturbation of
+        the rotation about the intermediate principal axis grows, for angular momentum ``|M| = momentum``
+        (principal moments I1 <= I2 <= I3). Errors of a motion on the separatrix grow at this rate once it nears
+        that rotation."""
+        I1, I2, I3 = self.principal_moments
+        return (abs(float(momentum)) / I2) * math.sqrt(max(0.0, (I2 - I1) * (I3 - I2)) / (I1 * I3))
 
     def invariants(self, y) -> dict:
         """Conserved quantities, evaluated in mpmath a little above the state's precision.

@@ -2,9 +2,13 @@
 
 For a free rigid body every initial angular momentum M0 on the sphere |M| = 1 (R(0) = 1) is one motion; the
 separatrices through the intermediate axis split the sphere into rotations about the major and the minor axis.
-Near the separatrix the motion is exponentially sensitive, and every precision departs from the closed form after
-a time that grows only like ln(1/eps): this study measures that time on a grid of M0 for several precisions, in
-one ensemble run per precision, against :func:`lieseries.exact.euler_poisson_many`.
+On a separatrix the motion creeps towards the unstable rotation about the intermediate axis, where errors grow
+like exp(lambda t): every precision departs from the closed form after about ln(threshold / eps) / lambda. Off it
+errors grow about linearly, faster the closer the motion passes the saddle. This study measures how long each
+precision stays within a threshold on a grid of M0, in one ensemble run per precision, against
+:func:`lieseries.exact.euler_poisson_many`. The grid's directions are computed exactly (to the data's digits), so
+a grid with n_theta an odd multiple of 3 and n_phi a multiple of 2 lands on the separatrix of I = (1, 2, 3) at
+theta = 30 and 150 degrees, phi = 0 and 180 degrees (and n_theta odd on the intermediate axis itself).
 
 Plain data: :func:`departure_map` returns a :class:`DepartureMap`; reports draw it.
 """
@@ -49,6 +53,10 @@ class DepartureMap:
     run_time : dict precision -> float
         Wall time of that precision's ensemble run without compiling the integrator, in seconds (its members may
         share several threads).
+    saddle_rate : float
+        lambda of the body at |M| = 1 (:meth:`lieseries.EulerPoisson.saddle_rate`).
+    predicted : dict precision -> float
+        ln(threshold / eps) / lambda: when a motion on the separatrix departs, its error eps grown at rate lambda.
     """
 
     inertia: tuple
@@ -62,6 +70,8 @@ class DepartureMap:
     max_error: dict = field(default_factory=dict)
     statuses: dict = field(default_factory=dict)
     run_time: dict = field(default_factory=dict)
+    saddle_rate: float = math.nan
+    predicted: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {
@@ -70,21 +80,24 @@ class DepartureMap:
             "departure": {k: v.tolist() for k, v in self.departure.items()},
             "stayed": {k: v.tolist() for k, v in self.stayed.items()},
             "max_error": {k: v.tolist() for k, v in self.max_error.items()},
-            "statuses": self.statuses, "run_time": self.run_time,
+            "statuses": self.statuses, "run_time": self.run_time, "saddle_rate": self.saddle_rate,
+            "predicted": self.predicted,
         }
 
 
 def _directions(n_theta: int, n_phi: int, dps: int):
-    """Grid angles and exact unit-ish vectors (the rounded components are the exact data of the motion)."""
-    theta = np.array([(i + 0.5) * math.pi / n_theta for i in range(n_theta)])
-    phi = np.array([j * 2 * math.pi / n_phi for j in range(n_phi)])
+    """Grid angles theta_i = (i + 1/2) pi / n_theta, phi_j = 2 pi j / n_phi and the unit vectors M0 in those
+    directions, computed from the exact angles and rounded once to ``dps`` digits (the rounded components are the
+    exact data of the motion)."""
     out = []
     with mp.workdps(dps):
-        for th in theta:
-            for ph in phi:
+        ths = [(2 * i + 1) * mp.pi / (2 * n_theta) for i in range(n_theta)]
+        phs = [2 * j * mp.pi / n_phi for j in range(n_phi)]
+        for th in ths:
+            for ph in phs:
                 v = (mp.sin(th) * mp.cos(ph), mp.sin(th) * mp.sin(ph), mp.cos(th))
                 out.append(tuple(to_fraction(+c) for c in v))
-    return theta, phi, out
+        return np.array([float(v) for v in ths]), np.array([float(v) for v in phs]), out
 
 
 def departure_map(
@@ -156,7 +169,10 @@ def departure_map(
     for k, om in enumerate(omegas):
         refs.append(exact.euler_poisson_many(inertia, om, times, dps=ref_dps))
         step(f"closed form {k + 1}/{len(omegas)}")
-    result = DepartureMap(tuple(float(v) for v in I), float(Tf), float(thr), theta, phi, ratio)
+    result = DepartureMap(tuple(float(v) for v in I), float(Tf), float(thr), theta, phi, ratio,
+                          saddle_rate=body.saddle_rate(1))
+    if result.saddle_rate > 0:
+        result.predicted = {p.name: math.log(float(thr) / p.eps) / result.saddle_rate for p in precs}
     # exact initial states: the ensemble rounds each once to the working precision, as a single run would
     y0s = [body.initial_state(omega=om) for om in omegas]
     for prec in precs:
