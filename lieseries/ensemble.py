@@ -14,11 +14,11 @@ Paths
     uses (same compiled code and the same steps as the single run; its output rows may differ from the single
     run's in the last place), over ``workers`` threads, each with its own copy.
 ``events=``
-    every member is a single run (heyoka's batch mode keeps no per-lane record of crossings), in any precision;
-    ``sol.events[i]`` holds member i's crossings.
+    every member is a single run (heyoka's batch mode keeps no per-lane record of crossings), in any precision,
+    over ``workers`` threads; ``sol.events[i]`` holds member i's crossings.
 bits (arbitrary precision)
-    every member is a single run (``single_run``, normally :func:`lieseries.integrate`), one after another, or in
-    ``workers`` spawned processes when ``workers`` > 1 (each process compiles once and keeps its own cache).
+    every member is a single run (``single_run``, normally :func:`lieseries.integrate`), one after another, or over
+    ``workers`` threads when ``workers`` > 1 (each with its own copy of the cached integrator).
 
 Statuses and the guards
 -----------------------
@@ -56,11 +56,12 @@ import os
 import threading
 import time as _time
 import warnings
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 
 import heyoka as hy
 import numpy as np
 
+from .energy import energy_check
 from .events import resolve_events
 from .models.base import Model, state_fractions
 from .poisson import PoissonSystem, as_poisson_system
@@ -524,6 +525,14 @@ def integrate_ensemble(
             res.take(i, sol, tgrid)
             order = max(order, int(sol.stats.order))
             build += float(sol.stats.build_time)
+    if path in ("batch", "threads") and ps.is_hamiltonian:
+        # the single run's energy check, for the members the batch or the scalar threads finished
+        done_here = set(range(k)) - set(handed)
+        for i in sorted(done_here):
+            if res.status[i] == "success":
+                res.status[i], res.message[i] = energy_check(ps, prec, tolf, Ynat[i], res.y_reached[i], res.steps[i],
+                                                             "success", res.message[i],
+                                                             None if pars is None else pars[i])
     run_time = _time.perf_counter() - start
     stats = dict(method="taylor (heyoka)", precision=prec.name, tol=float(tolf), order=order,
                  steps=res.steps, build_time=build, run_time=run_time, workers=used_workers,
@@ -921,34 +930,29 @@ def _run_scalar(ta0, event_info, Ynat, pars, ps, prec, tgrid, t0n, direction, ca
     return sorted(handed)
 
 
-#: Single runs share their integrator cache within a process and are not thread-safe: one at a time per process
-#: (several Dask tasks may run in threads of one worker process).
-_SINGLE_LOCK = threading.Lock()
-
-
-def _single(single_run, system, y0, t, opts):
-    with _SINGLE_LOCK:
-        return single_run(system, y0, t, **opts)
-
-
 def _run_singles(single_run, systems, rows, t, opts, workers, progress, k, done0):
-    """Single runs, one after another or in ``workers`` processes."""
-    out = []
+    """Single runs, one after another or over ``workers`` threads (a single run is thread-safe: each takes its
+    own copy of the cached integrator, and heyoka releases the GIL while it integrates)."""
     if workers is None or workers <= 1 or len(rows) <= 1:
+        out = []
         for j, (s, y0) in enumerate(zip(systems, rows)):
-            out.append(_single(single_run, s, y0, t, opts))
+            out.append(single_run(s, y0, t, **opts))
             if progress is not None:
                 progress(done0 + j + 1, k)
         return out
-    import multiprocessing
+    out = [None] * len(rows)
+    lock = threading.Lock()
+    done = [0]
 
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=min(workers, len(rows)), mp_context=ctx) as pool:
-        futs = [pool.submit(_single, single_run, s, y0, t, opts) for s, y0 in zip(systems, rows)]
-        for j, f in enumerate(futs):
-            out.append(f.result())
+    def one(j):
+        out[j] = single_run(systems[j], rows[j], t, **opts)
+        with lock:
+            done[0] += 1
             if progress is not None:
-                progress(done0 + j + 1, k)
+                progress(done0 + done[0], k)
+
+    with ThreadPoolExecutor(max_workers=min(workers, len(rows))) as pool:
+        list(pool.map(one, range(len(rows))))
     return out
 
 

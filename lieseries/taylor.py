@@ -46,6 +46,7 @@ from fractions import Fraction
 import heyoka as hy
 import numpy as np
 
+from .energy import clear_energy_cache, energy_function, energy_verdict
 from .events import resolve_events
 from .models.base import ExactState, Model, state_fractions
 from .poisson import as_poisson_system
@@ -71,6 +72,8 @@ _CACHE_MAX = 64
 _FREE: dict = {}  # id(template) -> its cache entry
 _LOCK = threading.Lock()
 _OUTCOME = hy.taylor_outcome
+#: The outcomes that are not a terminal event (the others are an event's index i, or -i - 1).
+_NOT_EVENTS = frozenset(_OUTCOME.__members__.values())
 DEFAULT_MAX_STEPS = 50_000_000
 #: With the default budget, a stiff run (module docstring) is stopped once it would need more steps than this.
 STIFF_STEPS = 100_000
@@ -85,7 +88,7 @@ def clear_cache() -> None:
         _CACHE.clear()
         _FREE.clear()
         _PLANS.clear()
-        _ENERGY.clear()
+    clear_energy_cache()
 
 
 def cache_info() -> dict:
@@ -94,12 +97,16 @@ def cache_info() -> dict:
 
 
 class _Recorder:
-    """Callback of a non-terminal heyoka event: records the time and the state of every crossing."""
+    """Callback of a non-terminal heyoka event: records the time and the state of every crossing after the run's
+    start ``t0`` (a zero at the start is where the run begins, not a crossing: lie_integrate agrees)."""
 
     def __init__(self):
         self.sink = []
+        self.t0 = None
 
     def __call__(self, ta, t, d_sgn):
+        if t == self.t0:
+            return
         ta.update_d_output(t)
         self.sink.append((t, np.array(ta.d_output, copy=True)))
 
@@ -444,7 +451,7 @@ def _execute(call, progress):
     run_time = 0.0
     if direction == 0:
         run = _Run(ta=None, direction=0)
-        recorders = []
+        sinks = [[] for ev in user_events if not ev[3]]  # no step: no crossing
         run.t_reached, run.y_reached = t0_native, y0_native
     else:
         ta, free = _checkout(template)
@@ -457,8 +464,16 @@ def _execute(call, progress):
                 ta.reset_cooldowns()
             recorders = [ev.callback for ev in ta.nt_events] if user_events else []
             for rec in recorders:
-                rec.sink = []
+                rec.sink, rec.t0 = [], t0_native
+            # this run's crossings: the lists, taken before the integrator goes back to the pool (another thread
+            # may check it out at once and give its recorders new lists)
+            sinks = [rec.sink for rec in recorders]
             run = _Run(ta, direction, recorders)
+            if user_events:
+                # the user's terminal events (after the model's in heyoka's order): a zero at t0 does not stop
+                # the run
+                n_user = sum(1 for e in user_events if e[3])
+                run.user_terminal = frozenset(range(len(event_info) - n_user, len(event_info)))
             start = _time.perf_counter()
             run.go(grid_native, t0_native, y0_native, dense, max_steps, call.max_time, call.min_step,
                    stiff_steps=call.stiff_steps, first_chunk=call.first_chunk, progress=progress)
@@ -496,22 +511,23 @@ def _execute(call, progress):
         status, message = _status(run, event_info, t_reached, grid_native[-1], max_steps)
     if status == "success" and direction != 0 and ps.is_hamiltonian:
         if call.energy is None:
-            call.energy = _energy_function(ps, prec, y0_native)
-        status, message = _energy_check(call.energy, plan["sqrt_tol"], run.y_reached, run.steps, status, message)
+            call.energy = energy_function(ps, prec, y0_native)
+        status, message = energy_verdict(call.energy, plan["sqrt_tol"], run.y_reached, run.steps, status, message)
     # np.array copies the rows (the run's own arrays, y0's read-only cache)
     y = np.array(rows_y, dtype=call.dtype) if rows_y else np.empty((0, ps.dimension), dtype=call.dtype)
     tarr = _time_array(rows_t, prec) if prec.is_real else np.array(rows_t, dtype=call.dtype)
     dense_fn = DenseOutput(run.c_outs, prec) if run.c_outs else None
     return Solution(tarr, y, stats, status, message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
                     y_reached=np.array(run.y_reached, copy=True) if run.y_reached is y0_native else run.y_reached,
-                    events=_event_records(user_events, recorders, run, status, event_info, prec, ps.dimension)
+                    events=_event_records(user_events, sinks, run, status, event_info, prec, ps.dimension)
                     if user_events else None)
 
 
-def _event_records(user_events, recorders, run, status, event_info, prec, n) -> dict:
-    """``{name: {"t": times, "y": states}}`` from the recorders (non-terminal) and the stop (terminal)."""
+def _event_records(user_events, sinks, run, status, event_info, prec, n) -> dict:
+    """``{name: {"t": times, "y": states}}`` from the recorders' lists (non-terminal events, in order) and the stop
+    (terminal)."""
     out = {}
-    rec_iter = iter(recorders)
+    rec_iter = iter(sinks)
     fired = None
     if status == "event" and run.outcome is not None:
         idx = int(run.outcome.value)
@@ -522,7 +538,7 @@ def _event_records(user_events, recorders, run, status, event_info, prec, n) -> 
             hit = fired == f"the event {name!r} fired"
             times, states = ([run.t_reached], [run.y_reached]) if hit else ([], [])
         else:
-            sink = next(rec_iter).sink
+            sink = next(rec_iter)
             times, states = [t for t, _ in sink], [y for _, y in sink]
         out[name] = {
             "t": _time_array(times, prec),
@@ -549,6 +565,8 @@ class _Run:
     change = h_last = math.nan
     stiff_steps = 0
     t_reached = y_reached = None
+    user_terminal = frozenset()
+    chunk_start = None
 
     def __init__(self, ta, direction, recorders=()):
         self.ta = ta
@@ -597,6 +615,8 @@ class _Run:
             self._account(res, pending if use_grid else None, dense)
             self.outcome = outcome
             self.t_reached, self.y_reached = ta.time, np.array(ta.state, copy=True)
+            if self.user_terminal and ta.time == t0 and self._at_user_event(outcome):
+                continue  # the run starts on the event's surface: go on (heyoka's cooldown lets it leave)
             if outcome != _OUTCOME.step_limit:
                 return
             # between chunks: budgets, then one single step to measure the step size and the change it makes
@@ -630,6 +650,12 @@ class _Run:
             per_step = elapsed / max(int(res[3]), 1)
             chunk = int(min(4 * chunk, max(16, CHUNK_SECONDS / max(per_step, 1e-9)), 1 << 20))
 
+    def _at_user_event(self, outcome) -> bool:
+        if outcome in _NOT_EVENTS:
+            return False
+        idx = int(outcome.value)
+        return (idx if idx >= 0 else -idx - 1) in self.user_terminal
+
     def _probe(self, t_end, pending, dense) -> bool:
         """Take one step as part of the run; record its size and the relative change it made.
         True when that step ended the run (an event, a non-finite state, the final time)."""
@@ -649,6 +675,7 @@ class _Run:
 
     def _propagate(self, t_end, pending, dense, budget, callback):
         ta = self.ta
+        self.chunk_start = ta.time
         if pending is not None:
             return ta.propagate_grid([ta.time] + pending, max_steps=budget, callback=callback)
         return ta.propagate_until(t_end, max_steps=budget, c_output=dense, callback=callback)
@@ -656,8 +683,11 @@ class _Run:
     def _account(self, res, pending, dense):
         self.steps += int(res[3])
         if int(res[3]):
-            self.min_h = min(self.min_h, float(res[1]))
-            self.max_h = max(self.max_h, float(res[2]))
+            lo, hi = float(res[1]), float(res[2])
+            if not lo <= hi:  # heyoka leaves out a step cut short at the final time: the chunk's mean step
+                lo = hi = abs(float(self.ta.time) - float(self.chunk_start)) / int(res[3])
+            self.min_h = min(self.min_h, lo)
+            self.max_h = max(self.max_h, hi)
         if pending is not None:
             out = res[-1][1:]  # the first row is the chunk's start
             self.rows.extend(np.array(r, copy=True) for r in out)
@@ -760,43 +790,6 @@ def _status(run, event_info, t_reached, t_end, max_steps):
         status, msg = event_info[idx]
         return status, f"Stopped at {where}: {msg}."
     return "event", f"Stopped at {where} with heyoka outcome {outcome}."
-
-
-_ENERGY: dict = {}
-
-
-def _energy_function(ps, prec, y0):
-    """(compiled H, the system's parameters in the working format, H(y0)) for the energy check of a call."""
-    key = (ps.key, prec.name)
-    entry = _ENERGY.get(key)
-    if entry is None:
-        kwargs = {} if prec.name == "double" else {"fp_type": prec.fp_type}
-        if prec.is_real:
-            kwargs["prec"] = prec.bits
-        npar = 1 + max((int(str(p)[1:]) for p in hy.get_params([ps.hamiltonian])), default=-1)
-        fn = hy.cfunc([ps.hamiltonian], ps.variables, compact_mode=prec.name != "double", **kwargs)
-        with _LOCK:
-            entry = _ENERGY.setdefault(key, (fn, npar))
-    fn, npar = entry
-    pars = ps.native_parameters(prec)[:npar] if npar else None
-    h0 = float((fn(y0) if pars is None else fn(y0, pars=pars))[0])
-    return fn, pars, h0
-
-
-def _energy_check(energy, sqrt_tol, y_end, steps, status, message):
-    """``invariant_drift`` when the Hamiltonian changed beyond sqrt(tol) * max(|H|, 1) over a successful run."""
-    fn, pars, e0 = energy
-    e1 = float((fn(y_end) if pars is None else fn(y_end, pars=pars))[0])
-    if not (math.isfinite(e0) and math.isfinite(e1)):
-        return status, message
-    if abs(e1 - e0) <= sqrt_tol * max(abs(e0), abs(e1), 1.0):
-        return status, message
-    return "invariant_drift", (
-        f"{message[:-1]}, but the result is wrong: the energy H, which the equations conserve, went from "
-        f"{e0:.6g} to {e1:.6g} in {steps} steps. The error control was fooled, usually because the motion is much "
-        "slower (or faster) than the time span, so that the Taylor coefficients underflow: rescale time so that "
-        "the motion is of order one per unit time."
-    )
 
 
 class DenseOutput:

@@ -140,3 +140,32 @@ def test_ensemble_members_record_their_own_crossings():
         assert "'flip'" in stop.message[i] and abs(float(stop.t_reached[i]) - float(first)) < 1e-12
         assert stop.rows[i] == sum(1 for t in grid if t < first)  # rows after the stop are not reached
         assert abs(float(stop.y_reached[i][10])) < 1e-12
+
+
+@pytest.mark.parametrize("engine", ["double", "lie"])
+def test_a_run_starting_on_the_surface_counts_crossings_after_its_start(engine):
+    """M3(0) = 3 * 0.5 = 1.5 exactly: the event M3 - 3/2 is zero at t0. That is where the run begins (a Poincare
+    section's usual start), not a crossing: both engines give the closed form's later zeros of M3 - 3/2, and the
+    terminal event stops at the first of them; a run with t = t0 has no crossings."""
+    body = ls.EulerPoisson(INERTIA)
+    y0 = body.initial_state(omega=OMEGA)
+    g = body.poisson.variables[11] - 1.5
+    ts = [mp.mpf(k) / 4 for k in range(1, 4 * T + 1)]
+    vals = [s[11] - mp.mpf(3) / 2 for s in exact.euler_poisson_many(INERTIA, OMEGA, ts, dps=20)]
+    refs = [mp.findroot(lambda t: exact.euler_poisson(INERTIA, OMEGA, t, dps=40)[11] - mp.mpf(3) / 2, (a, b),
+                        solver="anderson") for a, b, fa, fb in zip(ts, ts[1:], vals, vals[1:]) if fa * fb < 0]
+    assert vals[0] != 0 and len(refs) >= 2
+
+    def run(t, **kw):
+        if engine == "lie":
+            return ls.lie_integrate(body, y0, t=t, dps=25, **kw)
+        return ls.integrate(body, y0, t=t, **kw)
+
+    sol = run(T, events=[ls.Event(g, name="s")])
+    got = sol.events["s"]["t"]
+    assert sol.success and len(got) == len(refs)
+    assert all(abs(float(a) - float(b)) < 1e-12 for a, b in zip(got, refs))
+    stop = run(T, events=[ls.Event(g, terminal=True, name="s")])
+    assert stop.status == "event" and abs(float(stop.t_reached) - float(refs[0])) < 1e-12
+    still = run(0, events=[ls.Event(g, name="s"), ls.Event(g, terminal=True, name="t")])
+    assert still.success and len(still.events["s"]["t"]) == 0 and len(still.events["t"]["t"]) == 0

@@ -201,6 +201,16 @@ def test_a_motion_slow_for_its_time_span_is_not_success():
     slow = body.initial_state(omega=("1e-16", "1e-17", "5e-17"))
     sol = ls.integrate(body, slow, t="2e17")
     assert sol.status == "invariant_drift" and "rescale time" in sol.message
+    # at 5e16 and 1e17 the energy moves by far less than 1 but by far more than its own size (9e-33): before, an
+    # absolute floor of 1 let these pass as success, with R no longer a rotation
+    for T in ("5e16", "1e17"):
+        sol = ls.integrate(body, slow, t=T)
+        assert float(body.invariants(sol.y_final)["orthogonality"]) > 1  # independent: R^T R is far from 1
+        assert sol.status == "invariant_drift", T
+        assert sol.stats.steps == 1 and sol.stats.min_step == sol.stats.max_step == float(T)
+    # an ensemble member ends as its single run does
+    ens = ls.integrate(body, [slow, body.initial_state(omega=(1, "0.1", "0.5"))], t="1e17", max_steps=10)
+    assert list(ens.status) == ["invariant_drift", "step_budget"]
     # the same motion in rescaled time is right: M(2e17) = 1e-16 M_fast(20)
     fast = ls.integrate(body, body.initial_state(omega=(1, "0.1", "0.5")), t=20)
     assert fast.success and body_error(fast.y_final, 20) < 1e-13
@@ -255,6 +265,22 @@ def test_four_threads_on_different_systems_and_precisions_each_match_their_refer
         th.join()
     assert not failures, failures
     assert len(errors) == 4
+
+
+def test_events_in_threads_are_each_runs_own():
+    """Four bodies' M2 = 0 crossings, 120 runs over four threads: each run returns its own crossings (before, a
+    run could return with the crossings of another thread's run on the same pooled integrator)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    body = ls.EulerPoisson(INERTIA)
+    ev = [ls.Event(hy.make_vars("M2"), name="m2")]
+    states = [body.initial_state(omega=w) for w in (OMEGA, ("0.2", "0.1", 1), (1, "-0.3", "0.2"), ("0.5", 1, 1))]
+    alone = [list(ls.integrate(body, y, t=30, events=ev).events["m2"]["t"]) for y in states]
+    assert all(alone) and len({len(a) for a in alone}) > 1  # every body crosses, not all equally often
+    with ThreadPoolExecutor(4) as pool:
+        got = list(pool.map(lambda i: list(ls.integrate(body, states[i % 4], t=30, events=ev).events["m2"]["t"]),
+                            range(120)))
+    assert [i for i, g in enumerate(got) if g != alone[i % 4]] == []
 
 
 # -- 4. hard limits ----------------------------------------------------------------------------------------------------
