@@ -55,7 +55,6 @@ import numbers
 import os
 import threading
 import time as _time
-import warnings
 from concurrent.futures import ThreadPoolExecutor
 
 import heyoka as hy
@@ -65,8 +64,8 @@ from .energy import energy_check
 from .events import resolve_events
 from .models.base import Model, state_fractions
 from .poisson import PoissonSystem, as_poisson_system
-from . import precision as _precision_module
-from .precision import Precision, check_tolerance, precision_of_dtype, resolve_precision, to_fraction
+from .precision import (Precision, check_tolerance, data_bits, precision_of_dtype, resolve_precision, to_fraction,
+                        warn_if_coarse)
 from .solution import EnsembleSolution
 from .timegrid import parse_times
 
@@ -229,6 +228,10 @@ def _states(model, ps, Y0, prec: Precision):
             arr = np.asarray(Y0, dtype=object)
         except ValueError:
             raise ValueError(f"`Y0` must have shape (k, {n}): rows of equal length {n}") from None
+    if arr.ndim == 1 and arr.shape[0] == n:
+        raise ValueError(f"`Y0` is one state of {n} numbers, but an ensemble (asked for by `params`, `workers`, "
+                         "`client` or a list of models) needs one initial state per member, shape (k, n): repeat "
+                         "the state, e.g. `[y0] * k`, or drop those arguments for a single run")
     if arr.ndim != 2 or arr.shape[1] != n or arr.shape[0] < 1:
         raise ValueError(f"`Y0` must have shape (k, {n}) with k >= 1: one initial state of {n} numbers per row; "
                          f"got shape {arr.shape}")
@@ -276,23 +279,21 @@ def _infer_precision(precision, Y0) -> Precision:
     return resolve_precision("double")
 
 
-def _warn_coarse(Y0, prec: Precision) -> None:
-    """One warning when binary doubles feed a run of more bits (their digits beyond 53 bits are zeros)."""
+def _warn_coarse(prec: Precision, inputs, systems) -> None:
+    """One :class:`~lieseries.precision.PrecisionWarning` per input (``(name, values)``: Y0, params, t, t0) or
+    model parameter that carries fewer bits than the run (binary doubles in a run of more bits), as a single run
+    gives."""
     if prec.bits <= 53:
         return
-    arr = Y0 if isinstance(Y0, np.ndarray) else None
-    binary = arr is not None and arr.dtype in (np.float64, np.float32)
-    if arr is None:
-        try:
-            binary = any(isinstance(v, (float, np.float64, np.float32)) and not float(v).is_integer()
-                         for v in np.asarray(Y0, dtype=object).ravel())
-        except ValueError:
-            binary = False
-    if binary:
-        category = getattr(_precision_module, "PrecisionWarning", UserWarning)
-        warnings.warn(f"`Y0` holds binary doubles (53 bits) and the run uses {prec.bits} bits: each entry is taken "
-                      "at its binary value. Pass exact input (str, Fraction) or states built with "
-                      f"`precision=` to start from {prec.bits}-bit data.", category, stacklevel=3)
+    for name, values in inputs:
+        if values is not None:
+            warn_if_coarse(data_bits(np.asarray(values, dtype=object)), prec.bits, name, stacklevel=5)
+    seen = set()
+    for s in systems:
+        for name, bits in as_poisson_system(s).coarse_data().items():
+            if name not in seen and bits is not None and bits < prec.bits:
+                seen.add(name)
+                warn_if_coarse(bits, prec.bits, name, stacklevel=5)
 
 
 def _parameters(ps, params, members, k, prec: Precision):
@@ -437,9 +438,9 @@ def integrate_ensemble(
         raise ValueError(f"`min_step` must be positive; got {min_step!r}")
     progress = None if progress is None else _Monotone(progress)
     Ynat = _states(model, ps, Y0, prec)
-    _warn_coarse(Y0, prec)
     k = Ynat.shape[0]
     pars = _parameters(ps, params, members, k, prec)
+    _warn_coarse(prec, [("Y0", Y0), ("params", params), ("t", t), ("t0", t0)], members or [structure])
 
     if client is not None:
         return _run_dask(client, structure, Ynat, pars, t, t0, dict(
@@ -465,7 +466,8 @@ def integrate_ensemble(
     # heyoka's clock runs in the working precision: output times as rounded there (as in a single run)
     tgrid = [to_fraction(prec.time(g)) for g in grid]
     t0n = to_fraction(prec.time(t0f))
-    res = _Result(k, len(grid), ps.dimension, prec)
+    # across an atlas, every state knows its chart: the batch's members stay in the model's chart
+    res = _Result(k, len(grid), ps.dimension, prec, chart=structure.chart if atlas else None)
     start = _time.perf_counter()
     build = 0.0
     handed = []
@@ -539,7 +541,8 @@ def integrate_ensemble(
                  batch_size=B if path == "batch" else 1, path=path, single_runs=len(handed))
     tarr = prec.array(tgrid)
     return EnsembleSolution(tarr, res.y, res.status, res.message, res.t_reached, res.y_reached, stats,
-                            rows=res.rows, method="taylor (heyoka)", events=res.events)
+                            rows=res.rows, method="taylor (heyoka)", events=res.events, charts=res.charts,
+                            chart_reached=res.chart_reached)
 
 
 class _Monotone:
@@ -560,8 +563,11 @@ class _Monotone:
 class _Result:
     """Per-member outputs being filled in (NaN rows where a member did not get to)."""
 
-    def __init__(self, k, m, n, prec: Precision):
+    def __init__(self, k, m, n, prec: Precision, chart=None):
         self.prec = prec
+        # the chart of each state (runs across an atlas), else None
+        self.charts = None if chart is None else np.full((k, m), chart, dtype=int)
+        self.chart_reached = None if chart is None else np.full(k, chart, dtype=int)
         self.y = _nan_array((k, m, n), prec)
         self.y_reached = _nan_array((k, n), prec)
         self.status = np.array([""] * k, dtype=object)
@@ -583,6 +589,10 @@ class _Result:
         self.y[i] = _nan_array(self.y.shape[1:], self.prec)
         self.y[i, :m] = np.asarray(sol.y)
         self.rows[i] = m
+        if self.charts is not None and sol.charts is not None:
+            self.chart_reached[i] = sol.chart_reached
+            self.charts[i] = sol.chart_reached  # the rows after a stop (NaN) in the chart the member stopped in
+            self.charts[i, :m] = sol.charts
         if sol.events is not None:
             if self.events is None:
                 self.events = [None] * len(self.status)

@@ -148,16 +148,20 @@ def plain_ufunc(cls, ufunc, method, inputs, kwargs):
 
 
 class ChartRows(np.ndarray):
-    """States of a run across an atlas of charts: ``charts`` gives the chart of each row.
+    """States of runs across an atlas of charts: ``charts`` gives the chart of each state (an int for one state,
+    an array of shape ``rows.shape[:-1]`` for rows of states, e.g. (k, m) for an ensemble's ``y``).
 
-    A row taken from it (``sol.y[-1]``) keeps its chart, so that model helpers such as ``Sphere.position`` read
-    it in the right chart; anything else derived from it (arithmetic, columns, copies) is a plain array with no
-    chart, which those helpers refuse.
+    States taken from it (``sol.y[-1]``, ``sol.y[2:5]``, ``ens.y[i]``, ``ens.y[i, j]``) keep their charts, so that
+    model helpers such as ``Sphere.velocity`` read them in the right chart; anything else derived from it
+    (arithmetic, columns, copies) is a plain array with no chart.
     """
 
     def __new__(cls, rows, charts):
         arr = np.asarray(rows).view(cls)
-        arr.charts = np.asarray(charts, dtype=int) if arr.ndim == 2 else int(charts)
+        arr.charts = np.asarray(charts, dtype=int) if arr.ndim >= 2 else int(charts)
+        if arr.ndim >= 2 and arr.charts.shape != arr.shape[:-1]:
+            raise ValueError(f"`charts` must have shape {arr.shape[:-1]} (one chart per state); got "
+                             f"{arr.charts.shape}")
         return arr
 
     def __array_finalize__(self, obj):
@@ -170,10 +174,14 @@ class ChartRows(np.ndarray):
         out = np.ndarray.__getitem__(self, key)
         if not isinstance(out, np.ndarray):
             return out
-        if self.ndim == 2 and self.charts is not None:
-            rows, cols = (key[0], key[1:]) if isinstance(key, tuple) else (key, ())
-            if all(isinstance(c, slice) and c == slice(None) for c in cols):
-                return ChartRows(np.asarray(out), np.asarray(self.charts)[rows])
+        if self.ndim >= 2 and self.charts is not None:
+            keys = key if isinstance(key, tuple) else (key,)
+            if len(keys) <= self.ndim and not any(k is Ellipsis or k is None for k in keys):
+                lead, last = keys[:self.ndim - 1], keys[self.ndim - 1:]
+                if all(isinstance(c, slice) and c == slice(None) for c in last):  # whole states
+                    charts = np.asarray(self.charts)[lead]
+                    if np.shape(charts) == out.shape[:-1]:
+                        return ChartRows(np.asarray(out), charts)
         return np.asarray(out)
 
     def __copy__(self):
@@ -195,6 +203,18 @@ def as_float_array(values) -> np.ndarray:
     if arr.dtype == np.float64:
         return arr
     return np.vectorize(float, otypes=[np.float64])(arr) if arr.size else arr.astype(np.float64)
+
+
+class MemberEvents(list):
+    """An ensemble's events: one ``{name: {"t": times, "y": states}}`` per member (``events[i]``). Indexing it by
+    an event's name says how to get at that event."""
+
+    def __getitem__(self, key):
+        if isinstance(key, str):
+            names = sorted({n for member in self if member for n in member})
+            raise KeyError(f"an ensemble's `events` holds one record per member: use `events[i][{key!r}]` for "
+                           f"member i (events recorded: {names})")
+        return list.__getitem__(self, key)
 
 
 class EnsembleSolution:
@@ -221,11 +241,19 @@ class EnsembleSolution:
         ``path`` ("batch" or "single"), ``single_runs`` (members run one by one), ``precision``, ``tol``.
     events : list of dict or None
         With ``events=``: each member's ``{name: {"t": times, "y": states}}``, as a single run's ``sol.events``.
+    charts : ndarray of int, shape (k, m), or None
+        For runs across an atlas of charts: the chart each state of ``y`` is written in (``chart_reached``, shape
+        (k,): the chart of ``y_reached``). ``y`` and ``y_reached`` then carry their charts
+        (:class:`ChartRows`), as do ``member(i)`` and the states taken from them.
     """
 
     def __init__(self, t, y, status, message, t_reached, y_reached, stats: dict, rows=None,
-                 method: str = "taylor (heyoka)", events=None):
+                 method: str = "taylor (heyoka)", events=None, charts=None, chart_reached=None):
         self.t = t
+        self.charts = None if charts is None else np.asarray(charts, dtype=int)
+        self.chart_reached = None if chart_reached is None else np.asarray(chart_reached, dtype=int)
+        if self.charts is not None:
+            y, y_reached = ChartRows(y, self.charts), ChartRows(y_reached, self.chart_reached)
         self.y = y
         self.status = np.asarray(status, dtype=object)
         for s in self.status:
@@ -237,7 +265,7 @@ class EnsembleSolution:
         self.stats = stats
         self.method = method
         self.rows = np.full(len(self.status), len(t), dtype=np.int64) if rows is None else np.asarray(rows)
-        self.events = None if events is None else list(events)
+        self.events = None if events is None else MemberEvents(events)
 
     def __len__(self) -> int:
         return len(self.status)
@@ -264,8 +292,11 @@ class EnsembleSolution:
                    tol=float(self.stats.get("tol", float("nan"))),
                    steps=int(steps[i]) if steps is not None else 0, order=int(self.stats.get("order", 0)),
                    extra={"ensemble": True})
+        charted = self.charts is not None
         return Solution(self.t[:m], self.y[i, :m], st, str(self.status[i]), self.message[i], self.t_reached[i],
-                        y_reached=self.y_reached[i], events=None if self.events is None else self.events[i])
+                        y_reached=self.y_reached[i], events=None if self.events is None else self.events[i],
+                        charts=self.charts[i, :m].copy() if charted else None,
+                        chart_reached=int(self.chart_reached[i]) if charted else None)
 
     @classmethod
     def concatenate(cls, parts):
@@ -284,7 +315,9 @@ class EnsembleSolution:
                    np.concatenate([p.status for p in parts]), [m for p in parts for m in p.message],
                    np.concatenate([p.t_reached for p in parts]), np.concatenate([p.y_reached for p in parts]),
                    stats, rows=np.concatenate([p.rows for p in parts]), method=first.method,
-                   events=None if first.events is None else [e for p in parts for e in p.events])
+                   events=None if first.events is None else [e for p in parts for e in p.events],
+                   charts=None if first.charts is None else np.concatenate([p.charts for p in parts]),
+                   chart_reached=None if first.charts is None else np.concatenate([p.chart_reached for p in parts]))
 
     def __repr__(self) -> str:
         counts = {}

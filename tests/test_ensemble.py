@@ -3,6 +3,7 @@ member; per-member parameters; the Dask path against the local one; pickling; in
 
 import pickle
 import sys
+import warnings
 from fractions import Fraction
 
 import heyoka as hy
@@ -154,6 +155,23 @@ def test_sphere_atlas_members_equal_atlas_single_runs():
             sol = ls.integrate(sphere, y0, t, atlas=True)
             assert sol.status == es.status[i]
             assert close(es.y[i], np.asarray(sol.y, dtype=np.float64), 0) <= 64 * EPS
+            # every state knows its chart, as in the single run: helpers read it in the right chart
+            assert list(es.charts[i]) == list(sol.charts) and es.chart_reached[i] == sol.chart_reached
+            m = es.member(i)
+            assert list(m.charts) == list(sol.charts) and m.y.charts.tolist() == list(sol.charts)
+            x0, v0 = sphere.position(y0), sphere.velocity(y0)
+            times = [t] if np.ndim(t) == 0 else t
+            for j, tj in enumerate(times):
+                row = j - len(times)  # the output rows of the times t (a scalar t: the rows t0, t)
+                _, v_ref = ls.exact.sphere(1, [Fraction(float(c)) for c in x0], [Fraction(float(c)) for c in v0],
+                                           Fraction(tj), dps=30)
+                v_ref = [float(c) for c in v_ref]
+                for got in (sphere.velocity(es.y[i, row]), sphere.velocity(es.y[i])[row], sphere.velocity(m)[row]):
+                    assert close(got, v_ref, 0) <= 1e-12
+            for got in (sphere.velocity(es.y_reached[i]), sphere.velocity(m.y_reached)):
+                assert close(got, v_ref, 0) <= 1e-12
+        if np.ndim(t):
+            assert list(es.charts[0]) == [0, 2]  # the switching member is in chart 0 at t = 1, back in 2 at t = 3
     with pytest.raises(ValueError, match="`atlas` needs a model with an atlas"):
         run(ls.EulerPoisson(), np.zeros((1, 12)), 1.0, atlas=True)
 
@@ -277,15 +295,29 @@ def test_precision_from_the_data_and_coarse_data_warned():
     Yld = body_states(body, omegas(2), precision="long double")
     assert run(body, Yld, 1.0).stats["precision"] == "long double"  # precision=None: the data's own
     assert run(body, Yld.astype(np.float64), 1.0).stats["precision"] == "double"
-    with pytest.warns(UserWarning, match="`Y0` holds binary doubles"):
+    with pytest.warns(ls.PrecisionWarning, match="`Y0` carries only 53 bits"):
         run(body, Yld.astype(np.float64), 1.0, precision="long double")
+    # binary doubles anywhere in a run of more bits are named, as in a single run: params, t, t0, the models'
+    # inertia; exact input is silent
+    Y = [body.initial_state((1, "0.1", "0.5"))] * 2
+    inv = [["1", "0.5", "0.25"], ["1", "0.5", "0.2"]]
+    for kw, name in ((dict(params=[[1, 0.5, 0.2]] * 2), "params"), (dict(t=[0.1]), "t"),
+                     (dict(t0=0.3), "t0"), (dict(system=[body, ls.EulerPoisson((1, 2, 2.2))]), "inertia")):
+        args = dict(system=body, Y0=Y, t=1.0, precision="quad") | kw
+        with pytest.warns(ls.PrecisionWarning, match=f"`{name}` carries only 53 bits"):
+            run(args.pop("system"), args.pop("Y0"), args.pop("t"), **args)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        run(body, Y, ["0.1", 1], precision="quad", params=inv, t0="-0.3")
+        run([body, ls.EulerPoisson((1, 2, "2.2"))], Y, 1, precision="quad")
+        run(body, np.array(Y, dtype=np.float64), [0.5, 1.0], params=[[1, 0.5, 0.2]] * 2)  # double: doubles are exact
 
 
 @pytest.mark.parametrize(
     "kwargs, match",
     [
         (dict(Y0=[[1, 2, 3]]), "`Y0` must have shape"),
-        (dict(Y0=np.zeros(12)), "`Y0` must have shape"),
+        (dict(Y0=np.zeros(12)), "`Y0` is one state of 12 numbers, but an ensemble"),
         (dict(params=[[1, 2]]), "`params` must have shape"),
         (dict(workers=0), "`workers` must be a positive integer"),
         (dict(workers=1.5), "`workers` must be a positive integer"),
@@ -376,6 +408,10 @@ def test_dask_equals_local(client):
     b = run(sphere, S0, 2.0, client=client, chunk_size=1, atlas=False)
     assert list(b.status) == list(a.status) == ["chart_edge", "success"]
     assert np.array_equal(a.y_reached, b.y_reached, equal_nan=True)
+    # across the atlas, the charts of the states come back with them
+    a, b = run(sphere, S0, [1.0, 3.0]), run(sphere, S0, [1.0, 3.0], client=client, chunk_size=1)
+    assert np.array_equal(a.y, b.y) and np.array_equal(a.charts, b.charts) and list(b.charts[0]) == [0, 2]
+    assert b.member(0).y.charts.tolist() == [0, 2] and list(b.chart_reached) == [2, 2]
     ps = blowup_system()
     Y0 = [["1e200", 1], [-1, 1]]
     a, b = run(ps, Y0, 2.0), run(ps, Y0, 2.0, client=client)

@@ -115,6 +115,8 @@ def test_ensemble_members_record_their_own_crossings():
     Tm = 8
     sol = ls.integrate(body, Y0, t=Tm, events=[ls.Event(m2, name="m2")])
     assert sol.success and len(sol.events) == 4
+    with pytest.raises(KeyError, match=r"use `events\[i\]\['m2'\]` for member i"):
+        sol.events["m2"]  # a natural slip: the events of an ensemble are per member
     firsts = []
     for i, w in enumerate(omegas):
         ts = [mp.mpf(k) / 8 for k in range(0, 8 * Tm + 1)]
