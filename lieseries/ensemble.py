@@ -296,7 +296,7 @@ def _warn_coarse(prec: Precision, inputs, systems) -> None:
                 warn_if_coarse(bits, prec.bits, name, stacklevel=5)
 
 
-def _parameters(ps, params, members, k, prec: Precision):
+def _parameters(model, ps, params, members, k):
     """Per-member parameter values (exact Fractions, (k, npar)) or None when every member uses the system's own."""
     npar = len(ps.parameter_values)
     if members is not None:
@@ -313,7 +313,11 @@ def _parameters(ps, params, members, k, prec: Precision):
             f"`params` must have shape (k, npar) = ({k}, {npar}): one row per member with the values of "
             f"{list(ps.parameter_names)} in that order; got shape {arr.shape}"
         )
-    return [[to_fraction(arr[i, j], f"params[{i}][{j}]") for j in range(npar)] for i in range(k)]
+    rows = [[to_fraction(arr[i, j], f"params[{i}][{j}]") for j in range(npar)] for i in range(k)]
+    if model is not None:
+        for i, row in enumerate(rows):
+            model.check_parameters(row, f"params[{i}]")
+    return rows
 
 
 def _member_system(system, ps, values):
@@ -439,7 +443,7 @@ def integrate_ensemble(
     progress = None if progress is None else _Monotone(progress)
     Ynat = _states(model, ps, Y0, prec)
     k = Ynat.shape[0]
-    pars = _parameters(ps, params, members, k, prec)
+    pars = _parameters(model, ps, params, members, k)
     _warn_coarse(prec, [("Y0", Y0), ("params", params), ("t", t), ("t0", t0)], members or [structure])
 
     if client is not None:

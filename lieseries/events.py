@@ -11,6 +11,8 @@ message.
 
 from __future__ import annotations
 
+import re
+
 import heyoka as hy
 
 __all__ = ["Event", "resolve_events"]
@@ -63,7 +65,7 @@ def resolve_events(events, system, ps) -> list:
     """``[(name, expression, direction, terminal)]`` for a run of ``system`` (the model or PoissonSystem).
 
     Raises errors naming ``events[i]``: not an Event, an expression using variables the system does not have,
-    a duplicated name.
+    depending on time, or constant, a duplicated name.
     """
     if events is None:
         return []
@@ -79,14 +81,35 @@ def resolve_events(events, system, ps) -> list:
             expr = expr(system)
             if not isinstance(expr, hy.expression):
                 raise TypeError(f"`events[{i}]`: the callable must return a heyoka expression; got {type(expr).__name__}")
-        unknown = sorted(set(hy.get_variables(expr)) - names)
+        variables = set(hy.get_variables(expr))
+        unknown = sorted(variables - names)
         if unknown:
             raise ValueError(
                 f"`events[{i}]` uses variables {unknown} that the system does not have; its variables are "
                 f"{list(ps.names)}"
+            )
+        label = f"`events[{i}]`" + (f" ({ev.name!r})" if ev.name else "")
+        if _uses_time(expr):
+            raise ValueError(
+                f"{label} depends on time (heyoka.time): events are functions of the state (both engines find "
+                "them the same way); to stop or record at a given time, make it the final time `t` or an output "
+                "time"
+            )
+        if not variables:
+            raise ValueError(
+                f"{label} is the constant {expr}, which never crosses zero: give an expression in the system's "
+                f"variables {list(ps.names)}"
             )
         name = ev.name or f"event{i}"
         if any(name == o[0] for o in out):
             raise ValueError(f"`events[{i}]`: the name {name!r} is used twice")
         out.append((name, expr, ev.direction, ev.terminal))
     return out
+
+
+def _uses_time(expr) -> bool:
+    """True when ``expr`` contains heyoka's time variable (printed ``t``; a state variable named ``t`` is a
+    variable, not time)."""
+    if "t" in set(hy.get_variables(expr)):
+        return False
+    return re.search(r"(?<![\w.])t(?![\w(])", str(expr)) is not None

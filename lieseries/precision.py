@@ -46,6 +46,7 @@ __all__ = [
     "Precision",
     "resolve_precision",
     "to_fraction",
+    "short_decimal",
     "to_mpf",
     "dps_to_bits",
     "bits_to_dps",
@@ -256,12 +257,12 @@ class Precision:
         exp = raw[2] + raw[3]  # |x| < 2**exp
         if exp > self.max_exponent:
             raise ValueError(
-                f"`{argname}` = {_short(frac)} overflows {self.name} (largest about 2**{self.max_exponent}); "
+                f"`{argname}` = {short_decimal(frac)} overflows {self.name} (largest about 2**{self.max_exponent}); "
                 "rescale the problem or use a wider precision"
             )
         if exp < -self.max_exponent - self.bits + 2:
             raise ValueError(
-                f"`{argname}` = {_short(frac)} underflows to zero in {self.name}; rescale the problem or use a "
+                f"`{argname}` = {short_decimal(frac)} underflows to zero in {self.name}; rescale the problem or use a "
                 "wider precision"
             )
         return self._raw_to_native(raw)
@@ -374,7 +375,7 @@ def to_fraction(value, argname: str = "value") -> Fraction:
     return _bounded(_exact_value(value, argname), argname)
 
 
-def _short(f: Fraction) -> str:
+def short_decimal(f: Fraction) -> str:
     """A short decimal rendering of a possibly huge exact value (for messages)."""
     if f == 0:
         return "0"
@@ -392,7 +393,7 @@ def _log10_abs(f: Fraction) -> float:
 def _bounded(f: Fraction, argname: str) -> Fraction:
     if f != 0 and abs(_log10_abs(f)) > MAX_EXPONENT + 1:
         raise ValueError(
-            f"`{argname}` = {_short(f)} is out of range: numbers must lie within 1e-{MAX_EXPONENT} .. "
+            f"`{argname}` = {short_decimal(f)} is out of range: numbers must lie within 1e-{MAX_EXPONENT} .. "
             f"1e{MAX_EXPONENT} in magnitude (or be 0)"
         )
     return f
@@ -520,6 +521,8 @@ def carried_bits(value):
         f = to_fraction(value)
         return _significand_bits(f.numerator * f.denominator, _BUILTIN["long double"].bits)
     if isinstance(value, (float, np.floating)):
+        if not np.isfinite(value):
+            return None  # not a number's precision: refused by the checks of the argument itself
         n, _d = float(value).as_integer_ratio() if not isinstance(value, np.longdouble) else value.as_integer_ratio()
         return _significand_bits(n, 53 if not isinstance(value, np.float32) else 24)
     if isinstance(value, hy.real128):
@@ -539,12 +542,25 @@ def _significand_bits(man: int, fmt_bits: int):
 
 def data_bits(values):
     """The least precision carried by any of ``values`` (None when all are exact)."""
-    exact = getattr(values, "exact", None)
-    if exact is not None:
-        return None
-    arr = np.asarray(values, dtype=object).ravel() if not isinstance(values, (list, tuple)) else values
-    bits = [b for b in (carried_bits(v) for v in arr) if b is not None]
+    bits = [b for b in map(carried_bits, _leaves(values)) if b is not None]
     return min(bits) if bits else None
+
+
+def _leaves(values):
+    """The numbers in ``values``: a number, or nested sequences and arrays of them (ragged ones too). A state
+    that carries its exact values (``exact``) has none to check."""
+    if getattr(values, "exact", None) is not None:
+        return
+    if isinstance(values, np.ndarray):
+        if values.dtype != object:
+            yield from values.ravel()
+            return
+        values = values.ravel().tolist()
+    if isinstance(values, (list, tuple)):
+        for v in values:
+            yield from _leaves(v)
+    else:
+        yield values
 
 
 def warn_if_coarse(bits, work_bits: int, argname: str, *, stacklevel: int = 3) -> None:

@@ -59,6 +59,7 @@ from .precision import (
     data_bits,
     precision_of_dtype,
     resolve_precision,
+    short_decimal,
     to_fraction,
     warn_if_coarse,
 )
@@ -751,9 +752,13 @@ def _status(run, event_info, t_reached, t_end, max_steps):
     ta = run.ta
     h = abs(float(ta.last_h)) if _finite(ta.last_h) else float("nan")
     where = f"t = {float(t_reached):.17g} (last step size {h:.3g})"
-    left = abs(float(t_end) - float(run.t_reached))
+    # exactly: the time left may be beyond the double range (t = 1e400 in quad)
+    left = abs(to_fraction(t_end) - to_fraction(run.t_reached))
     hh = run.h_last if run.h_last == run.h_last else h
-    need = f"{left:.3g} time units remain, about {left / hh:.3g} steps at this step size" if hh > 0 else ""
+    need = (f"{short_decimal(left)} time units remain, about {short_decimal(left / Fraction(hh))} steps at this "
+            "step size") if hh > 0 else ""
+    # more steps than any budget could allow: the advice is the time span, not max_steps
+    hopeless = hh > 0 and left / Fraction(hh) > 10**15
     outcome = run.outcome
     if run.reason == "time_budget":
         return "time_budget", f"The wall-time budget ran out at {where}; raise `max_time` or lower the accuracy."
@@ -773,7 +778,9 @@ def _status(run, event_info, t_reached, t_end, max_steps):
         )
     if run.reason == "step_budget" or outcome == _OUTCOME.step_limit:
         return "step_budget", (
-            f"Stopped early at {where}: {need}, more than the budget max_steps = {max_steps}. Raise `max_steps`."
+            f"Stopped early at {where}: {need}, more than the budget max_steps = {max_steps}. "
+            + ("That is beyond any step budget: shorten the time span or rescale time." if hopeless
+               else "Raise `max_steps`.")
         )
     if outcome == _OUTCOME.time_limit:
         return "success", _reached(t_end)

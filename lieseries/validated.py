@@ -533,13 +533,24 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                          "global chart")
     grid, direction, t0f = parse_times(t, t0)
     bits = dps_to_bits(dps) + GUARD_BITS
-    for name, b in ps.coarse_data().items():  # binary model data (inertia 1.1 as a double) in a longer run
+    # binary model data (inertia 1.1 as a double) or times (t = 0.1 as a double) in a longer run: the enclosures
+    # are proven for those binary values, not for the decimals they round
+    for name, b in list(ps.coarse_data().items()) + [("t", data_bits([t, t0]))]:
         warn_if_coarse(b, dps_to_bits(dps), name)
     start = _time.perf_counter()
     with _working_precision(bits, cap=N + 4) as flint:
         arb = flint.arb
         z = _initial_balls(system, y0, ps.dimension, flint)
         width_cap = None if max_width is None else arb(flint.fmpq(*to_fraction(max_width, "max_width").as_integer_ratio()))
+        widest0 = max(z, key=lambda v: float(v.rad()))
+        cap0 = width_cap if width_cap is not None else arb(max([1.0] + [abs(float(v.mid())) for v in z])) / 1000
+        if widest0.rad() > cap0:
+            raise ValueError(
+                f"`y0` has a ball of radius {float(widest0.rad()):.3g}, already wider than `max_width` = "
+                f"{float(cap0):.3g} ({'given' if width_cap is not None else 'the default, 1e-3 x max(1, |z|)'}): "
+                "the run would stop at once with validation_failed. Pass a larger `max_width` to follow so wide a "
+                "set (its enclosures widen fast and the steps shrink), or give a narrower uncertainty"
+            )
         n = ps.dimension
         current = system
         switches = 0

@@ -73,6 +73,38 @@ def test_float_parameters_and_constants_warn_by_name_above_double():
         ls.integrate(exact_osc, [1, 0], t=1, precision=113)
 
 
+def test_binary_times_warn_in_every_engine_and_the_run_is_for_their_binary_value():
+    body = ls.EulerPoisson(INERTIA)
+    y0 = body.initial_state(omega=OMEGA)
+    calls = {
+        "integrate t list": lambda: ls.integrate(body, y0, t=[0.1, 1], precision=237),
+        "integrate t array": lambda: ls.integrate(body, y0, t=np.array([0.1, 1]), precision=237),
+        "integrate t0": lambda: ls.integrate(body, y0, t=1, t0=0.1, precision=237),
+        "ensemble t": lambda: ls.integrate(body, [y0, y0], t=0.1, precision="quad"),
+        "lie_integrate t": lambda: ls.lie_integrate(body, y0, t=0.1, dps=30),
+        "lie_integrate t0": lambda: ls.lie_integrate(body, y0, t=[1], t0=0.1, dps=30),
+        "lie_series call": lambda: ls.lie_series(body, y0, order=10, dps=30)(0.1),
+        "validated t0": lambda: ls.validated_integrate(body, y0, t=1, t0=0.1, dps=30),
+    }
+    for name, call in calls.items():
+        with pytest.warns(PrecisionWarning, match="`t` carries only 53 bits"):
+            call()
+    with pytest.warns(PrecisionWarning, match="`t` carries only 53 bits"):
+        sol = ls.validated_integrate(body, y0, t=0.1, dps=30)
+    # the enclosure is proven for the double nearest 0.1, not for 1/10: it holds the closed form at the first and
+    # (its balls are far narrower than the 5.5e-18 between the two times) not at the second
+    at = {when: to_fraction(exact.euler_poisson(INERTIA, OMEGA, when, dps=50)[10]) for when in (to_fraction(0.1), "0.1")}
+    mid, rad = ls.validated.midpoints(sol)[-1][10], to_fraction(ls.validated.radii(sol)[-1][10])
+    assert abs(at[to_fraction(0.1)] - mid) <= rad < 1e-28 and abs(at["0.1"] - mid) > 1e-18
+    # exact and short binary times are silent, as are doubles in a double run
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PrecisionWarning)
+        ls.integrate(body, y0, t=["0.1", 0.5, 1], precision=237)
+        ls.lie_integrate(body, y0, t=[0.25, "0.3"], dps=30)
+        ls.validated_integrate(body, y0, t="0.1", dps=30)
+        ls.integrate(body, y0, t=[0.1, 1])
+
+
 @pytest.mark.parametrize("precision, dtype_of", [("quad", lambda: np.dtype(hy.real128)), (160, None)])
 def test_precision_left_out_runs_at_the_precision_of_y0(precision, dtype_of):
     body = ls.EulerPoisson(INERTIA)
@@ -104,8 +136,8 @@ def test_lie_estimates_never_claim_more_digits_than_the_data():
 def test_lie_series_takes_arrays_of_times_and_complex_times():
     body = ls.EulerPoisson(INERTIA)
     series = ls.lie_series(body, body.initial_state(omega=OMEGA), order=60, dps=40)
-    rows = series(np.array([0.1, 0.2]))
-    assert len(rows) == 2 and body_error(rows[1], 0.2) < 1e-30
+    rows = series(np.array([0.125, 0.25]))  # short binary times are exact: no warning
+    assert len(rows) == 2 and body_error(rows[1], 0.25) < 1e-30
     # complex time: Omega(t) = I^-1 M(t), compared with the analytic continuation of the closed form
     tc = 0.2 + 0.1j
     M = series(tc)[9:]
@@ -337,3 +369,32 @@ def test_invariants_of_an_exact_state_are_exact_to_far_beyond_quad():
     with mp.workdps(80):
         assert abs(inv["energy"] - mp.mpf(177) / 200) < 1e-70  # (1 + 2 * 0.01 + 3 * 0.25) / 2
         assert abs(inv["M2"] - mp.mpf(329) / 100) < 1e-70      # 1 + 0.04 + 2.25
+
+
+def test_natural_slips_are_refused_naming_what_to_change():
+    body = ls.EulerPoisson(INERTIA)
+    y0 = body.initial_state(omega=OMEGA)
+    # events: a constant never crosses zero; a time-dependent one is not a function of the state (both engines)
+    for run in (lambda ev: ls.integrate(body, y0, t=1, events=ev), lambda ev: ls.lie_integrate(body, y0, t=1, dps=20,
+                                                                                              events=ev)):
+        with pytest.raises(ValueError, match=r"`events\[0\]` is the constant 1.0+, which never crosses zero"):
+            run([ls.Event(hy.expression(1.0))])
+        with pytest.raises(ValueError, match=r"`events\[1\]` \('half'\) depends on time"):
+            run([ls.Event(hy.make_vars("M2")), ls.Event(hy.time - 0.5, name="half")])
+    # per-member parameters are the entries of I^-1: a zero (infinite moment) or negative one is no body
+    for bad in ([1, 0, "0.3"], [1, -1, "0.3"]):
+        with pytest.raises(ValueError, match=r"`params\[1\]` gives the inverse inertia .* not positive definite"):
+            ls.integrate(body, [y0, y0], t=1, params=[[1, "0.5", "0.3"], bad])
+    full = ls.EulerPoisson([[2, "0.1", 0], ["0.1", 3, 0], [0, 0, 4]])
+    with pytest.raises(ValueError, match=r"`params\[0\]` gives the inverse inertia"):
+        ls.integrate(full, [full.initial_state((1, 0, 0))], t=1, params=[[1, 2, 0, 1, 0, 1]])  # det < 0
+    with pytest.raises(ValueError, match=r"damping must be >= 0"):
+        damped = ls.DampedEulerPoisson(INERTIA, damping="0.1")
+        ls.integrate(damped, [y0], t=1, params=[[1, "0.5", "0.25", -1]])
+    # an uncertainty wider than the enclosures may grow is refused up front, naming max_width
+    with pytest.raises(ValueError, match=r"`y0` has a ball of radius 0.5, already wider than `max_width`"):
+        ls.validated_integrate(body, [(v, "0.5") for v in y0.exact], t=1, dps=20)
+    # a time span beyond any step budget says so with finite numbers, not "inf"
+    sol = ls.integrate(body, y0, t="1e400", precision="quad", max_steps=200)
+    assert sol.status == "step_budget" and "inf" not in sol.message
+    assert "~1e400 time units remain" in sol.message and "shorten the time span" in sol.message

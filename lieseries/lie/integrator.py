@@ -130,7 +130,7 @@ def lie_integrate(
     if atlas:
         from ..atlas import run_atlas
 
-        coarse_bits(as_poisson_system(system), y0, dps_to_bits(dps))
+        coarse_bits(as_poisson_system(system), y0, dps_to_bits(dps), times=[t, t0])
         return run_atlas(lie_integrate, system, y0, t, t0=t0, bits=dps_to_bits(dps + guard), dense=dense,
                          dps=dps, tol=tol, order=order, max_steps=max_steps, max_time=max_time, guard=guard,
                          progress=progress, events=events)
@@ -156,7 +156,7 @@ def lie_integrate(
                 )
     N_auto = default_order(tolm)
     N = N_auto if order is None else check_order(order)
-    bits = coarse_bits(ps, y0, dps_to_bits(dps))
+    bits = coarse_bits(ps, y0, dps_to_bits(dps), times=[t, t0])
 
     prog = ps.program
     start = _time.perf_counter()

@@ -114,8 +114,10 @@ def _local(coefficients):
     return [[make(c._mpf_) for c in ck] for ck in coefficients]
 
 
-def _times(t):
-    """(values, scalar): a real or complex time, or a sequence/array of them, in this thread's context."""
+def _times(t, dps):
+    """(values, scalar): a real or complex time, or a sequence/array of them, in this thread's context (binary
+    times with fewer bits than ``dps`` digits give a PrecisionWarning)."""
+    warn_if_coarse(data_bits(t), dps_to_bits(dps), "t", stacklevel=4)
     if np.ndim(t) > 0 and not isinstance(t, str):
         vals = [_time(v, f"t[{i}]") for i, v in enumerate(np.asarray(t, dtype=object).ravel())]
         return vals, False
@@ -174,7 +176,7 @@ class LieSeries:
             raise ValueError(f"`order` must be at most the series order {self.order}; got {order}")
         prec = dps_to_bits(self.dps)
         with mp.workdps(self.dps + GUARD_DIGITS):
-            ts, scalar = _times(t)
+            ts, scalar = _times(t, self.dps)
             coeffs = _local(self.coefficients)
             rows = [export_mpf(horner(coeffs, tk, order), prec) for tk in ts]
         return rows[0] if scalar else rows
@@ -187,7 +189,7 @@ class LieSeries:
         """Estimated error at ``t``: the truncation error, and never less than the uncertainty the data carry
         (``data_bits``); ``inf`` where the series diverges (|t| >= radius)."""
         with mp.workdps(self.dps + GUARD_DIGITS):
-            ts, scalar = _times(t)
+            ts, scalar = _times(t, self.dps)
             nrm = [mp.make_mpf(v._mpf_) for v in self._norms]
             radius, floor = mp.make_mpf(self._radius._mpf_), mp.make_mpf(self._floor._mpf_)
             es = [max(tail_estimate(nrm, tk, radius), floor) if tk != 0 else floor for tk in ts]
@@ -197,7 +199,7 @@ class LieSeries:
     def converges(self, t):
         """False where |t| is at or beyond the estimated radius of convergence."""
         with mp.workdps(self.dps + GUARD_DIGITS):
-            ts, scalar = _times(t)
+            ts, scalar = _times(t, self.dps)
             out = [abs(tk) < mp.make_mpf(self._radius._mpf_) for tk in ts]
         return out[0] if scalar else out
 
@@ -241,12 +243,14 @@ def lie_series(system, y0, order: int = 20, dps: int = 30) -> LieSeries:
     return LieSeries(coeffs, order, dps, ps.names, data_bits=bits)
 
 
-def coarse_bits(ps, y0, work_bits: int, *, stacklevel: int = 4):
+def coarse_bits(ps, y0, work_bits: int, *, times=(), stacklevel: int = 4):
     """The least precision carried by ``y0`` and the system's data (None when exact), warning once per coarse
-    input when it is below ``work_bits``."""
+    input when it is below ``work_bits``; binary ``times`` (t, t0) below ``work_bits`` are warned about too (the
+    run is exact for their binary values)."""
     found = {"y0": data_bits(y0)}
     found.update(ps.coarse_data())
     bits = [b for b in found.values() if b is not None]
+    found["t"] = data_bits(list(times))
     for name, b in found.items():
         warn_if_coarse(b, work_bits, name, stacklevel=stacklevel)
     return min(bits) if bits else None

@@ -153,6 +153,10 @@ class Model:
         """Names of the state variables, in order."""
         return self.poisson.names
 
+    def check_parameters(self, values, argname: str = "params") -> None:
+        """Refuse runtime parameter values (exact, in the order of ``poisson.parameter_names``) that describe no
+        valid model, naming ``argname`` (subclasses know what their parameters mean)."""
+
     def check_state(self, y, argname: str = "y0") -> list:
         """Validate a state and return it as exact Fractions (subclasses add physical checks)."""
         return state_fractions(y, self.dimension, argname)

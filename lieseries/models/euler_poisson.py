@@ -208,6 +208,23 @@ class EulerPoisson(Model):
         """The inertia tensor as exact Fractions."""
         return [list(r) for r in self._I]
 
+    def check_parameters(self, values, argname: str = "params") -> None:
+        """The parameters are the entries of I^-1 (``poisson.parameter_names``): they must form a positive-definite
+        matrix (a body with positive moments of inertia); checked exactly, by the leading minors."""
+        if self.diagonal:
+            A = [[values[0], 0, 0], [0, values[1], 0], [0, 0, values[2]]]
+        else:
+            a11, a12, a13, a22, a23, a33 = values[:6]
+            A = [[a11, a12, a13], [a12, a22, a23], [a13, a23, a33]]
+        minors = [A[0][0], A[0][0] * A[1][1] - A[0][1] * A[1][0], _det3(A)]
+        if not all(m > 0 for m in minors):
+            raise ValueError(
+                f"`{argname}` gives the inverse inertia I^-1 = {[[float(v) for v in r] for r in A]} (entries in the "
+                f"order {list(self.poisson.parameter_names)[:6 if not self.diagonal else 3]}), which is not "
+                "positive definite: every moment of inertia must be positive and finite (a zero entry of I^-1 is "
+                "an infinite moment); give the entries of I^-1, not of I"
+            )
+
     @property
     def inverse_inertia_exact(self) -> list:
         """I^-1 as exact Fractions."""
@@ -358,6 +375,12 @@ class DampedEulerPoisson(EulerPoisson):
             name=f"damped Euler-Poisson ({self.bracket})",
             input_bits={**self._input_bits, "damping": self._damping_bits},
         )
+
+    def check_parameters(self, values, argname: str = "params") -> None:
+        super().check_parameters(values, argname)
+        if values[-1] < 0:
+            raise ValueError(f"`{argname}`: damping must be >= 0 (a negative value pumps energy in); got "
+                             f"{float(values[-1])}")
 
     def __repr__(self) -> str:
         return super().__repr__().replace("EulerPoisson(", "DampedEulerPoisson(", 1)[:-1] + \
