@@ -2,7 +2,8 @@
 
 Exit status: 0 when every run of the scene succeeded, 1 when a run ended without success (its status is in the
 report and the summary), 2 for bad input (an unknown scene, an invalid scene file, a bad option, a report folder
-holding files lieseries did not write): one line naming the problem, no traceback.
+holding files lieseries did not write): one line naming the problem, no traceback; 130 when interrupted (Ctrl-C).
+Also runs as ``python -m lieseries``.
 
 The report folder is never emptied: lieseries replaces only the files it writes itself (listed in
 ``.lieseries-manifest.json``), and refuses a folder holding other files unless ``--overwrite``.
@@ -77,7 +78,8 @@ def _cmd_run(args, out) -> int:
 
 
 def main(argv=None) -> int:
-    """Entry point; returns the exit status (0 success, 2 user error, 1 unexpected failure)."""
+    """Entry point; returns the exit status (module docstring): 0 every run succeeded, 1 a run ended without
+    success, 2 bad input, 130 interrupted."""
     from .report import FolderError
     from .scenes import SceneError
 

@@ -665,6 +665,13 @@ def write_report(result, out_dir, overwrite: bool = False) -> Path:
             if result.quick else "")
     lines.append(f"Scene `{scene.name}`{mode}. Generated {result.created} in {result.wall_time:.1f} s.")
     lines.append("")
+    if result.quick:
+        from .scenes import quick_changes
+
+        changes = quick_changes(scene)
+        if changes:
+            lines += ["Quick mode ran the scene below with these settings changed (the title and description speak "
+                      "of the full scene):", ""] + [f"- `{c}`" for c in changes] + [""]
     lines += [f"## {SECTION_TITLES['scene']}", ""]
     if scene.source:
         lines += ["```toml", scene.source.strip(), "```", ""]

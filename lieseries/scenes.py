@@ -624,6 +624,10 @@ def scene_reference() -> str:
         f"within 1e-{MAX_MAGNITUDE} .. 1e{MAX_MAGNITUDE} in magnitude. An unknown or invalid field is refused with",
         "its dotted path (`run.methods[1].precision`).",
         "",
+        "`lieseries run SCENE --quick` runs a scaled-down plan for CI (`effective_plan`: shorter times, fewer",
+        "samples and orders, validated runs at most 30 digits); its report lists every setting it changed",
+        "(`run.methods[0].dps: 50 -> 30`), since the scene's title and description speak of the full run.",
+        "",
         "This page is generated from the schema in `lieseries/scenes.py` (`scene_reference()`), and a test checks",
         "that the two agree.",
         "",
@@ -1055,6 +1059,38 @@ def _thin(values, keep=3):
         return values
     idx = sorted({0, len(values) // 2, len(values) - 1}) if keep >= 3 else [0, len(values) - 1]
     return [values[i] for i in idx]
+
+
+def quick_changes(scene: Scene) -> list:
+    """What quick mode changes in ``scene``, one ``"path: before -> after"`` per changed setting (run, studies), so
+    that a quick report says which digits, times and sizes it really used."""
+    run, studies = effective_plan(scene, quick=True)
+    out = []
+
+    def walk(path, a, b):
+        if isinstance(a, dict) and isinstance(b, dict):
+            for k in a:
+                if k in b:
+                    walk(f"{path}.{k}" if path else k, a[k], b[k])
+        elif (isinstance(a, list) and isinstance(b, list) and len(a) == len(b)
+              and any(isinstance(v, dict) for v in a)):
+            for i, (x, y) in enumerate(zip(a, b)):
+                walk(f"{path}[{i}]", x, y)
+        elif a != b:
+            out.append(f"{path}: {_setting(a)} -> {_setting(b)}")
+
+    walk("run", scene.run or {}, run or {})
+    walk("", {"studies": scene.studies}, {"studies": studies})
+    return out
+
+
+def _setting(v) -> str:
+    if isinstance(v, float):
+        return f"{v:g}"
+    if isinstance(v, list):
+        shown = ", ".join(_setting(x) for x in v[:3 if len(v) > 8 else len(v)])
+        return f"[{shown}, ... ({len(v)} values)]" if len(v) > 8 else f"[{shown}]"
+    return str(v)
 
 
 def effective_plan(scene: Scene, quick: bool = False):

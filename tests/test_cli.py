@@ -1,6 +1,8 @@
 """The command line and the progress bar."""
 
 import io
+import subprocess
+import sys
 
 import pytest
 
@@ -16,6 +18,14 @@ def test_scenes_lists_the_builtins(capsys):
     assert lines[0].startswith("default ")
     for name, title in builtin_scenes():
         assert any(line.startswith(name + " ") and title in line for line in lines), name
+
+
+def test_python_dash_m_is_the_command_line():
+    res = subprocess.run([sys.executable, "-m", "lieseries", "scenes"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0 and res.stdout.startswith("default ")
+    res = subprocess.run([sys.executable, "-m", "lieseries", "run", "no-such-scene"], capture_output=True, text=True,
+                         timeout=120)
+    assert res.returncode == 2 and "no-such-scene" in res.stderr and "Traceback" not in res.stderr
 
 
 def scene_file(tmp_path, name="mine", t="1"):
@@ -141,3 +151,12 @@ def test_validation_scripts_run_a_scene_into_a_folder(tmp_path):
     assert out.returncode == 0, out.stdout + out.stderr
     assert (tmp_path / "default" / "report.md").is_file()
     assert str(tmp_path / "default") in out.stdout
+
+
+def test_a_quick_report_says_which_settings_it_changed(tmp_path, capsys):
+    """Quick mode runs the certified-digits scene at 30 digits to t = 2: the report must not let the scene's
+    title (50 digits, T = 10) stand for what was run."""
+    assert main(["run", "certified-digits", "--quick", "--out", str(tmp_path / "q"), "--no-progress"]) == 0
+    text = (tmp_path / "q" / "report.md").read_text()
+    assert "- `run.methods[0].dps: 50 -> 30`" in text and "- `run.t: 10 -> 2`" in text
+    assert "validated (Arb) 30 dps" in text and "validated (Arb) 50 dps" not in text
