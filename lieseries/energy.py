@@ -12,19 +12,18 @@ import math
 import threading
 
 import heyoka as hy
+import numpy as np
 
-__all__ = ["energy_check", "energy_function", "energy_verdict", "clear_energy_cache"]
+__all__ = ["energy_check", "energy_drift", "energy_function", "energy_verdict", "drift_message",
+           "clear_energy_cache"]
 
 _LOCK = threading.Lock()
 
 _ENERGY: dict = {}
 
 
-def energy_function(ps, prec, y0, parameters=None):
-    """(compiled H, the system's parameters in the working format, H(y0), the energy scale of y0) for the energy
-    check of a call. The scale sum_i |dH/dy_i(y0) y_i0| is the size of H's terms at y0 (2|H| for a kinetic
-    energy), so the check is relative to the motion's own energy whatever its units, and does not vanish where H
-    does by cancellation."""
+def _compiled(ps, prec):
+    """(H alone, H and its gradient, number of parameters H reads), compiled once per structure and precision."""
     key = (ps.key, prec.name)
     entry = _ENERGY.get(key)
     if entry is None:
@@ -39,7 +38,15 @@ def energy_function(ps, prec, y0, parameters=None):
         scale_fn = hy.cfunc(grad, ps.variables, compact_mode=compact, **kwargs)
         with _LOCK:
             entry = _ENERGY.setdefault(key, (h_fn, scale_fn, npar))
-    h_fn, scale_fn, npar = entry
+    return entry
+
+
+def energy_function(ps, prec, y0, parameters=None):
+    """(compiled H, the system's parameters in the working format, H(y0), the energy scale of y0) for the energy
+    check of a call. The scale sum_i |dH/dy_i(y0) y_i0| is the size of H's terms at y0 (2|H| for a kinetic
+    energy), so the check is relative to the motion's own energy whatever its units, and does not vanish where H
+    does by cancellation."""
+    h_fn, scale_fn, npar = _compiled(ps, prec)
     if not npar:
         pars = None
     elif parameters is None:
@@ -49,6 +56,47 @@ def energy_function(ps, prec, y0, parameters=None):
     out = scale_fn(y0) if pars is None else scale_fn(y0, pars=pars)
     scale = math.fsum(abs(float(g) * float(v)) for g, v in zip(out[1:], y0))
     return h_fn, pars, float(out[0]), scale
+
+
+def energy_drift(ps, tol, Y0, Y1, parameters=None) -> dict:
+    """The energy check of many double-precision runs at once (an ensemble's batch members): ``{i: (H(Y0[i]),
+    H(Y1[i]))}`` for the rows i whose Hamiltonian changed beyond sqrt(tol) times its scale, as
+    :func:`energy_verdict` decides for one run. ``Y0``, ``Y1``: float64 arrays (k, n); ``parameters``: per-row
+    exact parameter values (k rows), or None for the system's own. One vectorised call of the compiled functions
+    for all rows."""
+    from .precision import resolve_precision
+
+    prec = resolve_precision("double")
+    h_fn, scale_fn, npar = _compiled(ps, prec)
+    k = len(Y0)
+    if k == 0:
+        return {}
+    X0 = np.ascontiguousarray(np.asarray(Y0, dtype=np.float64).T)
+    X1 = np.ascontiguousarray(np.asarray(Y1, dtype=np.float64).T)
+    kw = {}
+    if npar:
+        if parameters is None:
+            base = np.asarray(ps.native_parameters(prec)[:npar], dtype=np.float64)
+            kw["pars"] = np.ascontiguousarray(np.repeat(base[:, None], k, axis=1))
+        else:
+            kw["pars"] = np.ascontiguousarray(np.array([[float(v) for v in row[:npar]] for row in parameters]).T)
+    out0 = scale_fn(X0, **kw)
+    e0, scale = out0[0], np.abs(out0[1:] * X0).sum(axis=0)
+    e1 = h_fn(X1, **kw)[0]
+    with np.errstate(invalid="ignore"):
+        thr = math.sqrt(float(tol)) * np.maximum(np.maximum(np.abs(e0), np.abs(e1)), scale)
+        bad = np.isfinite(e0) & np.isfinite(e1) & (np.abs(e1 - e0) > thr)
+    return {int(i): (float(e0[i]), float(e1[i])) for i in np.flatnonzero(bad)}
+
+
+def drift_message(message, e0, e1, steps) -> str:
+    """The message of a run that reached its final time with H changed from ``e0`` to ``e1``."""
+    return (
+        f"{message[:-1]}, but the result is wrong: the energy H, which the equations conserve, went from "
+        f"{e0:.6g} to {e1:.6g} in {steps} steps. The error control was fooled, usually because the motion is much "
+        "slower (or faster) than the time span, so that the Taylor coefficients underflow: rescale time so that "
+        "the motion is of order one per unit time."
+    )
 
 
 def energy_check(ps, prec, tol, y0, y_end, steps, status, message, parameters=None):
@@ -71,12 +119,7 @@ def energy_verdict(energy, sqrt_tol, y_end, steps, status, message):
         return status, message
     if abs(e1 - e0) <= sqrt_tol * max(abs(e0), abs(e1), scale):
         return status, message
-    return "invariant_drift", (
-        f"{message[:-1]}, but the result is wrong: the energy H, which the equations conserve, went from "
-        f"{e0:.6g} to {e1:.6g} in {steps} steps. The error control was fooled, usually because the motion is much "
-        "slower (or faster) than the time span, so that the Taylor coefficients underflow: rescale time so that "
-        "the motion is of order one per unit time."
-    )
+    return "invariant_drift", drift_message(message, e0, e1, steps)
 
 
 def clear_energy_cache() -> None:

@@ -60,7 +60,7 @@ from concurrent.futures import ThreadPoolExecutor
 import heyoka as hy
 import numpy as np
 
-from .energy import energy_check
+from .energy import drift_message, energy_check, energy_drift
 from .events import resolve_events
 from .models.base import Model, state_fractions
 from .poisson import PoissonSystem, as_poisson_system
@@ -533,9 +533,17 @@ def integrate_ensemble(
             build += float(sol.stats.build_time)
     if path in ("batch", "threads") and ps.is_hamiltonian:
         # the single run's energy check, for the members the batch or the scalar threads finished
-        done_here = set(range(k)) - set(handed)
-        for i in sorted(done_here):
-            if res.status[i] == "success":
+        handed_set = set(handed)
+        done_here = [i for i in range(k) if i not in handed_set and res.status[i] == "success"]
+        if path == "batch":  # double: all members in one vectorised call
+            drifted = energy_drift(ps, tolf, Ynat[done_here], res.y_reached[done_here],
+                                   None if pars is None else [pars[i] for i in done_here])
+            for j, (e0, e1) in drifted.items():
+                i = done_here[j]
+                res.status[i] = "invariant_drift"
+                res.message[i] = drift_message(res.message[i], e0, e1, res.steps[i])
+        else:
+            for i in done_here:
                 res.status[i], res.message[i] = energy_check(ps, prec, tolf, Ynat[i], res.y_reached[i], res.steps[i],
                                                              "success", res.message[i],
                                                              None if pars is None else pars[i])
