@@ -425,7 +425,7 @@ def _do_run(scene, runp, built, bar, notes):
                 with mp.workdps(ref.dps):
                     err = float(max(abs(a - b) for a, b in zip(obs, ref.values)))
                     scaled = scaled_error(model, obs, ref.values)
-                digits = int(spec.get("dps", 16)) if run.method in ("lie", "mpmath") else 40
+                digits = int(spec.get("dps", 16)) if run.method in ("lie", "mpmath", "validated") else 40
                 inv = _invariants_of(measured, run.states, digits)
                 if inv is not None:
                     with mp.workdps(max(dps, digits) + 10):

@@ -174,3 +174,20 @@ def test_validated_is_a_method_of_the_registry():
     assert digits > 15
     # the midpoint is within the certified radius (relative to max(1, |z|) <= 2) of the closed form
     assert rigid_error(run.y_final, 1, dps=50) <= 2 * 10.0 ** -digits
+
+
+def test_a_scene_reports_the_invariant_drift_of_a_validated_run_at_its_own_digits(tmp_path):
+    """The drift of a 60-digit validated run is measured on its states at 60 digits, not on states rounded to 40
+    (which reported the rounding, 1e-51, for a run whose error against the closed form is 1e-70)."""
+    from lieseries.run import run_scene
+    from lieseries.scenes import load_scene
+
+    path = tmp_path / "v60.toml"
+    path.write_text('name = "v60"\ntitle = "validated at 60 digits"\n[model]\nkind = "euler_poisson"\n'
+                    'inertia = [1, 2, 3]\n[initial]\nomega = [1, "0.1", "0.5"]\n[run]\nt = 1\nsamples = 3\n'
+                    'methods = [{ method = "validated", dps = 60 }]\n')
+    result = run_scene(load_scene(str(path)), progress=False)
+    row = result.run["rows"][0]
+    assert row.status == "success" and row.error < 1e-55  # against the closed form
+    drifts = [d for d in row.drift.values() if d is not None]
+    assert drifts and max(drifts) < 1e-55
