@@ -10,9 +10,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import ensemble_throughput  # noqa: E402
 import lie_vs_odefun  # noqa: E402
 import overhead  # noqa: E402
 import taylor_vs_scipy  # noqa: E402
+import validated_vs_lie  # noqa: E402
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -24,3 +26,7 @@ if __name__ == "__main__":
     overhead.main()
     print("\n== lie_integrate vs mpmath.odefun vs heyoka, arbitrary precision ==")
     lie_vs_odefun.main(T=2 if args.quick else 10)
+    print("\n== certified digits: validated_integrate (Arb balls) vs lie_integrate ==")
+    validated_vs_lie.main(["--T", "2"] if args.quick else [])
+    print("\n== ensembles: heyoka batch mode vs a loop of single runs ==")
+    ensemble_throughput.main(["--repeat", "2"] if args.quick else [])

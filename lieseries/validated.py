@@ -3,19 +3,21 @@
 ``validated_integrate(system, y0, t, dps=...)`` returns a :class:`~lieseries.solution.Solution` whose rows are
 enclosures: every component at every output time is an Arb ball (``flint.arb``: midpoint and radius) that provably
 contains the exact solution of the exact problem (initial data and parameters taken exactly, or as balls when the
-user gives uncertainties). The argument is in ``docs/theory.md`` ("Certified enclosures"); in short, each step
+user gives uncertainties). The argument is in ``docs/theory.md`` ("Certified enclosures"); in short, the set of
+states is carried in Lohner's form m + A r (a centre point, an orthogonal matrix, a box around 0), and each step
 
-The set of states is carried in Lohner's form m + A r (a centre point, an orthogonal matrix, a box around 0), and
-each step
-
-1. computes the Taylor coefficients c_0..c_N of the flow from m as balls, by Picard iteration on Arb power series
-   (``arb_series``), and those up to order 12 from the whole box Z = m + A r;
+1. computes the Taylor polynomial p of order N of the flow from m (the mpmath jets, as exact binary numbers:
+   nothing about them needs proving), and the coefficients up to order 12 from the whole box Z = m + A r as balls,
+   by Picard iteration on Arb power series (``arb_series``);
 2. finds an a priori enclosure by the high-order enclosure theorem: a box B around the polynomials from Z over
    [0, h] such that sum_{j<=12} c_j(Z) [0, h]^j + c_13(B) [0, h]^13 lies inside B -- then every solution from Z
    exists on [0, h] and stays in B;
-3. encloses the centre's solution by Taylor's theorem with the Lagrange remainder: sum_{j<=N} c_j h^j +
-   c_{N+1}(B) h^(N+1), c_{N+1}(B) enclosing the (N+1)-th coefficient from any point of B;
-4. encloses the Jacobian of the flow over the step (the variational equation over eight pieces of the step,
+3. encloses the centre's solution x as p plus a bound of x - p, which solves e' = g + A(s) e with the defect
+   g = f(p) - p' and A(s) in Df(R), R the box around B and p's range: |x(tau) - p(tau)| <= exp(|tau| L)
+   int_0^tau |g| (L = |Df(R)| entrywise), the defect bounded from its Taylor coefficients at the step's start and
+   a Lagrange term over the whole step -- a few times the true truncation error, so the steps are about as long
+   as lie_integrate's;
+4. encloses the Jacobian of the flow over the step (the variational equation over 8 or 16 pieces of the step,
    each in its own narrower box) and moves the set by the mean-value theorem and a QR step.
 
 Nothing else is assumed: when no step down to the smallest is proved, or the widths grow beyond ``max_width``,
@@ -28,6 +30,7 @@ duration and restores the precision afterwards, so runs from several threads are
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 import time as _time
@@ -198,52 +201,79 @@ def _taylor(prog, z0, pars, consts, order, flint, *, bits=None):
     return coeffs
 
 
-#: Rounds of widening in :func:`_verified_taylor` before it falls back to Picard iteration.
-VERIFY_ROUNDS = 4
+def _centre_polynomial(prog, m, pars, pars_exact, consts, order, flint):
+    """The Taylor polynomial of order ``order`` of the flow from the point m, as exact binary balls (radius 0).
 
-
-def _verified_taylor(prog, m, pars, pars_exact, consts, order, flint):
-    """Ball Taylor coefficients c_0..c_order of the flow from the point m (balls of radius 0), computed fast and
-    then proved; Picard iteration (:func:`_taylor`) when the proof does not come.
-
-    The mpmath jets (:mod:`lieseries.lie.jets`, the Lie engine's Taylor-mode recurrence, several times faster than
-    Picard iteration on Arb series) give approximate coefficients; they are widened into balls X (X_0 = m) and
-    the Picard map P(X) = m + int f(X), truncated at ``order``, is evaluated in ball arithmetic. P is triangular
-    (coefficient k of P(X) depends on those below k only), so the exact coefficients c* are its unique fixed point
-    and are reached from any point of X by ``order`` + 1 applications of P. When P(X) lies inside X those
-    iterates never leave X, so c* lies in X, and c* = P(c*) lies in P(X): the balls returned. The widening of
-    coefficient k grows like 4^k, because errors in the coefficients below k feed coefficient k."""
+    Nothing about these coefficients needs proving: the remainder bound (:func:`_defect`) holds for any
+    polynomial p with p(0) = m, and only its size depends on p being close to the flow. They come from the mpmath
+    jets (:mod:`lieseries.lie.jets`, the Lie engine's Taylor-mode recurrence, several times faster than Picard
+    iteration on Arb series), or from that Picard iteration when the jets fail."""
     from mpmath.libmp import from_man_exp, from_rational, round_nearest
 
     from .lie.jets import taylor_coefficients_raw
 
-    arb, arb_series = flint.arb, flint.arb_series
-    if any(not v.rad().is_zero() for v in m):
-        return _taylor(prog, m, pars, consts, order, flint)
-    bits = flint.ctx.prec
-    wp = bits + 10
+    arb = flint.arb
+    wp = flint.ctx.prec + 10
     try:
         jets = taylor_coefficients_raw(prog, [from_man_exp(*(int(q) for q in v.mid().man_exp())) for v in m],
                                        [from_rational(q.numerator, q.denominator, wp, round_nearest)
                                         for q in pars_exact], order, wp)
+        rows = [[arb(mpmath.make_mpf(c)) for c in row] for row in jets]
     except (ZeroDivisionError, ValueError, ArithmeticError):
-        return _taylor(prog, m, pars, consts, order, flint)
-    approx = [[arb(mpmath.make_mpf(c)) for c in row] for row in jets]
-    size = [max(float(abs(row[k].mid())) for row in approx) for k in range(order + 1)]
-    room = [2.0 ** (20 - bits) * (size[k] + 2.0 ** -1000) * 4.0 ** k for k in range(order + 1)]
-    X = [[mi] + [arb(c.mid(), room[k]) for k, c in enumerate(row) if k] for mi, row in zip(m, approx)]
-    one = arb_series([arb(1)], prec=order + 1)
-    for _ in range(VERIFY_ROUNDS):
-        f = _evaluate(prog, [arb_series(cs, prec=order + 1) for cs in X], pars, consts, one)
-        Y = []
-        for mi, fi in zip(m, f):
-            got = list(fi.coeffs()) if isinstance(fi, arb_series) else [fi]
-            got += [arb(0)] * (order - len(got))
-            Y.append([mi] + [got[k] / (k + 1) for k in range(order)])
-        if all(x.contains(y) for xs, ys in zip(X, Y) for x, y in zip(xs, ys)):
-            return Y
-        X = [[ys[0]] + [arb(y.mid(), 2 * y.rad() + room[k]) for k, y in enumerate(ys) if k] for ys in Y]
-    return _taylor(prog, m, pars, consts, order, flint)
+        rows = [[arb(c.mid()) for c in row] for row in _taylor(prog, m, pars, consts, order, flint)]
+    if not all(c.is_finite() for row in rows for c in row):
+        rows = [[arb(c.mid()) for c in row] for row in _taylor(prog, m, pars, consts, order, flint)]
+    return [[mi] + row[1:] for mi, row in zip(m, rows)]
+
+
+def _field_series(prog, polys, pars, consts, length, flint, base=None):
+    """Coefficients 0..length-1 of f(p(base + tau)) in tau, for the polynomials p = ``polys`` (base: a ball,
+    default 0): ``out[i][k]``."""
+    arb, arb_series = flint.arb, flint.arb_series
+    if base is None:
+        series = [arb_series(row, prec=length) for row in polys]
+    else:
+        x = arb_series([base, arb(1)], prec=length)
+        series = []
+        for row in polys:
+            acc = arb_series([row[-1]], prec=length)
+            for c in reversed(row[:-1]):
+                acc = acc * x + c
+            series.append(acc)
+    f = _evaluate(prog, series, pars, consts, arb_series([arb(1)], prec=length))
+    out = []
+    for fi in f:
+        got = list(fi.coeffs()) if isinstance(fi, arb_series) else [fi if isinstance(fi, arb) else arb(fi)]
+        out.append(got[:length] + [arb(0)] * (length - len(got)))
+    return out
+
+
+#: Orders beyond N at which the defect's Taylor coefficients are computed at the step's start; the Lagrange term
+#: over the whole step comes after them (so its overestimate is damped by (h / radius of convergence)^EXTRA).
+DEFECT_EXTRA = 8
+
+
+def _defect_coefficients(prog, P, pars, consts, flint):
+    """Coefficients g_0..g_{N+EXTRA-1} at the step's start of the defect g = f(p) - p' of the centre polynomial
+    p = ``P`` (order N): balls around ~0 below N (rounding of the jets), the field's own terms from N on."""
+    N = len(P[0]) - 1
+    F = _field_series(prog, P, pars, consts, N + DEFECT_EXTRA, flint)
+    return [[F[i][k] - (k + 1) * P[i][k + 1] if k < N else F[i][k] for k in range(N + DEFECT_EXTRA)]
+            for i in range(len(P))]
+
+
+def _defect(g, top, tau):
+    """Per component, an upper bound of int_0^|tau| |g_i(s)| ds: sum_k |g_k| tau^(k+1) / (k+1) over the
+    coefficients ``g`` at the step's start, plus the Lagrange term |top_i| tau^(L+1) / (L+1) with ``top`` the
+    L-th coefficient of g over the whole step (L = len(g[i]))."""
+    ta = abs(tau)
+    out = []
+    for gi, ti in zip(g, top):
+        acc = abs(ti) / (len(gi) + 1)
+        for k in range(len(gi) - 1, -1, -1):  # Horner in tau
+            acc = acc * ta + abs(gi[k]) / (k + 1)
+        out.append((acc * ta).upper())
+    return out
 
 
 def _horner(C, tau):
@@ -263,35 +293,65 @@ def _enclosure_box(P, flint):
     return [arb(p.mid(), p.rad() * 1.25 + (abs(p.mid()) + p.rad() + 1) * arb(2) ** -30) for p in P]
 
 
-def _prove_step(prog, CZ, pars, consts, span, N, flint):
-    """(the remainder balls c_{N+1}(B) of a step over ``span`` (the ball [0, h]), the largest remainder bound
-    |c_{N+1}(B)| h^(N+1), (the box B that holds every solution over the step, the coefficients from B through
-    c_{N+1})), or (None, inf, None) when the step is not proved.
+def _prove_step(prog, jprog, CZ, P, g, pars, consts, jconsts, span, flint):
+    """(``tail``, the box B that holds every solution over the step, the coefficients from B through c_{K+1}) for
+    a step over ``span`` (the ball [0, h]), or None when the step is not proved. ``tail(tau)``: per component, an
+    upper bound of |phi_tau(m) - p(tau)| for the centre's solution, |tau| <= h.
 
     ``CZ``: the Taylor coefficients c_0..c_K from the whole enclosure Z of the state (K = BOX_ORDER). B is a box
-    around their polynomials' range over the step. By the high-order enclosure theorem (docs/theory.md),
+    around their polynomials' range over the step; by the high-order enclosure theorem (docs/theory.md),
     sum_{j<=K} c_j(Z) [0, h]^j + c_{K+1}(B) [0, h]^(K+1) inside B proves that every solution from Z exists over
-    the step and stays in B; c_{N+1}(B) then bounds the Lagrange remainder of the order-N polynomial. B is wide,
-    so its coefficients are computed at 64 bits (outward rounding keeps them rigorous)."""
+    the step and stays in B. B is wide, so its coefficients are computed at 64 bits (outward rounding keeps them
+    rigorous).
+
+    The centre's solution x from m = p(0) and the centre polynomial p = ``P`` differ by e = x - p with
+    e' = g + A(s) e, g = f(p) - p' the defect (coefficients ``g`` at the step's start) and A(s) a mean of Df
+    over the segment from p(s) to x(s), inside the box R = B united with the range of p over the step. So
+    |e(tau)| <= exp(|tau| L) G(tau) componentwise, L = |Df(R)| entrywise and G the integral of |g| over the step
+    bounded by :func:`_defect` with the Lagrange term taken over the whole step."""
+    arb, arb_mat = flint.arb, flint.arb_mat
     K = len(CZ[0]) - 1
-    P = _horner(CZ, span)
-    B = _enclosure_box(P, flint)
+    n = len(P)
+    Pz = _horner(CZ, span)
+    B = _enclosure_box(Pz, flint)
+    saved = flint.ctx.prec
+    flint.ctx.prec = 64
     try:
-        D = _taylor(prog, B, pars, consts, N + 1, flint, bits=64)
+        D = _taylor(prog, B, pars, consts, K + 1, flint)
+        if not all(d[K + 1].is_finite() for d in D):
+            return None
+        if not all(b.contains(p + d[K + 1] * span ** (K + 1)) for b, p, d in zip(B, Pz, D)):
+            return None
+        top = [row[-1] for row in _field_series(prog, P, pars, consts, len(g[0]) + 1, flint, base=span)]
+        R = [b.union(p) for b, p in zip(B, _horner(P, span))]
+        vals = _evaluate(jprog, R, pars, jconsts, arb(1))
+        L = arb_mat([[abs(v if isinstance(v, arb) else arb(v)).upper() for v in vals[i * n:(i + 1) * n]]
+                     for i in range(n)])
     except (ZeroDivisionError, ValueError):
-        return None, math.inf, None
-    rem = [d[N + 1] for d in D]
-    if not all(r.is_finite() and d[K + 1].is_finite() for r, d in zip(rem, D)):
-        return None, math.inf, None
-    if not all(b.contains(p + d[K + 1] * span ** (K + 1)) for b, p, d in zip(B, P, D)):
-        return None, math.inf, None
-    hN = span ** (N + 1)
-    return rem, max(float((r * hN).abs_upper()) for r in rem), (B, D)
+        return None
+    finally:
+        flint.ctx.prec = saved
+    if not all(t.is_finite() for t in top) or not all(L[i, j].is_finite() for i in range(n) for j in range(n)):
+        return None
+
+    def tail(tau):
+        G = _defect(g, top, tau)
+        saved = flint.ctx.prec
+        flint.ctx.prec = 64
+        try:
+            E = (L * abs(tau)).exp() * arb_mat([[x] for x in G])
+            return [E[i, 0].upper() for i in range(n)]
+        finally:
+            flint.ctx.prec = saved
+
+    return tail, B, D
 
 
 _JACOBIANS: dict = {}
 #: Terms of the interval-matrix exponential that encloses the flow's Jacobian over one piece of a step, and the
-#: number of pieces a step is cut into for it.
+#: number of pieces a step is cut into for it (twice as many when the set is wider than 10^-dps, as from uncertain
+#: data, where the Jacobian's own width multiplies the set's spread: measured on the rigid body from data known to
+#: a double's width, the final ball narrows from 1.2e-14 to 9.4e-15 for 17% more time).
 JACOBIAN_TERMS = 10
 JACOBIAN_PIECES = 8
 #: Order of the Taylor polynomials from the whole enclosure that the a priori box is built around.
@@ -313,12 +373,12 @@ def _jacobian_program(ps):
     return prog
 
 
-def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint):
+def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECES):
     """An enclosure of every Jacobian d phi_tau(y) / dy of the flow over time ``tau`` (an exact ball) for all
     starting points y in the enclosure Z, or None when the bound below does not apply.
 
     ``CZ``: Taylor coefficients c_0..c_K from Z, ``D``: those from the a priori box B (through c_{K+1}). The step is
-    cut into JACOBIAN_PIECES pieces; over piece i every solution lies in B_i = sum_j c_j(Z) T_i^j +
+    cut into ``pieces`` pieces; over piece i every solution lies in B_i = sum_j c_j(Z) T_i^j +
     c_{K+1}(B) T_i^(K+1) (T_i the piece's time interval; Taylor's theorem), much narrower than B.
     d phi / dy solves V' = Df(z(t)) V, so over piece i it is multiplied by a matrix of the Peano-Baker series
     sum_j (dt Df(B_i))^j / j!, truncated after JACOBIAN_TERMS terms with the tail bounded entrywise by
@@ -335,8 +395,8 @@ def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint):
     flint.ctx.prec = 64
     try:
         J = eye
-        dt = tau / JACOBIAN_PIECES
-        for piece in range(JACOBIAN_PIECES):
+        dt = tau / pieces
+        for piece in range(pieces):
             lo, hi = dt * piece, dt * (piece + 1)
             seg = (lo + hi) / 2 + arb(0, abs(hi - lo) / 2)
             Bi = [_horner([cz], seg)[0] + d[K + 1] * seg ** (K + 1) for cz, d in zip(CZ, D)]
@@ -424,6 +484,34 @@ def _event_in(events, B, pars, consts, one):
         if not (v > 0 or v < 0):
             return status, message
     return None
+
+
+def _root(x, k: int) -> float:
+    """x^(1/k) as a float, for a positive ball x of any size (a float of x itself may underflow)."""
+    return float((x.log() / k).exp().mid())
+
+
+def _step_estimate(g, N, tol, flint) -> float:
+    """The step at which the defect's terms from order N on, sum_k |g_k| h^(k+1) / (k+1) (what the remainder
+    bound comes to for a step well inside the radius of convergence), reach ~tol: a first guess from g_N, refined
+    once. The attempt that follows proves or shortens it; this choice affects efficiency, never rigour."""
+    arb = flint.arb
+    saved = flint.ctx.prec
+    flint.ctx.prec = 64
+    try:
+        hi = [[arb(abs(x).mid()) for x in gi[N:]] for gi in g]
+        gN = max((row[0] for row in hi), key=float)
+        if gN.is_zero():
+            return math.inf
+        h = arb(_root(tol * (N + 1) / gN, N + 1))
+
+        def estimate(h):
+            return max((sum((x * h ** (N + k + 1) / (N + k + 1) for k, x in enumerate(row)), arb(0)) for row in hi),
+                       key=float)
+
+        return 0.97 * float(h.mid()) * _root(tol / estimate(h), N + 1)
+    finally:
+        flint.ctx.prec = saved
 
 
 # -- the driver ------------------------------------------------------------------------------------------------------
@@ -538,7 +626,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     for name, b in list(ps.coarse_data().items()) + [("t", data_bits([t, t0]))]:
         warn_if_coarse(b, dps_to_bits(dps), name)
     start = _time.perf_counter()
-    with _working_precision(bits, cap=N + 4) as flint:
+    with _working_precision(bits, cap=N + DEFECT_EXTRA + 4) as flint:
         arb = flint.arb
         z = _initial_balls(system, y0, ps.dimension, flint)
         width_cap = None if max_width is None else arb(flint.fmpq(*to_fraction(max_width, "max_width").as_integer_ratio()))
@@ -572,13 +660,11 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
             rows_t.append(t0f)
             rows_c.append(getattr(current, "chart", None))
             rows_y.append(list(z))
-            widths.append(max(float(zi.rad()) for zi in z))
+            widths.append(max(_float_up(zi.rad()) for zi in z))
             pending.pop(0)
-        h_prev, grow = 1.0, 1.0
         # per-step remainder bound, relative: far below 10^-dps, because every step's remainder is then carried
-        # (and widened by the wrapping effect) to the end of the run
-        rem_tol = REMAINDER_FACTOR * 10.0 ** -dps
-        tol_f = 10.0 ** -dps
+        # (and widened by the wrapping effect) to the end of the run (a ball: 10^-dps underflows a float)
+        rem_tol = arb(REMAINDER_FACTOR) * arb(10) ** -dps
         t_end = grid[-1]
         while direction and (t_end - tcur) * direction > 0:
             if steps >= max_steps:
@@ -588,15 +674,16 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 status, message = "time_budget", f"The wall-time budget ran out at t = {float(tcur):.17g}."
                 break
             scale = max([1.0] + [abs(float(zi.mid())) for zi in z])
-            C = _verified_taylor(prog, m, pars, ps.parameter_values, consts, N, flint)  # from the centre
+            tol = rem_tol * scale
+            wide = any(zi.rad() > tol * 10**4 for zi in z)
+            pieces = 2 * JACOBIAN_PIECES if wide else JACOBIAN_PIECES
+            C = _centre_polynomial(prog, m, pars, ps.parameter_values, consts, N, flint)  # from the centre
+            g = _defect_coefficients(prog, C, pars, consts, flint)
             CZ = _taylor(prog, z, pars, consts, BOX_ORDER, flint, bits=64)  # from the whole enclosure
-            # the step from the coefficients (as lie_integrate chooses it); then proved or shortened
-            big = max(float(max(abs(C[i][k].mid()) for i in range(n))) for k in (N - 1, N))
-            h_f = min(h_prev * (grow if steps else 4), (tol_f * scale / big) ** (1.0 / N) if big > 0 else 1.0,
-                      float(abs(t_end - tcur)))
+            left = abs(t_end - tcur)
+            h_f = min(_step_estimate(g, N, tol, flint), float(left))
             proved = None
             event_hit = None
-            left = abs(t_end - tcur)
             h_event_start = h_f
             for _attempt in range(60):
                 if not (h_f > scale * 2.0**-40 or h_f >= float(left)):
@@ -607,9 +694,9 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 hs = h * direction
                 hb = arb(flint.fmpq(hs.numerator, hs.denominator))
                 span = hb / 2 + arb(0, abs(hb) / 2)  # the ball [0, h] (or [h, 0])
-                rem, worst, BD = _prove_step(prog, CZ, pars, consts, span, N, flint)
-                B, D = BD if BD is not None else (None, None)
-                hit = _event_in(events, B, ev_pars, ev_consts, arb(1)) if events and rem is not None else None
+                got = _prove_step(prog, jprog, CZ, C, g, pars, consts, jconsts, span, flint)
+                tail, B, D = got if got is not None else (None, None, None)
+                hit = _event_in(events, B, ev_pars, ev_consts, arb(1)) if events and got is not None else None
                 if hit is not None:
                     # the step's box may reach the event: shorten the step towards it, and stop when that no
                     # longer helps (the event is closer than 1/1000 of the step)
@@ -618,14 +705,13 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                         break
                     h_f = float(h) / 2
                     continue
-                J = _flow_jacobian(jprog, CZ, D, pars, jconsts, hb, flint) if rem is not None else None
-                if J is not None and worst <= rem_tol * scale:
-                    proved = (h, hs, rem, D, J)
-                    # the next step: as large as this remainder's margin allows (it scales like h^(N+1))
-                    grow = min(0.95 * (rem_tol * scale / max(worst, 1e-300)) ** (1.0 / (N + 1)), 1.25)
+                J = _flow_jacobian(jprog, CZ, D, pars, jconsts, hb, flint, pieces) if got is not None else None
+                worst = max(tail(hb), key=float) if J is not None else None
+                if J is not None and worst <= tol:
+                    proved = (h, hs, tail, D, J)
                     break
                 # the remainder scales like h^(N+1): aim just below the tolerance (halve when unproved)
-                shrink = 0.5 if J is None else min(0.9 * (rem_tol * scale / worst) ** (1.0 / (N + 1)), 0.9)
+                shrink = 0.5 if worst is None or not worst.is_finite() else min(0.9 * _root(tol / worst, N + 1), 0.9)
                 h_f = float(h) * shrink
             if proved is None and event_hit is not None and atlas and switches < MAX_SWITCHES:
                 # the chart is ending: rewrite the enclosure in the chart of the largest coordinate (in ball
@@ -651,22 +737,16 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                            f"the enclosure, or the enclosure is too wide: widest ball "
                            f"{max(float(zi.rad()) for zi in z):.3g}).")
                 break
-            h, hs, rem, D, J = proved
-            h_prev = float(h)
+            h, hs, tail, D, J = proved
             tnew = tcur + hs
 
             def point(tau: Fraction):
-                """Enclosure at tcur + tau of the solution from the centre m: Taylor polynomial plus remainder."""
+                """Enclosure at tcur + tau of the solution from the centre m: its polynomial plus the bound of
+                their difference."""
                 ta = arb(flint.fmpq(tau.numerator, tau.denominator))
-                out, tl = [], []
-                for i in range(n):
-                    acc = C[i][N]
-                    for j in range(N - 1, -1, -1):
-                        acc = acc * ta + C[i][j]
-                    tail = rem[i] * ta ** (N + 1)
-                    tl.append(float(tail.abs_upper()))
-                    out.append(acc + tail)
-                return out, max(tl), ta
+                bounds = tail(ta)
+                out = [p + arb(0, e) for p, e in zip(_horner(C, ta), bounds)]
+                return out, max(float(e) for e in bounds), ta
 
             def whole(phi, JA):
                 """The box of phi + JA r: every solution from the set m + A r (mean-value theorem)."""
@@ -676,13 +756,13 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
             while pending and (pending[0] - tnew) * direction <= 0:
                 tk = pending.pop(0)
                 phi_k, _, ta = point(tk - tcur)
-                Jk = _flow_jacobian(jprog, CZ, D, pars, jconsts, ta, flint)
+                Jk = _flow_jacobian(jprog, CZ, D, pars, jconsts, ta, flint, pieces)
                 yk = whole(phi_k, Jk * A)
                 rows_t.append(tk)
                 rows_c.append(getattr(current, "chart", None))
                 rows_y.append(yk)
-                widths.append(max(float(v.rad()) for v in yk))
-            phi, tail, _ = point(hs)
+                widths.append(max(_float_up(v.rad()) for v in yk))
+            phi, tail_h, _ = point(hs)
             JA = J * A
             z = whole(phi, JA)
             # Lohner's QR step: the new set is m' + A' r' with m' the centre of phi, A' the orthogonal factor of
@@ -692,7 +772,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
             A = flint.arb_mat([[float(Q[i, j]) for j in range(n)] for i in range(n)])
             Ainv = A.inv()
             r = (Ainv * JA) * r + Ainv * flint.arb_mat([[phi[i] - m[i]] for i in range(n)])
-            tails.append(tail)
+            tails.append(tail_h)
             tcur = tnew
             steps += 1
             cap = width_cap if width_cap is not None else arb(scale) / 1000
@@ -744,14 +824,29 @@ def _exact_mid(ball) -> Fraction:
     return Fraction(man << exp) if exp >= 0 else Fraction(man, 1 << -exp)
 
 
+def _float_up(x) -> float:
+    """An upper bound of the nonnegative ball ``x`` as a float (the smallest positive float for a radius too small
+    for a float, never 0 for a nonzero ball)."""
+    if x.is_zero():
+        return 0.0
+    return math.nextafter(float(x.upper()), math.inf)
+
+
 def radii(sol) -> np.ndarray:
     """The radii of a validated solution's balls (float64 upper bounds, shaped like ``sol.y``)."""
-    return np.vectorize(lambda v: float(v.rad()), otypes=[float])(sol.y)
+    return np.vectorize(lambda v: _float_up(v.rad()), otypes=[float])(sol.y)
 
 
 def certified_digits(sol) -> np.ndarray:
     """Per output time: -log10 of the widest ball's radius relative to max(1, |z|): the digits every component is
-    certified to."""
-    r = radii(sol)
-    scale = np.maximum(1.0, np.max(np.abs(np.vectorize(lambda v: float(v.mid()), otypes=[float])(sol.y)), axis=1))
-    return -np.log10(np.maximum(np.max(r, axis=1) / scale, 1e-300))
+    certified to (computed from the balls, so beyond a float's range too; inf for a row of exact values)."""
+    flint = _flint()
+    out = []
+    for row in np.atleast_2d(sol.y):
+        widest = functools.reduce(lambda a, b: b if b > a else a, [v.rad() for v in row])  # exact values
+        if widest.is_zero():
+            out.append(math.inf)
+            continue
+        scale = functools.reduce(lambda a, b: b if b > a else a, [abs(v.mid()) for v in row], flint.arb(1))
+        out.append(float((-(flint.arb(widest) / scale).log() / flint.arb(10).log()).mid()))
+    return np.array(out, dtype=float)

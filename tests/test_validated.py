@@ -191,3 +191,39 @@ def test_a_scene_reports_the_invariant_drift_of_a_validated_run_at_its_own_digit
     assert row.status == "success" and row.error < 1e-55  # against the closed form
     drifts = [d for d in row.drift.values() if d is not None]
     assert drifts and max(drifts) < 1e-55
+
+
+@pytest.mark.parametrize("h", ["9/20", "1/2"])
+def test_a_step_remainder_bound_is_close_to_the_true_truncation_error(h):
+    """One step of order 59 (t below the step the run would choose, so the run takes exactly one step): the bound
+    on the centre's solution minus its Taylor polynomial is at least the true difference (closed form minus the
+    order-59 polynomial, both at 90 digits) and at most 10 times it -- a looser bound would shorten every step."""
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    y0 = body.initial_state(omega=RIGID_OMEGA)
+    sol = validated_integrate(body, y0, t=h, dps=40, order=59)
+    assert sol.status == "success" and sol.stats.steps == 1
+    bound = sol.stats.extra["tail_bounds"][0]
+    ctx = mp.MPContext()
+    ctx.dps = 90
+    coeffs = ls.lie.taylor_coefficients(body.poisson.program, list(y0.exact), list(body.poisson.parameter_values),
+                                        59, 90, ctx=ctx)
+    hq = ctx.mpf(Fraction(h).numerator) / Fraction(h).denominator
+    ref = exact.euler_poisson(RIGID_INERTIA, RIGID_OMEGA, h, dps=90)
+    true = max(abs(ctx.mpf(r) - sum(c[i] * hq**k for k, c in enumerate(coeffs))) for i, r in enumerate(ref))
+    assert true <= bound <= 10 * true
+
+
+def test_more_digits_than_a_float_can_hold_are_certified_and_counted():
+    """At 330 digits the step tolerance, the radii and the certified digits lie below a float's range (1e-308):
+    the oscillator's balls contain (cos t, -sin t) at 400 digits, their float radii stay upper bounds (not 0), and
+    the digits are counted from the balls (not capped at 300)."""
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], (p * p + q * q) / 2, name="oscillator")
+    sol = validated_integrate(osc, [1, 0], t="1/2", dps=330)
+    assert sol.status == "success", sol.message
+    ctx = mp.MPContext()
+    ctx.dps = 400
+    half = ctx.mpf(1) / 2
+    assert inside(sol.y[-1][0], ctx.cos(half)) and inside(sol.y[-1][1], -ctx.sin(half))
+    assert 320 < certified_digits(sol)[-1] < 345
+    assert all(r > 0 for r in radii(sol)[-1])
