@@ -32,11 +32,13 @@ import time as _time
 from dataclasses import dataclass, field
 from fractions import Fraction
 
-import mpmath as mp
 import numpy as np
 
 from .poisson import as_poisson_system
-from .precision import bits_to_dps, resolve_precision, to_fraction
+from .models.base import state_fractions
+from .precision import (bits_to_dps, data_bits, dps_to_bits, export_mpf, mp_context, resolve_precision,
+                        to_fraction, warn_if_coarse)
+from .precision import thread_mp as mp
 
 __all__ = [
     "METHODS",
@@ -240,7 +242,7 @@ def _scipy_rhs(system):
 
 
 def _mpmath_rhs(system):
-    """F(values, pars) -> list of mpf at the current mpmath precision."""
+    """F(values, pars) -> list of mpf at this thread's current mpmath precision (:func:`mp_context`)."""
     ps = as_poisson_system(system)
     key = ("mpmath", ps.key)
     hit = _RHS_CACHE.get(key)
@@ -251,7 +253,8 @@ def _mpmath_rhs(system):
     prog = compile_expressions(ps.variables, ps.vector_field, len(ps.parameter_values))
 
     def fn(values, pars, _prog=prog):
-        return list(_prog.evaluate(values, pars, mp.mp.dps))
+        ctx = mp_context()
+        return list(_prog.evaluate(values, pars, ctx.dps, ctx=ctx))
 
     _RHS_CACHE[key] = fn
     return fn
@@ -461,9 +464,9 @@ def _run_mpmath(system, y0, tf, grid, spec, label, repeat):
     t_max = to_fraction(spec["t_max"], "t_max")
     t_run = tf if abs(tf) <= t_max else (t_max if tf > 0 else -t_max)
     fn = _mpmath_rhs(system)
-    y0q = [to_fraction(v, "y0") for v in np.asarray(y0, dtype=object)]
-    if len(y0q) != ps.dimension:
-        raise ValueError(f"`y0` must have {ps.dimension} entries; got {len(y0q)}")
+    # the exact values of a model state (its float entries are roundings: 0.2 as a double cost 1e-17 here)
+    y0q = state_fractions(y0, ps.dimension, "y0")
+    warn_if_coarse(data_bits(y0), dps_to_bits(dps), "y0")
     out_times = [t_run] if grid is None else [g for g in grid if abs(g) <= abs(t_run)]
     if not out_times or out_times[-1] != t_run:
         out_times.append(t_run)
@@ -479,7 +482,7 @@ def _run_mpmath(system, y0, tf, grid, spec, label, repeat):
                 return fn(y, pv)
 
             f = mp.odefun(F, 0, z0)
-            return [[+v for v in f(mp.mpf(q.numerator) / q.denominator)] for q in out_times]
+            return export_mpf([[+v for v in f(mp.mpf(q.numerator) / q.denominator)] for q in out_times])
 
     states, walls = best_of(call, repeat)
     nfev = counter[0] // max(1, len(walls))

@@ -11,7 +11,7 @@ import time as _time
 from dataclasses import dataclass, field
 from fractions import Fraction
 
-import mpmath as mp
+import mpmath
 import numpy as np
 
 from .methods import (
@@ -27,6 +27,7 @@ from .methods import (
     setting,
 )
 from .precision import dps_to_bits, resolve_precision, to_fraction
+from .precision import thread_mp as mp
 from .scenes import STUDIES, Scene, SceneError, effective_plan, load_scene, orders_of
 from .studies.drift import invariant_function
 
@@ -133,7 +134,7 @@ def environment() -> dict:
         "python": platform.python_version(),
         "heyoka": getattr(heyoka, "__version__", "?"),
         "numpy": numpy.__version__,
-        "mpmath": mp.__version__,
+        "mpmath": mpmath.__version__,
         "scipy": scipy.__version__,
         "platform": platform.platform(),
     }
@@ -265,6 +266,8 @@ def scaled_error(model, values, reference) -> float:
     systems: the state against its max-norm (1 when it vanishes). ``values`` and ``reference`` are the
     :func:`lieseries.studies.observables` of a run and of the reference (mpf).
     """
+    values = [mp.mpf(v) for v in values]  # in this thread's context, at its current precision
+    reference = [mp.mpf(v) for v in reference]
     worst = mp.mpf(0)
     for idx, kind in _error_groups(model, len(values)):
         idx = list(idx)
@@ -423,13 +426,13 @@ def _do_run(scene, runp, built, bar, notes):
                 ref = ref_at(run.t_exact)
                 obs = observables(measured, run.y_final, ref.dps)
                 with mp.workdps(ref.dps):
-                    err = float(max(abs(a - b) for a, b in zip(obs, ref.values)))
+                    err = float(max(abs(mp.mpf(a) - b) for a, b in zip(obs, ref.values)))
                     scaled = scaled_error(model, obs, ref.values)
                 digits = int(spec.get("dps", 16)) if run.method in ("lie", "mpmath", "validated") else 40
                 inv = _invariants_of(measured, run.states, digits)
                 if inv is not None:
                     with mp.workdps(max(dps, digits) + 10):
-                        drift = {k: float(max(abs(v - inv0[k]) for v in inv[k])) for k in inv_names}
+                        drift = {k: float(max(abs(mp.mpf(v) - inv0[k]) for v in inv[k])) for k in inv_names}
                 if refs_grid is not None:
                     errs, etimes, echarts = [], [], []
                     charts = extra.get("charts")
@@ -440,7 +443,7 @@ def _do_run(scene, runp, built, bar, notes):
                             continue
                         obs = observables(measured, yk, dps)
                         with mp.workdps(dps):
-                            errs.append(float(max(abs(a - b) for a, b in zip(obs, refs_grid[k]))))
+                            errs.append(float(max(abs(mp.mpf(a) - b) for a, b in zip(obs, refs_grid[k]))))
                         etimes.append(float(grid[k]))
                         if charts is not None:
                             echarts.append(charts[k])

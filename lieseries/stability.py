@@ -44,9 +44,9 @@ import re
 import time as _time
 from dataclasses import dataclass, field
 
-import mpmath as mp
 import numpy as np
 
+from .precision import thread_mp as mp
 from .scenes import jsonable
 
 __all__ = ["StabilityRow", "StabilityCase", "Stability", "stability", "run_case", "failed_case", "precision_eps",
@@ -441,7 +441,7 @@ def _analysis_divergence(scene, result, rows, opts):
         t_in = mp.mpf(inside) * rho_true
         t_out = mp.mpf(beyond) * rho_true
         probes = {
-            "inside": t_in, "at the estimated radius": +rho_est, "beyond": t_out,
+            "inside": t_in, "at the estimated radius": mp.mpf(rho_est), "beyond": t_out,
         }
         estimates = {k: float(series.error_estimate(v)) for k, v in probes.items()}
         converges = {k: bool(series.converges(v)) for k, v in probes.items()}

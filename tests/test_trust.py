@@ -398,3 +398,41 @@ def test_natural_slips_are_refused_naming_what_to_change():
     sol = ls.integrate(body, y0, t="1e400", precision="quad", max_steps=200)
     assert sol.status == "step_budget" and "inf" not in sol.message
     assert "~1e400 time units remain" in sol.message and "shorten the time span" in sol.message
+
+
+def test_scenes_and_studies_never_set_mpmath_global_precision(tmp_path, monkeypatch):
+    """mpmath's global precision is process-wide (not thread-safe, and the user's own): a scene with the Lie
+    series, the mpmath peer, the error-vs-order and work-precision studies, and a departure map run with a guard
+    that refuses any change of ``mpmath.mp.prec`` or ``mpmath.mp.dps``. Their results keep their digits: errors
+    against the closed form far below a double's (the mpmath peer started from the double rounding of the
+    state's 0.2 and reached only 1e-17 at 30 digits)."""
+    import mpmath
+    from mpmath.ctx_mp_python import PythonMPContext
+
+    from lieseries.run import run_scene
+    from lieseries.scenes import load_scene
+    from lieseries.studies import departure_map
+
+    for name in ("prec", "dps"):
+        prop = PythonMPContext.__dict__[name]
+
+        def guarded(ctx, value, _set=prop.fset, _name=name):
+            if ctx is mpmath.mp:
+                raise AssertionError(f"mpmath.mp.{_name} set to {value}")
+            _set(ctx, value)
+
+        monkeypatch.setattr(PythonMPContext, name, property(prop.fget, guarded))
+    path = tmp_path / "g.toml"
+    path.write_text('name = "g"\ntitle = "global precision guard"\n[model]\nkind = "euler_poisson"\n'
+                    'inertia = [1, 2, 3]\n[initial]\nomega = [1, "0.1", "0.5"]\n[run]\nt = "1/2"\nsamples = 3\n'
+                    'methods = [{ method = "lie", dps = 30 }, { method = "mpmath", dps = 30, t_max = "1/2" }]\n'
+                    '[studies.error_vs_order]\nt_fraction = 0.1\nmax_order = 40\ndps = 40\n'
+                    '[studies.work_precision]\nt = "1/2"\nrepeat = 1\nmethods = [{ method = "lie", dps = 25, '
+                    'tol = [1e-20] }, { method = "mpmath", dps = [20], t_max = "1/4" }]\n')
+    result = run_scene(load_scene(str(path)), progress=False)
+    errors = {row.method: row.error for row in result.run["rows"]}
+    assert all(row.status == "success" for row in result.run["rows"])
+    assert errors["lie"] < 1e-27 and errors["mpmath"] < 1e-27
+    assert min(result.studies["error_vs_order"][0][1].errors) < 1e-30
+    dm = departure_map(grid=(2, 2), T=1, samples=2, precisions=("double",), dps=40)
+    assert float(np.max(dm.max_error["double"])) < 1e-14

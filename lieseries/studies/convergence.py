@@ -14,10 +14,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import mpmath as mp
 import numpy as np
 
 from ..poisson import as_poisson_system
+from ..precision import thread_mp as mp
 from ..precision import to_fraction
 from .reference import finite_or_none, to_float, observable_names, observables, reference_solution, theoretical_radius
 
@@ -201,7 +201,7 @@ def error_vs_order(system, y0, t, orders, dps: int = 60, reference=None, *, fit_
                 acc = [acc[i] * tm + ck[i] for i in range(n)]
             obs = observables(system, acc, dps + 10)
             with mp.workdps(dps + 10):
-                errors.append(to_float(max(abs(a - b) for a, b in zip(obs, ref.values))))
+                errors.append(to_float(max(abs(mp.mpf(a) - b) for a, b in zip(obs, ref.values))))
             if progress:
                 progress(3 + done, total, f"order {N}")
     floor = FLOOR_FACTOR * 10.0 ** (-dps)

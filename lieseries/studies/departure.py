@@ -19,12 +19,12 @@ import math
 from dataclasses import dataclass, field
 from fractions import Fraction
 
-import mpmath as mp
 import numpy as np
 
 from .. import exact
 from ..models.euler_poisson import EulerPoisson
 from ..precision import check_count, resolve_precision, to_fraction
+from ..precision import thread_mp as mp
 from ..taylor import integrate
 
 __all__ = ["DepartureMap", "departure_map"]

@@ -21,7 +21,6 @@ import math
 from dataclasses import dataclass
 from fractions import Fraction
 
-import mpmath as mp
 import numpy as np
 
 from .. import exact
@@ -29,7 +28,8 @@ from ..models.base import state_fractions
 from ..models.euler_poisson import DampedEulerPoisson, EulerPoisson
 from ..models.sphere import Sphere, SphereDirac
 from ..poisson import as_poisson_system
-from ..precision import dps_to_bits, to_fraction
+from ..precision import dps_to_bits, export_mpf, to_fraction
+from ..precision import thread_mp as mp
 
 __all__ = [
     "NUMERICAL_REFERENCE_BITS",
@@ -50,7 +50,8 @@ NUMERICAL_REFERENCE_BITS = 256
 NUMERICAL_REFERENCE_TOL = Fraction(1, 2**250)
 
 
-def _mpf(q: Fraction) -> mp.mpf:
+def _mpf(q: Fraction):
+    """``q`` in this thread's mpmath context, at its current precision."""
     return mp.mpf(q.numerator) / q.denominator
 
 
@@ -104,9 +105,9 @@ def observables(system, y, dps: int = 40) -> list:
         chart = getattr(y, "charts", None)  # a row of an atlas run knows its chart
         x, v = _sphere_xv(system, fr, bits, chart if isinstance(chart, int) else None)
         with mp.workdps(dps):
-            return [+c for c in x + v]
+            return export_mpf([+c for c in x + v])
     with mp.workdps(dps):
-        return [_mpf(q) for q in fr]
+        return export_mpf([_mpf(q) for q in fr])
 
 
 @dataclass
@@ -163,7 +164,7 @@ def _rigid_exact(body: EulerPoisson, fr, t, dps):
         Rid = [[st[3 * i + j] for j in range(3)] for i in range(3)]
         R = [mp.fsum(R0[i][k] * Rid[k][j] for k in range(3)) for i in range(3) for j in range(3)]
     with mp.workdps(dps):
-        return [+v for v in R] + [+v for v in st[9:]]
+        return export_mpf([+v for v in R] + [mp.mpf(v) for v in st[9:]])
 
 
 def _sphere_leaf(model, fr, dps):
@@ -241,7 +242,7 @@ def reference_solutions(system, y0, ts, dps: int = 30) -> list:
                 R = [mp.fsum(R0[i][k] * st[3 * k + j] for k in range(3)) for i in range(3) for j in range(3)]
                 out.append(R + list(st[9:]))
         with mp.workdps(dps):
-            return [[+v for v in row] for row in out]
+            return export_mpf([[mp.mpf(v) for v in row] for row in out])
     if isinstance(system, (Sphere, SphereDirac)):
         r, x, v = _sphere_leaf(system, fr, dps)
         out = []
@@ -256,7 +257,7 @@ def state_error(system, y, reference: Reference) -> float:
     """Largest absolute difference between the :func:`observables` of ``y`` and ``reference``."""
     obs = observables(system, y, reference.dps)
     with mp.workdps(reference.dps):
-        return to_float(max(abs(a - b) for a, b in zip(obs, reference.values)))
+        return to_float(max(abs(mp.mpf(a) - b) for a, b in zip(obs, reference.values)))
 
 
 def theoretical_radius(system, y0, dps: int = 30):
