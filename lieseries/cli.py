@@ -1,7 +1,8 @@
 """Command line: ``lieseries scenes`` and ``lieseries run SCENE [--out DIR] [--overwrite] [--quick] [--no-progress]``.
 
-Exit status: 0 when every run of the scene succeeded, 1 when a run ended without success (its status is in the
-report and the summary), 2 for bad input (an unknown scene, an invalid scene file, a bad option, a report folder
+Exit status: 0 when every run of the scene succeeded, 1 when a run ended without success -- in the ``[run]`` table
+or in a study (work-precision rows, departure-map members) -- or a study failed (listed after the summary, and in
+the report), 2 for bad input (an unknown scene, an invalid scene file, a bad option, a report folder
 holding files lieseries did not write): one line naming the problem, no traceback; 130 when interrupted (Ctrl-C).
 Also runs as ``python -m lieseries``.
 
@@ -73,13 +74,15 @@ def _cmd_run(args, out) -> int:
     path = write_report(result, out_dir, overwrite=args.overwrite)
     print(summary_text(result), file=out)
     print(f"report: {path}  ({result.wall_time:.1f} s)", file=out)
-    failed = [r for r in (result.run or {}).get("rows", []) if r.status != "success"]
+    failed = result.unsuccessful()
+    if failed:
+        print("not every run succeeded (exit status 1):\n  " + "\n  ".join(failed), file=out)
     return 1 if failed else 0
 
 
 def main(argv=None) -> int:
-    """Entry point; returns the exit status (module docstring): 0 every run succeeded, 1 a run ended without
-    success, 2 bad input, 130 interrupted."""
+    """Entry point; returns the exit status (module docstring): 0 every run succeeded, 1 a run (or a study's run)
+    ended without success or a study failed, 2 bad input, 130 interrupted."""
     from .report import FolderError
     from .scenes import SceneError
 

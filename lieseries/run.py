@@ -84,6 +84,7 @@ class SceneResult:
     trajectories : dict        model label -> {"quantity", "names", "times", "values", "errors": {label: [...]}}
     studies : dict             study name -> list of (model label, study result)
     notes : list of str        what was left out and why
+    failed_studies : list      "study (model): what went wrong" for a study that raised (its results are missing)
     wall_time : float
     environment : dict
     """
@@ -94,9 +95,30 @@ class SceneResult:
     trajectories: dict = field(default_factory=dict)
     studies: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
+    failed_studies: list = field(default_factory=list)
     wall_time: float = 0.0
     environment: dict = field(default_factory=dict)
     created: str = ""
+
+    def unsuccessful(self) -> list:
+        """One line for each run of the scene that ended without success -- in the ``[run]`` table or in a study
+        (work-precision rows, drift runs, departure-map members by precision) -- and each study that failed.
+        Empty when everything succeeded (the CLI's exit status 0)."""
+        out = [f"run: {r.label} ({r.model}): {r.status}" for r in (self.run or {}).get("rows", [])
+               if r.status != "success"]
+        for lab, wp in self.studies.get("work_precision", []):
+            out += [f"work-precision ({lab}): {r.label} {r.setting}: {r.status}" for r in wp.rows
+                    if r.status != "success"]
+        for lab, dr in self.studies.get("drift", []):
+            if dr.status != "success":
+                out.append(f"drift ({lab}): {dr.status}")
+        for lab, dm in self.studies.get("departure_map", []):
+            for prec, statuses in dm.statuses.items():
+                bad = [s for s in statuses if s != "success"]
+                if bad:
+                    kinds = ", ".join(f"{k} x{bad.count(k)}" for k in sorted(set(bad)))
+                    out.append(f"departure map ({lab}): {len(bad)} of {len(statuses)} {prec} members: {kinds}")
+        return out + list(self.failed_studies)
 
     def to_dict(self) -> dict:
         run = None
@@ -468,7 +490,7 @@ def _do_run(scene, runp, built, bar, notes):
             "initial_invariants": initial_invariants, "rows": rows}, trajectories
 
 
-def _study_error_vs_order(opts, built, scene, bar, notes):
+def _study_error_vs_order(opts, built, scene, bar, notes, failed):
     from .studies import theoretical_radius
     from .studies.convergence import error_vs_order
 
@@ -494,6 +516,7 @@ def _study_error_vs_order(opts, built, scene, bar, notes):
             res = error_vs_order(model, y0, t, orders, dps=dps, fit_min_order=opts["fit_min_order"], progress=prog)
         except Exception as err:  # one failing model must not take the rest of the report with it
             notes.append(f"error vs order ({lab}): failed: {type(err).__name__}: {err}")
+            failed.append(f"error vs order ({lab}): {type(err).__name__}: {err}")
             continue
         out.append((lab, res))
     return out
@@ -597,13 +620,20 @@ def run_scene(scene, quick: bool = False, progress=True) -> SceneResult:
         bar = _make_progress(progress, name.replace("_", " "))
         try:
             if name == "error_vs_order":
-                items = _study_error_vs_order(studies[name], built, scene, bar, result.notes)
+                items = _study_error_vs_order(studies[name], built, scene, bar, result.notes, result.failed_studies)
             elif name == "work_precision":
                 items = _study_work_precision(studies[name], built, scene, bar, result.notes, quick)
             elif name == "drift":
                 items = _study_drift(studies[name], built, scene, bar, result.notes)
             else:
                 items = _study_departure_map(studies[name], built, scene, bar, result.notes)
+        except SceneError:
+            raise  # the scene's own settings: bad input
+        except Exception as err:  # a failing study must not take the rest of the report with it
+            what = f"{name.replace('_', ' ')}: {type(err).__name__}: {err}"
+            result.notes.append(f"{what} (the study is missing from this report)")
+            result.failed_studies.append(what)
+            items = []
         finally:
             bar.close()
         result.studies[name] = items
