@@ -25,7 +25,8 @@ The lab angular momentum ``R M`` is conserved.
 
 Precision policy: mpmath's global precision is never modified.  Every public
 function works inside ``mp.workdps(dps + guard)`` (``guard`` >= 20 digits;
-raised automatically near the separatrix, see :func:`rigid_body_constants`)
+raised automatically near the separatrix and the intermediate axis, see
+:func:`rigid_body_constants`)
 and rounds its results to ``dps`` digits with unary ``+`` before returning.
 Inputs may be ``int``, ``float`` (converted exactly), ``str`` (rounded at the
 working precision), :class:`fractions.Fraction` (``mpf(num) / mpf(den)``),
@@ -597,6 +598,23 @@ def _sort_moments(moments):
     return d, Q, True
 
 
+def _complete_k(m, m1):
+    """``(K(m), K'(m))`` from the parameter ``m`` and its complement ``m1 = 1 - m``, both given separately.
+
+    ``K(m) = pi / (2 agm(1, sqrt(1 - m)))``, so ``K = pi / (2 agm(1, sqrt(m1)))`` and ``K' = K(m1) =
+    pi / (2 agm(1, sqrt(m)))``: neither ``1 - m`` nor ``1 - m1`` is ever formed.  This matters at both ends of
+    the elliptic branches.  Near a steady rotation about the major or minor axis ``m`` is tiny (``~ eps^2`` for a
+    transverse component ``eps``) and ``m1 = 1 - m`` rounds to 1 at the working precision as soon as
+    ``m < 10**-wp``; ``mp.ellipk(m1)`` then returns ``inf`` (or, for ``m`` just above ``10**-wp``, a ``K'`` with
+    few correct digits), the nome ``exp(-pi K'/K)`` becomes exactly 0 and the theta quotients divide by zero.
+    Near the separatrix the same happens to ``K(m)`` with ``m1`` tiny.  The AGM of ``1`` and the small square
+    root keeps full relative accuracy for any positive ``m, m1`` (it needs only ``O(log log (1/m))`` more
+    iterations).
+    """
+    half_pi = mp.pi / 2
+    return half_pi / mp.agm(1, mp.sqrt(m1)), half_pi / mp.agm(1, mp.sqrt(m))
+
+
 class _RigidBody:
     """Set-up of the closed-form solution; methods must run at ``self.wp``."""
 
@@ -604,20 +622,28 @@ class _RigidBody:
         self.dps = dps
         wp = dps + GUARD_DIGITS
         with mp.workdps(wp):
-            self._setup(inertia, omega, wp)
-        # Near the separatrix the relative accuracy of 1 - m is limited by the
-        # cancellation in |M|^2 - 2 E I2: add the digits lost and redo.
-        if self.branch in ("above", "below"):
+            self._setup(inertia, omega, wp, elliptic=False)
+        if self.branch not in ("above", "below"):
+            return
+        # Near the separatrix (close to a rotation about the intermediate axis) the relative accuracy of 1 - m
+        # is limited by the cancellation in |M|^2 - 2 E I2: add the digits lost and redo.  This is decided
+        # before any elliptic function is evaluated: at the first precision 1 - m may round to 0 (then
+        # F(pi/2 | m) and K(m) are infinite).
+        with mp.workdps(wp):
+            r = abs(self.gap) / self.M2
+            lost = int(mp.ceil(-mp.log10(r))) if r < 1 else 0
+        if lost > 5:
+            wp += lost
             with mp.workdps(wp):
-                r = abs(self.gap) / self.M2
-                lost = int(mp.ceil(-mp.log10(r))) if r < 1 else 0
-            if lost > 5:
-                wp2 = wp + lost
-                with mp.workdps(wp2):
-                    self._setup(inertia, omega, wp2)
+                self._setup(inertia, omega, wp)
+        else:
+            with mp.workdps(wp):
+                self._setup_elliptic()
 
     # -- set-up ---------------------------------------------------------------
-    def _setup(self, inertia, omega, wp):
+    def _setup(self, inertia, omega, wp, elliptic=True):
+        """Invariants and regime at ``wp`` digits; with ``elliptic=False`` the elliptic branches stop after the
+        classification (``__init__`` first chooses their working precision)."""
         self.wp = wp
         dps = self.dps
         d, Q, exact = _parse_inertia(inertia, dps)
@@ -658,15 +684,17 @@ class _RigidBody:
             self._setup_symmetric()
         else:
             tol = mp.mpf(10) ** -(dps + CLASSIFY_DIGITS)
-            if abs(self.gap) <= tol * self.M2 and M[0] != 0 and M[2] != 0:
+            # The separatrix formulas match M1(0), M2(0) and put M3 on the separatrix: declare it only when that
+            # moves M3 by at most tol |M| (d gap / d M3 = 2 M3 (I3 - I2) / I3).  A bound relative to |M|^2
+            # alone would, near the intermediate axis (M1, M3 ~ eps), replace M3 by a value off by O(eps).
+            if M[0] != 0 and M[2] != 0 and \
+                    abs(self.gap) <= 2 * tol * self.L * abs(M[2]) * (I3 - I2) / I3:
                 self.branch = "separatrix"
                 self._setup_separatrix()
-            elif self.gap > 0:
-                self.branch = "above"
-                self._setup_elliptic()
             else:
-                self.branch = "below"
-                self._setup_elliptic()
+                self.branch = "above" if self.gap > 0 else "below"
+                if elliptic:
+                    self._setup_elliptic()
 
     def _setup_symmetric(self):
         d = self.d
@@ -720,9 +748,9 @@ class _RigidBody:
         self.lam = lam
         self.m = m
         self.m1 = m1
-        K = mp.ellipk(m)
-        Kp = mp.ellipk(m1)
+        K, Kp = _complete_k(m, m1)
         self.K, self.Kp = K, Kp
+        # nome: ~ m/16 near a stable axis (tiny but never 0: mpf exponents do not underflow)
         q = mp.exp(-mp.pi * Kp / K)
         self.q = q
         self.th2 = mp.jtheta(2, 0, q)
@@ -965,10 +993,34 @@ def rigid_body_constants(inertia, omega, dps=30):
     principal-frame components of ``M`` smaller than ``tol |M|`` are set to
     zero (they are round-off of the diagonalisation; principal moments given
     directly are used exactly).  The separatrix is declared when
-    ``| |M|^2 - 2 E I2 | <= tol |M|^2`` and ``M1, M3 != 0``.  Otherwise
+    ``M1, M3 != 0`` and putting ``M`` exactly on it moves ``M3`` by at most
+    ``tol |M|``, i.e. ``| |M|^2 - 2 E I2 | <= 2 tol |M| |M3| (I3 - I2) / I3``;
+    the separatrix formulas (which match ``M1(0)`` and ``M2(0)``) then give the
+    exact motion of that input, within ``tol |M|`` of the one given.  Otherwise
     the elliptic branches are used, with the working precision raised by the
-    number of digits lost in ``|M|^2 - 2 E I2`` so that ``1 - m`` keeps full
+    number of digits lost in ``|M|^2 - 2 E I2`` (about
+    ``log10(|M|^2 / | |M|^2 - 2 E I2 |)``) so that ``1 - m`` keeps full
     relative accuracy.
+
+    Near the steady rotations:
+
+    * about the minor or major axis (stable; ``Omega = (1, 0, eps)`` and the
+      like): ``m`` is of order ``eps^2`` and may be far below the working
+      precision; ``K`` and ``K'`` are computed by the AGM from ``m`` and
+      ``1 - m`` separately, the nome ``~ m/16`` stays positive, and the
+      result keeps ``dps`` digits with no extra precision (the small
+      components of ``M`` even to ``dps`` digits relative to ``eps``; those
+      of ``R`` are sums of products of O(1) numbers, guaranteed to about
+      ``10**-(dps + 20)`` absolute).  Only ``Omega`` exactly along the axis
+      is ``'steady'``.
+    * about the intermediate axis (unstable): every nearby motion is close to
+      the separatrix.  Exactly on it (to the tolerance above) the separatrix
+      formulas are used; off it the elliptic formulas at the raised precision
+      (``working_dps`` grows like ``log10(|M|^2 / gap)``, ``K`` like
+      ``ln(1 / gap)``, and the theta series take longer as the nome nears 1).
+      The result is the exact motion of the input as given, but the motion
+      itself is ill-conditioned: input errors grow like ``exp(lam |t|)``
+      while it stays near the axis.
     """
     dps = _check_dps(dps)
     return _RigidBody(inertia, omega, dps).constants()
@@ -1010,10 +1062,12 @@ def euler_poisson(inertia, omega, t, dps=30, psi_method="elliptic"):
     Accuracy: all work is done with at least ``dps + 20`` digits, so the
     result is correct to about ``dps`` digits for moderate ``|t|`` (the
     argument reduction of the trigonometric and theta functions costs about
-    ``log10 |t|`` digits).  Inputs are taken as exact; near the separatrix the
-    motion itself is ill-conditioned and the result is the exact motion of
-    the input as given.  See :func:`rigid_body_constants` for the
-    classification tolerances.
+    ``log10 |t|`` digits).  Inputs are taken as exact; this holds arbitrarily
+    close to (and at) steady rotations about the minor and major axes.  Near
+    the separatrix (and the unstable intermediate axis) the motion itself is
+    ill-conditioned and the result is the exact motion of the input as
+    given, computed with extra digits.  See :func:`rigid_body_constants` for
+    the classification tolerances and the regimes near the axes.
 
     See Also
     --------
