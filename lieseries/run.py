@@ -374,7 +374,7 @@ def _run_atlas_method(sphere, y0, tf, spec, grid, repeat, bits):
 
 
 def _do_run(scene, runp, built, bar, notes):
-    from .studies import observables, reference_solutions
+    from .studies import max_difference, observables, reference_solutions
 
     tf = to_fraction(runp["t"], "run.t")
     n_out = runp["samples"]
@@ -447,14 +447,14 @@ def _do_run(scene, runp, built, bar, notes):
             if run.ok:
                 ref = ref_at(run.t_exact)
                 obs = observables(measured, run.y_final, ref.dps)
+                err = max_difference(obs, ref.values, ref.dps)
                 with mp.workdps(ref.dps):
-                    err = float(max(abs(mp.mpf(a) - b) for a, b in zip(obs, ref.values)))
                     scaled = scaled_error(model, obs, ref.values)
                 digits = int(spec.get("dps", 16)) if run.method in ("lie", "mpmath", "validated") else 40
                 inv = _invariants_of(measured, run.states, digits)
                 if inv is not None:
-                    with mp.workdps(max(dps, digits) + 10):
-                        drift = {k: float(max(abs(mp.mpf(v) - inv0[k]) for v in inv[k])) for k in inv_names}
+                    drift = {k: max_difference(inv[k], [inv0[k]] * len(inv[k]), max(dps, digits) + 10)
+                             for k in inv_names}
                 if refs_grid is not None:
                     errs, etimes, echarts = [], [], []
                     charts = extra.get("charts")
@@ -463,9 +463,7 @@ def _do_run(scene, runp, built, bar, notes):
                     for k, (tk, yk) in enumerate(zip(run.times, run.states)):
                         if k >= len(grid) or abs(tk - float(grid[k])) > 1e-9 * (1 + abs(tk)):
                             continue
-                        obs = observables(measured, yk, dps)
-                        with mp.workdps(dps):
-                            errs.append(float(max(abs(mp.mpf(a) - b) for a, b in zip(obs, refs_grid[k]))))
+                        errs.append(max_difference(observables(measured, yk, dps), refs_grid[k], dps))
                         etimes.append(float(grid[k]))
                         if charts is not None:
                             echarts.append(charts[k])

@@ -220,8 +220,8 @@ def _centre_polynomial(prog, m, pars, pars_exact, consts, order, flint):
                                         for q in pars_exact], order, wp)
         rows = [[arb(mpmath.make_mpf(c)) for c in row] for row in jets]
     except (ZeroDivisionError, ValueError, ArithmeticError):
-        rows = [[arb(c.mid()) for c in row] for row in _taylor(prog, m, pars, consts, order, flint)]
-    if not all(c.is_finite() for row in rows for c in row):
+        rows = None
+    if rows is None or not all(c.is_finite() for row in rows for c in row):
         rows = [[arb(c.mid()) for c in row] for row in _taylor(prog, m, pars, consts, order, flint)]
     return [[mi] + row[1:] for mi, row in zip(m, rows)]
 
@@ -664,7 +664,8 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
             pending.pop(0)
         # per-step remainder bound, relative: far below 10^-dps, because every step's remainder is then carried
         # (and widened by the wrapping effect) to the end of the run (a ball: 10^-dps underflows a float)
-        rem_tol = arb(REMAINDER_FACTOR) * arb(10) ** -dps
+        unit = arb(10) ** -dps
+        rem_tol = arb(REMAINDER_FACTOR) * unit
         t_end = grid[-1]
         while direction and (t_end - tcur) * direction > 0:
             if steps >= max_steps:
@@ -675,7 +676,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 break
             scale = max([1.0] + [abs(float(zi.mid())) for zi in z])
             tol = rem_tol * scale
-            wide = any(zi.rad() > tol * 10**4 for zi in z)
+            wide = any(zi.rad() > unit * scale for zi in z)  # wider than 10^-dps of the state's size
             pieces = 2 * JACOBIAN_PIECES if wide else JACOBIAN_PIECES
             C = _centre_polynomial(prog, m, pars, ps.parameter_values, consts, N, flint)  # from the centre
             g = _defect_coefficients(prog, C, pars, consts, flint)

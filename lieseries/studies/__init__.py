@@ -15,6 +15,7 @@ from .reference import (  # noqa: F401
     Reference,
     has_exact_solution,
     loglog_slope,
+    max_difference,
     observable_names,
     observables,
     reference_solution,

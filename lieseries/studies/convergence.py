@@ -19,7 +19,8 @@ import numpy as np
 from ..poisson import as_poisson_system
 from ..precision import thread_mp as mp
 from ..precision import to_fraction
-from .reference import finite_or_none, to_float, observable_names, observables, reference_solution, theoretical_radius
+from .reference import (finite_or_none, max_difference, observable_names, observables, reference_solution,
+                        theoretical_radius)
 
 __all__ = ["ErrorVsOrder", "error_vs_order", "fit_geometric_rate"]
 
@@ -199,9 +200,7 @@ def error_vs_order(system, y0, t, orders, dps: int = 60, reference=None, *, fit_
             for k in range(N - 1, -1, -1):
                 ck = coeffs[k]
                 acc = [acc[i] * tm + ck[i] for i in range(n)]
-            obs = observables(system, acc, dps + 10)
-            with mp.workdps(dps + 10):
-                errors.append(to_float(max(abs(mp.mpf(a) - b) for a, b in zip(obs, ref.values))))
+            errors.append(max_difference(observables(system, acc, dps + 10), ref.values, dps + 10))
             if progress:
                 progress(3 + done, total, f"order {N}")
     floor = FLOOR_FACTOR * 10.0 ** (-dps)

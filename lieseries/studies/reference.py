@@ -41,6 +41,7 @@ __all__ = [
     "observables",
     "observable_names",
     "state_error",
+    "max_difference",
     "theoretical_radius",
     "loglog_slope",
 ]
@@ -253,11 +254,17 @@ def reference_solutions(system, y0, ts, dps: int = 30) -> list:
     return None
 
 
+def max_difference(values, reference, dps: int) -> float:
+    """max_i |values_i - reference_i| of two lists of mpf (any context), computed at ``dps`` digits in this
+    thread's mpmath context (each left operand converted into it: a global mpf on the left would compute at the
+    global precision)."""
+    with mp.workdps(dps):
+        return to_float(max(abs(mp.mpf(a) - b) for a, b in zip(values, reference)))
+
+
 def state_error(system, y, reference: Reference) -> float:
     """Largest absolute difference between the :func:`observables` of ``y`` and ``reference``."""
-    obs = observables(system, y, reference.dps)
-    with mp.workdps(reference.dps):
-        return to_float(max(abs(mp.mpf(a) - b) for a, b in zip(obs, reference.values)))
+    return max_difference(observables(system, y, reference.dps), reference.values, reference.dps)
 
 
 def theoretical_radius(system, y0, dps: int = 30):
