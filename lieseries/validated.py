@@ -626,7 +626,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     for name, b in list(ps.coarse_data().items()) + [("t", data_bits([t, t0]))]:
         warn_if_coarse(b, dps_to_bits(dps), name)
     start = _time.perf_counter()
-    with _working_precision(bits, cap=N + DEFECT_EXTRA + 4) as flint:
+    with _working_precision(bits, cap=max(N, BOX_ORDER + 1) + DEFECT_EXTRA + 4) as flint:
         arb = flint.arb
         z = _initial_balls(system, y0, ps.dimension, flint)
         width_cap = None if max_width is None else arb(flint.fmpq(*to_fraction(max_width, "max_width").as_integer_ratio()))

@@ -227,3 +227,17 @@ def test_more_digits_than_a_float_can_hold_are_certified_and_counted():
     assert inside(sol.y[-1][0], ctx.cos(half)) and inside(sol.y[-1][1], -ctx.sin(half))
     assert 320 < certified_digits(sol)[-1] < 345
     assert all(r > 0 for r in radii(sol)[-1])
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_very_low_orders_run_and_stay_proven(order):
+    """Orders below the a priori box's (13) once stopped on an internal assertion (the series length cap): they
+    run, with short steps, and what they prove contains the oscillator's (cos t, -sin t)."""
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], (p * p + q * q) / 2, name="oscillator")
+    sol = validated_integrate(osc, [1, 0], t=["1/100000000", "1/100"], dps=15, order=order, max_steps=60)
+    assert sol.status == "step_budget" and len(sol.t) == 1
+    ctx = mp.MPContext()
+    ctx.dps = 40
+    tk = ctx.mpf(1) / 100000000
+    assert inside(sol.y[0][0], ctx.cos(tk)) and inside(sol.y[0][1], -ctx.sin(tk))
