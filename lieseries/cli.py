@@ -16,6 +16,7 @@ only when it is whole: an interrupted or failed run leaves the earlier report as
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import sys
 from pathlib import Path
@@ -73,6 +74,7 @@ def _cmd_run(args, out) -> int:
     from .scenes import load_scene
 
     scene = load_scene(args.scene)
+    _check_requirements()  # before the work: a missing package must not cost the computation
     out_dir = Path(args.out) if args.out else Path("reports") / scene.name
     # lock and check the folder before the work, not after it; the report is moved into place only when whole
     with ReportFolder(out_dir, args.overwrite, names=report_names(scene)) as folder:
@@ -88,6 +90,31 @@ def _cmd_run(args, out) -> int:
     except BrokenPipeError:  # `lieseries run ... | head`: the report is written; the status still says how it went
         _stdout_to_devnull()
     return 1 if failed else 0
+
+
+#: Packages `lieseries run` needs besides the library's own (dependencies of the package, pyproject.toml):
+#: (module, pip requirement, what for).
+RUN_REQUIREMENTS = (("scipy", "scipy>=1.10", "the scipy DOP853 runs and the report's environment"),
+                    ("matplotlib", "matplotlib>=3.7", "the report's plots"))
+
+
+def _check_requirements() -> None:
+    missing = []
+    for module, requirement, why in RUN_REQUIREMENTS:
+        try:
+            importlib.import_module(module)
+        except ImportError:
+            missing.append((module, requirement, why))
+    if missing:
+        names = ", ".join(f"`{m}` ({why})" for m, _, why in missing)
+        reqs = " ".join(f"'{r}'" for _, r, _ in missing)
+        raise _MissingPackage(f"`lieseries run` needs {names}, which cannot be imported; install it: "
+                              f"pip install {reqs} (it is a dependency of lieseries: a plain `pip install "
+                              "lieseries` brings it)")
+
+
+class _MissingPackage(Exception):
+    pass
 
 
 def _stdout_to_devnull() -> None:
@@ -124,7 +151,7 @@ def main(argv=None) -> int:
             return _cmd_run(args, out)
         parser.print_help(sys.stderr)
         return 2
-    except (SceneError, FolderError) as err:
+    except (SceneError, FolderError, _MissingPackage) as err:
         print(f"lieseries: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -140,26 +140,22 @@ class SceneResult:
 
 
 def environment() -> dict:
-    """Versions of what computed a result (for reports)."""
+    """Versions of what computed a result (for reports); "not installed" for a package that cannot be imported."""
+    import importlib
     from importlib.metadata import PackageNotFoundError, version
-
-    import heyoka
-    import numpy
-    import scipy
 
     try:
         own = version("lieseries")
     except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
         own = "?"
-    return {
-        "lieseries": own,
-        "python": platform.python_version(),
-        "heyoka": getattr(heyoka, "__version__", "?"),
-        "numpy": numpy.__version__,
-        "mpmath": mpmath.__version__,
-        "scipy": scipy.__version__,
-        "platform": platform.platform(),
-    }
+    env = {"lieseries": own, "python": platform.python_version()}
+    for name in ("heyoka", "numpy", "mpmath", "scipy"):
+        try:
+            env[name] = getattr(importlib.import_module(name), "__version__", "?")
+        except ImportError:
+            env[name] = "not installed"
+    env["platform"] = platform.platform()
+    return env
 
 
 def _make_progress(progress, title):

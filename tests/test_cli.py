@@ -170,3 +170,47 @@ def test_a_quick_report_says_which_settings_it_changed(tmp_path, capsys):
     text = (tmp_path / "q" / "report.md").read_text()
     assert "- `run.methods[0].dps: 50 -> 30`" in text and "- `run.t: 10 -> 2`" in text
     assert "validated (Arb) 30 dps" in text and "validated (Arb) 50 dps" not in text
+
+
+# -- what a plain install needs ---------------------------------------------------------------------------------
+ROOT = __import__("pathlib").Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize("module", ["scipy", "matplotlib"])
+def test_a_missing_package_is_named_before_any_computation(tmp_path, module):
+    """Without scipy (or matplotlib) `lieseries run default` used to compute, then exit 1 with a traceback."""
+    import os
+
+    code = (f"import sys; sys.modules[{module!r}] = None\n"
+            "import lieseries.cli as c; sys.exit(c.main(sys.argv[1:]))")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    res = subprocess.run([sys.executable, "-c", code, "run", "default", "--no-progress", "--out",
+                          str(tmp_path / "rep")], capture_output=True, text=True, timeout=300, env=env)
+    assert res.returncode == 2, res.stderr
+    assert f"`{module}`" in res.stderr and "pip install" in res.stderr and "Traceback" not in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "rep").exists()  # refused before the folder was taken and before computing
+
+
+def test_environment_says_not_installed_for_a_missing_package(monkeypatch):
+    from lieseries.run import environment
+
+    monkeypatch.setitem(sys.modules, "scipy", None)
+    env = environment()
+    assert env["scipy"] == "not installed"
+    import numpy
+
+    assert env["numpy"] == numpy.__version__
+
+
+def test_a_plain_install_brings_what_the_command_line_needs():
+    """`pip install lieseries` with no extras must run `lieseries run default`: the packages the command line
+    checks for are ordinary dependencies."""
+    import re
+    import tomllib
+
+    from lieseries.cli import RUN_REQUIREMENTS
+
+    deps = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
+    names = {re.match(r"[A-Za-z0-9_.-]+", d).group(0).lower() for d in deps}
+    assert {"scipy", "matplotlib"} <= {m for m, _, _ in RUN_REQUIREMENTS} <= names
