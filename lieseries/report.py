@@ -1018,12 +1018,16 @@ def summary_text(result) -> str:
     if result.run is not None:
         run = result.run
         multi = len({r.model for r in run["rows"]}) > 1
-        h = (["model"] if multi else []) + ["method", "final error", "max invariant drift", "steps", "order",
-                                            "build [s]", "run [s]", "status"]
-        rows = [([r.model] if multi else []) + [r.label, fmt_sci(r.error), fmt_sci(r.max_drift), fmt_int(r.steps),
-                                                fmt_int(r.order), fmt_sci(r.build_time), fmt_sci(r.run_time),
-                                                r.status] for r in run["rows"]]
+        h = (["model"] if multi else []) + ["method", "t reached", "final error", "max invariant drift", "steps",
+                                            "order", "build [s]", "run [s]", "status"]
+        rows = [([r.model] if multi else []) + [r.label, fmt_num(r.t), fmt_sci(r.error), fmt_sci(r.max_drift),
+                                                fmt_int(r.steps), fmt_int(r.order), fmt_sci(r.build_time),
+                                                fmt_sci(r.run_time), r.status] for r in run["rows"]]
         lines.append(_plain_table(h, rows))
+        short = [r for r in run["rows"] if r.t is not None and _short_of(r.t, run["t"])]
+        for r in short:  # a capped method (mpmath's t_max) says success: its error is at the time it reached
+            lines.append(f"{r.label}: ran to t = {fmt_num(r.t)} only, not t = {fmt_num(run['t'])}"
+                         + (f": {r.message}" if r.message else "") + "; its errors are at the time it reached")
         first = next((r for r in run["rows"] if r.final_state is not None), None)
         if first is not None:
             vals = " ".join(f"{v:.12g}" for v in first.final_state)
@@ -1053,6 +1057,11 @@ def summary_text(result) -> str:
     for n in result.notes:
         lines.append(f"note: {n}")
     return "\n".join(lines)
+
+
+def _short_of(t, t_end) -> bool:
+    """True when a run reached ``t`` short of the requested end ``t_end`` (beyond the rounding of a float)."""
+    return abs(float(t) - float(t_end)) > 1e-12 * max(1.0, abs(float(t_end)))
 
 
 def _plain_table(headers, rows) -> str:

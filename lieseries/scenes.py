@@ -1044,6 +1044,9 @@ def load_scene(name_or_path) -> Scene:
             hint = f" (did you mean '{near[0]}'?)" if near else ""
             known = ", ".join(names) or f"none found in {scenes_dir()}"
             raise SceneError(f"unknown scene {s!r}{hint}; built-in scenes: {known}; or give the path of a .toml file")
+    if p.is_dir():
+        raise SceneError(f"`{s}` is a folder, not a scene file; pass a scene name (`lieseries scenes` lists them) "
+                         "or the path of a .toml file")
     if not p.is_file():
         raise SceneError(f"scene file {s!r} not found")
     try:

@@ -214,3 +214,43 @@ def test_a_plain_install_brings_what_the_command_line_needs():
     deps = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
     names = {re.match(r"[A-Za-z0-9_.-]+", d).group(0).lower() for d in deps}
     assert {"scipy", "matplotlib"} <= {m for m, _, _ in RUN_REQUIREMENTS} <= names
+
+
+@pytest.mark.parametrize("read_lines", [0, 1])
+def test_a_closed_pipe_is_not_an_error(read_lines):
+    """`lieseries scenes | head -1`: the reader goes away; no "[Errno 32] Broken pipe", no traceback, status 0."""
+    import os
+
+    code = "import sys, time; time.sleep(0.5); import lieseries.cli as c; sys.exit(c.main(sys.argv[1:]))"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    p = subprocess.Popen([sys.executable, "-c", code, "scenes"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         env=env, cwd=str(ROOT))
+    for _ in range(read_lines):
+        assert p.stdout.readline().startswith(b"default ")
+    p.stdout.close()  # before the rest is written (the child sleeps before its first line)
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=120) == 0, err
+    assert "Broken pipe" not in err and "Traceback" not in err and "Exception ignored" not in err
+
+
+def test_the_console_table_says_where_a_capped_run_stopped(tmp_path, capsys):
+    """mpmath's odefun capped by t_max = 1 in a T = 3 table: its `success` is at t = 1, and the table says so."""
+    scene = tmp_path / "capped.toml"
+    scene.write_text('name = "capped"\ntitle = "t"\n[model]\nkind = "sphere_dirac"\n[initial]\nx = [1, 0, 0]\n'
+                     'v = [0, 1, 0]\n[run]\nt = 3\nmethods = [{ method = "taylor" }, '
+                     '{ method = "mpmath", dps = 15, t_max = 1 }]\n')
+    assert main(["run", str(scene), "--out", str(tmp_path / "o"), "--no-progress"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    header = next(line for line in out if line.startswith("method"))
+    col = header.index("t reached")
+    rows = {line[:col].strip(): line[col:].split()[0] for line in out
+            if line.startswith(("heyoka double", "mpmath odefun")) and "ran to" not in line}
+    assert rows == {"heyoka double": "3", "mpmath odefun 15 dps": "1"}
+    assert any(line.startswith("mpmath odefun 15 dps: ran to t = 1 only, not t = 3") for line in out)
+
+
+def test_a_folder_given_as_the_scene_is_called_a_folder(tmp_path, capsys):
+    assert main(["run", str(tmp_path), "--no-progress", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert f"`{tmp_path}` is a folder, not a scene file" in err and ".toml" in err and "not found" not in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "o").exists()
