@@ -453,7 +453,9 @@ def _verdict(p):
 def _section_run(result, lines, csvs):
     run = result.run
     lines += [f"## {SECTION_TITLES['run']}", ""]
-    lines.append(f"Final time t = {fmt_num(run['t'])}, {run['samples'] - 1} output times. Reference: "
+    n = run["samples"]
+    lines.append(f"Final time t = {fmt_num(run['t'])}; {n} samples: t = 0 and {n - 1} equally spaced output times "
+                 f"(every {fmt_num(run['t'] / (n - 1))}). Reference: "
                  f"{run['reference']}. *final error*: max-abs error at the final time; *max error*: the largest "
                  "over the output times (when a trajectory is asked for). Errors compare the state (rigid body) "
                  "or position and velocity (sphere)."

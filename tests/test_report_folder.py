@@ -279,3 +279,26 @@ def test_a_sigint_while_writing_exits_130_and_keeps_the_earlier_report(tmp_path)
     _, err = p.communicate(timeout=60)
     assert p.returncode == 130 and "interrupted" in err and "Traceback" not in err
     assert snapshot(out) == before
+
+
+# -- the report's words match the data ---------------------------------------------------------------------------
+def test_the_run_section_counts_the_samples_the_scene_asks_for(tmp_path):
+    """The default scene's `samples = 101`: 101 sample times, t = 0 and 100 output times (it said 100 only)."""
+    import tomllib
+
+    from lieseries.scenes import load_scene
+
+    text = (ROOT / "lieseries" / "data" / "scenes" / "default.toml").read_text()
+    setting = tomllib.loads(text)["run"]
+    n, t = setting["samples"], setting["t"]
+    assert load_scene("default").run["samples"] == n
+    # the scene as it is, with its first method only (the others cost time and change nothing here)
+    lines = [line for line in text.splitlines()
+             if not line.startswith("  { method") or 'precision = "double"' in line]
+    res = run_scene(parse_scene("\n".join(lines)), progress=False)
+    assert [r.label for r in res.run["rows"]] == ["heyoka double"]
+    md = write_report(res, tmp_path).read_text()
+    assert f"{n} samples: t = 0 and {n - 1} equally spaced output times (every {t / (n - 1):g})" in md
+    traj = next(iter(res.trajectories.values()))
+    assert len(traj["times"]) == n and traj["times"][0] == 0 and traj["times"][-1] == t
+    assert all(len(ts) == n - 1 for ts in traj["error_times"].values())
