@@ -21,6 +21,8 @@ import os
 import sys
 from pathlib import Path
 
+from .interrupts import held
+
 __all__ = ["main", "build_parser"]
 
 
@@ -69,12 +71,13 @@ def _cmd_scenes(out) -> int:
 
 
 def _cmd_run(args, out) -> int:
-    from .report import ReportFolder, report_names, summary_text, write_report
-    from .run import run_scene
-    from .scenes import load_scene
+    with held():  # Ctrl-C while an extension module initialises would surface as an unrelated ImportError
+        from .report import ReportFolder, report_names, summary_text, write_report
+        from .run import run_scene
+        from .scenes import load_scene
 
+        _check_requirements()  # before the work: a missing package must not cost the computation
     scene = load_scene(args.scene)
-    _check_requirements()  # before the work: a missing package must not cost the computation
     out_dir = Path(args.out) if args.out else Path("reports") / scene.name
     # lock and check the folder before the work, not after it; the report is moved into place only when whole
     with ReportFolder(out_dir, args.overwrite, names=report_names(scene)) as folder:
@@ -130,9 +133,13 @@ def _stdout_to_devnull() -> None:
 def main(argv=None) -> int:
     """Entry point; returns the exit status (module docstring): 0 every run succeeded, 1 a run (or a study's run)
     ended without success or a study failed, 2 bad input, 130 interrupted."""
-    from .report import FolderError
-    from .scenes import SceneError
-
+    try:
+        with held():
+            from .report import FolderError
+            from .scenes import SceneError
+    except KeyboardInterrupt:
+        print("lieseries: interrupted", file=sys.stderr)
+        return 130
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

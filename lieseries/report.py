@@ -25,11 +25,11 @@ import json
 import math
 import os
 import shutil
-import signal
 import stat
 import tempfile
-import threading
 from pathlib import Path
+
+from .interrupts import held
 
 __all__ = ["write_report", "render_report", "write_stability_report", "ReportFolder", "FolderError", "report_names", "markdown_table", "summary_text", "fmt_sci", "SECTION_TITLES",
            "plot_departure_map", "departure_map_table", "departure_map_reading"]
@@ -744,22 +744,6 @@ def _shown(names, n=3) -> str:
     return ", ".join(f"`{x}`" for x in names[:n]) + (", ..." if len(names) > n else "")
 
 
-@contextlib.contextmanager
-def _sigint_held():
-    """Hold Ctrl-C back while the block runs (in the main thread), then raise KeyboardInterrupt if it came."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    got = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: got.append(signum))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    if got:
-        raise KeyboardInterrupt
-
-
 class ReportFolder:
     """A report folder held by this process (a context manager): locked, checked, written through a staging
     folder and committed whole.
@@ -890,7 +874,7 @@ class ReportFolder:
         not written again and write the manifest; Ctrl-C waits until it is done."""
         stage = self.staging()
         out = self.path
-        with _sigint_held():
+        with held():
             new = {rel: _sha256(stage / rel) for rel in _entries(stage)}
             if any(h is None for h in new.values()):  # pragma: no cover - lieseries writes regular files only
                 raise FolderError(f"the staging folder `{stage}` holds something that is not a regular file")

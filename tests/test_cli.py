@@ -254,3 +254,51 @@ def test_a_folder_given_as_the_scene_is_called_a_folder(tmp_path, capsys):
     err = capsys.readouterr().err
     assert f"`{tmp_path}` is a folder, not a scene file" in err and ".toml" in err and "not found" not in err
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "o").exists()
+
+
+#: Put on PYTHONPATH as sitecustomize: Ctrl-C (SIGINT to itself) the moment `module` starts to import.
+CTRL_C_AT_IMPORT = """
+import os, signal, sys
+
+class CtrlC:
+    fired = False
+
+    def find_spec(self, name, path=None, target=None):
+        if name == {module!r} and not CtrlC.fired:
+            CtrlC.fired = True
+            os.kill(os.getpid(), signal.SIGINT)
+        return None
+
+sys.meta_path.insert(0, CtrlC())
+"""
+
+
+@pytest.mark.parametrize("module", ["heyoka", "sympy", "scipy"])
+def test_ctrl_c_while_the_command_line_imports_exits_130_without_a_traceback(tmp_path, module):
+    """Ctrl-C while heyoka's or sympy's extension initialises surfaced as ImportError or AttributeError, exit 1."""
+    import os
+
+    (tmp_path / "sitecustomize.py").write_text(CTRL_C_AT_IMPORT.format(module=module))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(ROOT)])}
+    res = subprocess.run([sys.executable, "-m", "lieseries", "run", "default", "--no-progress", "--out",
+                          str(tmp_path / "rep")], capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
+    assert res.returncode == 130, res.stderr
+    assert res.stderr.strip() == "lieseries: interrupted"
+    assert not (tmp_path / "rep").exists()
+
+
+def test_ctrl_c_while_the_library_imports_is_a_keyboard_interrupt(tmp_path):
+    import os
+
+    (tmp_path / "sitecustomize.py").write_text(CTRL_C_AT_IMPORT.format(module="heyoka"))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(ROOT)])}
+    code = "try:\n    import lieseries\nexcept KeyboardInterrupt:\n    print('interrupted')\n"
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env,
+                         cwd=tmp_path)
+    assert res.returncode == 0 and res.stdout.strip() == "interrupted", res.stderr
+    # and Ctrl-C is itself again afterwards (the handler was restored)
+    code += "import signal\nassert signal.getsignal(signal.SIGINT) is signal.default_int_handler\n"
+    code += "import lieseries\nprint(lieseries.integrate.__name__)\n"
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env,
+                         cwd=tmp_path)
+    assert res.returncode == 0 and res.stdout.split() == ["interrupted", "integrate"], res.stderr
