@@ -31,7 +31,8 @@ from pathlib import Path
 
 from .interrupts import held
 
-__all__ = ["write_report", "render_report", "write_stability_report", "ReportFolder", "FolderError", "report_names", "markdown_table", "summary_text", "fmt_sci", "SECTION_TITLES",
+__all__ = ["write_report", "render_report", "write_stability_report", "ReportFolder", "FolderError", "report_names",
+           "markdown_table", "summary_text", "fmt_sci", "SECTION_TITLES",
            "plot_departure_map", "departure_map_table", "departure_map_reading"]
 
 #: The H2 headings of the report, by section.
@@ -430,16 +431,23 @@ def run_tables(result):
     rows1 = []
     for r in run["rows"]:
         rows1.append(([r.model] if multi else []) + [
-            r.label, r.precision, r.setting, fmt_num(r.t), fmt_sci(r.error)] + (
+            _row_label(r), r.precision, r.setting, fmt_num(r.t), fmt_sci(r.error)] + (
             [fmt_sci(getattr(r, "scaled_error", None))] if scaled else []) + [
             fmt_sci(r.max_error), fmt_int(r.steps), fmt_int(r.order), fmt_sci(r.build_time), fmt_sci(r.run_time),
             r.status,
         ])
     invs = run["invariants"]
     h2 = (["model"] if multi else []) + ["method"] + invs
-    rows2 = [([r.model] if multi else []) + [r.label] + [fmt_sci(r.drift.get(k)) for k in invs]
+    rows2 = [([r.model] if multi else []) + [_row_label(r)] + [fmt_sci(r.drift.get(k)) for k in invs]
              for r in run["rows"]]
     return (h1, rows1), (h2, rows2)
+
+
+def _row_label(r) -> str:
+    """A run row's method label, with what quick mode changed in a method the scene labelled itself (its label
+    may name digits or times quick mode did not use)."""
+    quick = r.extra.get("quick_mode") if isinstance(getattr(r, "extra", None), dict) else None
+    return f"{r.label} (quick mode: {quick})" if quick else r.label
 
 
 def _verdict(p):
@@ -1006,9 +1014,9 @@ def summary_text(result) -> str:
         multi = len({r.model for r in run["rows"]}) > 1
         h = (["model"] if multi else []) + ["method", "t reached", "final error", "max invariant drift", "steps",
                                             "order", "build [s]", "run [s]", "status"]
-        rows = [([r.model] if multi else []) + [r.label, fmt_num(r.t), fmt_sci(r.error), fmt_sci(r.max_drift),
-                                                fmt_int(r.steps), fmt_int(r.order), fmt_sci(r.build_time),
-                                                fmt_sci(r.run_time), r.status] for r in run["rows"]]
+        rows = [([r.model] if multi else []) + [
+            _row_label(r), fmt_num(r.t), fmt_sci(r.error), fmt_sci(r.max_drift), fmt_int(r.steps), fmt_int(r.order),
+            fmt_sci(r.build_time), fmt_sci(r.run_time), r.status] for r in run["rows"]]
         lines.append(_plain_table(h, rows))
         short = [r for r in run["rows"] if r.t is not None and _short_of(r.t, run["t"])]
         for r in short:  # a capped method (mpmath's t_max) says success: its error is at the time it reached

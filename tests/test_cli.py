@@ -302,3 +302,23 @@ def test_ctrl_c_while_the_library_imports_is_a_keyboard_interrupt(tmp_path):
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env,
                          cwd=tmp_path)
     assert res.returncode == 0 and res.stdout.split() == ["interrupted", "integrate"], res.stderr
+
+
+def test_a_quick_run_does_not_let_a_methods_own_label_claim_digits_it_did_not_use(tmp_path, capsys):
+    """`label = "Arb 50 digits"` on a validated method: quick mode runs it at 30 digits, and says so beside it."""
+    scene = tmp_path / "arb.toml"
+    scene.write_text('name = "arb"\ntitle = "t"\n[model]\nkind = "euler_poisson"\ninertia = [1, 2, 3]\n'
+                     '[initial]\nomega = [1, "0.1", "0.5"]\n[run]\nt = "1/4"\nsamples = 2\n'
+                     'methods = [{ method = "validated", dps = 50, label = "Arb 50 digits" }]\n')
+    assert main(["run", str(scene), "--quick", "--out", str(tmp_path / "q"), "--no-progress"]) == 0
+    said = capsys.readouterr().out
+    md = (tmp_path / "q" / "report.md").read_text()
+    row = next(line for line in md.splitlines() if line.startswith("| Arb 50 digits"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[0] == "Arb 50 digits (quick mode: dps = 30)" and cells[1] == "30 dps"
+    assert "Arb 50 digits (quick mode: dps = 30)" in said
+    # the full run keeps the label as it is
+    assert main(["run", str(scene), "--out", str(tmp_path / "f"), "--no-progress"]) == 0
+    md = (tmp_path / "f" / "report.md").read_text()
+    row = next(line for line in md.splitlines() if line.startswith("| Arb 50 digits"))
+    assert [c.strip() for c in row.strip("|").split("|")][:2] == ["Arb 50 digits", "50 dps"]
