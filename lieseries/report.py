@@ -670,6 +670,20 @@ def _real_dirs(out: Path, rel: str) -> bool:
     return True
 
 
+def _blocked(out: Path, rel: str) -> bool:
+    """True when something on the way from ``out`` to ``out/rel`` exists and is not a real folder (a file, a
+    symbolic link): a file cannot be moved there without going through it or replacing it."""
+    p = out
+    for part in rel.split("/")[:-1]:
+        p = p / part
+        kind = _kind(p)
+        if kind == "missing":
+            return False
+        if kind != "dir":
+            return True
+    return False
+
+
 def _plain_name(rel) -> bool:
     """A manifest entry: a relative path of plain names inside the folder, none of them lieseries' own files."""
     if not isinstance(rel, str) or not rel or "\\" in rel or "\x00" in rel or rel.startswith("/"):
@@ -861,7 +875,7 @@ class ReportFolder:
                               "choose another --out, or pass --overwrite to write there (only files lieseries "
                               "wrote itself are replaced)")
         clash = sorted({rel for rel in names
-                        if rel not in ours and (_kind(out / rel) != "missing" or not _real_dirs(out, rel))})
+                        if rel not in ours and (_blocked(out, rel) or _kind(out / rel) != "missing")})
         if clash:
             raise FolderError(f"`{out}` holds {_shown(clash)}, which lieseries did not write (or which changed "
                               f"since){why}; the new report would replace it: move it away, or choose another "
@@ -886,7 +900,11 @@ class ReportFolder:
             new = {rel: _sha256(stage / rel) for rel in _entries(stage)}
             if any(h is None for h in new.values()):  # pragma: no cover - lieseries writes regular files only
                 raise FolderError(f"the staging folder `{stage}` holds something that is not a regular file")
-            _, ours = self._check(sorted(new), refuse_foreign=False)
+            try:
+                _, ours = self._check(sorted(new), refuse_foreign=False)
+            except FolderError as err:  # a file appeared (or changed) while the report was computed
+                self._staging = None  # the computation is not thrown away
+                raise FolderError(f"{err}; the new report is kept in `{stage}`") from None
             # the manifest first accepts both the old and the new content of each file, so it stays true
             # whatever moment the commit is stopped at
             both = {rel: sorted({h for h in (ours.get(rel), new.get(rel)) if h}) for rel in set(ours) | set(new)}

@@ -150,9 +150,14 @@ def test_a_link_where_a_report_file_was_is_never_followed(tmp_path, plain_result
     (out / name).symlink_to(target)
     before = snapshot(out)
     for overwrite in (False, True):
-        with pytest.raises(FolderError, match=name):
+        with pytest.raises(FolderError, match=name) as err:
             write_report(plain_result, out, overwrite=overwrite)
-        assert target.read_text() == "not yours" and snapshot(out) == before
+        assert target.read_text() == "not yours" and (out / name).is_symlink()
+        kept = {k: v for k, v in snapshot(out).items() if not k.startswith(rep.STAGING_PREFIX)}
+        assert kept == before
+    # report.md and data.json are checked before the computation; a CSV only when the report is written: the
+    # new report is then kept beside, in the staging folder the message names
+    assert ("kept in" in str(err.value)) == (name == "run.csv")
 
 
 def test_a_link_named_in_the_manifest_is_not_deleted_through(tmp_path, result, plain_result):
@@ -302,3 +307,51 @@ def test_the_run_section_counts_the_samples_the_scene_asks_for(tmp_path):
     traj = next(iter(res.trajectories.values()))
     assert len(traj["times"]) == n and traj["times"][0] == 0 and traj["times"][-1] == t
     assert all(len(ts) == n - 1 for ts in traj["error_times"].values())
+
+
+# -- folders inside a report (the stability report's scenes/<case>/) --------------------------------------------
+def stage_files(folder, files):
+    stage = folder.staging()
+    for rel, text in files.items():
+        (stage / rel).parent.mkdir(parents=True, exist_ok=True)
+        (stage / rel).write_text(text)
+    folder.commit()
+
+
+def test_files_in_subfolders_are_replaced_and_removed_like_the_others(tmp_path):
+    with ReportFolder(tmp_path) as f:
+        stage_files(f, {"report.md": "a", "scenes/one/report.md": "1", "scenes/two/report.md": "2"})
+    assert set(manifest(tmp_path)) == {"report.md", "scenes/one/report.md", "scenes/two/report.md"}
+    (tmp_path / "scenes" / "two" / "notes.txt").write_text("mine")
+    with ReportFolder(tmp_path, overwrite=True) as f:
+        stage_files(f, {"report.md": "b", "scenes/one/report.md": "1b"})
+    assert snapshot(tmp_path) == {MANIFEST: (tmp_path / MANIFEST).read_bytes(), "report.md": b"b",
+                                  "scenes/one/report.md": b"1b", "scenes/two/notes.txt": b"mine"}
+    with ReportFolder(tmp_path, overwrite=True) as f:
+        stage_files(f, {"report.md": "c"})
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*")) == [
+        MANIFEST, "report.md", "scenes", "scenes/two", "scenes/two/notes.txt"]  # emptied folders of ours go
+
+
+def test_a_linked_subfolder_is_never_written_through(tmp_path):
+    out, elsewhere = tmp_path / "out", tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    with ReportFolder(out) as f:
+        stage_files(f, {"report.md": "a", "scenes/one/report.md": "1"})
+    (out / "scenes" / "one" / "report.md").unlink()
+    (out / "scenes" / "one").rmdir()
+    (out / "scenes" / "one").symlink_to(elsewhere)
+    with ReportFolder(out, overwrite=True) as f, pytest.raises(FolderError, match="scenes/one/report.md"):
+        stage_files(f, {"report.md": "b", "scenes/one/report.md": "1b"})
+    assert list(elsewhere.iterdir()) == [] and (out / "report.md").read_text() == "a"
+
+
+def test_a_file_that_appears_during_the_run_is_kept_and_so_is_the_new_report(tmp_path):
+    with ReportFolder(tmp_path, overwrite=True) as f:
+        stage = f.staging()
+        (stage / "report.md").write_text("new")
+        (tmp_path / "report.md").write_text("the user's, written meanwhile")
+        with pytest.raises(FolderError, match="kept in") as err:
+            f.commit()
+    assert (tmp_path / "report.md").read_text() == "the user's, written meanwhile"
+    assert (stage / "report.md").read_text() == "new" and str(stage) in str(err.value)
