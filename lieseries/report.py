@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import hashlib
+import itertools
 import json
 import math
 import os
@@ -745,10 +746,9 @@ def _ours(out: Path, entries: dict) -> dict:
     return ours
 
 
-def _entries(root: Path, skip=()) -> list:
+def _entries(root: Path, skip=()):
     """Relative paths of everything in ``root`` but folders (files, symbolic links...), never following a link;
-    top-level names in ``skip`` are left out."""
-    found = []
+    top-level names in ``skip`` are left out. A generator: the files at the top come first."""
     for dirpath, dirnames, filenames in os.walk(root):
         base = Path(dirpath).relative_to(root).as_posix()
         prefix = "" if base == "." else base + "/"
@@ -758,8 +758,7 @@ def _entries(root: Path, skip=()) -> list:
                 filenames.append(d)
             elif not prefix and d in skip:
                 dirnames.remove(d)
-        found += [prefix + f for f in filenames if prefix or f not in skip]
-    return sorted(found)
+        yield from sorted(prefix + f for f in filenames if prefix or f not in skip)
 
 
 def _shown(names, n=3) -> str:
@@ -865,8 +864,10 @@ class ReportFolder:
         out = self.path
         entries = _read_manifest(out)
         ours = _ours(out, entries)
-        skip = {MANIFEST, LOCK} | ({self._staging.name} if self._staging is not None else set())
-        foreign = [rel for rel in _entries(out, skip) if rel not in ours]
+        foreign = []
+        if refuse_foreign:  # a few are enough to refuse and to name (a big folder is not walked to its end)
+            skip = {MANIFEST, LOCK} | ({self._staging.name} if self._staging is not None else set())
+            foreign = list(itertools.islice((rel for rel in _entries(out, skip) if rel not in ours), 4))
         older = any(not h for h in entries.values())
         why = (" (its manifest was written by an older lieseries and records no content hashes, so no file in it "
                "is known to be a report file: delete those files or the folder)" if older else "")
@@ -897,7 +898,7 @@ class ReportFolder:
         stage = self.staging()
         out = self.path
         with held():
-            new = {rel: _sha256(stage / rel) for rel in _entries(stage)}
+            new = {rel: _sha256(stage / rel) for rel in sorted(_entries(stage))}
             if any(h is None for h in new.values()):  # pragma: no cover - lieseries writes regular files only
                 raise FolderError(f"the staging folder `{stage}` holds something that is not a regular file")
             try:
