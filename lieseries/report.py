@@ -878,9 +878,12 @@ class ReportFolder:
         clash = sorted({rel for rel in names
                         if rel not in ours and (_blocked(out, rel) or _kind(out / rel) != "missing")})
         if clash:
-            raise FolderError(f"`{out}` holds {_shown(clash)}, which lieseries did not write (or which changed "
-                              f"since){why}; the new report would replace it: move it away, or choose another "
-                              "--out")
+            links = [rel for rel in clash if _blocked(out, rel) or os.path.islink(out / rel)]
+            what = (" (a symbolic link, or a file where a folder would go: lieseries never writes through one)"
+                    if links else "")
+            raise FolderError(f"`{out}` holds {_shown(clash)}{what}, which lieseries did not write (or which "
+                              f"changed since){why}; the new report would replace it: move it away, or choose "
+                              "another --out")
         return entries, ours
 
     # -- write ---------------------------------------------------------------------------------------------
