@@ -267,7 +267,7 @@ def test_a_sigint_while_writing_exits_130_and_keeps_the_earlier_report(tmp_path)
     out = tmp_path / "X"
     scene = tmp_path / "plot.toml"
     scene.write_text(SCENE + '[report]\nplots = ["trajectory"]\n')
-    assert run_cli("run", str(scene), "--out", str(out), "--no-progress").returncode == 0
+    assert main(["run", str(scene), "--out", str(out), "--no-progress"]) == 0  # the earlier report
     before = snapshot(out)
     scene.write_text(SCENE.replace("t = 1", "t = 2") + '[report]\nplots = ["trajectory"]\n')  # a new plot
     code = ("import sys, time, lieseries.report as r, lieseries.cli as c\n"
