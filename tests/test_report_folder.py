@@ -262,6 +262,7 @@ def test_ctrl_c_during_the_move_waits_until_the_report_is_whole(tmp_path, result
     assert json.loads((tmp_path / "data.json").read_text())["scene"]["plots"] == []
 
 
+@pytest.mark.slow  # ~9 s: a full CLI run in a subprocess (the default suite has the in-process tests above)
 def test_a_sigint_while_writing_exits_130_and_keeps_the_earlier_report(tmp_path):
     """A real Ctrl-C to a real run, in its write phase (the writer is slowed down to make room for it)."""
     out = tmp_path / "X"
