@@ -16,7 +16,11 @@ Public API (stable names)::
     ls.studies                                     error vs order, work-precision, drift (plain data)
 """
 
-from . import exact, studies
+from .interrupts import hold_while_importing, release_after_import
+
+hold_while_importing(__name__)  # Ctrl-C now would break a C extension half way: it waits for the end of the import
+
+from . import exact, studies  # noqa: E402
 from .events import Event
 from .models import DampedEulerPoisson, EulerPoisson, Model, Sphere, SphereDirac
 from .poisson import PoissonSystem
@@ -53,3 +57,6 @@ __all__ = [
 ]
 
 __version__ = "0.1.0"
+
+release_after_import(__name__)
+del hold_while_importing, release_after_import

@@ -6,15 +6,22 @@ the report), 2 for bad input (an unknown scene, an invalid scene file, a bad opt
 holding files lieseries did not write): one line naming the problem, no traceback; 130 when interrupted (Ctrl-C).
 Also runs as ``python -m lieseries``.
 
-The report folder is never emptied: lieseries replaces only the files it writes itself (listed in
-``.lieseries-manifest.json``), and refuses a folder holding other files unless ``--overwrite``.
+The report folder is never emptied: lieseries replaces or removes only files it wrote itself (listed with the
+SHA-256 of their content in ``.lieseries-manifest.json``), refuses a folder holding other files unless
+``--overwrite``, and never replaces a file it did not write, even with ``--overwrite``. A run locks its folder
+before computing (a second run into it exits 2), writes the report into a staging folder and moves it into place
+only when it is whole: an interrupted or failed run leaves the earlier report as it was.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
+import os
 import sys
 from pathlib import Path
+
+from .interrupts import held
 
 __all__ = ["main", "build_parser"]
 
@@ -38,7 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("scene", metavar="SCENE", help="a built-in scene name (see `lieseries scenes`) or a .toml path")
     r.add_argument("--out", metavar="DIR", help="report folder (default: reports/<scene name>)")
     r.add_argument("--overwrite", action="store_true",
-                   help="write into a folder that holds other files (only the report's own files are replaced)")
+                   help="write into a folder that holds other files (they are kept; only files lieseries wrote "
+                        "itself are replaced)")
     r.add_argument("--quick", action="store_true", help="scale the studies down (fewer orders, samples, tolerances)")
     r.add_argument("--no-progress", action="store_true", help="no progress bars on stderr")
     return p
@@ -63,29 +71,75 @@ def _cmd_scenes(out) -> int:
 
 
 def _cmd_run(args, out) -> int:
-    from .report import claim_folder, summary_text, write_report
-    from .run import run_scene
-    from .scenes import load_scene
+    with held():  # Ctrl-C while an extension module initialises would surface as an unrelated ImportError
+        from .report import ReportFolder, report_names, summary_text, write_report
+        from .run import run_scene
+        from .scenes import load_scene
 
+        _check_requirements()  # before the work: a missing package must not cost the computation
     scene = load_scene(args.scene)
     out_dir = Path(args.out) if args.out else Path("reports") / scene.name
-    claim_folder(out_dir, args.overwrite)  # refuse before the work, not after it
-    result = run_scene(scene, quick=args.quick, progress=not args.no_progress)
-    path = write_report(result, out_dir, overwrite=args.overwrite)
-    print(summary_text(result), file=out)
-    print(f"report: {path}  ({result.wall_time:.1f} s)", file=out)
+    # lock and check the folder before the work, not after it; the report is moved into place only when whole
+    with ReportFolder(out_dir, args.overwrite, names=report_names(scene)) as folder:
+        result = run_scene(scene, quick=args.quick, progress=not args.no_progress)
+        path = write_report(result, folder)
     failed = result.unsuccessful()
-    if failed:
-        print("not every run succeeded (exit status 1):\n  " + "\n  ".join(failed), file=out)
+    try:
+        print(summary_text(result), file=out)
+        print(f"report: {path}  ({result.wall_time:.1f} s)", file=out)
+        if failed:
+            print("not every run succeeded (exit status 1):\n  " + "\n  ".join(failed), file=out)
+        out.flush()
+    except BrokenPipeError:  # `lieseries run ... | head`: the report is written; the status still says how it went
+        _stdout_to_devnull()
     return 1 if failed else 0
+
+
+#: Packages `lieseries run` needs besides the library's own (dependencies of the package, pyproject.toml):
+#: (module, pip requirement, what for).
+RUN_REQUIREMENTS = (("scipy", "scipy>=1.10", "the scipy DOP853 runs and the report's environment"),
+                    ("matplotlib", "matplotlib>=3.7", "the report's plots"))
+
+
+def _check_requirements() -> None:
+    missing = []
+    for module, requirement, why in RUN_REQUIREMENTS:
+        try:
+            importlib.import_module(module)
+        except ImportError:
+            missing.append((module, requirement, why))
+    if missing:
+        names = ", ".join(f"`{m}` ({why})" for m, _, why in missing)
+        reqs = " ".join(f"'{r}'" for _, r, _ in missing)
+        raise _MissingPackage(f"`lieseries run` needs {names}, which cannot be imported; install it: "
+                              f"pip install {reqs} (it is a dependency of lieseries: a plain `pip install "
+                              "lieseries` brings it)")
+
+
+class _MissingPackage(Exception):
+    pass
+
+
+def _stdout_to_devnull() -> None:
+    """After a broken pipe: send what is left of stdout (and the flush at exit) to the null device."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):  # a stdout without a file descriptor (tests)
+        pass
 
 
 def main(argv=None) -> int:
     """Entry point; returns the exit status (module docstring): 0 every run succeeded, 1 a run (or a study's run)
     ended without success or a study failed, 2 bad input, 130 interrupted."""
-    from .report import FolderError
-    from .scenes import SceneError
-
+    try:
+        with held():
+            from .report import FolderError
+            from .scenes import SceneError
+    except KeyboardInterrupt:
+        print("lieseries: interrupted", file=sys.stderr)
+        return 130
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -97,17 +151,22 @@ def main(argv=None) -> int:
     out = sys.stdout
     try:
         if args.command == "scenes":
-            return _cmd_scenes(out)
+            status = _cmd_scenes(out)
+            out.flush()
+            return status
         if args.command == "run":
             return _cmd_run(args, out)
         parser.print_help(sys.stderr)
         return 2
-    except (SceneError, FolderError) as err:
+    except (SceneError, FolderError, _MissingPackage) as err:
         print(f"lieseries: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("lieseries: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # `lieseries scenes | head`: the reader has what it wanted
+        _stdout_to_devnull()
+        return 0
     except OSError as err:  # e.g. the report folder cannot be written
         print(f"lieseries: {err}", file=sys.stderr)
         return 2

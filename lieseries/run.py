@@ -140,26 +140,22 @@ class SceneResult:
 
 
 def environment() -> dict:
-    """Versions of what computed a result (for reports)."""
+    """Versions of what computed a result (for reports); "not installed" for a package that cannot be imported."""
+    import importlib
     from importlib.metadata import PackageNotFoundError, version
-
-    import heyoka
-    import numpy
-    import scipy
 
     try:
         own = version("lieseries")
     except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
         own = "?"
-    return {
-        "lieseries": own,
-        "python": platform.python_version(),
-        "heyoka": getattr(heyoka, "__version__", "?"),
-        "numpy": numpy.__version__,
-        "mpmath": mpmath.__version__,
-        "scipy": scipy.__version__,
-        "platform": platform.platform(),
-    }
+    env = {"lieseries": own, "python": platform.python_version()}
+    for name in ("heyoka", "numpy", "mpmath", "scipy"):
+        try:
+            env[name] = getattr(importlib.import_module(name), "__version__", "?")
+        except ImportError:
+            env[name] = "not installed"
+    env["platform"] = platform.platform()
+    return env
 
 
 def _make_progress(progress, title):
@@ -380,6 +376,14 @@ def _do_run(scene, runp, built, bar, notes):
     n_out = runp["samples"]
     grid = [tf * k / (n_out - 1) for k in range(1, n_out)]
     specs = [normalize_method(m, f"run.methods[{i}]") for i, m in enumerate(runp["methods"])]
+    # a method's own `label` ("Arb 50 digits") says what the scene asked for: when quick mode changed that method,
+    # its rows carry what it really ran with (the report shows it beside the label)
+    given = (scene.run or {}).get("methods") or []
+    quick_of = {}
+    for i, m in enumerate(runp["methods"]):
+        orig = given[i] if i < len(given) else m
+        if m.get("label") and m != orig:
+            quick_of[i] = ", ".join(f"{k} = {m[k]}" for k in m if m.get(k) != orig.get(k))
     dps = reference_dps(specs)
     bits = _needed_bits(specs)
     want_traj = "trajectory" in scene.plots
@@ -427,7 +431,7 @@ def _do_run(scene, runp, built, bar, notes):
             traj = {"quantity": qname, "names": list(names),
                     "times": [0.0] + [float(g) for g in grid[: len(refs_grid)]],
                     "values": [], "errors": {}, "error_times": {}}
-        for spec in specs:
+        for i_spec, spec in enumerate(specs):
             bar(done, total, f"{mlabel}: {method_label(spec)}")
             extra = {}
             if atlas:
@@ -436,6 +440,8 @@ def _do_run(scene, runp, built, bar, notes):
             else:
                 run = run_method(model, y0, tf, spec, times=grid, repeat=runp["repeat"])
                 extra = dict(run.extra)
+            if i_spec in quick_of:
+                extra["quick_mode"] = quick_of[i_spec]
             done += 1
             if run.status == "skipped":
                 note = f"run: {run.label} skipped ({run.message})."

@@ -17,7 +17,7 @@ A scene is a TOML file::
                                  # numbers may be strings: "0.1" is exactly 1/10
     [run]
     t = 20
-    samples = 101                # output times (invariant drift and the trajectory plot)
+    samples = 101                # sample times, t = 0 included: 100 output times (drift, trajectory plot)
     quick_t = 2                  # optional: the final time in quick mode (default: t)
     methods = [
       { method = "taylor", precision = "double" },            # tol optional
@@ -512,7 +512,8 @@ FIELD_DOCS = {
     "run": {
         "t": ("number", "the final time"),
         "methods": ("array of method tables", "the methods run side by side (fields below)"),
-        "samples": ("integer 2..100000", "output times, for the invariant drift and the trajectory plot"),
+        "samples": ("integer 2..100000", "equally spaced sample times from 0 to t, t = 0 included (so samples - 1 "
+                    "output times after the start), for the invariant drift and the trajectory plot"),
         "repeat": ("integer 1..100", "best-of repeats of each timing"),
         "quick_t": ("number", "the final time in quick mode (default: t)"),
     },
@@ -1044,6 +1045,9 @@ def load_scene(name_or_path) -> Scene:
             hint = f" (did you mean '{near[0]}'?)" if near else ""
             known = ", ".join(names) or f"none found in {scenes_dir()}"
             raise SceneError(f"unknown scene {s!r}{hint}; built-in scenes: {known}; or give the path of a .toml file")
+    if p.is_dir():
+        raise SceneError(f"`{s}` is a folder, not a scene file; pass a scene name (`lieseries scenes` lists them) "
+                         "or the path of a .toml file")
     if not p.is_file():
         raise SceneError(f"scene file {s!r} not found")
     try:

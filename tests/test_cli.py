@@ -170,3 +170,155 @@ def test_a_quick_report_says_which_settings_it_changed(tmp_path, capsys):
     text = (tmp_path / "q" / "report.md").read_text()
     assert "- `run.methods[0].dps: 50 -> 30`" in text and "- `run.t: 10 -> 2`" in text
     assert "validated (Arb) 30 dps" in text and "validated (Arb) 50 dps" not in text
+
+
+# -- what a plain install needs ---------------------------------------------------------------------------------
+ROOT = __import__("pathlib").Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize("module", ["scipy", "matplotlib"])
+def test_a_missing_package_is_named_before_any_computation(tmp_path, module):
+    """Without scipy (or matplotlib) `lieseries run default` used to compute, then exit 1 with a traceback."""
+    import os
+
+    code = (f"import sys; sys.modules[{module!r}] = None\n"
+            "import lieseries.cli as c; sys.exit(c.main(sys.argv[1:]))")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    res = subprocess.run([sys.executable, "-c", code, "run", "default", "--no-progress", "--out",
+                          str(tmp_path / "rep")], capture_output=True, text=True, timeout=300, env=env)
+    assert res.returncode == 2, res.stderr
+    assert f"`{module}`" in res.stderr and "pip install" in res.stderr and "Traceback" not in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "rep").exists()  # refused before the folder was taken and before computing
+
+
+def test_environment_says_not_installed_for_a_missing_package(monkeypatch):
+    from lieseries.run import environment
+
+    monkeypatch.setitem(sys.modules, "scipy", None)
+    env = environment()
+    assert env["scipy"] == "not installed"
+    import numpy
+
+    assert env["numpy"] == numpy.__version__
+
+
+def test_a_plain_install_brings_what_the_command_line_needs():
+    """`pip install lieseries` with no extras must run `lieseries run default`: the packages the command line
+    checks for are ordinary dependencies."""
+    import re
+    import tomllib
+
+    from lieseries.cli import RUN_REQUIREMENTS
+
+    deps = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
+    names = {re.match(r"[A-Za-z0-9_.-]+", d).group(0).lower() for d in deps}
+    assert {"scipy", "matplotlib"} <= {m for m, _, _ in RUN_REQUIREMENTS} <= names
+
+
+@pytest.mark.parametrize("read_lines", [0, 1])
+def test_a_closed_pipe_is_not_an_error(read_lines):
+    """`lieseries scenes | head -1`: the reader goes away; no "[Errno 32] Broken pipe", no traceback, status 0."""
+    import os
+
+    code = "import sys, time; time.sleep(0.5); import lieseries.cli as c; sys.exit(c.main(sys.argv[1:]))"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    p = subprocess.Popen([sys.executable, "-c", code, "scenes"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         env=env, cwd=str(ROOT))
+    for _ in range(read_lines):
+        assert p.stdout.readline().startswith(b"default ")
+    p.stdout.close()  # before the rest is written (the child sleeps before its first line)
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=120) == 0, err
+    assert "Broken pipe" not in err and "Traceback" not in err and "Exception ignored" not in err
+
+
+def test_the_console_table_says_where_a_capped_run_stopped(tmp_path, capsys):
+    """mpmath's odefun capped by t_max = 1 in a T = 3 table: its `success` is at t = 1, and the table says so."""
+    scene = tmp_path / "capped.toml"
+    scene.write_text('name = "capped"\ntitle = "t"\n[model]\nkind = "sphere_dirac"\n[initial]\nx = [1, 0, 0]\n'
+                     'v = [0, 1, 0]\n[run]\nt = 3\nmethods = [{ method = "taylor" }, '
+                     '{ method = "mpmath", dps = 15, t_max = 1 }]\n')
+    assert main(["run", str(scene), "--out", str(tmp_path / "o"), "--no-progress"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    header = next(line for line in out if line.startswith("method"))
+    col = header.index("t reached")
+    rows = {line[:col].strip(): line[col:].split()[0] for line in out
+            if line.startswith(("heyoka double", "mpmath odefun")) and "ran to" not in line}
+    assert rows == {"heyoka double": "3", "mpmath odefun 15 dps": "1"}
+    assert any(line.startswith("mpmath odefun 15 dps: ran to t = 1 only, not t = 3") for line in out)
+
+
+def test_a_folder_given_as_the_scene_is_called_a_folder(tmp_path, capsys):
+    assert main(["run", str(tmp_path), "--no-progress", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert f"`{tmp_path}` is a folder, not a scene file" in err and ".toml" in err and "not found" not in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "o").exists()
+
+
+#: Put on PYTHONPATH as sitecustomize: Ctrl-C (SIGINT to itself) the moment `module` starts to import.
+CTRL_C_AT_IMPORT = """
+import os, signal, sys
+
+class CtrlC:
+    fired = False
+
+    def find_spec(self, name, path=None, target=None):
+        if name == {module!r} and not CtrlC.fired:
+            CtrlC.fired = True
+            os.kill(os.getpid(), signal.SIGINT)
+        return None
+
+sys.meta_path.insert(0, CtrlC())
+"""
+
+
+@pytest.mark.parametrize("module", ["heyoka", "sympy", "scipy"])
+def test_ctrl_c_while_the_command_line_imports_exits_130_without_a_traceback(tmp_path, module):
+    """Ctrl-C while heyoka's or sympy's extension initialises surfaced as ImportError or AttributeError, exit 1."""
+    import os
+
+    (tmp_path / "sitecustomize.py").write_text(CTRL_C_AT_IMPORT.format(module=module))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(ROOT)])}
+    res = subprocess.run([sys.executable, "-m", "lieseries", "run", "default", "--no-progress", "--out",
+                          str(tmp_path / "rep")], capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
+    assert res.returncode == 130, res.stderr
+    assert res.stderr.strip() == "lieseries: interrupted"
+    assert not (tmp_path / "rep").exists()
+
+
+def test_ctrl_c_while_the_library_imports_is_a_keyboard_interrupt(tmp_path):
+    import os
+
+    (tmp_path / "sitecustomize.py").write_text(CTRL_C_AT_IMPORT.format(module="heyoka"))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(ROOT)])}
+    code = "try:\n    import lieseries\nexcept KeyboardInterrupt:\n    print('interrupted')\n"
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env,
+                         cwd=tmp_path)
+    assert res.returncode == 0 and res.stdout.strip() == "interrupted", res.stderr
+    # and Ctrl-C is itself again afterwards (the handler was restored)
+    code += "import signal\nassert signal.getsignal(signal.SIGINT) is signal.default_int_handler\n"
+    code += "import lieseries\nprint(lieseries.integrate.__name__)\n"
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env,
+                         cwd=tmp_path)
+    assert res.returncode == 0 and res.stdout.split() == ["interrupted", "integrate"], res.stderr
+
+
+def test_a_quick_run_does_not_let_a_methods_own_label_claim_digits_it_did_not_use(tmp_path, capsys):
+    """`label = "Arb 50 digits"` on a validated method: quick mode runs it at 30 digits, and says so beside it."""
+    scene = tmp_path / "arb.toml"
+    scene.write_text('name = "arb"\ntitle = "t"\n[model]\nkind = "euler_poisson"\ninertia = [1, 2, 3]\n'
+                     '[initial]\nomega = [1, "0.1", "0.5"]\n[run]\nt = "1/4"\nsamples = 2\n'
+                     'methods = [{ method = "validated", dps = 50, label = "Arb 50 digits" }]\n')
+    assert main(["run", str(scene), "--quick", "--out", str(tmp_path / "q"), "--no-progress"]) == 0
+    said = capsys.readouterr().out
+    md = (tmp_path / "q" / "report.md").read_text()
+    row = next(line for line in md.splitlines() if line.startswith("| Arb 50 digits"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[0] == "Arb 50 digits (quick mode: dps = 30)" and cells[1] == "30 dps"
+    assert "Arb 50 digits (quick mode: dps = 30)" in said
+    # the full run keeps the label as it is
+    assert main(["run", str(scene), "--out", str(tmp_path / "f"), "--no-progress"]) == 0
+    md = (tmp_path / "f" / "report.md").read_text()
+    row = next(line for line in md.splitlines() if line.startswith("| Arb 50 digits"))
+    assert [c.strip() for c in row.strip("|").split("|")][:2] == ["Arb 50 digits", "50 dps"]

@@ -26,7 +26,7 @@ import numpy as np
 import lieseries as ls
 from lieseries import exact
 from lieseries.precision import to_fraction
-from lieseries.report import FolderError, claim_folder, release_folder
+from lieseries.report import FolderError, ReportFolder
 from lieseries.validated import certified_digits, radii, validated_integrate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -131,11 +131,20 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(ROOT / "docs" / "reports" / "certified-enclosures"))
     ap.add_argument("--overwrite", action="store_true")
     args = ap.parse_args(argv)
+    folder = ReportFolder(args.out, args.overwrite, names=FILES)
     try:
-        out, before = claim_folder(args.out, args.overwrite)
+        folder.acquire()  # locked and checked before the work; the files move into place once all are written
     except FolderError as err:
         print(err, file=sys.stderr)
         return 2
+    try:
+        return _run(args, folder)
+    finally:
+        folder.release()
+
+
+def _run(args, folder) -> int:
+    out = folder.staging()
     T, every = to_fraction(args.T, "--T"), to_fraction(args.every, "--every")
     times = [every * k for k in range(1, int(T / every) + 1)]
     dps = args.dps
@@ -197,8 +206,8 @@ def main(argv=None) -> int:
         "",
     ]
     (out / "report.md").write_text("\n".join(lines))
-    release_folder(out, before, FILES)
-    print(f"wrote {out} in {wall:.0f} s")
+    folder.commit()
+    print(f"wrote {folder.path} in {wall:.0f} s")
     return 0
 
 
