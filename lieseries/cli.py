@@ -72,7 +72,8 @@ def _cmd_scenes(out) -> int:
 
 def _cmd_run(args, out) -> int:
     with held():  # Ctrl-C while an extension module initialises would surface as an unrelated ImportError
-        from .report import ReportFolder, report_names, summary_text, write_report
+        from .folder import ReportFolder
+        from .report import report_names, summary_text, write_report
         from .run import run_scene
         from .scenes import load_scene
 
@@ -135,7 +136,7 @@ def main(argv=None) -> int:
     ended without success or a study failed, 2 bad input, 130 interrupted."""
     try:
         with held():
-            from .report import FolderError
+            from .folder import FolderError
             from .scenes import SceneError
     except KeyboardInterrupt:
         print("lieseries: interrupted", file=sys.stderr)

@@ -10,9 +10,11 @@ from pathlib import Path
 
 import pytest
 
+from lieseries import folder as fold
 from lieseries import report as rep
 from lieseries.cli import main
-from lieseries.report import LOCK, MANIFEST, FolderError, ReportFolder, write_report
+from lieseries.folder import LOCK, MANIFEST, FolderError, ReportFolder
+from lieseries.report import write_report
 from lieseries.run import run_scene
 from lieseries.scenes import parse_scene
 
@@ -153,7 +155,7 @@ def test_a_link_where_a_report_file_was_is_never_followed(tmp_path, plain_result
         with pytest.raises(FolderError, match=name) as err:
             write_report(plain_result, out, overwrite=overwrite)
         assert target.read_text() == "not yours" and (out / name).is_symlink()
-        kept = {k: v for k, v in snapshot(out).items() if not k.startswith(rep.STAGING_PREFIX)}
+        kept = {k: v for k, v in snapshot(out).items() if not k.startswith(fold.STAGING_PREFIX)}
         assert kept == before
     # report.md and data.json are checked before the computation; a CSV only when the report is written: the
     # new report is then kept beside, in the staging folder the message names
@@ -196,7 +198,7 @@ def test_a_lock_left_by_a_dead_run_does_not_block(tmp_path, plain_result):
     (tmp_path / LOCK).write_text(f"{dead.pid}\n")
     write_report(plain_result, tmp_path)
     assert not (tmp_path / LOCK).exists() and (tmp_path / "report.md").is_file()
-    assert not [p for p in tmp_path.iterdir() if p.name.startswith(rep.STAGING_PREFIX)]
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(fold.STAGING_PREFIX)]
 
 
 @pytest.mark.slow
@@ -250,7 +252,7 @@ def test_ctrl_c_during_the_move_waits_until_the_report_is_whole(tmp_path, result
         moved.append(dst)
         real(src, dst)
 
-    monkeypatch.setattr(rep.os, "replace", replace)
+    monkeypatch.setattr(fold.os, "replace", replace)
     with pytest.raises(KeyboardInterrupt):
         write_report(plain_result, tmp_path)
     monkeypatch.undo()
@@ -258,7 +260,7 @@ def test_ctrl_c_during_the_move_waits_until_the_report_is_whole(tmp_path, result
     ours = manifest(tmp_path)
     assert set(ours) == {"report.md", "data.json", "run.csv", "run_invariants.csv"}
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(list(ours) + [MANIFEST])
-    assert all(rep._sha256(tmp_path / name) == h for name, h in ours.items())
+    assert all(fold._sha256(tmp_path / name) == h for name, h in ours.items())
     assert json.loads((tmp_path / "data.json").read_text())["scene"]["plots"] == []
 
 

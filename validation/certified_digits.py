@@ -26,7 +26,7 @@ import numpy as np
 import lieseries as ls
 from lieseries import exact
 from lieseries.precision import to_fraction
-from lieseries.report import FolderError, ReportFolder
+from lieseries.folder import FolderError, ReportFolder
 from lieseries.validated import certified_digits, radii, validated_integrate
 
 ROOT = Path(__file__).resolve().parents[1]
