@@ -36,6 +36,10 @@ __all__ = [
     "EXACT_BITS",
     "PrecisionWarning",
     "carried_bits",
+    "CarriedBits",
+    "BinaryFraction",
+    "binary_inputs",
+    "data_bits",
     "warn_if_coarse",
     "mp_context",
     "thread_mp",
@@ -504,6 +508,70 @@ def to_mpf(value, argname: str = "value", ctx=None) -> mp.mpf:
 
 
 # -- precision carried by data ---------------------------------------------------------------------------------------
+class CarriedBits(int):
+    """A number of bits (an int) that also names the inputs carrying it (``sources``, e.g. ``("omega[1]",)``), so
+    that a warning about a state can name the argument the binary number was typed in."""
+
+    def __new__(cls, bits, sources=()):
+        obj = super().__new__(cls, int(bits))
+        obj.sources = tuple(dict.fromkeys(str(s) for s in sources))
+        return obj
+
+    def __reduce__(self):
+        return (CarriedBits, (int(self), self.sources))
+
+
+class BinaryFraction(Fraction):
+    """The exact value of a binary number (0.1 as a double is 3602879701896397/2**55) that remembers it carries
+    ``bits`` bits only, and the inputs it came from (``sources``, e.g. ``("omega[1]",)``).
+
+    A model state built from binary input keeps its exact values as BinaryFractions: every engine that reads the
+    exact values (``state.exact``) sees, through :func:`carried_bits`, the same precision an array of doubles
+    carries. Arithmetic on them gives plain Fractions (a derived number is no longer marked).
+    """
+
+    def __new__(cls, value, bits, sources=()):
+        obj = super().__new__(cls, value)
+        obj.bits = int(bits)
+        obj.sources = (sources,) if isinstance(sources, str) else tuple(sources)
+        return obj
+
+    def __reduce__(self):
+        return (BinaryFraction, (Fraction(self.numerator, self.denominator), self.bits, self.sources))
+
+    def __copy__(self):
+        return self
+
+    def __deepcopy__(self, memo):
+        return self
+
+
+def binary_inputs(values, argname: str) -> dict:
+    """``{"argname[i]": bits}`` for the entries of ``values`` (a number, or nested sequences/arrays of them) that
+    are binary numbers carrying finite precision (:func:`carried_bits`); empty when all are exact."""
+    out = {}
+
+    def walk(v, name):
+        if isinstance(v, np.ndarray) and v.ndim > 0:
+            v = v.tolist() if v.dtype != object else list(v)
+        if isinstance(v, (list, tuple)):
+            for i, x in enumerate(v):
+                walk(x, f"{name}[{i}]")
+            return
+        if isinstance(v, BinaryFraction):
+            return  # already marked, with the inputs it came from
+        try:
+            b = carried_bits(v)
+        except (TypeError, ValueError):
+            b = None
+        if b is not None:
+            out[name] = int(b)
+
+    if values is not None:
+        walk(values, argname)
+    return out
+
+
 def carried_bits(value):
     """The precision (bits) a number carries, or None for an exact value.
 
@@ -513,6 +581,10 @@ def carried_bits(value):
     format's precision: 53 for a float64 (0.1 as a double), 64 for a long double, 113 for real128, ``prec`` for
     heyoka.real. An :class:`ExactState`-like object (with an ``exact`` attribute) is exact.
     """
+    if isinstance(value, BinaryFraction):
+        return CarriedBits(value.bits, value.sources)
+    if getattr(value, "exact", None) is not None and not isinstance(value, (str, bytes)):
+        return getattr(value, "data_bits", None)  # an ExactState built from binary input knows its precision
     if isinstance(value, (Fraction, numbers.Integral, str, decimal.Decimal)) or value is None:
         return None
     if type(value).__module__.startswith("sympy") or hasattr(value, "_mpf_"):
@@ -541,15 +613,22 @@ def _significand_bits(man: int, fmt_bits: int):
 
 
 def data_bits(values):
-    """The least precision carried by any of ``values`` (None when all are exact)."""
+    """The least precision carried by any of ``values`` (None when all are exact), as a :class:`CarriedBits`
+    naming the inputs that carry it when they are known (a state from ``model.initial_state(omega=(1, 0.1, 0.5))``
+    names ``omega[1]``)."""
     bits = [b for b in map(carried_bits, _leaves(values)) if b is not None]
-    return min(bits) if bits else None
+    if not bits:
+        return None
+    low = min(bits)
+    return CarriedBits(low, [s for b in bits if b == low for s in getattr(b, "sources", ())])
 
 
 def _leaves(values):
     """The numbers in ``values``: a number, or nested sequences and arrays of them (ragged ones too). A state
-    that carries its exact values (``exact``) has none to check."""
-    if getattr(values, "exact", None) is not None:
+    that carries its exact values (``exact``) is one leaf: its exact values are its data (their precision is its
+    ``data_bits``), not the doubles numpy shows."""
+    if getattr(values, "exact", None) is not None and not isinstance(values, (str, bytes)):
+        yield values
         return
     if isinstance(values, np.ndarray):
         if values.dtype != object:
@@ -567,12 +646,22 @@ def warn_if_coarse(bits, work_bits: int, argname: str, *, stacklevel: int = 3) -
     """Emit one :class:`PrecisionWarning` when data carrying ``bits`` bits feed a run at ``work_bits`` bits."""
     if bits is None or bits >= work_bits:
         return
+    sources = [s for s in getattr(bits, "sources", ()) if s and s != argname]
+    if sources:
+        shown = ", ".join(f"`{s}`" for s in sources[:6]) + (", ..." if len(sources) > 6 else "")
+        what = (f"`{argname}` was built from binary numbers ({shown}) and carries only {bits} bits "
+                f"({bits_to_dps(bits)} digits: the double 0.1 is 0.1000000000000000055511151231257827...)")
+        how = (f"Pass the exact values to the function that built it: {shown} as strings ('0.1'), ints or "
+               "Fractions (Fraction(1, 10)).")
+    else:
+        what = (f"`{argname}` carries only {bits} bits ({bits_to_dps(bits)} digits: binary numbers such as the "
+                "double 0.1 are roundings of what was typed)")
+        how = ("Pass exact values (strings like '0.1', ints, Fractions), or a state from `model.initial_state(...)` "
+               "built from exact input.")
     warnings.warn(
-        f"`{argname}` carries only {bits} bits ({bits_to_dps(bits)} digits: binary numbers such as the double 0.1 "
-        f"are roundings of what was typed), but the run works with {work_bits} bits: it is exact for those binary "
-        "values, not for the decimals you may have meant, and agrees with the intended problem to about "
-        f"{bits_to_dps(bits)} digits only. Pass exact values (strings like '0.1', ints, Fractions), or a state "
-        "from `model.initial_state(...)` built from exact input.",
+        f"{what}, but the run works with {work_bits} bits: it is exact for those binary values, not for the "
+        f"decimals you may have meant, and agrees with the intended problem to about {bits_to_dps(bits)} digits "
+        f"only. {how}",
         PrecisionWarning,
         stacklevel=stacklevel,
     )

@@ -9,7 +9,8 @@ import numpy as np
 
 from ..poisson import PoissonSystem
 from ..solution import ChartRows, Solution, plain_ufunc
-from ..precision import export_mpf, precision_of_dtype, resolve_precision, to_fraction
+from ..precision import (BinaryFraction, CarriedBits, binary_inputs, carried_bits, export_mpf, precision_of_dtype,
+                         resolve_precision, to_fraction)
 
 __all__ = ["Model", "ExactState", "make_state", "state_fractions", "state_bits"]
 
@@ -23,8 +24,24 @@ class ExactState(np.ndarray):
     copy) is an ordinary float64 array that carries 53 bits only.
     """
 
-    def __new__(cls, values):
+    def __new__(cls, values, binary=None):
+        """``values``: the state's numbers (exact input stays exact). ``binary``: ``{argument: bits}`` of the binary
+        numbers (floats such as 0.1) the values were computed from (:func:`~lieseries.precision.binary_inputs`);
+        by default those among ``values`` themselves. A state built from them carries their precision."""
+        if binary is None:
+            binary = binary_inputs(list(values) if not isinstance(values, np.ndarray) else values, "y0")
         fr = tuple(to_fraction(v, f"y[{i}]") for i, v in enumerate(values))
+        found = [b for b in map(carried_bits, fr) if b is not None]  # already marked (a pickled state)
+        bits = min(list(binary.values()) + [int(b) for b in found], default=None)
+        if bits is not None:
+            sources = [k for k, b in binary.items() if b == bits]
+            sources += [s for b in found if b == bits for s in b.sources]
+            sources = tuple(dict.fromkeys(sources))
+            # every entry is marked: engines that read the exact values see the precision they carry
+            fr = tuple(f if isinstance(f, BinaryFraction) else BinaryFraction(f, bits, sources) for f in fr)
+            data = CarriedBits(bits, sources)
+        else:
+            data = None
         floats = []
         for f in fr:
             try:
@@ -33,12 +50,21 @@ class ExactState(np.ndarray):
                 floats.append(float("inf") if f > 0 else float("-inf"))
         arr = np.array(floats, dtype=np.float64).view(cls)
         arr.exact = fr
+        arr.data_bits = data
         arr.flags.writeable = False
         return arr
 
     def __array_finalize__(self, obj):
         self.exact = None
+        self.data_bits = None
         self._native = {}
+
+    @property
+    def binary_inputs(self) -> tuple:
+        """The arguments (``omega[1]``, ...) holding binary numbers (the double 0.1) the state was built from;
+        empty when it was built from exact input. The state is exact for their binary values: a run of more
+        than ``data_bits`` bits agrees with the decimals they round only to ``data_bits`` bits."""
+        return tuple(getattr(self.data_bits, "sources", ()))
 
     def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
         return plain_ufunc(ExactState, ufunc, method, inputs, kwargs)
@@ -48,7 +74,7 @@ class ExactState(np.ndarray):
         return np.asarray(out) if isinstance(out, np.ndarray) else out
 
     def __reduce__(self):
-        return (ExactState, (self.exact,)) if self.exact is not None else np.asarray(self).__reduce__()
+        return (ExactState, (self.exact, {})) if self.exact is not None else np.asarray(self).__reduce__()
 
     def __copy__(self):
         return self
@@ -76,11 +102,20 @@ class ExactState(np.ndarray):
         return f"ExactState({body})"
 
 
-def make_state(values, precision=None):
+def make_state(values, precision=None, inputs=None):
     """A model state from exact values: an :class:`ExactState` (``precision=None``) or an array rounded once to
-    ``precision``."""
+    ``precision``.
+
+    ``inputs``: ``{argument name: value as the user gave it}`` (``{"omega": omega, "R0": R0}``): binary numbers
+    among them (the double 0.1) make the ExactState carry their precision (``data_bits``) and name them
+    (``binary_inputs``), as an array of doubles would carry 53 bits; default: the ``values`` themselves."""
     if precision is None:
-        return ExactState(values)
+        if inputs is None:
+            return ExactState(values)
+        binary = {}
+        for name, value in inputs.items():
+            binary.update(binary_inputs(value, name))
+        return ExactState(values, binary)
     return resolve_precision(precision).array(values, "state")
 
 

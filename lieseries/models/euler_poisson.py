@@ -267,7 +267,8 @@ class EulerPoisson(Model):
             if _det3(R) < 0:
                 raise ValueError("`R0` must be a proper rotation (det R0 = +1); got a reflection (det R0 = -1)")
         M = [sum(self._I[i][j] * w[j] for j in range(3)) for i in range(3)]
-        return make_state([R[i][j] for i in range(3) for j in range(3)] + M, precision)
+        return make_state([R[i][j] for i in range(3) for j in range(3)] + M, precision,
+                          inputs={"omega": omega, "R0": R0})
 
     def rotation(self, y) -> np.ndarray:
         """R as a 3x3 array (one 3x3 per row for a 2-d array of states)."""

@@ -220,6 +220,7 @@ class Sphere(_SphereBase):
         pi_c = m (v_c - x_c v_k / x_k) for the two free indices c (paper eq. dm3). Refuses x off the sphere,
         x . v != 0, and positions on or near the chart edge (|x_k| <= edge * radius).
         """
+        given = {"x": x, "v": v}
         x, v = self._check_xv(x, v)
         k = self.chart
         if abs(float(x[k])) <= self.edge * self.radius:
@@ -230,7 +231,7 @@ class Sphere(_SphereBase):
             )
         m = self.mass_exact
         pis = [m * (v[c] - x[c] * v[k] / x[k]) for c in self.free]
-        return make_state(list(x) + pis, precision)
+        return make_state(list(x) + pis, precision, inputs=given)
 
     def check_state(self, y, argname="y0"):
         z = super().check_state(y, argname)
@@ -374,11 +375,12 @@ class SphereDirac(_SphereBase):
 
     def initial_state(self, x, v, precision=None) -> np.ndarray:
         """State (x, p) with p = m v, after checking |x| = radius and x . v = 0 (radial part removed exactly)."""
+        given = {"x": x, "v": v}
         x, v = self._check_xv(x, v)
         x2 = sum(c * c for c in x)
         xv = sum(a * b for a, b in zip(x, v))
         v = [v[i] - x[i] * xv / x2 for i in range(3)]
-        return make_state(list(x) + [self.mass_exact * c for c in v], precision)
+        return make_state(list(x) + [self.mass_exact * c for c in v], precision, inputs=given)
 
     def _xp(self, r):
         z = [mp.mpf(v.numerator) / v.denominator for v in r]
