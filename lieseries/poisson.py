@@ -35,7 +35,9 @@ from typing import Mapping, Sequence
 import heyoka as hy
 import mpmath as mp
 
-from .precision import carried_bits, to_fraction
+import numpy as np
+
+from .precision import bits_to_dps, carried_bits, check_dps, state_bits, to_fraction
 
 __all__ = ["PoissonSystem", "as_poisson_system"]
 
@@ -161,6 +163,9 @@ class PoissonSystem:
                 f"`parameters` gives {len(self._param_values)} values"
             )
         self._casimirs = {str(k): _as_expr(c, f"casimirs[{k!r}]") for k, c in (casimirs or {}).items()}
+        if "energy" in self._casimirs:
+            raise ValueError("`casimirs` must not use the name 'energy': `invariants` gives H under that name")
+        self._invariant_program = None
         if extra_field is not None:
             if len(extra_field) != n:
                 raise ValueError(f"`extra_field` must have {n} entries, one per variable; got {len(extra_field)}")
@@ -306,16 +311,69 @@ class PoissonSystem:
             _PROGRAMS[self.key] = prog
         return prog
 
+    # -- invariants ----------------------------------------------------------------------------------------------
+    def invariants(self, y, dps: int | None = None) -> dict:
+        """H and the declared Casimirs at a state, evaluated from its exact value in mpmath: the conserved
+        quantities of the system (of its Hamiltonian part: an ``extra_field`` need not conserve them), to check
+        a run as the built-in models' ``invariants`` do.
+
+        Parameters
+        ----------
+        y : state (n numbers) or 2-d array of states (one per row)
+            A model state built from exact input is taken at its exact values; an array at its stored values.
+        dps : int, optional
+            Decimal digits of the result (default: those of the state's precision plus 10; 87 for an exact state).
+
+        Returns
+        -------
+        dict name -> mpf (``"energy"`` then the Casimirs by name); name -> list of mpf for a 2-d array.
+        """
+        if dps is None:
+            dps = bits_to_dps(state_bits(y)) + 10
+        dps = check_dps(dps)
+        rows, was_1d = self._state_rows(y, "y")
+        if self._invariant_program is None:
+            from .expr import compile_expressions
+
+            self._invariant_program = compile_expressions(
+                self._variables, [self._hamiltonian] + list(self._casimirs.values()), len(self._param_values))
+        names = ["energy"] + list(self._casimirs)
+        vals = [self._invariant_program.evaluate(r, list(self._param_values), dps) for r in rows]
+        out = {nm: [v[i] for v in vals] for i, nm in enumerate(names)}
+        return {k: v[0] for k, v in out.items()} if was_1d else out
+
+    def _state_rows(self, y, argname):
+        """(rows of exact values, was_1d) of a state or a 2-d array of states (exact states at their exact
+        values, never through the doubles numpy shows of them)."""
+        n = self.dimension
+
+        def row(r, name):
+            exact = getattr(r, "exact", None)
+            vals = list(exact) if exact is not None else list(r)
+            if len(vals) != n:
+                raise ValueError(f"`{name}` must hold states of length {n}; got length {len(vals)}")
+            return [to_fraction(v, f"{name}[{i}]") if not hasattr(v, "_mpf_") else v for i, v in enumerate(vals)]
+
+        if getattr(y, "exact", None) is not None:
+            return [row(y, argname)], True
+        if isinstance(y, (list, tuple)) and y and all(getattr(r, "exact", None) is not None for r in y):
+            return [row(r, f"{argname}[{i}]") for i, r in enumerate(y)], False
+        arr = y if isinstance(y, np.ndarray) else np.asarray(y, dtype=object)
+        if arr.ndim == 1:
+            return [row(arr, argname)], True
+        if arr.ndim == 2:
+            return [row(r, f"{argname}[{i}]") for i, r in enumerate(arr)], False
+        raise ValueError(f"`{argname}` must be a state (1-d) or one state per row (2-d); got {arr.ndim}-d")
+
     # -- numerical checks of the structure ---------------------------------------------------------------------
     def _evaluate(self, exprs, points, dps):
         from .expr import compile_expressions
 
         prog = compile_expressions(self._variables, exprs, len(self._param_values))
         out = []
-        for z in points:
-            if len(z) != self.dimension:
-                raise ValueError(f"`points` must hold states of length {self.dimension}; got length {len(z)}")
-            out.append(prog.evaluate(list(z), list(self._param_values), dps))
+        for i, z in enumerate(points):
+            rows, _ = self._state_rows(z, f"points[{i}]")
+            out.append(prog.evaluate(rows[0], list(self._param_values), dps))
         return out
 
     def antisymmetry_residual(self, points, dps: int = 50) -> mp.mpf:

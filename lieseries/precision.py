@@ -612,6 +612,29 @@ def _significand_bits(man: int, fmt_bits: int):
     return None if man.bit_length() <= EXACT_BITS else int(fmt_bits)
 
 
+#: Bits at which helpers evaluate an exact state (it has no format of its own; well above quad).
+EXACT_STATE_BITS = 256
+
+
+def state_bits(y) -> int:
+    """The precision (bits) a state is stored in: 53 for float64, 113 for quad, the ``real`` precision, ...;
+    EXACT_STATE_BITS for a state that carries its exact values (``y.exact``, an ExactState)."""
+    if getattr(y, "exact", None) is not None:
+        return EXACT_STATE_BITS
+    arr = np.asarray(y) if not isinstance(y, np.ndarray) else y
+    prec = precision_of_dtype(arr.dtype)
+    if prec is not None:
+        return prec.bits
+    flat = arr.ravel()
+    if len(flat) and hasattr(flat[0], "prec"):
+        p = flat[0].prec
+        return int(p() if callable(p) else p)
+    if len(flat) and hasattr(flat[0], "_mpf_"):
+        # mpf carries no precision of its own: use the longest significand in the state
+        return max([53] + [int(v._mpf_[3]) for v in flat if hasattr(v, "_mpf_")])
+    return 53
+
+
 def data_bits(values):
     """The least precision carried by any of ``values`` (None when all are exact), as a :class:`CarriedBits`
     naming the inputs that carry it when they are known (a state from ``model.initial_state(omega=(1, 0.1, 0.5))``

@@ -9,8 +9,8 @@ import numpy as np
 
 from ..poisson import PoissonSystem
 from ..solution import ChartRows, Solution, plain_ufunc
-from ..precision import (BinaryFraction, CarriedBits, binary_inputs, carried_bits, export_mpf, precision_of_dtype,
-                         resolve_precision, to_fraction)
+from ..precision import (EXACT_STATE_BITS, BinaryFraction, CarriedBits, binary_inputs, carried_bits, export_mpf,
+                         precision_of_dtype, resolve_precision, state_bits, to_fraction)
 
 __all__ = ["Model", "ExactState", "make_state", "state_fractions", "state_bits"]
 
@@ -144,29 +144,6 @@ def state_fractions(y, n: int, argname: str = "y0") -> list:
         except ValueError as err:
             raise ValueError(f"{err}: every entry of `{argname}` must be a finite number") from None
     return out
-
-
-#: Bits at which helpers evaluate an exact state (it has no format of its own; well above quad).
-EXACT_STATE_BITS = 256
-
-
-def state_bits(y) -> int:
-    """The precision (bits) a state is stored in: 53 for float64, 113 for quad, the ``real`` precision, ...;
-    EXACT_STATE_BITS for an :class:`ExactState`."""
-    if getattr(y, "exact", None) is not None:
-        return EXACT_STATE_BITS
-    arr = np.asarray(y) if not isinstance(y, np.ndarray) else y
-    prec = precision_of_dtype(arr.dtype)
-    if prec is not None:
-        return prec.bits
-    flat = arr.ravel()
-    if len(flat) and hasattr(flat[0], "prec"):
-        p = flat[0].prec
-        return int(p() if callable(p) else p)
-    if len(flat) and hasattr(flat[0], "_mpf_"):
-        # mpf carries no precision of its own: use the longest significand in the state
-        return max([53] + [int(v._mpf_[3]) for v in flat if hasattr(v, "_mpf_")])
-    return 53
 
 
 class Model:
