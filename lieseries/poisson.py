@@ -41,6 +41,9 @@ from .precision import bits_to_dps, carried_bits, check_dps, state_bits, to_frac
 
 __all__ = ["PoissonSystem", "as_poisson_system"]
 
+#: Largest dimension whose Jacobi identity is checked at construction by default (the check grows like n^4).
+JACOBI_AUTO_DIMENSION = 6
+
 #: Compiled mpmath programs of vector fields, by structural key (shared by equal structures).
 _PROGRAMS: dict = {}
 
@@ -90,6 +93,14 @@ class PoissonSystem:
     input_bits : mapping name -> bits, optional
         For models: the precision carried by the data the model was built from (e.g. ``{"inertia": 53}`` for
         moments given as binary floats such as 1.1), reported by :meth:`coarse_data`.
+    jacobi : bool or None
+        Check the Jacobi identity at construction (:meth:`check_jacobi`): None (default) does so for systems of at
+        most :data:`JACOBI_AUTO_DIMENSION` variables, whose check is cheap; True always, False never.
+
+    Construction refuses what is not a Poisson system, naming the entry: expressions in variables not among
+    ``variables``, expressions depending on time (``heyoka.time``), a tensor that is not antisymmetric
+    (checked numerically at a few sample states when the entries are not written as each other's negatives),
+    and, as above, one that fails the Jacobi identity. :meth:`invariants` gives H and the Casimirs at a state.
     """
 
     def __init__(
@@ -103,6 +114,7 @@ class PoissonSystem:
         extra_field: Sequence | None = None,
         name: str = "system",
         input_bits: Mapping | None = None,
+        jacobi: bool | None = None,
     ):
         if isinstance(variables, (str, bytes)) or not hasattr(variables, "__len__"):
             raise TypeError("`variables` must be a sequence of names or heyoka variables")
@@ -174,6 +186,141 @@ class PoissonSystem:
         self.name = str(name)
         self._field = None
         self._key = None
+        self._check_expressions(extra_field)
+        self._check_antisymmetry()
+        if jacobi is not None and not isinstance(jacobi, bool):
+            raise TypeError(f"`jacobi` must be True, False or None (automatic); got {jacobi!r}")
+        if jacobi or (jacobi is None and n <= JACOBI_AUTO_DIMENSION):
+            try:
+                self.check_jacobi()
+            except NotImplementedError:  # a function the mpmath compiler lacks: not checked automatically
+                if jacobi is True:
+                    raise
+
+    # -- checks at construction ----------------------------------------------------------------------------------
+    def _check_expressions(self, extra_field):
+        """Every expression uses declared variables only, and none depends on time."""
+        from .expr import uses_time
+
+        known = set(self._names)
+        named = [("hamiltonian", self._hamiltonian)]
+        named += [(f"tensor[{i}][{j}]", e) for i, r in enumerate(self._tensor) for j, e in enumerate(r) if e is not None]
+        named += [(f"casimirs[{k!r}]", e) for k, e in self._casimirs.items()]
+        named += [(f"extra_field[{i}]", e) for i, e in enumerate(extra_field or []) if e is not None]
+        for where, e in named:
+            if uses_time(e):
+                raise ValueError(
+                    f"`{where}` depends on time (heyoka.time): a PoissonSystem is autonomous (H and the bracket are "
+                    "functions of the state; its energy check and invariants assume so). Make time a state "
+                    "variable: add `tau` and a conjugate `E` to `variables` with {tau, E} = 1, and use H + E with `tau` "
+                    "in place of time (then dtau/dt = 1)."
+                )
+            unknown = sorted(set(hy.get_variables(e)) - known)
+            if unknown:
+                shown = ", ".join(f"`{u}`" for u in unknown)
+                raise ValueError(
+                    f"`{where}` uses {shown}, which {'is' if len(unknown) == 1 else 'are'} not among `variables` "
+                    f"{list(self._names)}: add {'it' if len(unknown) == 1 else 'them'} to `variables` (with a row and "
+                    "a column of `tensor`), or make a constant a runtime parameter (`hy.par[i]` with its value in "
+                    "`parameters`)"
+                )
+
+    def _sample_points(self, count: int = 3):
+        """A few fixed pseudo-random states with entries in [0.3, 1.3] (exact decimals), for numerical checks."""
+        import random
+
+        rng = random.Random(20240617 + self.dimension)
+        return [[Fraction(rng.randint(300, 1300), 1000) for _ in range(self.dimension)] for _ in range(count)]
+
+    def _values_at(self, exprs, points, dps):
+        """Values of ``exprs`` at each of ``points`` where they are defined (points where an expression is
+        singular or undefined, e.g. a division by zero, are left out)."""
+        out = []
+        for z in points:
+            try:
+                vals = self._evaluate(exprs, [z], dps)[0]
+            except (ZeroDivisionError, ValueError, ArithmeticError):
+                continue
+            if all(mp.isfinite(v) for v in vals):
+                out.append(vals)
+        return out
+
+    def _check_antisymmetry(self):
+        """P_ij = -P_ji and P_ii = 0: structurally when the entries are written as negatives of each other,
+        otherwise numerically at a few sample states (30 digits, relative to the entries)."""
+        n = self.dimension
+        pairs = []
+        for i in range(n):
+            for j in range(i, n):
+                a, b = self._tensor[i][j], self._tensor[j][i]
+                if a is None and b is None:
+                    continue
+                if i != j and a is not None and b is not None and (b == -a or -b == a):
+                    continue
+                zero = hy.expression(0.0)
+                pairs.append((i, j, zero if a is None else a, zero if b is None else b))
+        if not pairs:
+            return
+        exprs = [e for _i, _j, a, b in pairs for e in (a, b)]
+        try:
+            samples = self._values_at(exprs, self._sample_points(), 30)
+        except NotImplementedError:  # a function the mpmath compiler lacks: the engines say so when they need it
+            return
+        for vals in samples:
+            for k, (i, j, _a, _b) in enumerate(pairs):
+                va, vb = vals[2 * k], vals[2 * k + 1]
+                if abs(va + vb) > mp.mpf(10) ** -20 * (abs(va) + abs(vb)) or (i == j and va != 0):
+                    if i == j:
+                        raise ValueError(
+                            f"`tensor[{i}][{i}]` must be 0: a Poisson bracket is antisymmetric, {{z, z}} = 0 (got "
+                            f"{mp.nstr(va, 6)} at a sample state)"
+                        )
+                    raise ValueError(
+                        f"`tensor[{i}][{j}]` and `tensor[{j}][{i}]` must be opposite (P_ij = -P_ji: a Poisson bracket "
+                        f"is antisymmetric); at a sample state they are {mp.nstr(va, 6)} and {mp.nstr(vb, 6)}. Give "
+                        f"the entry above the diagonal and its negative below it (`tensor[{j}][{i}]` = "
+                        f"-`tensor[{i}][{j}]`)."
+                    )
+
+    def check_jacobi(self, points=None, dps: int = 40) -> None:
+        """Check the Jacobi identity {z_i, {z_j, z_k}} + cyclic = 0 numerically (:meth:`jacobi_expressions`).
+
+        At ``points`` (default: three fixed pseudo-random states), the Jacobiator is evaluated with ``dps`` and
+        ``dps + 20`` digits: where the identity holds it is rounding noise, which changes with the digits; a value
+        that stays the same is a failure of the identity. Runs at construction for systems of at most
+        :data:`JACOBI_AUTO_DIMENSION` variables (``jacobi=None``); call it for larger ones (its cost grows like
+        n^4).
+
+        Raises
+        ------
+        ValueError
+            Naming the first triple (i, j, k) of variables where the identity fails, with the value.
+        """
+        dps = check_dps(dps)
+        pts = self._sample_points() if points is None else [self._state_rows(p, "points")[0][0] for p in points]
+        exprs = self.jacobi_expressions()
+        n = self.dimension
+        triples = [(i, j, k) for i in range(n) for j in range(i + 1, n) for k in range(j + 1, n)]
+        checked = 0
+        for z in pts:
+            lo = self._values_at(exprs, [z], dps)
+            hi = self._values_at(exprs, [z], dps + 20)
+            if not lo or not hi:
+                continue
+            checked += 1
+            for (i, j, k), a, b in zip(triples, lo[0], hi[0]):
+                if b != 0 and abs(a - b) <= mp.mpf(10) ** -6 * abs(b):
+                    names = self._names
+                    raise ValueError(
+                        f"`tensor` does not satisfy the Jacobi identity: {{{names[i]}, {{{names[j]}, {names[k]}}}}} + "
+                        f"cyclic = {mp.nstr(b, 8)} at a sample state (it must vanish everywhere), so it is not a "
+                        "Poisson bracket and the motion need not conserve what a Poisson system conserves. Check "
+                        "the entries of `tensor` in the rows and columns of "
+                        f"{names[i]}, {names[j]}, {names[k]}" + (
+                            "; pass `jacobi=False` to build the system anyway" if n <= JACOBI_AUTO_DIMENSION else "")
+                    )
+        if not checked and points is not None:
+            raise ValueError("`points`: the Jacobiator is singular or undefined at every point given; choose others")
 
     # -- structure ---------------------------------------------------------------------------------------------
     @property

@@ -190,3 +190,43 @@ def test_python_scene_drift_is_measured_from_the_exact_initial_state(tmp_path):
     top = _heavy_top()
     sol = ls.integrate(top, [1, "0.1", "0.5", "0.6", 0, "0.8"], t=2, precision="quad")
     assert abs(top.invariants(sol.y[-1])["G2"] - 1) < 1e-32
+
+
+def test_poisson_system_refuses_what_is_not_a_poisson_system():
+    x, y, r = hy.make_vars("x", "y", "r")
+    with pytest.raises(ValueError, match=r"`tensor\[0\]\[1\]` and `tensor\[1\]\[0\]` must be opposite"):
+        ls.PoissonSystem([x, y], [[0, 1], [1, 0]], x * x + y * y)
+    with pytest.raises(ValueError, match=r"`tensor\[0\]\[0\]` must be 0"):
+        ls.PoissonSystem([x, y], [[x, 1], [-1, 0]], x * x + y * y)
+    # antisymmetric, but not written as each other's negatives: checked numerically, accepted
+    ls.PoissonSystem([x, y], [[0, x * y + 1], [-(y * x) - 1, 0]], x * x + y * y)
+    with pytest.raises(ValueError, match=r"`hamiltonian` uses `r`, which is not among `variables`"):
+        ls.PoissonSystem([x, y], [[0, 1], [-1, 0]], x * x + y * y + r**2)
+    with pytest.raises(ValueError, match=r"`tensor\[0\]\[1\]` uses `r`"):
+        ls.PoissonSystem([x, y], [[0, r], [-r, 0]], x * x + y * y)
+    with pytest.raises(ValueError, match=r"`hamiltonian` depends on time \(heyoka.time\)"):
+        ls.PoissonSystem([x, y], [[0, 1], [-1, 0]], x * x + y * y * hy.time)
+    # a state variable named t is a variable, not time
+    t, p = hy.make_vars("t", "p")
+    ls.PoissonSystem([t, p], [[0, 1], [-1, 0]], t * t + p * p)
+
+
+def test_jacobi_identity_is_checked_at_construction_for_small_systems():
+    a, b, c = hy.make_vars("a", "b", "c")
+    so3 = [[0, c, -b], [-c, 0, a], [b, -a, 0]]
+    ls.PoissonSystem([a, b, c], so3, a * a + b * b + c * c)
+    # {a, b} = c, {b, c} = a, {c, a} = a b: by hand, sum_l P_la d_l P_bc + P_lb d_l P_ca + P_lc d_l P_ab
+    # = 0 + P_ab * b + 0 = b c != 0
+    bad = [[0, c, -a * b], [-c, 0, a], [a * b, -a, 0]]
+    with pytest.raises(ValueError, match="does not satisfy the Jacobi identity"):
+        ls.PoissonSystem([a, b, c], bad, a * a + b * b + c * c)
+    ps = ls.PoissonSystem([a, b, c], bad, a * a + b * b + c * c, jacobi=False)
+    assert abs(ps.jacobi_residual([[2, 3, 5]]) - 15) < 1e-40
+    with pytest.raises(ValueError, match="Jacobi identity"):
+        ps.check_jacobi()
+
+
+def test_builtin_brackets_pass_the_explicit_jacobi_check():
+    for model in (ls.EulerPoisson((1, 2, 3)), ls.EulerPoisson((1, 2, 3), bracket="intermediate"), ls.Sphere(),
+                  ls.SphereDirac()):
+        model.poisson.check_jacobi()

@@ -195,7 +195,8 @@ class EulerPoisson(Model):
                     P[9 + i][3 * j + k] = Rm[j][m] if sign > 0 else -Rm[j][m]
                     P[3 * j + k][9 + i] = -Rm[j][m] if sign > 0 else Rm[j][m]
         return PoissonSystem(z, P, H, parameters=params, name=f"Euler-Poisson ({self.bracket})",
-                             input_bits=self._input_bits)
+                             input_bits=self._input_bits,
+                             jacobi=False)  # the bracket is checked by the tests (tests/test_poisson.py)
 
     # -- state helpers -----------------------------------------------------------------------------------------
     @property
@@ -374,7 +375,7 @@ class DampedEulerPoisson(EulerPoisson):
         return PoissonSystem(
             z, base.tensor, base.hamiltonian, parameters=params, extra_field=[0] * 9 + torque,
             name=f"damped Euler-Poisson ({self.bracket})",
-            input_bits={**self._input_bits, "damping": self._damping_bits},
+            input_bits={**self._input_bits, "damping": self._damping_bits}, jacobi=False,
         )
 
     def check_parameters(self, values, argname: str = "params") -> None:

@@ -212,6 +212,7 @@ class Sphere(_SphereBase):
             casimirs={"x2": x[0] ** 2 + x[1] ** 2 + x[2] ** 2},
             name=f"sphere (intermediate, chart x{k + 1})",
             input_bits=self._input_bits,
+            jacobi=False,  # the bracket is checked by the tests (tests/test_poisson.py)
         )
 
     def initial_state(self, x, v, precision=None) -> np.ndarray:
@@ -371,6 +372,7 @@ class SphereDirac(_SphereBase):
             casimirs={"x2": r2, "xp": x[0] * p[0] + x[1] * p[1] + x[2] * p[2]},
             name="sphere (Dirac bracket)",
             input_bits=self._input_bits,
+            jacobi=False,  # the bracket is checked by the tests (tests/test_poisson.py)
         )
 
     def initial_state(self, x, v, precision=None) -> np.ndarray:
