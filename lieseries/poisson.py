@@ -439,11 +439,19 @@ class PoissonSystem:
         stores ``0.05 * q**2`` with the double nearest 0.05). Empty when every number is exact.
         """
         if not self._constants_checked:
-            for _slot, c in self.program.constants:
-                if c.kind == "binary" and c.value[1]:
-                    if carried_bits(mp.libmp.to_float(c.value)) is not None:
-                        key = f"the constant {mp.nstr(mp.make_mpf(c.value), 8)} in the expressions"
-                        self._coarse[key] = 53
+            # the expressions as given (not the derived vector field: 0.1 q**4 in H is "the constant 0.1 in
+            # `hamiltonian`", not the 0.4 of its derivative)
+            import sympy
+
+            named = [("hamiltonian", self._hamiltonian)]
+            named += [(f"tensor[{i}][{j}]", e) for i, r in enumerate(self._tensor) for j, e in enumerate(r)
+                      if e is not None]
+            named += [(f"extra_field[{i}]", e) for i, e in enumerate(self._extra or []) if e is not None]
+            for where, e in named:
+                for c in sorted(hy.to_sympy(e).atoms(sympy.Float), key=float):
+                    value = float(c)  # heyoka's constants are doubles: their exact binary values
+                    if carried_bits(value) is not None:
+                        self._coarse[f"the constant {value!r} in {where}"] = 53
             self._constants_checked = True
         return dict(self._coarse)
 
