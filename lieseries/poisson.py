@@ -37,7 +37,7 @@ import mpmath as mp
 
 import numpy as np
 
-from .precision import bits_to_dps, carried_bits, check_dps, state_bits, to_fraction
+from .precision import NamedValues, bits_to_dps, carried_bits, check_dps, state_bits, to_fraction
 
 __all__ = ["PoissonSystem", "as_poisson_system"]
 
@@ -93,6 +93,9 @@ class PoissonSystem:
     input_bits : mapping name -> bits, optional
         For models: the precision carried by the data the model was built from (e.g. ``{"inertia": 53}`` for
         moments given as binary floats such as 1.1), reported by :meth:`coarse_data`.
+    parameter_sources : mapping parameter name -> argument name, optional
+        For models: the argument each runtime parameter is computed from (``{"Iinv1": "inertia"}``), named when
+        the parameter does not fit a precision.
     jacobi : bool or None
         Check the Jacobi identity at construction (:meth:`check_jacobi`): None (default) does so for systems of at
         most :data:`JACOBI_AUTO_DIMENSION` variables, whose check is cheap; True always, False never.
@@ -115,6 +118,7 @@ class PoissonSystem:
         name: str = "system",
         input_bits: Mapping | None = None,
         jacobi: bool | None = None,
+        parameter_sources: Mapping | None = None,
     ):
         if isinstance(variables, (str, bytes)) or not hasattr(variables, "__len__"):
             raise TypeError("`variables` must be a sequence of names or heyoka variables")
@@ -155,6 +159,10 @@ class PoissonSystem:
             pvals = list(parameters)
             pnames = tuple(f"p{i}" for i in range(len(pvals)))
         self._param_names = pnames
+        sources = dict(parameter_sources or {})
+        self._param_labels = tuple(
+            f"`{sources[k]}` gives the runtime parameter {k!r}, whose value" if k in sources else f"`parameters[{k!r}]` ="
+            for k in pnames)
         self._param_values = tuple(to_fraction(v, f"parameters[{k!r}]") for k, v in zip(pnames, pvals))
         self._coarse = {f"parameters[{k!r}]": b for k, b in ((k, carried_bits(v)) for k, v in zip(pnames, pvals))
                         if b is not None}
@@ -356,8 +364,9 @@ class PoissonSystem:
 
     @property
     def parameter_values(self) -> tuple:
-        """Exact values of the runtime parameters (Fractions), in ``hy.par`` order."""
-        return self._param_values
+        """Exact values of the runtime parameters (Fractions), in ``hy.par`` order (a tuple that names, in
+        errors, the argument each came from: rounding I^-1 = 1e330 to double names `inertia`)."""
+        return NamedValues(self._param_values, self._param_labels)
 
     @property
     def is_hamiltonian(self) -> bool:
@@ -416,6 +425,7 @@ class PoissonSystem:
             raise ValueError(f"`values` must give {len(self._param_values)} parameters; got {len(values)}")
         other = copy.copy(self)
         other._param_values = values
+        other._param_labels = tuple(f"`parameters[{i}]` =" for i in range(len(values)))
         other._native_params = {}
         return other
 
@@ -426,7 +436,7 @@ class PoissonSystem:
             return None
         arr = self._native_params.get(prec.name)
         if arr is None:
-            arr = prec.array(self._param_values, "parameters")
+            arr = prec.array(self.parameter_values, "parameters")
             arr.flags.writeable = False
             self._native_params[prec.name] = arr
         return arr

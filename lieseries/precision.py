@@ -33,6 +33,7 @@ __all__ = [
     "MAX_BITS",
     "MAX_ORDER",
     "MAX_EXPONENT",
+    "MAX_DIGITS",
     "EXACT_BITS",
     "PrecisionWarning",
     "carried_bits",
@@ -80,6 +81,8 @@ MAX_BITS = 1024
 MAX_ORDER = 2000
 #: Largest decimal exponent of an input number (|x| < 10**MAX_EXPONENT, nonzero |x| > 10**-MAX_EXPONENT).
 MAX_EXPONENT = 4000
+#: Most digits of a number written as a decimal string (a run uses at most MAX_DPS of them).
+MAX_DIGITS = 2 * MAX_DPS
 #: A binary number whose significand has at most this many significant bits (0.5, 1.25, 3.0, 0.375, ...) is taken
 #: as exact: it is what was meant. Anything longer (0.1 as a double) carries its format's precision only.
 EXACT_BITS = 32
@@ -164,6 +167,41 @@ def check_callable(value, argname: str):
     """Validate an optional callable (None passes through)."""
     if value is not None and not callable(value):
         raise TypeError(f"`{argname}` must be callable (or None); got {type(value).__name__} {value!r}")
+    return value
+
+
+class _FractionBar:
+    """``progress(fraction_done)`` drawn as a bar of 1000 steps (closed when the run is done or forgotten)."""
+
+    def __init__(self, title):
+        from .progress import ProgressBar
+
+        self._bar = ProgressBar(title)
+
+    def __call__(self, fraction) -> None:
+        done = min(1000, max(0, int(round(1000 * float(fraction)))))
+        self._bar(done, 1000)
+        if done >= 1000:
+            self._bar.close()
+
+    def __del__(self):
+        try:
+            self._bar.close()
+        except Exception:  # pragma: no cover - interpreter shutdown
+            pass
+
+
+def check_progress(value, argname: str = "progress", title: str = "run"):
+    """A run's ``progress`` argument as a callable ``progress(fraction_done)`` or None: a callable passes through,
+    True shows a bar (:class:`lieseries.progress.ProgressBar`: drawn on a terminal, silent in CI), None and False
+    show nothing."""
+    if value is True:
+        return _FractionBar(title)
+    if value is None or value is False:
+        return None
+    if not callable(value):
+        raise TypeError(f"`{argname}` must be a callable progress(fraction_done), True (show a bar) or None; got "
+                        f"{type(value).__name__} {value!r}")
     return value
 
 
@@ -288,10 +326,22 @@ class Precision:
         return hy.real(text, self.bits)
 
     def array(self, values, argname: str = "value") -> np.ndarray:
-        """A 1-d (or n-d) numpy array of ``values`` rounded to this precision."""
+        """A 1-d (or n-d) numpy array of ``values`` rounded to this precision.
+
+        Values that know where they come from (a system's ``parameter_values``, :class:`NamedValues`) are named
+        by it in errors (an overflow names `inertia`, not a runtime parameter the user never wrote)."""
         exact = getattr(values, "exact", None)
+        labels = getattr(values, "labels", None)
         arr = np.asarray(exact if exact is not None else values, dtype=object)
-        out = [self.to_native(v, argname) for v in arr.ravel()]
+        out = []
+        for i, v in enumerate(arr.ravel()):
+            try:
+                out.append(self.to_native(v, argname))
+            except ValueError as err:
+                if labels is None or i >= len(labels):
+                    raise
+                text = str(err)
+                raise ValueError(f"{labels[i]} {text.split('= ', 1)[-1]}") from None
         if self.is_real:
             res = np.empty(len(out), dtype=hy.real)
             for i, v in enumerate(out):
@@ -306,6 +356,18 @@ class Precision:
 
     def __str__(self) -> str:  # pragma: no cover - trivial
         return self.name
+
+
+class NamedValues(tuple):
+    """A tuple of numbers with a label for each (``labels``), saying in errors where each came from."""
+
+    def __new__(cls, values, labels):
+        obj = super().__new__(cls, values)
+        obj.labels = tuple(labels)
+        return obj
+
+    def __reduce__(self):
+        return (NamedValues, (tuple(self), self.labels))
 
 
 _BUILTIN = {
@@ -394,8 +456,17 @@ def _log10_abs(f: Fraction) -> float:
     return (n.bit_length() - d.bit_length()) * math.log10(2)
 
 
+_HUGE = 10**MAX_EXPONENT
+
+
 def _bounded(f: Fraction, argname: str) -> Fraction:
-    if f != 0 and abs(_log10_abs(f)) > MAX_EXPONENT + 1:
+    """``f`` when 10**-MAX_EXPONENT <= |f| <= 10**MAX_EXPONENT or f == 0 (exactly: the estimate from bit lengths
+    only decides far from the bounds), else a ValueError naming ``argname``."""
+    if f == 0:
+        return f
+    e = abs(_log10_abs(f))
+    if e > MAX_EXPONENT + 1 or (e > MAX_EXPONENT - 1 and not (
+            abs(f.numerator) * _HUGE >= f.denominator and abs(f.numerator) <= _HUGE * f.denominator)):
         raise ValueError(
             f"`{argname}` = {short_decimal(f)} is out of range: numbers must lie within 1e-{MAX_EXPONENT} .. "
             f"1e{MAX_EXPONENT} in magnitude (or be 0)"
@@ -411,16 +482,24 @@ def _string_fraction(value: str, argname: str) -> Fraction:
     text = value.strip()
     m = _DECIMAL.match(text)
     if m:
-        if m.group(3) is not None and abs(int(m.group(3))) > MAX_EXPONENT + len(m.group(1)):
+        digits = len(m.group(1)) - ("." in m.group(1))
+        if digits > MAX_DIGITS:
             raise ValueError(
-                f"`{argname}` = {value!r} is out of range: numbers must lie within 1e-{MAX_EXPONENT} .. "
+                f"`{argname}` is written with {digits} digits ({text[:20]}...); lieseries reads numbers of at most "
+                f"{MAX_DIGITS} digits (a run uses at most {MAX_DPS}). Round it to the digits you need, or pass a "
+                "Fraction."
+            )
+        if m.group(3) is not None and (len(m.group(3)) > 12 or abs(int(m.group(3))) > MAX_EXPONENT + len(m.group(1))):
+            raise ValueError(
+                f"`{argname}` = {value[:40]!r} is out of range: numbers must lie within 1e-{MAX_EXPONENT} .. "
                 f"1e{MAX_EXPONENT} in magnitude (or be 0)"
             )
-        return Fraction(text)
+        return Fraction(decimal.Decimal(text))  # exact, and not limited by Python's int-string conversion limit
     if _RATIO.match(text):
         if len(text) > 2 * MAX_EXPONENT:
-            raise ValueError(f"`{argname}` = {value[:40]!r}... is too long a ratio")
-        num, den = (int(part) for part in text.split("/"))
+            raise ValueError(f"`{argname}` = {value[:40]!r}... is too long a ratio (at most {2 * MAX_EXPONENT} "
+                             "characters); pass a Fraction")
+        num, den = (int(decimal.Decimal(part)) for part in text.split("/"))
         if den == 0:
             raise ValueError(f"`{argname}` = {value!r} divides by zero")
         return Fraction(num, den)

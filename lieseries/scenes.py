@@ -152,6 +152,16 @@ def _fraction01(value, path):
     return _number(value, path, below_one=True)
 
 
+def _edge(value, path):
+    """A sphere chart's edge: in (0, 1/sqrt(3)) (as ``Sphere``: every point has a coordinate with
+    |x_k| >= |x|/sqrt(3), so below that every point lies inside the chart of its largest coordinate)."""
+    _number(value, path, below_one=True, what="a number in (0, 0.577) (below 1/sqrt(3))")
+    if to_fraction(value, path) ** 2 >= Fraction(1, 3):
+        _fail(path, "a number in (0, 0.577): below 1/sqrt(3), since every point has a coordinate with "
+                    "|x_k| >= |x|/sqrt(3) and so lies inside the chart of its largest coordinate", value)
+    return value
+
+
 def _tol(value, path):
     return _number(value, path, below_one=True, what="a tolerance (a number between 0 and 1)")
 
@@ -339,7 +349,7 @@ _MODEL_FIELDS = {
     "damped_euler_poisson": {"inertia": (_inertia, _REQUIRED), "damping": (_nonnegative, _REQUIRED),
                              "bracket": (_choice("chetaev", "intermediate"), "chetaev")},
     "sphere": {"mass": (_positive, 1), "radius": (_positive, 1), "chart": (_integer(0, 2), 2),
-               "edge": (_fraction01, 0.05), "atlas": (_boolean, True)},
+               "edge": (_edge, 0.05), "atlas": (_boolean, True)},
     "sphere_dirac": {"mass": (_positive, 1), "radius": (_positive, 1)},
     "python": {"file": (_string, _REQUIRED), "factory": (_identifier, "make")},
 }
@@ -490,7 +500,8 @@ FIELD_DOCS = {
         "mass": ("positive number", "the particle's mass"),
         "radius": ("positive number", "the sphere's radius"),
         "chart": ("0 | 1 | 2", "the dependent coordinate of the chart the state is written in"),
-        "edge": ("number in (0, 1)", "a chart ends where |x_chart| <= edge * |x|"),
+        "edge": ("number in (0, 0.577)", "a chart ends where abs(x_chart) <= edge * abs(x); below 1/sqrt(3), "
+                 "since every point has a coordinate with abs(x_k) >= abs(x)/sqrt(3)"),
         "atlas": ("boolean", "runs and studies switch charts (true) or stay in one and stop at its edge"),
     },
     "model.sphere_dirac": {

@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import warnings
 from fractions import Fraction
+
+import heyoka as hy
 
 from ..precision import thread_mp as mp
 import numpy as np
 
 from ..poisson import PoissonSystem
 from ..solution import ChartRows, Solution, plain_ufunc
-from ..precision import (EXACT_STATE_BITS, BinaryFraction, CarriedBits, binary_inputs, carried_bits, export_mpf,
-                         precision_of_dtype, resolve_precision, state_bits, to_fraction)
+from ..precision import (EXACT_STATE_BITS, BinaryFraction, CarriedBits, PrecisionWarning, binary_inputs, carried_bits,
+                         export_mpf, precision_of_dtype, resolve_precision, state_bits, to_fraction)
 
 __all__ = ["Model", "ExactState", "make_state", "state_fractions", "state_bits"]
 
@@ -143,7 +146,26 @@ def state_fractions(y, n: int, argname: str = "y0") -> list:
             out.append(to_fraction(v, f"{argname}[{i}]"))
         except ValueError as err:
             raise ValueError(f"{err}: every entry of `{argname}` must be a finite number") from None
+    _warn_mixed_reals(arr, argname)
     return out
+
+
+def _warn_mixed_reals(arr, argname):
+    """One PrecisionWarning when a state mixes heyoka.real numbers of different precisions: a run that takes its
+    precision from the state uses the first entry's, and rounds the longer entries to it."""
+    precs = [(i, int(v.prec)) for i, v in enumerate(arr) if isinstance(v, hy.real)]
+    if len({p for _i, p in precs}) < 2:
+        return
+    first = precs[0]
+    longest = max(precs, key=lambda ip: ip[1])
+    if longest[1] > first[1]:
+        warnings.warn(
+            f"`{argname}[{longest[0]}]` is a {longest[1]}-bit heyoka.real but `{argname}[{first[0]}]` has "
+            f"{first[1]} bits: a run that takes its precision from `{argname}` works with {first[1]} bits and "
+            f"rounds `{argname}[{longest[0]}]` to them. Give every entry the same precision, or pass `precision=`.",
+            PrecisionWarning,
+            stacklevel=4,
+        )
 
 
 class Model:

@@ -27,7 +27,7 @@ from ..precision import thread_mp as mp
 import numpy as np
 
 from ..poisson import PoissonSystem
-from ..precision import data_bits, export_mpf, to_fraction
+from ..precision import data_bits, export_mpf, short_decimal, to_fraction
 from .base import Model, make_state
 
 __all__ = ["EulerPoisson", "DampedEulerPoisson", "levi_civita"]
@@ -65,6 +65,16 @@ def _parse_inertia(inertia):
     else:
         raise ValueError(
             f"`inertia` must be three principal moments or a 3x3 matrix; got shape {arr.shape}"
+        )
+    # the model's helpers (principal moments, the triangle inequality, saddle_rate) use doubles
+    big = max(abs(v) for r in I for v in r)
+    small = min(abs(v) for r in I for v in r if v != 0)
+    if big > 10**300 or small < Fraction(1, 10**300):
+        raise ValueError(
+            f"`inertia` entries must lie within 1e-300 .. 1e300 in magnitude; got one of about "
+            f"{short_decimal(big if big > 10**300 else small)}: the model computes its principal moments and checks "
+            "in double. Rescale the unit of mass or length (the motion is the same with the inertia and the angular "
+            "velocity rescaled)."
         )
     # Sylvester's criterion, exact
     m1 = I[0][0]
@@ -195,7 +205,7 @@ class EulerPoisson(Model):
                     P[9 + i][3 * j + k] = Rm[j][m] if sign > 0 else -Rm[j][m]
                     P[3 * j + k][9 + i] = -Rm[j][m] if sign > 0 else Rm[j][m]
         return PoissonSystem(z, P, H, parameters=params, name=f"Euler-Poisson ({self.bracket})",
-                             input_bits=self._input_bits,
+                             input_bits=self._input_bits, parameter_sources={k: "inertia" for k in params},
                              jacobi=False)  # the bracket is checked by the tests (tests/test_poisson.py)
 
     # -- state helpers -----------------------------------------------------------------------------------------
@@ -305,7 +315,7 @@ class EulerPoisson(Model):
         (principal moments I1 <= I2 <= I3). Errors of a motion on the separatrix grow at this rate once it nears
         that rotation."""
         I1, I2, I3 = self.principal_moments
-        return (abs(float(momentum)) / I2) * math.sqrt(max(0.0, (I2 - I1) * (I3 - I2)) / (I1 * I3))
+        return (abs(float(to_fraction(momentum, "momentum"))) / I2) * math.sqrt(max(0.0, (I2 - I1) * (I3 - I2)) / (I1 * I3))
 
     def invariants(self, y) -> dict:
         """Conserved quantities, evaluated in mpmath a little above the state's precision.
@@ -376,6 +386,7 @@ class DampedEulerPoisson(EulerPoisson):
             z, base.tensor, base.hamiltonian, parameters=params, extra_field=[0] * 9 + torque,
             name=f"damped Euler-Poisson ({self.bracket})",
             input_bits={**self._input_bits, "damping": self._damping_bits}, jacobi=False,
+            parameter_sources={**{k: "inertia" for k in base.parameter_names}, "damping": "damping"},
         )
 
     def check_parameters(self, values, argname: str = "params") -> None:
