@@ -200,7 +200,7 @@ def check_progress(value, argname: str = "progress", title: str = "run"):
     if value is None or value is False:
         return None
     if not callable(value):
-        raise TypeError(f"`{argname}` must be a callable progress(fraction_done), True (show a bar) or None; got "
+        raise TypeError(f"`{argname}` must be callable (progress(fraction_done)), True (show a bar) or None; got "
                         f"{type(value).__name__} {value!r}")
     return value
 

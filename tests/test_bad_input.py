@@ -200,3 +200,10 @@ def test_fast_motion_is_not_called_only_stiff():
     sol = ls.integrate(body, body.initial_state((1, 1, 1)), t=1)
     assert sol.status == "step_collapse"
     assert "The problem is stiff" not in sol.message and "time scale far shorter than the run" in sol.message
+
+
+def test_bools_are_not_numbers_of_digits_or_momenta():
+    with pytest.raises(TypeError, match="`dps`"):
+        studies.observables(BODY, Y0, True)
+    with pytest.raises(TypeError, match="`momentum`"):
+        BODY.saddle_rate(True)

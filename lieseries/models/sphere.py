@@ -49,7 +49,13 @@ def _fraction_in(value, argname, lo, hi, why: str = "") -> float:
     naming ``argname`` (``why``: the reason for the bounds)."""
     if value is None or isinstance(value, bool):
         raise TypeError(f"`{argname}` must be a number in ({lo}, {hi:.4g}); got {type(value).__name__} {value!r}")
-    v = float(to_fraction(value, argname))
+    try:
+        v = float(to_fraction(value, argname))
+    except ValueError:
+        if not isinstance(value, str):
+            raise
+        raise TypeError(f"`{argname}` must be a number in ({lo}, {hi:.4g}) (a decimal string such as '0.1' is read "
+                        f"exactly); got str {value!r}") from None
     if not (lo < v < hi):
         raise ValueError(f"`{argname}` must lie in ({lo}, {hi:.4g}){why}; got {v}")
     return v
