@@ -94,3 +94,14 @@ def test_sphere_state_from_binary_position_names_it():
     y0 = sph.initial_state(x=(0.6, 0, 0.8), v=(0, 1, 0))
     assert y0.data_bits == 53 and set(y0.binary_inputs) == {"x[0]", "x[2]"}
     assert sph.initial_state(x=("0.6", 0, "0.8"), v=(0, 1, 0)).data_bits is None
+
+
+def test_state_rounded_to_a_wider_format_from_binary_input_says_so():
+    """A quad state of the double 0.1 has a 53-bit significand that looks like 113 bits of data: said at once."""
+    body = ls.EulerPoisson(BODY)
+    with pytest.warns(ls.PrecisionWarning, match=r"rounded to quad.*`omega\[1\]`.*53 bits"):
+        body.initial_state(omega=(1, 0.1, 0.5), precision="quad")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ls.PrecisionWarning)
+        body.initial_state(omega=(1, 0.1, 0.5), precision="double")  # nothing lost, nothing to say
+        body.initial_state(omega=(1, "0.1", 0.5), precision="quad")

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..poisson import PoissonSystem
 from ..solution import ChartRows, Solution, plain_ufunc
-from ..precision import (EXACT_STATE_BITS, BinaryFraction, CarriedBits, PrecisionWarning, binary_inputs, carried_bits,
+from ..precision import (EXACT_STATE_BITS, bits_to_dps, BinaryFraction, CarriedBits, PrecisionWarning, binary_inputs, carried_bits,
                          export_mpf, precision_of_dtype, resolve_precision, state_bits, to_fraction)
 
 __all__ = ["Model", "ExactState", "make_state", "state_fractions", "state_bits"]
@@ -112,14 +112,25 @@ def make_state(values, precision=None, inputs=None):
     ``inputs``: ``{argument name: value as the user gave it}`` (``{"omega": omega, "R0": R0}``): binary numbers
     among them (the double 0.1) make the ExactState carry their precision (``data_bits``) and name them
     (``binary_inputs``), as an array of doubles would carry 53 bits; default: the ``values`` themselves."""
+    binary = {}
+    for name, value in (inputs or {}).items():
+        binary.update(binary_inputs(value, name))
     if precision is None:
-        if inputs is None:
-            return ExactState(values)
-        binary = {}
-        for name, value in inputs.items():
-            binary.update(binary_inputs(value, name))
-        return ExactState(values, binary)
-    return resolve_precision(precision).array(values, "state")
+        return ExactState(values) if inputs is None else ExactState(values, binary)
+    prec = resolve_precision(precision)
+    if binary and min(binary.values()) < prec.bits:
+        # the array will look like prec.bits of data (a quad 0.1 from a double has a long significand)
+        low = min(binary.values())
+        names = ", ".join(f"`{k}`" for k, b in binary.items() if b == low)
+        warnings.warn(
+            f"the state is rounded to {prec.name} ({prec.bits} bits) from binary numbers ({names}) that carry only "
+            f"{low} bits: it is exact for those binary values (the double 0.1 is 0.1000000000000000055511...), "
+            f"and agrees with the decimals you may have meant to about {bits_to_dps(low)} digits only; a run of more "
+            "bits cannot tell. Pass them as strings ('0.1') or Fractions.",
+            PrecisionWarning,
+            stacklevel=3,
+        )
+    return prec.array(values, "state")
 
 
 def state_fractions(y, n: int, argname: str = "y0") -> list:
