@@ -130,7 +130,7 @@ class EulerPoisson(Model):
     --------
     >>> import lieseries as ls
     >>> body = ls.EulerPoisson(inertia=(1, 2, 3))
-    >>> y0 = body.initial_state(omega=(1.0, 0.1, 0.5))
+    >>> y0 = body.initial_state(omega=(1, "0.1", "0.5"))   # strings: exact decimals
     >>> sol = ls.integrate(body, y0, t=20.0)
     """
 
@@ -247,7 +247,9 @@ class EulerPoisson(Model):
         Parameters
         ----------
         omega : sequence of 3 numbers
-            Initial angular velocity in the body frame (exact input such as "0.1" or Fraction stays exact).
+            Initial angular velocity in the body frame (exact input such as "0.1" or Fraction stays exact; a
+            binary float such as 0.1 is the double nearest it: the state then carries 53 bits, ``data_bits``, and a
+            run of more bits warns naming ``omega[i]``).
         R0 : 3x3, optional
             Initial orientation; must be a rotation (orthogonal to 1e-12, det = +1).
         precision : None, str or int
