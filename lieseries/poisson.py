@@ -215,6 +215,9 @@ class PoissonSystem:
         named += [(f"tensor[{i}][{j}]", e) for i, r in enumerate(self._tensor) for j, e in enumerate(r) if e is not None]
         named += [(f"casimirs[{k!r}]", e) for k, e in self._casimirs.items()]
         named += [(f"extra_field[{i}]", e) for i, e in enumerate(extra_field or []) if e is not None]
+        exprs = [e for _w, e in named]
+        if set(hy.get_variables(exprs)) <= known and not uses_time(exprs):
+            return  # all at once (shared subexpressions): the usual case; otherwise find the entry to name
         for where, e in named:
             if uses_time(e):
                 raise ValueError(
@@ -237,7 +240,7 @@ class PoissonSystem:
         """A few fixed pseudo-random states with entries in [0.3, 1.3] (exact decimals), for numerical checks."""
         import random
 
-        rng = random.Random(20240617 + self.dimension)
+        rng = random.Random(20240617 + self.dimension + count)
         return [[Fraction(rng.randint(300, 1300), 1000) for _ in range(self.dimension)] for _ in range(count)]
 
     def _values_at(self, exprs, points, dps):
@@ -271,7 +274,7 @@ class PoissonSystem:
             return
         exprs = [e for _i, _j, a, b in pairs for e in (a, b)]
         try:
-            samples = self._values_at(exprs, self._sample_points(), 30)
+            samples = self._values_at(exprs, self._sample_points(2), 30)
         except NotImplementedError:  # a function the mpmath compiler lacks: the engines say so when they need it
             return
         for vals in samples:
