@@ -11,9 +11,9 @@ message.
 
 from __future__ import annotations
 
-import re
-
 import heyoka as hy
+
+from .expr import uses_time
 
 __all__ = ["Event", "resolve_events"]
 
@@ -78,9 +78,20 @@ def resolve_events(events, system, ps) -> list:
             raise TypeError(f"`events[{i}]` must be an ls.Event; got {type(ev).__name__}")
         expr = ev.expression
         if not isinstance(expr, hy.expression):
-            expr = expr(system)
+            try:
+                expr = expr(system)
+            except Exception as err:  # a function of the state (lambda y: y[10]) called with the model
+                raise TypeError(
+                    f"`events[{i}]`: its callable is called once with the model ({type(system).__name__}) to build "
+                    f"a heyoka expression, and raised {type(err).__name__}: {err}. An event is not a Python "
+                    "function of the state: give a heyoka expression in the system's variables "
+                    f"{list(ps.names)[:12]} (e.g. `body.poisson.variables[i]` or `hy.make_vars(name)`), or a "
+                    "callable `lambda model: <that expression>`"
+                ) from None
             if not isinstance(expr, hy.expression):
-                raise TypeError(f"`events[{i}]`: the callable must return a heyoka expression; got {type(expr).__name__}")
+                raise TypeError(
+                    f"`events[{i}]`: the callable must return a heyoka expression in the system's variables; got "
+                    f"{type(expr).__name__} (an event is not a Python function of the state)")
         variables = set(hy.get_variables(expr))
         unknown = sorted(variables - names)
         if unknown:
@@ -89,7 +100,7 @@ def resolve_events(events, system, ps) -> list:
                 f"{list(ps.names)}"
             )
         label = f"`events[{i}]`" + (f" ({ev.name!r})" if ev.name else "")
-        if _uses_time(expr):
+        if uses_time(expr):
             raise ValueError(
                 f"{label} depends on time (heyoka.time): events are functions of the state (both engines find "
                 "them the same way); to stop or record at a given time, make it the final time `t` or an output "
@@ -107,9 +118,3 @@ def resolve_events(events, system, ps) -> list:
     return out
 
 
-def _uses_time(expr) -> bool:
-    """True when ``expr`` contains heyoka's time variable (printed ``t``; a state variable named ``t`` is a
-    variable, not time)."""
-    if "t" in set(hy.get_variables(expr)):
-        return False
-    return re.search(r"(?<![\w.])t(?![\w(])", str(expr)) is not None

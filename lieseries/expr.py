@@ -86,7 +86,26 @@ __all__ = [
     "compile_expressions",
     "compile_system",
     "SUPPORTED_OPS",
+    "uses_time",
 ]
+
+#: A variable name no system uses: heyoka's time is substituted by it to find out whether an expression uses time.
+_TIME_PROBE = "__lieseries_time_probe__"
+
+
+def uses_time(expr) -> bool:
+    """True when the heyoka expression ``expr`` (or any of a list of them) contains heyoka's time
+    (``heyoka.time``, printed ``t``); a state variable named ``t`` is a variable, not time."""
+    if isinstance(expr, (list, tuple)):
+        exprs = [e for e in expr if isinstance(e, hy.expression)]
+        if not exprs:
+            return False
+    elif isinstance(expr, hy.expression):
+        exprs = expr
+    else:
+        return False
+    probe = hy.expression(_TIME_PROBE)
+    return _TIME_PROBE in hy.get_variables(hy.subs(exprs, {hy.time: probe}))
 
 #: Rounding mode used everywhere (round to nearest).
 RND = libmp.round_nearest

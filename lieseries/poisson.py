@@ -35,9 +35,14 @@ from typing import Mapping, Sequence
 import heyoka as hy
 import mpmath as mp
 
-from .precision import carried_bits, to_fraction
+import numpy as np
+
+from .precision import NamedValues, bits_to_dps, carried_bits, check_dps, state_bits, to_fraction
 
 __all__ = ["PoissonSystem", "as_poisson_system"]
+
+#: Largest dimension whose Jacobi identity is checked at construction by default (the check grows like n^4).
+JACOBI_AUTO_DIMENSION = 6
 
 #: Compiled mpmath programs of vector fields, by structural key (shared by equal structures).
 _PROGRAMS: dict = {}
@@ -88,6 +93,17 @@ class PoissonSystem:
     input_bits : mapping name -> bits, optional
         For models: the precision carried by the data the model was built from (e.g. ``{"inertia": 53}`` for
         moments given as binary floats such as 1.1), reported by :meth:`coarse_data`.
+    parameter_sources : mapping parameter name -> argument name, optional
+        For models: the argument each runtime parameter is computed from (``{"Iinv1": "inertia"}``), named when
+        the parameter does not fit a precision.
+    jacobi : bool or None
+        Check the Jacobi identity at construction (:meth:`check_jacobi`): None (default) does so for systems of at
+        most :data:`JACOBI_AUTO_DIMENSION` variables, whose check is cheap; True always, False never.
+
+    Construction refuses what is not a Poisson system, naming the entry: expressions in variables not among
+    ``variables``, expressions depending on time (``heyoka.time``), a tensor that is not antisymmetric
+    (checked numerically at a few sample states when the entries are not written as each other's negatives),
+    and, as above, one that fails the Jacobi identity. :meth:`invariants` gives H and the Casimirs at a state.
     """
 
     def __init__(
@@ -101,6 +117,8 @@ class PoissonSystem:
         extra_field: Sequence | None = None,
         name: str = "system",
         input_bits: Mapping | None = None,
+        jacobi: bool | None = None,
+        parameter_sources: Mapping | None = None,
     ):
         if isinstance(variables, (str, bytes)) or not hasattr(variables, "__len__"):
             raise TypeError("`variables` must be a sequence of names or heyoka variables")
@@ -141,6 +159,10 @@ class PoissonSystem:
             pvals = list(parameters)
             pnames = tuple(f"p{i}" for i in range(len(pvals)))
         self._param_names = pnames
+        sources = dict(parameter_sources or {})
+        self._param_labels = tuple(
+            f"`{sources[k]}` gives the runtime parameter {k!r}, whose value" if k in sources else f"`parameters[{k!r}]` ="
+            for k in pnames)
         self._param_values = tuple(to_fraction(v, f"parameters[{k!r}]") for k, v in zip(pnames, pvals))
         self._coarse = {f"parameters[{k!r}]": b for k, b in ((k, carried_bits(v)) for k, v in zip(pnames, pvals))
                         if b is not None}
@@ -161,6 +183,9 @@ class PoissonSystem:
                 f"`parameters` gives {len(self._param_values)} values"
             )
         self._casimirs = {str(k): _as_expr(c, f"casimirs[{k!r}]") for k, c in (casimirs or {}).items()}
+        if "energy" in self._casimirs:
+            raise ValueError("`casimirs` must not use the name 'energy': `invariants` gives H under that name")
+        self._invariant_program = None
         if extra_field is not None:
             if len(extra_field) != n:
                 raise ValueError(f"`extra_field` must have {n} entries, one per variable; got {len(extra_field)}")
@@ -169,6 +194,144 @@ class PoissonSystem:
         self.name = str(name)
         self._field = None
         self._key = None
+        self._check_expressions(extra_field)
+        self._check_antisymmetry()
+        if jacobi is not None and not isinstance(jacobi, bool):
+            raise TypeError(f"`jacobi` must be True, False or None (automatic); got {jacobi!r}")
+        if jacobi or (jacobi is None and n <= JACOBI_AUTO_DIMENSION):
+            try:
+                self.check_jacobi()
+            except NotImplementedError:  # a function the mpmath compiler lacks: not checked automatically
+                if jacobi is True:
+                    raise
+
+    # -- checks at construction ----------------------------------------------------------------------------------
+    def _check_expressions(self, extra_field):
+        """Every expression uses declared variables only, and none depends on time."""
+        from .expr import uses_time
+
+        known = set(self._names)
+        named = [("hamiltonian", self._hamiltonian)]
+        named += [(f"tensor[{i}][{j}]", e) for i, r in enumerate(self._tensor) for j, e in enumerate(r) if e is not None]
+        named += [(f"casimirs[{k!r}]", e) for k, e in self._casimirs.items()]
+        named += [(f"extra_field[{i}]", e) for i, e in enumerate(extra_field or []) if e is not None]
+        exprs = [e for _w, e in named]
+        if set(hy.get_variables(exprs)) <= known and not uses_time(exprs):
+            return  # all at once (shared subexpressions): the usual case; otherwise find the entry to name
+        for where, e in named:
+            if uses_time(e):
+                raise ValueError(
+                    f"`{where}` depends on time (heyoka.time): a PoissonSystem is autonomous (H and the bracket are "
+                    "functions of the state; its energy check and invariants assume so). Make time a state "
+                    "variable: add `tau` and a conjugate `E` to `variables` with {tau, E} = 1, and use H + E with `tau` "
+                    "in place of time (then dtau/dt = 1)."
+                )
+            unknown = sorted(set(hy.get_variables(e)) - known)
+            if unknown:
+                shown = ", ".join(f"`{u}`" for u in unknown)
+                raise ValueError(
+                    f"`{where}` uses {shown}, which {'is' if len(unknown) == 1 else 'are'} not among `variables` "
+                    f"{list(self._names)}: add {'it' if len(unknown) == 1 else 'them'} to `variables` (with a row and "
+                    "a column of `tensor`), or make a constant a runtime parameter (`hy.par[i]` with its value in "
+                    "`parameters`)"
+                )
+
+    def _sample_points(self, count: int = 3):
+        """A few fixed pseudo-random states with entries in [0.3, 1.3] (exact decimals), for numerical checks."""
+        import random
+
+        rng = random.Random(20240617 + self.dimension + count)
+        return [[Fraction(rng.randint(300, 1300), 1000) for _ in range(self.dimension)] for _ in range(count)]
+
+    def _values_at(self, exprs, points, dps):
+        """Values of ``exprs`` at each of ``points`` where they are defined (points where an expression is
+        singular or undefined, e.g. a division by zero, are left out)."""
+        out = []
+        for z in points:
+            try:
+                vals = self._evaluate(exprs, [z], dps)[0]
+            except (ZeroDivisionError, ValueError, ArithmeticError):
+                continue
+            if all(mp.isfinite(v) for v in vals):
+                out.append(vals)
+        return out
+
+    def _check_antisymmetry(self):
+        """P_ij = -P_ji and P_ii = 0: structurally when the entries are written as negatives of each other,
+        otherwise numerically at a few sample states (30 digits, relative to the entries)."""
+        n = self.dimension
+        pairs = []
+        for i in range(n):
+            for j in range(i, n):
+                a, b = self._tensor[i][j], self._tensor[j][i]
+                if a is None and b is None:
+                    continue
+                if i != j and a is not None and b is not None and (b == -a or -b == a):
+                    continue
+                zero = hy.expression(0.0)
+                pairs.append((i, j, zero if a is None else a, zero if b is None else b))
+        if not pairs:
+            return
+        exprs = [e for _i, _j, a, b in pairs for e in (a, b)]
+        try:
+            samples = self._values_at(exprs, self._sample_points(2), 30)
+        except NotImplementedError:  # a function the mpmath compiler lacks: the engines say so when they need it
+            return
+        for vals in samples:
+            for k, (i, j, _a, _b) in enumerate(pairs):
+                va, vb = vals[2 * k], vals[2 * k + 1]
+                if abs(va + vb) > mp.mpf(10) ** -20 * (abs(va) + abs(vb)) or (i == j and va != 0):
+                    if i == j:
+                        raise ValueError(
+                            f"`tensor[{i}][{i}]` must be 0: a Poisson bracket is antisymmetric, {{z, z}} = 0 (got "
+                            f"{mp.nstr(va, 6)} at a sample state)"
+                        )
+                    raise ValueError(
+                        f"`tensor[{i}][{j}]` and `tensor[{j}][{i}]` must be opposite (P_ij = -P_ji: a Poisson bracket "
+                        f"is antisymmetric); at a sample state they are {mp.nstr(va, 6)} and {mp.nstr(vb, 6)}. Give "
+                        f"the entry above the diagonal and its negative below it (`tensor[{j}][{i}]` = "
+                        f"-`tensor[{i}][{j}]`)."
+                    )
+
+    def check_jacobi(self, points=None, dps: int = 40) -> None:
+        """Check the Jacobi identity {z_i, {z_j, z_k}} + cyclic = 0 numerically (:meth:`jacobi_expressions`).
+
+        At ``points`` (default: three fixed pseudo-random states), the Jacobiator is evaluated with ``dps`` and
+        ``dps + 20`` digits: where the identity holds it is rounding noise, which changes with the digits; a value
+        that stays the same is a failure of the identity. Runs at construction for systems of at most
+        :data:`JACOBI_AUTO_DIMENSION` variables (``jacobi=None``); call it for larger ones (its cost grows like
+        n^4).
+
+        Raises
+        ------
+        ValueError
+            Naming the first triple (i, j, k) of variables where the identity fails, with the value.
+        """
+        dps = check_dps(dps)
+        pts = self._sample_points() if points is None else [self._state_rows(p, "points")[0][0] for p in points]
+        exprs = self.jacobi_expressions()
+        n = self.dimension
+        triples = [(i, j, k) for i in range(n) for j in range(i + 1, n) for k in range(j + 1, n)]
+        checked = 0
+        for z in pts:
+            lo = self._values_at(exprs, [z], dps)
+            hi = self._values_at(exprs, [z], dps + 20)
+            if not lo or not hi:
+                continue
+            checked += 1
+            for (i, j, k), a, b in zip(triples, lo[0], hi[0]):
+                if b != 0 and abs(a - b) <= mp.mpf(10) ** -6 * abs(b):
+                    names = self._names
+                    raise ValueError(
+                        f"`tensor` does not satisfy the Jacobi identity: {{{names[i]}, {{{names[j]}, {names[k]}}}}} + "
+                        f"cyclic = {mp.nstr(b, 8)} at a sample state (it must vanish everywhere), so it is not a "
+                        "Poisson bracket and the motion need not conserve what a Poisson system conserves. Check "
+                        "the entries of `tensor` in the rows and columns of "
+                        f"{names[i]}, {names[j]}, {names[k]}" + (
+                            "; pass `jacobi=False` to build the system anyway" if n <= JACOBI_AUTO_DIMENSION else "")
+                    )
+        if not checked and points is not None:
+            raise ValueError("`points`: the Jacobiator is singular or undefined at every point given; choose others")
 
     # -- structure ---------------------------------------------------------------------------------------------
     @property
@@ -204,8 +367,9 @@ class PoissonSystem:
 
     @property
     def parameter_values(self) -> tuple:
-        """Exact values of the runtime parameters (Fractions), in ``hy.par`` order."""
-        return self._param_values
+        """Exact values of the runtime parameters (Fractions), in ``hy.par`` order (a tuple that names, in
+        errors, the argument each came from: rounding I^-1 = 1e330 to double names `inertia`)."""
+        return NamedValues(self._param_values, self._param_labels)
 
     @property
     def is_hamiltonian(self) -> bool:
@@ -264,6 +428,7 @@ class PoissonSystem:
             raise ValueError(f"`values` must give {len(self._param_values)} parameters; got {len(values)}")
         other = copy.copy(self)
         other._param_values = values
+        other._param_labels = tuple(f"`parameters[{i}]` =" for i in range(len(values)))
         other._native_params = {}
         return other
 
@@ -274,7 +439,7 @@ class PoissonSystem:
             return None
         arr = self._native_params.get(prec.name)
         if arr is None:
-            arr = prec.array(self._param_values, "parameters")
+            arr = prec.array(self.parameter_values, "parameters")
             arr.flags.writeable = False
             self._native_params[prec.name] = arr
         return arr
@@ -287,11 +452,19 @@ class PoissonSystem:
         stores ``0.05 * q**2`` with the double nearest 0.05). Empty when every number is exact.
         """
         if not self._constants_checked:
-            for _slot, c in self.program.constants:
-                if c.kind == "binary" and c.value[1]:
-                    if carried_bits(mp.libmp.to_float(c.value)) is not None:
-                        key = f"the constant {mp.nstr(mp.make_mpf(c.value), 8)} in the expressions"
-                        self._coarse[key] = 53
+            # the expressions as given (not the derived vector field: 0.1 q**4 in H is "the constant 0.1 in
+            # `hamiltonian`", not the 0.4 of its derivative)
+            import sympy
+
+            named = [("hamiltonian", self._hamiltonian)]
+            named += [(f"tensor[{i}][{j}]", e) for i, r in enumerate(self._tensor) for j, e in enumerate(r)
+                      if e is not None]
+            named += [(f"extra_field[{i}]", e) for i, e in enumerate(self._extra or []) if e is not None]
+            for where, e in named:
+                for c in sorted(hy.to_sympy(e).atoms(sympy.Float), key=float):
+                    value = float(c)  # heyoka's constants are doubles: their exact binary values
+                    if carried_bits(value) is not None:
+                        self._coarse[f"the constant {value!r} in {where}"] = 53
             self._constants_checked = True
         return dict(self._coarse)
 
@@ -306,16 +479,69 @@ class PoissonSystem:
             _PROGRAMS[self.key] = prog
         return prog
 
+    # -- invariants ----------------------------------------------------------------------------------------------
+    def invariants(self, y, dps: int | None = None) -> dict:
+        """H and the declared Casimirs at a state, evaluated from its exact value in mpmath: the conserved
+        quantities of the system (of its Hamiltonian part: an ``extra_field`` need not conserve them), to check
+        a run as the built-in models' ``invariants`` do.
+
+        Parameters
+        ----------
+        y : state (n numbers) or 2-d array of states (one per row)
+            A model state built from exact input is taken at its exact values; an array at its stored values.
+        dps : int, optional
+            Decimal digits of the result (default: those of the state's precision plus 10; 87 for an exact state).
+
+        Returns
+        -------
+        dict name -> mpf (``"energy"`` then the Casimirs by name); name -> list of mpf for a 2-d array.
+        """
+        if dps is None:
+            dps = bits_to_dps(state_bits(y)) + 10
+        dps = check_dps(dps)
+        rows, was_1d = self._state_rows(y, "y")
+        if self._invariant_program is None:
+            from .expr import compile_expressions
+
+            self._invariant_program = compile_expressions(
+                self._variables, [self._hamiltonian] + list(self._casimirs.values()), len(self._param_values))
+        names = ["energy"] + list(self._casimirs)
+        vals = [self._invariant_program.evaluate(r, list(self._param_values), dps) for r in rows]
+        out = {nm: [v[i] for v in vals] for i, nm in enumerate(names)}
+        return {k: v[0] for k, v in out.items()} if was_1d else out
+
+    def _state_rows(self, y, argname):
+        """(rows of exact values, was_1d) of a state or a 2-d array of states (exact states at their exact
+        values, never through the doubles numpy shows of them)."""
+        n = self.dimension
+
+        def row(r, name):
+            exact = getattr(r, "exact", None)
+            vals = list(exact) if exact is not None else list(r)
+            if len(vals) != n:
+                raise ValueError(f"`{name}` must hold states of length {n}; got length {len(vals)}")
+            return [to_fraction(v, f"{name}[{i}]") if not hasattr(v, "_mpf_") else v for i, v in enumerate(vals)]
+
+        if getattr(y, "exact", None) is not None:
+            return [row(y, argname)], True
+        if isinstance(y, (list, tuple)) and y and all(getattr(r, "exact", None) is not None for r in y):
+            return [row(r, f"{argname}[{i}]") for i, r in enumerate(y)], False
+        arr = y if isinstance(y, np.ndarray) else np.asarray(y, dtype=object)
+        if arr.ndim == 1:
+            return [row(arr, argname)], True
+        if arr.ndim == 2:
+            return [row(r, f"{argname}[{i}]") for i, r in enumerate(arr)], False
+        raise ValueError(f"`{argname}` must be a state (1-d) or one state per row (2-d); got {arr.ndim}-d")
+
     # -- numerical checks of the structure ---------------------------------------------------------------------
     def _evaluate(self, exprs, points, dps):
         from .expr import compile_expressions
 
         prog = compile_expressions(self._variables, exprs, len(self._param_values))
         out = []
-        for z in points:
-            if len(z) != self.dimension:
-                raise ValueError(f"`points` must hold states of length {self.dimension}; got length {len(z)}")
-            out.append(prog.evaluate(list(z), list(self._param_values), dps))
+        for i, z in enumerate(points):
+            rows, _ = self._state_rows(z, f"points[{i}]")
+            out.append(prog.evaluate(rows[0], list(self._param_values), dps))
         return out
 
     def antisymmetry_residual(self, points, dps: int = 50) -> mp.mpf:

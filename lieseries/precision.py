@@ -33,9 +33,14 @@ __all__ = [
     "MAX_BITS",
     "MAX_ORDER",
     "MAX_EXPONENT",
+    "MAX_DIGITS",
     "EXACT_BITS",
     "PrecisionWarning",
     "carried_bits",
+    "CarriedBits",
+    "BinaryFraction",
+    "binary_inputs",
+    "data_bits",
     "warn_if_coarse",
     "mp_context",
     "thread_mp",
@@ -76,6 +81,8 @@ MAX_BITS = 1024
 MAX_ORDER = 2000
 #: Largest decimal exponent of an input number (|x| < 10**MAX_EXPONENT, nonzero |x| > 10**-MAX_EXPONENT).
 MAX_EXPONENT = 4000
+#: Most digits of a number written as a decimal string (a run uses at most MAX_DPS of them).
+MAX_DIGITS = 2 * MAX_DPS
 #: A binary number whose significand has at most this many significant bits (0.5, 1.25, 3.0, 0.375, ...) is taken
 #: as exact: it is what was meant. Anything longer (0.1 as a double) carries its format's precision only.
 EXACT_BITS = 32
@@ -160,6 +167,41 @@ def check_callable(value, argname: str):
     """Validate an optional callable (None passes through)."""
     if value is not None and not callable(value):
         raise TypeError(f"`{argname}` must be callable (or None); got {type(value).__name__} {value!r}")
+    return value
+
+
+class _FractionBar:
+    """``progress(fraction_done)`` drawn as a bar of 1000 steps (closed when the run is done or forgotten)."""
+
+    def __init__(self, title):
+        from .progress import ProgressBar
+
+        self._bar = ProgressBar(title)
+
+    def __call__(self, fraction) -> None:
+        done = min(1000, max(0, int(round(1000 * float(fraction)))))
+        self._bar(done, 1000)
+        if done >= 1000:
+            self._bar.close()
+
+    def __del__(self):
+        try:
+            self._bar.close()
+        except Exception:  # pragma: no cover - interpreter shutdown
+            pass
+
+
+def check_progress(value, argname: str = "progress", title: str = "run"):
+    """A run's ``progress`` argument as a callable ``progress(fraction_done)`` or None: a callable passes through,
+    True shows a bar (:class:`lieseries.progress.ProgressBar`: drawn on a terminal, silent in CI), None and False
+    show nothing."""
+    if value is True:
+        return _FractionBar(title)
+    if value is None or value is False:
+        return None
+    if not callable(value):
+        raise TypeError(f"`{argname}` must be callable (progress(fraction_done)), True (show a bar) or None; got "
+                        f"{type(value).__name__} {value!r}")
     return value
 
 
@@ -284,10 +326,22 @@ class Precision:
         return hy.real(text, self.bits)
 
     def array(self, values, argname: str = "value") -> np.ndarray:
-        """A 1-d (or n-d) numpy array of ``values`` rounded to this precision."""
+        """A 1-d (or n-d) numpy array of ``values`` rounded to this precision.
+
+        Values that know where they come from (a system's ``parameter_values``, :class:`NamedValues`) are named
+        by it in errors (an overflow names `inertia`, not a runtime parameter the user never wrote)."""
         exact = getattr(values, "exact", None)
+        labels = getattr(values, "labels", None)
         arr = np.asarray(exact if exact is not None else values, dtype=object)
-        out = [self.to_native(v, argname) for v in arr.ravel()]
+        out = []
+        for i, v in enumerate(arr.ravel()):
+            try:
+                out.append(self.to_native(v, argname))
+            except ValueError as err:
+                if labels is None or i >= len(labels):
+                    raise
+                text = str(err)
+                raise ValueError(f"{labels[i]} {text.split('= ', 1)[-1]}") from None
         if self.is_real:
             res = np.empty(len(out), dtype=hy.real)
             for i, v in enumerate(out):
@@ -302,6 +356,18 @@ class Precision:
 
     def __str__(self) -> str:  # pragma: no cover - trivial
         return self.name
+
+
+class NamedValues(tuple):
+    """A tuple of numbers with a label for each (``labels``), saying in errors where each came from."""
+
+    def __new__(cls, values, labels):
+        obj = super().__new__(cls, values)
+        obj.labels = tuple(labels)
+        return obj
+
+    def __reduce__(self):
+        return (NamedValues, (tuple(self), self.labels))
 
 
 _BUILTIN = {
@@ -390,8 +456,17 @@ def _log10_abs(f: Fraction) -> float:
     return (n.bit_length() - d.bit_length()) * math.log10(2)
 
 
+_HUGE = 10**MAX_EXPONENT
+
+
 def _bounded(f: Fraction, argname: str) -> Fraction:
-    if f != 0 and abs(_log10_abs(f)) > MAX_EXPONENT + 1:
+    """``f`` when 10**-MAX_EXPONENT <= |f| <= 10**MAX_EXPONENT or f == 0 (exactly: the estimate from bit lengths
+    only decides far from the bounds), else a ValueError naming ``argname``."""
+    if f == 0:
+        return f
+    e = abs(_log10_abs(f))
+    if e > MAX_EXPONENT + 1 or (e > MAX_EXPONENT - 1 and not (
+            abs(f.numerator) * _HUGE >= f.denominator and abs(f.numerator) <= _HUGE * f.denominator)):
         raise ValueError(
             f"`{argname}` = {short_decimal(f)} is out of range: numbers must lie within 1e-{MAX_EXPONENT} .. "
             f"1e{MAX_EXPONENT} in magnitude (or be 0)"
@@ -407,16 +482,24 @@ def _string_fraction(value: str, argname: str) -> Fraction:
     text = value.strip()
     m = _DECIMAL.match(text)
     if m:
-        if m.group(3) is not None and abs(int(m.group(3))) > MAX_EXPONENT + len(m.group(1)):
+        digits = len(m.group(1)) - ("." in m.group(1))
+        if digits > MAX_DIGITS:
             raise ValueError(
-                f"`{argname}` = {value!r} is out of range: numbers must lie within 1e-{MAX_EXPONENT} .. "
+                f"`{argname}` is written with {digits} digits ({text[:20]}...); lieseries reads numbers of at most "
+                f"{MAX_DIGITS} digits (a run uses at most {MAX_DPS}). Round it to the digits you need, or pass a "
+                "Fraction."
+            )
+        if m.group(3) is not None and (len(m.group(3)) > 12 or abs(int(m.group(3))) > MAX_EXPONENT + len(m.group(1))):
+            raise ValueError(
+                f"`{argname}` = {value[:40]!r} is out of range: numbers must lie within 1e-{MAX_EXPONENT} .. "
                 f"1e{MAX_EXPONENT} in magnitude (or be 0)"
             )
-        return Fraction(text)
+        return Fraction(decimal.Decimal(text))  # exact, and not limited by Python's int-string conversion limit
     if _RATIO.match(text):
         if len(text) > 2 * MAX_EXPONENT:
-            raise ValueError(f"`{argname}` = {value[:40]!r}... is too long a ratio")
-        num, den = (int(part) for part in text.split("/"))
+            raise ValueError(f"`{argname}` = {value[:40]!r}... is too long a ratio (at most {2 * MAX_EXPONENT} "
+                             "characters); pass a Fraction")
+        num, den = (int(decimal.Decimal(part)) for part in text.split("/"))
         if den == 0:
             raise ValueError(f"`{argname}` = {value!r} divides by zero")
         return Fraction(num, den)
@@ -504,6 +587,70 @@ def to_mpf(value, argname: str = "value", ctx=None) -> mp.mpf:
 
 
 # -- precision carried by data ---------------------------------------------------------------------------------------
+class CarriedBits(int):
+    """A number of bits (an int) that also names the inputs carrying it (``sources``, e.g. ``("omega[1]",)``), so
+    that a warning about a state can name the argument the binary number was typed in."""
+
+    def __new__(cls, bits, sources=()):
+        obj = super().__new__(cls, int(bits))
+        obj.sources = tuple(dict.fromkeys(str(s) for s in sources))
+        return obj
+
+    def __reduce__(self):
+        return (CarriedBits, (int(self), self.sources))
+
+
+class BinaryFraction(Fraction):
+    """The exact value of a binary number (0.1 as a double is 3602879701896397/2**55) that remembers it carries
+    ``bits`` bits only, and the inputs it came from (``sources``, e.g. ``("omega[1]",)``).
+
+    A model state built from binary input keeps its exact values as BinaryFractions: every engine that reads the
+    exact values (``state.exact``) sees, through :func:`carried_bits`, the same precision an array of doubles
+    carries. Arithmetic on them gives plain Fractions (a derived number is no longer marked).
+    """
+
+    def __new__(cls, value, bits, sources=()):
+        obj = super().__new__(cls, value)
+        obj.bits = int(bits)
+        obj.sources = (sources,) if isinstance(sources, str) else tuple(sources)
+        return obj
+
+    def __reduce__(self):
+        return (BinaryFraction, (Fraction(self.numerator, self.denominator), self.bits, self.sources))
+
+    def __copy__(self):
+        return self
+
+    def __deepcopy__(self, memo):
+        return self
+
+
+def binary_inputs(values, argname: str) -> dict:
+    """``{"argname[i]": bits}`` for the entries of ``values`` (a number, or nested sequences/arrays of them) that
+    are binary numbers carrying finite precision (:func:`carried_bits`); empty when all are exact."""
+    out = {}
+
+    def walk(v, name):
+        if isinstance(v, np.ndarray) and v.ndim > 0:
+            v = v.tolist() if v.dtype != object else list(v)
+        if isinstance(v, (list, tuple)):
+            for i, x in enumerate(v):
+                walk(x, f"{name}[{i}]")
+            return
+        if isinstance(v, BinaryFraction):
+            return  # already marked, with the inputs it came from
+        try:
+            b = carried_bits(v)
+        except (TypeError, ValueError):
+            b = None
+        if b is not None:
+            out[name] = int(b)
+
+    if values is not None:
+        walk(values, argname)
+    return out
+
+
 def carried_bits(value):
     """The precision (bits) a number carries, or None for an exact value.
 
@@ -513,6 +660,10 @@ def carried_bits(value):
     format's precision: 53 for a float64 (0.1 as a double), 64 for a long double, 113 for real128, ``prec`` for
     heyoka.real. An :class:`ExactState`-like object (with an ``exact`` attribute) is exact.
     """
+    if isinstance(value, BinaryFraction):
+        return CarriedBits(value.bits, value.sources)
+    if getattr(value, "exact", None) is not None and not isinstance(value, (str, bytes)):
+        return getattr(value, "data_bits", None)  # an ExactState built from binary input knows its precision
     if isinstance(value, (Fraction, numbers.Integral, str, decimal.Decimal)) or value is None:
         return None
     if type(value).__module__.startswith("sympy") or hasattr(value, "_mpf_"):
@@ -540,16 +691,46 @@ def _significand_bits(man: int, fmt_bits: int):
     return None if man.bit_length() <= EXACT_BITS else int(fmt_bits)
 
 
+#: Bits at which helpers evaluate an exact state (it has no format of its own; well above quad).
+EXACT_STATE_BITS = 256
+
+
+def state_bits(y) -> int:
+    """The precision (bits) a state is stored in: 53 for float64, 113 for quad, the ``real`` precision, ...;
+    EXACT_STATE_BITS for a state that carries its exact values (``y.exact``, an ExactState)."""
+    if getattr(y, "exact", None) is not None:
+        return EXACT_STATE_BITS
+    arr = np.asarray(y) if not isinstance(y, np.ndarray) else y
+    prec = precision_of_dtype(arr.dtype)
+    if prec is not None:
+        return prec.bits
+    flat = arr.ravel()
+    if len(flat) and hasattr(flat[0], "prec"):
+        p = flat[0].prec
+        return int(p() if callable(p) else p)
+    if len(flat) and hasattr(flat[0], "_mpf_"):
+        # mpf carries no precision of its own: use the longest significand in the state
+        return max([53] + [int(v._mpf_[3]) for v in flat if hasattr(v, "_mpf_")])
+    return 53
+
+
 def data_bits(values):
-    """The least precision carried by any of ``values`` (None when all are exact)."""
+    """The least precision carried by any of ``values`` (None when all are exact), as a :class:`CarriedBits`
+    naming the inputs that carry it when they are known (a state from ``model.initial_state(omega=(1, 0.1, 0.5))``
+    names ``omega[1]``)."""
     bits = [b for b in map(carried_bits, _leaves(values)) if b is not None]
-    return min(bits) if bits else None
+    if not bits:
+        return None
+    low = min(bits)
+    return CarriedBits(low, [s for b in bits if b == low for s in getattr(b, "sources", ())])
 
 
 def _leaves(values):
     """The numbers in ``values``: a number, or nested sequences and arrays of them (ragged ones too). A state
-    that carries its exact values (``exact``) has none to check."""
-    if getattr(values, "exact", None) is not None:
+    that carries its exact values (``exact``) is one leaf: its exact values are its data (their precision is its
+    ``data_bits``), not the doubles numpy shows."""
+    if getattr(values, "exact", None) is not None and not isinstance(values, (str, bytes)):
+        yield values
         return
     if isinstance(values, np.ndarray):
         if values.dtype != object:
@@ -567,12 +748,27 @@ def warn_if_coarse(bits, work_bits: int, argname: str, *, stacklevel: int = 3) -
     """Emit one :class:`PrecisionWarning` when data carrying ``bits`` bits feed a run at ``work_bits`` bits."""
     if bits is None or bits >= work_bits:
         return
+    sources = [s for s in getattr(bits, "sources", ()) if s and s != argname]
+    if sources:
+        shown = ", ".join(f"`{s}`" for s in sources[:6]) + (", ..." if len(sources) > 6 else "")
+        what = (f"`{argname}` was built from binary numbers ({shown}) and carries only {bits} bits "
+                f"({bits_to_dps(bits)} digits: the double 0.1 is 0.1000000000000000055511151231257827...)")
+        how = (f"Pass the exact values to the function that built it: {shown} as strings ('0.1'), ints or "
+               "Fractions (Fraction(1, 10)).")
+    elif argname.startswith("the constant "):
+        what = (f"`{argname}` carries only {bits} bits (heyoka stores a number written in an expression as the "
+                "nearest double)")
+        how = ("Make it a runtime parameter: `hy.par[i]` in the expression and its exact value (a string such as "
+               "'0.1', or a Fraction) in `parameters`.")
+    else:
+        what = (f"`{argname}` carries only {bits} bits ({bits_to_dps(bits)} digits: binary numbers such as the "
+                "double 0.1 are roundings of what was typed)")
+        how = ("Pass exact values (strings like '0.1', ints, Fractions), or a state from `model.initial_state(...)` "
+               "built from exact input.")
     warnings.warn(
-        f"`{argname}` carries only {bits} bits ({bits_to_dps(bits)} digits: binary numbers such as the double 0.1 "
-        f"are roundings of what was typed), but the run works with {work_bits} bits: it is exact for those binary "
-        "values, not for the decimals you may have meant, and agrees with the intended problem to about "
-        f"{bits_to_dps(bits)} digits only. Pass exact values (strings like '0.1', ints, Fractions), or a state "
-        "from `model.initial_state(...)` built from exact input.",
+        f"{what}, but the run works with {work_bits} bits: it is exact for those binary values, not for the "
+        f"decimals you may have meant, and agrees with the intended problem to about {bits_to_dps(bits)} digits "
+        f"only. {how}",
         PrecisionWarning,
         stacklevel=stacklevel,
     )

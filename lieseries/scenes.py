@@ -70,7 +70,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .precision import resolve_precision, to_fraction
+from .precision import binary_inputs, bits_to_dps, resolve_precision, to_fraction
 
 __all__ = [
     "FIELD_DOCS",
@@ -150,6 +150,16 @@ def _nonnegative(value, path):
 
 def _fraction01(value, path):
     return _number(value, path, below_one=True)
+
+
+def _edge(value, path):
+    """A sphere chart's edge: in (0, 1/sqrt(3)) (as ``Sphere``: every point has a coordinate with
+    |x_k| >= |x|/sqrt(3), so below that every point lies inside the chart of its largest coordinate)."""
+    _number(value, path, below_one=True, what="a number in (0, 0.577) (below 1/sqrt(3))")
+    if to_fraction(value, path) ** 2 >= Fraction(1, 3):
+        _fail(path, "a number in (0, 0.577): below 1/sqrt(3), since every point has a coordinate with "
+                    "|x_k| >= |x|/sqrt(3) and so lies inside the chart of its largest coordinate", value)
+    return value
 
 
 def _tol(value, path):
@@ -339,10 +349,13 @@ _MODEL_FIELDS = {
     "damped_euler_poisson": {"inertia": (_inertia, _REQUIRED), "damping": (_nonnegative, _REQUIRED),
                              "bracket": (_choice("chetaev", "intermediate"), "chetaev")},
     "sphere": {"mass": (_positive, 1), "radius": (_positive, 1), "chart": (_integer(0, 2), 2),
-               "edge": (_fraction01, 0.05), "atlas": (_boolean, True)},
+               "edge": (_edge, 0.05), "atlas": (_boolean, True)},
     "sphere_dirac": {"mass": (_positive, 1), "radius": (_positive, 1)},
     "python": {"file": (_string, _REQUIRED), "factory": (_identifier, "make")},
 }
+#: The fields of each model kind that are data of the problem (binary floats there are reported).
+_DATA_FIELDS = {"euler_poisson": ("inertia",), "damped_euler_poisson": ("inertia", "damping"),
+                "sphere": ("mass", "radius"), "sphere_dirac": ("mass", "radius")}
 _INITIAL_FIELDS = {
     "rigid_body": {"omega": (_vector3, _REQUIRED), "R0": (_matrix3, None)},
     "sphere": {"x": (_vector3, _REQUIRED), "v": (_vector3, _REQUIRED)},
@@ -487,7 +500,8 @@ FIELD_DOCS = {
         "mass": ("positive number", "the particle's mass"),
         "radius": ("positive number", "the sphere's radius"),
         "chart": ("0 | 1 | 2", "the dependent coordinate of the chart the state is written in"),
-        "edge": ("number in (0, 1)", "a chart ends where |x_chart| <= edge * |x|"),
+        "edge": ("number in (0, 0.577)", "a chart ends where abs(x_chart) <= edge * abs(x); below 1/sqrt(3), "
+                 "since every point has a coordinate with abs(x_k) >= abs(x)/sqrt(3)"),
         "atlas": ("boolean", "runs and studies switch charts (true) or stay in one and stop at its edge"),
     },
     "model.sphere_dirac": {
@@ -623,7 +637,9 @@ def scene_reference() -> str:
         "nothing more is computed. `lieseries run FILE.toml` runs one; `lieseries scenes` lists the built-in ones",
         "(`lieseries/data/scenes/`). Numbers may be strings, read exactly (`\"0.1\"` is 1/10); every number lies",
         f"within 1e-{MAX_MAGNITUDE} .. 1e{MAX_MAGNITUDE} in magnitude. An unknown or invalid field is refused with",
-        "its dotted path (`run.methods[1].precision`).",
+        "its dotted path (`run.methods[1].precision`). A TOML float such as `0.1` is a double (0.1000000000000000055...):",
+        "the runs and the reference start from that binary value, and the scene's data list it",
+        "(`Scene.binary_inputs()`: `initial.omega[1]`); `1`, `0.5` and other short binary numbers are exact.",
         "",
         "`lieseries run SCENE --quick` runs a scaled-down plan for CI (`effective_plan`: shorter times, fewer",
         "samples and orders, validated runs at most 30 digits); its report lists every setting it changed",
@@ -734,8 +750,38 @@ class Scene:
             n = as_poisson_system(model).dimension
             if len(ini["y0"]) != n:
                 raise ValueError(f"`initial.y0` must have {n} numbers, one per variable; got {len(ini['y0'])}")
-            return make_state(ini["y0"], precision)
+            return make_state(ini["y0"], precision, inputs={"initial.y0": ini["y0"]})
         return model.initial_state(ini["x"], ini["v"], precision=precision)
+
+    def binary_inputs(self) -> dict:
+        """``{dotted path: bits}`` of the scene's numbers written as binary floats that are not what a short decimal
+        means (TOML reads ``omega = [1, 0.1, 0.5]`` as doubles: 0.1 is 0.1000000000000000055511151231257827...);
+        ``1``, ``0.5``, ``0.375`` and strings such as ``"0.1"`` are exact and not listed. Every run and every
+        reference of the scene starts from the binary values, so its errors are measured against the problem with
+        these binary data, which agrees with the decimals as typed to about 16 digits only."""
+        out = {}
+        for i, m in enumerate(self.models):
+            where = "model" if len(self.models) == 1 else f"models[{i}]"
+            for key in _DATA_FIELDS.get(m.kind, ()):
+                if m.params.get(key) is not None:
+                    out.update(binary_inputs(m.params[key], f"{where}.{key}"))
+        for key in ("omega", "R0", "x", "v", "y0"):
+            if self.initial.get(key) is not None:
+                out.update(binary_inputs(self.initial[key], f"initial.{key}"))
+        return out
+
+    def binary_note(self) -> str:
+        """One sentence for the report when the scene holds binary floats (:meth:`binary_inputs`), else ""."""
+        found = self.binary_inputs()
+        if not found:
+            return ""
+        names = ", ".join(f"`{k}`" for k in found)
+        bits = min(found.values())
+        return (f"The scene gives {names} as binary floating-point numbers (TOML reads 0.1 as the double "
+                "0.1000000000000000055511151231257827...): every run and the reference start from these binary "
+                "values, so the errors shown are measured against the problem with the binary data; that problem "
+                f"agrees with the decimals as written to about {bits_to_dps(bits)} digits only. Write the numbers as "
+                'strings ("0.1") to mean the decimals exactly.')
 
     def to_dict(self) -> dict:
         return {
@@ -748,6 +794,7 @@ class Scene:
             "studies": jsonable(self.studies, drop_none=True),
             "plots": list(self.plots),
             "path": self.path,
+            "binary_inputs": self.binary_inputs(),
             **({"stability": jsonable(self.stability, drop_none=True)} if self.stability is not None else {}),
         }
 

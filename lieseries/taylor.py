@@ -53,6 +53,7 @@ from .poisson import as_poisson_system
 from .precision import (
     Precision,
     check_callable,
+    check_progress,
     check_count,
     check_seconds,
     check_tolerance,
@@ -333,8 +334,9 @@ def integrate(
         For a model with charts (:class:`~lieseries.Sphere`), on by default (the model's ``atlas``): switch charts
         when the current one is ending and go on (:mod:`lieseries.atlas`); ``sol.charts`` tells the chart of each
         output row. With ``atlas=False`` the run stays in one chart and stops at its edge (``chart_edge``).
-    progress : callable, optional
-        Called as ``progress(fraction_done)`` between chunks of steps (about ten times a second) during long runs.
+    progress : callable or True, optional
+        Called as ``progress(fraction_done)`` between chunks of steps (about ten times a second) during long runs;
+        True shows a bar (on a terminal).
     events : list of :class:`lieseries.Event`, optional
         Zero crossings to record (``sol.events[name]``: times and states) or, for a terminal event, to stop at
         (status ``event``), found by heyoka's polynomial root finding on every step.
@@ -349,6 +351,7 @@ def integrate(
     Solution
         ``sol.t``, ``sol.y`` (one row per output time reached), ``sol.stats``, ``sol.status``, ``sol.message``.
     """
+    progress = check_progress(progress, title="integrate")  # True: show a bar
     if (client is not None or params is not None or workers is not None or isinstance(system, (list, tuple))
             or (y0.ndim == 2 if isinstance(y0, np.ndarray)
                 else isinstance(y0, (list, tuple)) and len(y0) > 0 and np.ndim(y0[0]) == 1)):
@@ -765,16 +768,19 @@ def _status(run, event_info, t_reached, t_end, max_steps):
     if run.reason == "step_collapse":
         return "step_collapse", (
             f"The step size collapsed near {where}, from {run.max_h:.3g} earlier: {need}, more than the "
-            f"{run.stiff_steps} steps allowed for it (pass `max_steps` to allow more). The problem is stiff or "
-            "singular there; an explicit Taylor method cannot cross it efficiently."
+            f"{run.stiff_steps} steps allowed for it (pass `max_steps` to allow more). The solution is singular "
+            "or nearly so there, or it moves on a much faster time scale than before (a fast rotation or "
+            "oscillation); an explicit Taylor method cannot cross it efficiently."
         )
     if run.reason == "stiff":
         return "step_collapse", (
-            f"The problem is stiff: near {where} the step size is limited by stability, not accuracy -- no "
-            f"component of the state changes by more than {run.change:.1e} of its size per step. {need}, more than "
-            f"the {run.stiff_steps} steps allowed for a stiff run (pass `max_steps` to allow more). An explicit "
-            "Taylor method cannot integrate this efficiently: reduce the stiffness (e.g. the damping) or use an "
-            "implicit method for this part of the motion."
+            f"Tiny steps: near {where} the state changes per step by at most {run.change:.1e} (relative to its "
+            f"entries, the small ones measured against the largest). {need}, more than the {run.stiff_steps} "
+            "steps allowed for such a run (pass `max_steps` to allow more). Either the problem is stiff (a fast "
+            "decaying mode, e.g. strong damping: reduce it, or use an implicit method for this part of the "
+            "motion), or some variables move on a time scale far shorter than the run (a fast rotation or "
+            "oscillation: a large angular velocity, or moments of inertia far apart): rescale time or shorten "
+            "the run."
         )
     if run.reason == "step_budget" or outcome == _OUTCOME.step_limit:
         return "step_budget", (
@@ -786,8 +792,10 @@ def _status(run, event_info, t_reached, t_end, max_steps):
         return "success", _reached(t_end)
     if outcome == _OUTCOME.err_nf_state:
         return "non_finite", (
-            f"The state became non-finite (NaN or infinity) in the step after t = {float(t_reached):.17g}; the "
-            "solution blows up or leaves the domain of the equations there. The last finite state is kept."
+            f"The state became non-finite (NaN or infinity) in the step after t = {float(t_reached):.17g}: the "
+            "solution blows up or leaves the domain of the equations there, or a number of the step (a Taylor "
+            "coefficient grows like rate^order) exceeds the range of the format -- rescale a state or rate of "
+            "order 1e300. The last finite state is kept."
         )
     # a terminal event: heyoka reports event i as outcome i, or -(i + 1) when it stopped the run
     idx = int(outcome.value)

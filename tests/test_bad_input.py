@@ -136,3 +136,74 @@ def test_nonphysical_inertia_warns_and_is_documented():
     with pytest.warns(UserWarning, match="triangle inequality"):
         ls.EulerPoisson((1, 1, 5))
     assert "triangle inequality" in ls.EulerPoisson.__doc__
+
+
+SMALL_CASES = {
+    # the documented range 1e-4000 .. 1e4000 holds exactly (the estimate from bit lengths let 1e-4001 through)
+    "inertia 1e-4001": (lambda: ls.EulerPoisson(("1e-4001", 1, 1)), ValueError, r"`inertia\[0\]`.*out of range"),
+    # within the input range but not the model's (it works in double): refused naming inertia, not OverflowError
+    "inertia 1e400": (lambda: ls.EulerPoisson(inertia=("1e400",) * 3), ValueError, "`inertia` entries must lie"),
+    # an overflow of a derived runtime parameter names the argument it came from
+    "damping 1e400 in double": (lambda: ls.integrate(ls.DampedEulerPoisson((1, 2, 3), damping="1e400"), Y0, t=1),
+                                ValueError, r"`damping` gives the runtime parameter 'damping'.*overflows double"),
+    "mass 1e-320 in double": (lambda: ls.integrate(ls.SphereDirac(mass="1e-320"),
+                                                   ls.SphereDirac().initial_state((1, 0, 0), (0, 1, 0)), t=1),
+                              ValueError, r"`mass` gives the runtime parameter 'inv_mass'"),
+    # a 100000-digit string: the argument and lieseries' own limit, not Python's int-string limit
+    "100000 digits": (lambda: ls.EulerPoisson(("1" * 100_000, 2, 3)), ValueError,
+                      r"`inertia\[0\]` is written with 100000 digits.*at most 20000 digits"),
+    "saddle_rate momentum True": (lambda: BODY.saddle_rate(True), TypeError, "`momentum`"),
+    "progress not callable": (lambda: ls.integrate(BODY, Y0, t=1, progress=3), TypeError, r"`progress`.*True"),
+    "sphere edge beyond 1/sqrt(3)": (lambda: ls.Sphere(edge="0.6"), ValueError, r"`edge`.*1/sqrt\(3\)"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SMALL_CASES))
+def test_more_bad_input_names_the_argument(name):
+    call, exc, match = SMALL_CASES[name]
+    with pytest.raises(exc, match=match):
+        call()
+
+
+def test_long_decimal_strings_within_the_limit_are_read_exactly():
+    from fractions import Fraction
+
+    text = "0." + "3" * 6000  # beyond Python's 4300-digit int-string limit, within lieseries' 20000
+    assert ls.precision.to_fraction(text) == Fraction(int("3" * 4000) * 10**2000 + int("3" * 2000), 10**6000)
+    assert ls.precision.to_fraction("1e-4000") == Fraction(1, 10**4000)
+
+
+def test_progress_true_shows_a_bar_and_edge_strings_are_read():
+    sol = ls.integrate(BODY, Y0, t=1, progress=True)
+    assert sol.success
+    assert ls.lie_integrate(BODY, BODY.initial_state((1, "0.1", "0.5")), t="0.5", dps=20, progress=True).success
+    assert ls.Sphere(edge="0.1").edge == 0.1
+
+
+def test_mixed_precision_real_state_warns_naming_the_entry():
+    import heyoka as hy
+
+    y = np.array([hy.real(v, 100) for v in (1, 0, 0, 0, 1, 0, 0, 0, 1, 1, 0)] + [hy.real("0.1", 200)],
+                 dtype=hy.real)
+    with pytest.warns(ls.PrecisionWarning, match=r"`y0\[11\]` is a 200-bit heyoka.real but `y0\[0\]` has 100 bits"):
+        ls.integrate(BODY, y, t="0.1")
+
+
+def test_fast_motion_is_not_called_only_stiff():
+    """Moments 1e-4 : 1 : 1e4 (no physical body) give a rotation 1e8 times faster than the run: the message says
+    that a time scale far shorter than the run is one explanation, not that the problem is stiff."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        body = ls.EulerPoisson(("1e-4", 1, "1e4"))
+    sol = ls.integrate(body, body.initial_state((1, 1, 1)), t=1)
+    assert sol.status == "step_collapse"
+    assert "The problem is stiff" not in sol.message and "time scale far shorter than the run" in sol.message
+
+
+def test_bools_are_not_numbers_of_digits_or_momenta():
+    with pytest.raises(TypeError, match="`dps`"):
+        studies.observables(BODY, Y0, True)
+    with pytest.raises(TypeError, match="`momentum`"):
+        BODY.saddle_rate(True)

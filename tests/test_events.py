@@ -171,3 +171,22 @@ def test_a_run_starting_on_the_surface_counts_crossings_after_its_start(engine):
     assert stop.status == "event" and abs(float(stop.t_reached) - float(refs[0])) < 1e-12
     still = run(0, events=[ls.Event(g, name="s"), ls.Event(g, terminal=True, name="t")])
     assert still.success and len(still.events["s"]["t"]) == 0 and len(still.events["t"]["t"]) == 0
+
+
+def test_an_event_that_is_a_function_of_the_state_is_refused_naming_it():
+    body = ls.EulerPoisson(INERTIA)
+    y0 = body.initial_state(OMEGA)
+    for engine in (ls.integrate, ls.lie_integrate):
+        kw = {"dps": 20} if engine is ls.lie_integrate else {}
+        with pytest.raises(TypeError, match=r"`events\[1\]`.*heyoka expression in the system's variables"):
+            engine(body, y0, t=1, events=[ls.Event(m2(body)), ls.Event(lambda y: y[10])], **kw)
+
+
+def test_an_event_using_time_is_refused_when_a_variable_is_named_t():
+    t, p = hy.make_vars("t", "p")
+    osc = ls.PoissonSystem([t, p], [[0, 1], [-1, 0]], (t * t + p * p) / 2)
+    with pytest.raises(ValueError, match=r"`events\[0\]` depends on time"):
+        ls.integrate(osc, ["0.5", 0], t=1, events=[ls.Event(p + hy.time)])
+    # the variable t itself is fine: crossings of t = 0 at pi/2 (t(s) = cos(s) / 2)
+    sol = ls.integrate(osc, ["0.5", 0], t=2, events=[ls.Event(t)])
+    assert abs(float(sol.events["event0"]["t"][0]) - float(mp.pi / 2)) < 1e-12

@@ -297,3 +297,23 @@ def test_a_scene_can_run_a_model_from_a_python_file(tmp_path):
     bad.write_text((tmp_path / "pend.toml").read_text().replace('file = "pendulum.py"', 'file = "nope.py"'))
     with pytest.raises(SceneError, match="`model.file`"):
         run_scene(load_scene(str(bad)), progress=False)
+
+
+def test_scene_says_which_numbers_are_binary_and_against_which_problem():
+    """TOML reads omega = [1, 0.1, 0.5] as doubles: the scene's data name initial.omega[1] (not 1 nor 0.5), its
+    initial state carries 53 bits, and the note says the errors are measured against the binary problem."""
+    text = RIGID.replace('omega = [1, "0.1", "0.5"]', "omega = [1, 0.1, 0.5]").replace(
+        "inertia = [1, 2, 3]", "inertia = [1, 2.2, 3]")
+    scene = parse_scene(text)
+    assert scene.binary_inputs() == {"model.inertia[1]": 53, "initial.omega[1]": 53}
+    assert scene.to_dict()["binary_inputs"] == {"model.inertia[1]": 53, "initial.omega[1]": 53}
+    note = scene.binary_note()
+    assert "`initial.omega[1]`" in note and "binary data" in note and '"0.1"' in note
+    model = scene.build_models()[0][1]
+    y0 = scene.initial_state(model)
+    assert y0.data_bits == 53 and y0.binary_inputs == ("omega[1]",)
+    # the exact values the runs start from differ from the decimals as written by the double's rounding
+    assert abs(float(y0.exact[10] - 2 * ls.precision.to_fraction("2.2") * ls.precision.to_fraction("0.1"))) > 1e-18
+    exact_scene = parse_scene(RIGID)
+    assert exact_scene.binary_inputs() == {} and exact_scene.binary_note() == ""
+    assert exact_scene.initial_state(exact_scene.build_models()[0][1]).data_bits is None

@@ -64,8 +64,11 @@ def test_float_parameters_and_constants_warn_by_name_above_double():
         ls.integrate(body, body.initial_state(omega=(1, 0, 0)), t=1, precision=113)
     q, p = hy.make_vars("q", "p")
     osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 + 0.05 * q**2)
-    with pytest.warns(PrecisionWarning, match="the constant 0.1 in the expressions"):
+    # named as typed in H (0.05), not as its derivative in the vector field (0.1), with what to do
+    with pytest.warns(PrecisionWarning, match=r"`the constant 0.05 in hamiltonian`.*runtime parameter"):
         ls.integrate(osc, [1, 0], t=1, precision=113)
+    quartic = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 + 0.1 * q**4)
+    assert quartic.coarse_data() == {"the constant 0.1 in hamiltonian": 53}
     # short dyadic constants are exact: no warning
     exact_osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 + 0.25 * q**2)
     with warnings.catch_warnings():

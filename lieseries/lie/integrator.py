@@ -31,7 +31,7 @@ import numpy as np
 from ..events import resolve_events
 from ..poisson import as_poisson_system
 from ..precision import (
-    check_callable,
+    check_progress,
     check_count,
     check_dps,
     check_order,
@@ -102,8 +102,8 @@ def lie_integrate(
         precision (a bracketed secant method on the step's polynomial).
     max_steps, max_time :
         Budgets; the run stops with status ``step_budget`` / ``time_budget`` and keeps what it computed.
-    progress : callable, optional
-        Called as ``progress(fraction_done)`` after each step.
+    progress : callable or True, optional
+        Called as ``progress(fraction_done)`` after each step; True shows a bar (on a terminal).
     atlas : bool, optional
         For a model with charts (Sphere), on by default: switch charts at the end of the step where the current
         one is ending and go on (:mod:`lieseries.atlas`); ``sol.charts`` tells the chart of each output row.
@@ -124,7 +124,7 @@ def lie_integrate(
     user_events_arg = events
     max_steps = check_count(max_steps, "max_steps")
     max_time = check_seconds(max_time, "max_time")
-    check_callable(progress, "progress")
+    progress = check_progress(progress, title="lie_integrate")
     if atlas is None:
         atlas = bool(getattr(system, "atlas", False))  # a Sphere says (True unless built with atlas=False)
     if atlas:

@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+import warnings
 from fractions import Fraction
+
+import heyoka as hy
 
 from ..precision import thread_mp as mp
 import numpy as np
 
 from ..poisson import PoissonSystem
 from ..solution import ChartRows, Solution, plain_ufunc
-from ..precision import export_mpf, precision_of_dtype, resolve_precision, to_fraction
+from ..precision import EXACT_STATE_BITS  # noqa: F401 (kept here, where it was defined)
+from ..precision import (BinaryFraction, CarriedBits, PrecisionWarning, binary_inputs, bits_to_dps, carried_bits,
+                         export_mpf, precision_of_dtype, resolve_precision, state_bits, to_fraction)
 
 __all__ = ["Model", "ExactState", "make_state", "state_fractions", "state_bits"]
 
@@ -23,8 +28,24 @@ class ExactState(np.ndarray):
     copy) is an ordinary float64 array that carries 53 bits only.
     """
 
-    def __new__(cls, values):
+    def __new__(cls, values, binary=None):
+        """``values``: the state's numbers (exact input stays exact). ``binary``: ``{argument: bits}`` of the binary
+        numbers (floats such as 0.1) the values were computed from (:func:`~lieseries.precision.binary_inputs`);
+        by default those among ``values`` themselves. A state built from them carries their precision."""
+        if binary is None:
+            binary = binary_inputs(list(values) if not isinstance(values, np.ndarray) else values, "y0")
         fr = tuple(to_fraction(v, f"y[{i}]") for i, v in enumerate(values))
+        found = [b for b in map(carried_bits, fr) if b is not None]  # already marked (a pickled state)
+        bits = min(list(binary.values()) + [int(b) for b in found], default=None)
+        if bits is not None:
+            sources = [k for k, b in binary.items() if b == bits]
+            sources += [s for b in found if b == bits for s in b.sources]
+            sources = tuple(dict.fromkeys(sources))
+            # every entry is marked: engines that read the exact values see the precision they carry
+            fr = tuple(f if isinstance(f, BinaryFraction) else BinaryFraction(f, bits, sources) for f in fr)
+            data = CarriedBits(bits, sources)
+        else:
+            data = None
         floats = []
         for f in fr:
             try:
@@ -33,12 +54,21 @@ class ExactState(np.ndarray):
                 floats.append(float("inf") if f > 0 else float("-inf"))
         arr = np.array(floats, dtype=np.float64).view(cls)
         arr.exact = fr
+        arr.data_bits = data
         arr.flags.writeable = False
         return arr
 
     def __array_finalize__(self, obj):
         self.exact = None
+        self.data_bits = None
         self._native = {}
+
+    @property
+    def binary_inputs(self) -> tuple:
+        """The arguments (``omega[1]``, ...) holding binary numbers (the double 0.1) the state was built from;
+        empty when it was built from exact input. The state is exact for their binary values: a run of more
+        than ``data_bits`` bits agrees with the decimals they round only to ``data_bits`` bits."""
+        return tuple(getattr(self.data_bits, "sources", ()))
 
     def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
         return plain_ufunc(ExactState, ufunc, method, inputs, kwargs)
@@ -48,7 +78,7 @@ class ExactState(np.ndarray):
         return np.asarray(out) if isinstance(out, np.ndarray) else out
 
     def __reduce__(self):
-        return (ExactState, (self.exact,)) if self.exact is not None else np.asarray(self).__reduce__()
+        return (ExactState, (self.exact, {})) if self.exact is not None else np.asarray(self).__reduce__()
 
     def __copy__(self):
         return self
@@ -76,12 +106,32 @@ class ExactState(np.ndarray):
         return f"ExactState({body})"
 
 
-def make_state(values, precision=None):
+def make_state(values, precision=None, inputs=None):
     """A model state from exact values: an :class:`ExactState` (``precision=None``) or an array rounded once to
-    ``precision``."""
+    ``precision``.
+
+    ``inputs``: ``{argument name: value as the user gave it}`` (``{"omega": omega, "R0": R0}``): binary numbers
+    among them (the double 0.1) make the ExactState carry their precision (``data_bits``) and name them
+    (``binary_inputs``), as an array of doubles would carry 53 bits; default: the ``values`` themselves."""
+    binary = {}
+    for name, value in (inputs or {}).items():
+        binary.update(binary_inputs(value, name))
     if precision is None:
-        return ExactState(values)
-    return resolve_precision(precision).array(values, "state")
+        return ExactState(values) if inputs is None else ExactState(values, binary)
+    prec = resolve_precision(precision)
+    if binary and min(binary.values()) < prec.bits:
+        # the array will look like prec.bits of data (a quad 0.1 from a double has a long significand)
+        low = min(binary.values())
+        names = ", ".join(f"`{k}`" for k, b in binary.items() if b == low)
+        warnings.warn(
+            f"the state is rounded to {prec.name} ({prec.bits} bits) from binary numbers ({names}) that carry only "
+            f"{low} bits: it is exact for those binary values (the double 0.1 is 0.1000000000000000055511...), "
+            f"and agrees with the decimals you may have meant to about {bits_to_dps(low)} digits only; a run of more "
+            "bits cannot tell. Pass them as strings ('0.1') or Fractions.",
+            PrecisionWarning,
+            stacklevel=3,
+        )
+    return prec.array(values, "state")
 
 
 def state_fractions(y, n: int, argname: str = "y0") -> list:
@@ -108,30 +158,26 @@ def state_fractions(y, n: int, argname: str = "y0") -> list:
             out.append(to_fraction(v, f"{argname}[{i}]"))
         except ValueError as err:
             raise ValueError(f"{err}: every entry of `{argname}` must be a finite number") from None
+    _warn_mixed_reals(arr, argname)
     return out
 
 
-#: Bits at which helpers evaluate an exact state (it has no format of its own; well above quad).
-EXACT_STATE_BITS = 256
-
-
-def state_bits(y) -> int:
-    """The precision (bits) a state is stored in: 53 for float64, 113 for quad, the ``real`` precision, ...;
-    EXACT_STATE_BITS for an :class:`ExactState`."""
-    if getattr(y, "exact", None) is not None:
-        return EXACT_STATE_BITS
-    arr = np.asarray(y) if not isinstance(y, np.ndarray) else y
-    prec = precision_of_dtype(arr.dtype)
-    if prec is not None:
-        return prec.bits
-    flat = arr.ravel()
-    if len(flat) and hasattr(flat[0], "prec"):
-        p = flat[0].prec
-        return int(p() if callable(p) else p)
-    if len(flat) and hasattr(flat[0], "_mpf_"):
-        # mpf carries no precision of its own: use the longest significand in the state
-        return max([53] + [int(v._mpf_[3]) for v in flat if hasattr(v, "_mpf_")])
-    return 53
+def _warn_mixed_reals(arr, argname):
+    """One PrecisionWarning when a state mixes heyoka.real numbers of different precisions: a run that takes its
+    precision from the state uses the first entry's, and rounds the longer entries to it."""
+    precs = [(i, int(v.prec)) for i, v in enumerate(arr) if isinstance(v, hy.real)]
+    if len({p for _i, p in precs}) < 2:
+        return
+    first = precs[0]
+    longest = max(precs, key=lambda ip: ip[1])
+    if longest[1] > first[1]:
+        warnings.warn(
+            f"`{argname}[{longest[0]}]` is a {longest[1]}-bit heyoka.real but `{argname}[{first[0]}]` has "
+            f"{first[1]} bits: a run that takes its precision from `{argname}` works with {first[1]} bits and "
+            f"rounds `{argname}[{longest[0]}]` to them. Give every entry the same precision, or pass `precision=`.",
+            PrecisionWarning,
+            stacklevel=4,
+        )
 
 
 class Model:

@@ -27,7 +27,7 @@ from ..precision import thread_mp as mp
 import numpy as np
 
 from ..poisson import PoissonSystem
-from ..precision import data_bits, export_mpf, to_fraction
+from ..precision import data_bits, export_mpf, short_decimal, to_fraction
 from .base import Model, make_state
 
 __all__ = ["EulerPoisson", "DampedEulerPoisson", "levi_civita"]
@@ -65,6 +65,16 @@ def _parse_inertia(inertia):
     else:
         raise ValueError(
             f"`inertia` must be three principal moments or a 3x3 matrix; got shape {arr.shape}"
+        )
+    # the model's helpers (principal moments, the triangle inequality, saddle_rate) use doubles
+    big = max(abs(v) for r in I for v in r)
+    small = min(abs(v) for r in I for v in r if v != 0)
+    if big > 10**300 or small < Fraction(1, 10**300):
+        raise ValueError(
+            f"`inertia` entries must lie within 1e-300 .. 1e300 in magnitude; got one of about "
+            f"{short_decimal(big if big > 10**300 else small)}: the model computes its principal moments and checks "
+            "in double. Rescale the unit of mass or length (the motion is the same with the inertia and the angular "
+            "velocity rescaled)."
         )
     # Sylvester's criterion, exact
     m1 = I[0][0]
@@ -120,7 +130,7 @@ class EulerPoisson(Model):
     --------
     >>> import lieseries as ls
     >>> body = ls.EulerPoisson(inertia=(1, 2, 3))
-    >>> y0 = body.initial_state(omega=(1.0, 0.1, 0.5))
+    >>> y0 = body.initial_state(omega=(1, "0.1", "0.5"))   # strings: exact decimals
     >>> sol = ls.integrate(body, y0, t=20.0)
     """
 
@@ -195,7 +205,8 @@ class EulerPoisson(Model):
                     P[9 + i][3 * j + k] = Rm[j][m] if sign > 0 else -Rm[j][m]
                     P[3 * j + k][9 + i] = -Rm[j][m] if sign > 0 else Rm[j][m]
         return PoissonSystem(z, P, H, parameters=params, name=f"Euler-Poisson ({self.bracket})",
-                             input_bits=self._input_bits)
+                             input_bits=self._input_bits, parameter_sources={k: "inertia" for k in params},
+                             jacobi=False)  # the bracket is checked by the tests (tests/test_poisson.py)
 
     # -- state helpers -----------------------------------------------------------------------------------------
     @property
@@ -236,7 +247,9 @@ class EulerPoisson(Model):
         Parameters
         ----------
         omega : sequence of 3 numbers
-            Initial angular velocity in the body frame (exact input such as "0.1" or Fraction stays exact).
+            Initial angular velocity in the body frame (exact input such as "0.1" or Fraction stays exact; a
+            binary float such as 0.1 is the double nearest it: the state then carries 53 bits, ``data_bits``, and a
+            run of more bits warns naming ``omega[i]``).
         R0 : 3x3, optional
             Initial orientation; must be a rotation (orthogonal to 1e-12, det = +1).
         precision : None, str or int
@@ -267,7 +280,8 @@ class EulerPoisson(Model):
             if _det3(R) < 0:
                 raise ValueError("`R0` must be a proper rotation (det R0 = +1); got a reflection (det R0 = -1)")
         M = [sum(self._I[i][j] * w[j] for j in range(3)) for i in range(3)]
-        return make_state([R[i][j] for i in range(3) for j in range(3)] + M, precision)
+        return make_state([R[i][j] for i in range(3) for j in range(3)] + M, precision,
+                          inputs={"omega": omega, "R0": R0})
 
     def rotation(self, y) -> np.ndarray:
         """R as a 3x3 array (one 3x3 per row for a 2-d array of states)."""
@@ -303,7 +317,7 @@ class EulerPoisson(Model):
         (principal moments I1 <= I2 <= I3). Errors of a motion on the separatrix grow at this rate once it nears
         that rotation."""
         I1, I2, I3 = self.principal_moments
-        return (abs(float(momentum)) / I2) * math.sqrt(max(0.0, (I2 - I1) * (I3 - I2)) / (I1 * I3))
+        return (abs(float(to_fraction(momentum, "momentum"))) / I2) * math.sqrt(max(0.0, (I2 - I1) * (I3 - I2)) / (I1 * I3))
 
     def invariants(self, y) -> dict:
         """Conserved quantities, evaluated in mpmath a little above the state's precision.
@@ -373,7 +387,8 @@ class DampedEulerPoisson(EulerPoisson):
         return PoissonSystem(
             z, base.tensor, base.hamiltonian, parameters=params, extra_field=[0] * 9 + torque,
             name=f"damped Euler-Poisson ({self.bracket})",
-            input_bits={**self._input_bits, "damping": self._damping_bits},
+            input_bits={**self._input_bits, "damping": self._damping_bits}, jacobi=False,
+            parameter_sources={**{k: "inertia" for k in base.parameter_names}, "damping": "damping"},
         )
 
     def check_parameters(self, values, argname: str = "params") -> None:

@@ -44,14 +44,26 @@ def _vec3(value, argname):
     return [to_fraction(v, f"{argname}[{i}]") for i, v in enumerate(arr)]
 
 
-def _fraction_in(value, argname, lo, hi) -> float:
-    """A number strictly between ``lo`` and ``hi`` (as a float), or an error naming ``argname``."""
-    if value is None or isinstance(value, (bool, str)):
+def _fraction_in(value, argname, lo, hi, why: str = "") -> float:
+    """A number strictly between ``lo`` and ``hi`` (as a float; a decimal string is read exactly), or an error
+    naming ``argname`` (``why``: the reason for the bounds)."""
+    if value is None or isinstance(value, bool):
         raise TypeError(f"`{argname}` must be a number in ({lo}, {hi:.4g}); got {type(value).__name__} {value!r}")
-    v = float(to_fraction(value, argname))
+    try:
+        v = float(to_fraction(value, argname))
+    except ValueError:
+        if not isinstance(value, str):
+            raise
+        raise TypeError(f"`{argname}` must be a number in ({lo}, {hi:.4g}) (a decimal string such as '0.1' is read "
+                        f"exactly); got str {value!r}") from None
     if not (lo < v < hi):
-        raise ValueError(f"`{argname}` must lie in ({lo}, {hi:.4g}); got {v}")
+        raise ValueError(f"`{argname}` must lie in ({lo}, {hi:.4g}){why}; got {v}")
     return v
+
+
+#: The largest ``edge``: every point has a coordinate with |x_k| >= |x| / sqrt(3), so with an edge below that
+#: the chart of the largest coordinate holds every point well inside (an atlas run always has a chart to go to).
+EDGE_MAX = 3**-0.5
 
 
 def _frac_sqrt_float(f: Fraction) -> float:
@@ -157,8 +169,10 @@ class Sphere(_SphereBase):
     mass, radius : positive numbers (exact input stays exact)
     chart : {0, 1, 2}
         Index of the dependent coordinate (2, the paper's x3, by default); the momenta are those of the other two.
-    edge : float
-        The chart is left when |x_dep| <= edge * radius: states there are refused and runs stop there.
+    edge : number in (0, 1/sqrt(3) = 0.577)
+        The chart is left when |x_dep| <= edge * radius: states there are refused and runs stop there. Below
+        1/sqrt(3), since every point has a coordinate with |x_k| >= |x|/sqrt(3): the chart of the largest
+        coordinate then holds every point inside its edge.
     rtol : float
         Tolerance of the checks |x| = radius and x . v = 0 in :meth:`initial_state`.
     atlas : bool
@@ -178,7 +192,9 @@ class Sphere(_SphereBase):
             raise ValueError(f"`chart` must be 0, 1 or 2 (the index of the dependent coordinate); got {chart!r}")
         chart = int(chart)
         # (a fraction of |x|: the largest coordinate is always at least |x|/sqrt(3))
-        edge = _fraction_in(edge, "edge", 0, 3**-0.5)
+        edge = _fraction_in(edge, "edge", 0, EDGE_MAX, " (1/sqrt(3): every point has a coordinate with "
+                            "|x_k| >= |x|/sqrt(3), so below it every point lies inside the chart of its largest "
+                            "coordinate)")
         if not isinstance(atlas, bool):
             raise TypeError(f"`atlas` must be True or False; got {atlas!r}")
         self.atlas = atlas
@@ -209,9 +225,11 @@ class Sphere(_SphereBase):
             P,
             H,
             parameters={"inv_mass": 1 / self.mass_exact, "edge2": Fraction(self.edge) ** 2},
+            parameter_sources={"inv_mass": "mass", "edge2": "edge"},
             casimirs={"x2": x[0] ** 2 + x[1] ** 2 + x[2] ** 2},
             name=f"sphere (intermediate, chart x{k + 1})",
             input_bits=self._input_bits,
+            jacobi=False,  # the bracket is checked by the tests (tests/test_poisson.py)
         )
 
     def initial_state(self, x, v, precision=None) -> np.ndarray:
@@ -220,6 +238,7 @@ class Sphere(_SphereBase):
         pi_c = m (v_c - x_c v_k / x_k) for the two free indices c (paper eq. dm3). Refuses x off the sphere,
         x . v != 0, and positions on or near the chart edge (|x_k| <= edge * radius).
         """
+        given = {"x": x, "v": v}
         x, v = self._check_xv(x, v)
         k = self.chart
         if abs(float(x[k])) <= self.edge * self.radius:
@@ -230,7 +249,7 @@ class Sphere(_SphereBase):
             )
         m = self.mass_exact
         pis = [m * (v[c] - x[c] * v[k] / x[k]) for c in self.free]
-        return make_state(list(x) + pis, precision)
+        return make_state(list(x) + pis, precision, inputs=given)
 
     def check_state(self, y, argname="y0"):
         z = super().check_state(y, argname)
@@ -367,18 +386,21 @@ class SphereDirac(_SphereBase):
             P,
             H,
             parameters={"inv_mass": 1 / self.mass_exact},
+            parameter_sources={"inv_mass": "mass"},
             casimirs={"x2": r2, "xp": x[0] * p[0] + x[1] * p[1] + x[2] * p[2]},
             name="sphere (Dirac bracket)",
             input_bits=self._input_bits,
+            jacobi=False,  # the bracket is checked by the tests (tests/test_poisson.py)
         )
 
     def initial_state(self, x, v, precision=None) -> np.ndarray:
         """State (x, p) with p = m v, after checking |x| = radius and x . v = 0 (radial part removed exactly)."""
+        given = {"x": x, "v": v}
         x, v = self._check_xv(x, v)
         x2 = sum(c * c for c in x)
         xv = sum(a * b for a, b in zip(x, v))
         v = [v[i] - x[i] * xv / x2 for i in range(3)]
-        return make_state(list(x) + [self.mass_exact * c for c in v], precision)
+        return make_state(list(x) + [self.mass_exact * c for c in v], precision, inputs=given)
 
     def _xp(self, r):
         z = [mp.mpf(v.numerator) / v.denominator for v in r]

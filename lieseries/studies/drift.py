@@ -115,24 +115,16 @@ def growth_exponent(steps, errors) -> float | None:
 
 def invariant_function(system, dps: int):
     """f(state or states) -> dict name -> mpf (list of mpf for a 2-d array), from the model's ``invariants`` or,
-    for a bare PoissonSystem, H and its declared Casimirs evaluated exactly from the states at ``dps`` digits."""
-    if hasattr(system, "invariants"):
-        return system.invariants
-    from ..expr import compile_expressions
-
+    for a bare PoissonSystem (a ``python`` scene's model), :meth:`PoissonSystem.invariants` (H and its declared
+    Casimirs) at ``dps`` digits. Both read a state built from exact input at its exact values."""
     ps = as_poisson_system(system)
-    names = ["energy"] + list(ps.casimirs)
-    prog = compile_expressions(ps.variables, [ps.hamiltonian] + list(ps.casimirs.values()),
-                               len(ps.parameter_values))
-    pars = list(ps.parameter_values)
+    if system is ps or not hasattr(system, "invariants"):
 
-    def inv(y):
-        rows = [y] if np.ndim(y) == 1 else list(y)
-        vals = [prog.evaluate([to_fraction(v) for v in r], pars, dps) for r in rows]
-        out = {nm: [v[i] for v in vals] for i, nm in enumerate(names)}
-        return {k: v[0] for k, v in out.items()} if np.ndim(y) == 1 else out
+        def inv(y):
+            return ps.invariants(y, dps)
 
-    return inv
+        return inv
+    return system.invariants
 
 
 def _perturbable(system, n: int) -> set:

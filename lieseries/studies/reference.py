@@ -28,7 +28,7 @@ from ..models.base import state_fractions
 from ..models.euler_poisson import DampedEulerPoisson, EulerPoisson
 from ..models.sphere import Sphere, SphereDirac
 from ..poisson import as_poisson_system
-from ..precision import dps_to_bits, export_mpf, to_fraction
+from ..precision import MAX_DPS, check_count, dps_to_bits, export_mpf, to_fraction
 from ..precision import thread_mp as mp
 
 __all__ = [
@@ -99,6 +99,7 @@ def observables(system, y, dps: int = 40) -> list:
     list of mpf
         The state itself; for the sphere models position and velocity (see the module docstring).
     """
+    dps = check_count(dps, "dps", low=5, high=MAX_DPS)
     n = as_poisson_system(system).dimension
     fr = state_fractions(y, n, "y")
     if isinstance(system, (Sphere, SphereDirac)):

@@ -1,0 +1,107 @@
+"""Model states built from binary floats (the double 0.1) carry that fact into every engine, as arrays of doubles do."""
+
+import pickle
+import warnings
+from fractions import Fraction
+
+import mpmath as mp
+import numpy as np
+import pytest
+
+import lieseries as ls
+from lieseries import exact
+
+BODY = (1, 2, 3)
+
+
+def _precision_warnings(fn):
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        out = fn()
+    return out, [str(x.message) for x in w if issubclass(x.category, ls.PrecisionWarning)]
+
+
+def _max_err(rows, ref):
+    return max(abs(mp.mpf(a) - mp.mpf(b)) for a, b in zip(rows, ref))
+
+
+def test_binary_omega_state_carries_53_bits_and_names_the_argument():
+    body = ls.EulerPoisson(BODY)
+    y0 = body.initial_state(omega=(1, 0.1, 0.5))
+    assert y0.data_bits == 53
+    assert y0.binary_inputs == ("omega[1]",)
+    # the exact values the engines read say so too, and survive pickling
+    assert all(ls.precision.carried_bits(v) == 53 for v in y0.exact)
+    assert pickle.loads(pickle.dumps(y0)).data_bits == 53
+    # 1.0 and 0.5 are what was typed: exact; so are strings and Fractions
+    for om in ((1, "0.1", 0.5), (1.0, Fraction(1, 10), 0.5), (1, 2, 0.375)):
+        s = body.initial_state(omega=om)
+        assert s.data_bits is None and s.binary_inputs == ()
+
+
+def test_binary_state_error_estimate_covers_the_error_against_the_intended_problem():
+    body = ls.EulerPoisson(BODY)
+    y0 = body.initial_state(omega=(1, 0.1, 0.5))
+    series, msgs = _precision_warnings(lambda: ls.lie_series(body, y0, order=30, dps=70))
+    assert len(msgs) == 1 and "`omega[1]`" in msgs[0] and "'0.1'" in msgs[0] and "Fraction" in msgs[0]
+    assert series.data_bits == 53
+    # the intended problem (omega_2 = 1/10 exactly), from the closed form at 80 digits
+    ref = exact.euler_poisson(BODY, (1, "0.1", "0.5"), "0.1", dps=80)
+    with mp.workdps(80):
+        err = _max_err(series("0.1"), ref)
+        est = series.error_estimate("0.1")
+    assert 1e-18 < err < 1e-16  # the binary 0.1 differs from 1/10 by 5.6e-18
+    assert est >= err  # was 4.3e-45
+    # the same as the array of doubles gives
+    arr = np.asarray(y0, dtype=float)
+    s2, _ = _precision_warnings(lambda: ls.lie_series(body, arr, order=30, dps=70))
+    assert s2.data_bits == series.data_bits
+
+
+@pytest.mark.parametrize("engine", ["lie_integrate", "validated_integrate", "integrate"])
+def test_every_engine_warns_once_naming_omega(engine):
+    body = ls.EulerPoisson(BODY)
+    y0 = body.initial_state(omega=(1, 0.1, 0.5))
+    run = {
+        "lie_integrate": lambda: ls.lie_integrate(body, y0, t="0.1", dps=40),
+        "validated_integrate": lambda: ls.validated_integrate(body, y0, t="0.05", dps=30),
+        "integrate": lambda: ls.integrate(body, y0, t="0.1", precision="quad"),
+    }[engine]
+    _sol, msgs = _precision_warnings(run)
+    assert len(msgs) == 1, msgs
+    assert "`omega[1]`" in msgs[0]
+    # exact input: no warning
+    y1 = body.initial_state(omega=(1, "0.1", 0.5))
+    run2 = {
+        "lie_integrate": lambda: ls.lie_integrate(body, y1, t="0.1", dps=40),
+        "validated_integrate": lambda: ls.validated_integrate(body, y1, t="0.05", dps=30),
+        "integrate": lambda: ls.integrate(body, y1, t="0.1", precision="quad"),
+    }[engine]
+    assert _precision_warnings(run2)[1] == []
+
+
+def test_ensemble_of_binary_states_warns():
+    body = ls.EulerPoisson(BODY)
+    y0 = body.initial_state(omega=(1, 0.1, 0.5))
+    _sol, msgs = _precision_warnings(lambda: ls.integrate(body, [y0, y0], t="0.1", precision="quad"))
+    assert len(msgs) == 1 and "`omega[1]`" in msgs[0]
+    y1 = body.initial_state(omega=(1, "0.1", 0.5))
+    assert _precision_warnings(lambda: ls.integrate(body, [y1, y1], t="0.1", precision="quad"))[1] == []
+
+
+def test_sphere_state_from_binary_position_names_it():
+    sph = ls.SphereDirac()
+    y0 = sph.initial_state(x=(0.6, 0, 0.8), v=(0, 1, 0))
+    assert y0.data_bits == 53 and set(y0.binary_inputs) == {"x[0]", "x[2]"}
+    assert sph.initial_state(x=("0.6", 0, "0.8"), v=(0, 1, 0)).data_bits is None
+
+
+def test_state_rounded_to_a_wider_format_from_binary_input_says_so():
+    """A quad state of the double 0.1 has a 53-bit significand that looks like 113 bits of data: said at once."""
+    body = ls.EulerPoisson(BODY)
+    with pytest.warns(ls.PrecisionWarning, match=r"rounded to quad.*`omega\[1\]`.*53 bits"):
+        body.initial_state(omega=(1, 0.1, 0.5), precision="quad")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ls.PrecisionWarning)
+        body.initial_state(omega=(1, 0.1, 0.5), precision="double")  # nothing lost, nothing to say
+        body.initial_state(omega=(1, "0.1", 0.5), precision="quad")
