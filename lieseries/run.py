@@ -612,6 +612,8 @@ def run_scene(scene, quick: bool = False, progress=True) -> SceneResult:
     built = scene.build_models()
     result = SceneResult(scene=scene, quick=bool(quick), environment=environment(),
                          created=_time.strftime("%Y-%m-%d %H:%M:%S %Z"))
+    if scene.binary_note():  # the errors below are measured against the problem with the binary data
+        result.notes.append(scene.binary_note())
     if runp is not None:
         bar = _make_progress(progress, "run")
         try:

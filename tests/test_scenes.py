@@ -8,7 +8,8 @@ import pytest
 
 import lieseries as ls
 from lieseries.report import SECTION_TITLES, markdown_table
-from lieseries.report import FolderError, write_report
+from lieseries.folder import FolderError
+from lieseries.report import write_report
 from lieseries.run import run_scene
 from lieseries.scenes import (
     PLOTS,
@@ -317,3 +318,16 @@ def test_scene_says_which_numbers_are_binary_and_against_which_problem():
     exact_scene = parse_scene(RIGID)
     assert exact_scene.binary_inputs() == {} and exact_scene.binary_note() == ""
     assert exact_scene.initial_state(exact_scene.build_models()[0][1]).data_bits is None
+
+
+def test_a_scene_report_with_binary_floats_says_so(tmp_path):
+    """The report of a scene whose omega holds the double 0.1 names it in its notes and says against which
+    problem its errors are measured; the same scene with "0.1" has no such note."""
+    from lieseries.report import write_report
+    text = RIGID.replace('omega = [1, "0.1", "0.5"]', "omega = [1, 0.1, 0.5]").replace("t = 2", "t = 0.5")
+    with pytest.warns(ls.PrecisionWarning, match=r"omega\[1\]"):
+        res = run_scene(parse_scene(text), progress=False)
+    md = write_report(res, tmp_path / "binary").read_text()
+    assert "`initial.omega[1]`" in md and "binary data" in md
+    exact = run_scene(parse_scene(RIGID.replace("t = 2", "t = 0.5")), progress=False)
+    assert not any("binary" in n for n in exact.notes)
