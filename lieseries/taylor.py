@@ -23,6 +23,9 @@ checks run between chunks:
   stability, not accuracy;
 - ``non_finite``: heyoka stopped on a non-finite state (it overwrites the state with NaN); the last chunk is run
   again from its start with a per-step copy of the state, so the last finite state is kept;
+- missed crossings: with non-terminal events, the event functions are evaluated at every step's end; a step
+  whose signs disagree with the crossings heyoka reported in it, or that starts or ends on a zero, is searched
+  again on its Taylor polynomial and the missing crossings are added (:class:`_CrossingGuard`);
 - terminal events of the model (e.g. the edge of a sphere chart) end the run with their own status;
 - ``invariant_drift``: after a run that reached its final time, the Hamiltonian (conserved by every Hamiltonian
   system) is evaluated at both ends; a change beyond sqrt(tol) (relative to max(|H|, 1)) means the result is
@@ -104,12 +107,146 @@ class _Recorder:
     def __init__(self):
         self.sink = []
         self.t0 = None
+        self.at_t0 = 0  # zeros reported at t0 (dropped); heyoka may report one twice and miss the next one
 
     def __call__(self, ta, t, d_sgn):
         if t == self.t0:
+            self.at_t0 += 1
             return
         ta.update_d_output(t)
         self.sink.append((t, np.array(ta.d_output, copy=True)))
+
+
+_EVENT_FUNCTIONS: dict = {}
+
+
+def _event_function(ps, prec, exprs):
+    """The non-terminal events' expressions as one compiled function of the state (and parameters), in the run's
+    format: the sign checks of :class:`_CrossingGuard`."""
+    key = (ps.key, prec.name, tuple(str(e) for e in exprs))
+    hit = _EVENT_FUNCTIONS.get(key)
+    if hit is None:
+        kwargs = {} if prec.name == "double" else {"fp_type": prec.fp_type}
+        if prec.is_real:
+            kwargs["prec"] = prec.bits
+        uses_pars = any(hy.get_params(e) for e in exprs)
+        fn = hy.cfunc(list(exprs), ps.variables, compact_mode=prec.name != "double", **kwargs)
+        with _LOCK:
+            hit = _EVENT_FUNCTIONS.setdefault(key, (fn, uses_pars))
+    return hit
+
+
+class _CrossingGuard:
+    """Per-step check of heyoka's non-terminal events, so that a missed crossing is found rather than lost.
+
+    After every step the event functions are evaluated at the step's end. A step whose ends have opposite signs
+    must hold an odd number of crossings (for a one-way event: at least one when the ends go that way), and one that
+    starts or ends on a zero (a run starting on a Poincare section) is where heyoka's root finding is known to
+    fail (heyoka 7.13 at >= 180 bits reports the zero at the start twice and misses the next crossing). Such a
+    step is searched again on its Taylor polynomial (heyoka's dense output of the step): the function is sampled at
+    ``SAMPLES`` points and each sign change is solved by bisection to the run's precision; crossings heyoka did not
+    report are added. ``recovered`` counts them (``stats.extra["events_recovered"]``).
+    """
+
+    SAMPLES = 16
+
+    def __init__(self, fn, uses_pars, directions, recorders, bits):
+        self.fn, self.uses_pars = fn, uses_pars
+        self.directions = directions
+        self.recorders = recorders
+        self.bits = bits
+        self.recovered = 0
+        self.t_a = self.s_a = None
+        self.marks = ()
+
+    def _signs(self, ta, state):
+        vals = self.fn(state, pars=ta.pars) if self.uses_pars else self.fn(state)
+        return [int(v > 0) - int(v < 0) for v in vals]
+
+    def start(self, ta):
+        """The run (or a chunk run again) starts from the integrator's current time and state."""
+        self.t_a, self.s_a = ta.time, self._signs(ta, ta.state)
+        self.marks = [len(r.sink) for r in self.recorders]
+        for r in self.recorders:
+            r.at_t0 = 0
+
+    def __call__(self, ta) -> bool:
+        t_a, t_b = self.t_a, ta.time
+        s_a, s_b = self.s_a, self._signs(ta, ta.state)
+        for i, rec in enumerate(self.recorders):
+            mark = self.marks[i]
+            found = len(rec.sink) - mark
+            a, b, d = s_a[i], s_b[i], self.directions[i]
+            if a == 0 or b == 0 or rec.at_t0:
+                suspect = True
+            elif d == 0:
+                suspect = (found % 2 == 1) != (a != b)
+            else:
+                forward = t_b > t_a
+                suspect = found == 0 and (b - a) * d * (1 if forward else -1) > 0
+            if suspect:
+                self._search(ta, i, rec, mark, t_a, t_b)
+            rec.at_t0 = 0
+        self.t_a, self.s_a = t_b, s_b
+        self.marks = [len(r.sink) for r in self.recorders]
+        return True
+
+    def _g(self, ta, t, i):
+        ta.update_d_output(t)
+        v = (self.fn(ta.d_output, pars=ta.pars) if self.uses_pars else self.fn(ta.d_output))[i]
+        return int(v > 0) - int(v < 0)
+
+    def _search(self, ta, i, rec, mark, t_a, t_b):
+        """Crossings of event ``i`` in (t_a, t_b] from the step's polynomial; the ones heyoka missed are added."""
+        n = self.SAMPLES
+        h = t_b - t_a
+        taus = [t_a + h * k / n for k in range(n)] + [t_b]
+        signs = [self._g(ta, t, i) for t in taus]
+        d = self.directions[i]
+        forward = t_b > t_a
+        roots = []
+        for k in range(n):
+            ga, gb = signs[k], signs[k + 1]
+            if not (ga * gb < 0 or (gb == 0 and ga != 0)):
+                continue  # a zero at the step's start is the previous step's crossing (or the run's start)
+            rising = (gb > ga) == forward
+            if d and rising != (d > 0):
+                continue
+            lo, hi = taus[k], taus[k + 1]
+            if gb != 0:
+                for _ in range(self.bits + 8):  # bisection to the last bit of the run's format
+                    mid = lo + (hi - lo) / 2
+                    if mid == lo or mid == hi:
+                        break
+                    gm = self._g(ta, mid, i)
+                    if gm == 0:
+                        lo = hi = mid
+                        break
+                    if gm == ga:
+                        lo = mid
+                    else:
+                        hi = mid
+            roots.append(hi)
+        have = [t for t, _ in rec.sink[mark:]]
+        width = abs(float(h)) * 2.0 ** (-self.bits / 2)
+        added = [t for t in roots if all(abs(float(t - u)) > width for u in have)]
+        if not added:
+            return
+        for t in added:
+            ta.update_d_output(t)
+            rec.sink.append((t, np.array(ta.d_output, copy=True)))
+        rec.sink[mark:] = sorted(rec.sink[mark:], key=lambda r: float(r[0] - t_a) * (1 if forward else -1))
+        self.recovered += len(added)
+
+
+class _Both:
+    """Two step callbacks in turn."""
+
+    def __init__(self, first, second):
+        self.first, self.second = first, second
+
+    def __call__(self, ta) -> bool:
+        return bool(self.first(ta)) & bool(self.second(ta))
 
 
 _HY_DIRECTION = {0: hy.event_direction.any, 1: hy.event_direction.positive, -1: hy.event_direction.negative}
@@ -469,7 +606,12 @@ def _execute(call, progress):
             # this run's crossings: the lists, taken before the integrator goes back to the pool (another thread
             # may check it out at once and give its recorders new lists)
             sinks = [rec.sink for rec in recorders]
-            run = _Run(ta, direction, recorders)
+            guard = None
+            if recorders:
+                nt = [e for e in user_events if not e[3]]
+                fn, uses_pars = _event_function(ps, prec, [e[1] for e in nt])
+                guard = _CrossingGuard(fn, uses_pars, [e[2] for e in nt], recorders, prec.bits)
+            run = _Run(ta, direction, recorders, guard)
             if user_events:
                 # the user's terminal events (after the model's in heyoka's order): a zero at t0 does not stop
                 # the run
@@ -483,7 +625,8 @@ def _execute(call, progress):
             _release(ta, free)
     stats = Stats(method="taylor (heyoka)", precision=prec.name, tol=plan["tol_float"], order=template.order,
                   build_time=build, cached=cached, run_time=run_time, steps=run.steps, min_step=run.min_h,
-                  max_step=run.max_h)
+                  max_step=run.max_h,
+                  extra={"events_recovered": run.guard.recovered} if getattr(run, "guard", None) else None)
 
     # the exact value of the time reached (the exact grid's when the run got to the end)
     t_reached = plan["grid_exact"][-1] if run.t_reached == grid_native[-1] else to_fraction(run.t_reached)
@@ -569,10 +712,11 @@ class _Run:
     user_terminal = frozenset()
     chunk_start = None
 
-    def __init__(self, ta, direction, recorders=()):
+    def __init__(self, ta, direction, recorders=(), guard=None):
         self.ta = ta
         self.direction = direction
         self.recorders = recorders
+        self.guard = guard
         self.c_outs = []  # the other attributes start at the class's values
 
     def go(self, grid, t0, y0, dense, max_steps, max_time, min_step, *, stiff_steps, first_chunk, progress):
@@ -590,6 +734,8 @@ class _Run:
                 self.rows.append(np.array(ta.state, copy=True))
         chunk = first_chunk
         start = _time.perf_counter()
+        if self.guard is not None:
+            self.guard.start(ta)
         while True:
             budget = min(chunk, max_steps - self.steps)
             t_chunk, y_chunk = self.t_reached, self.y_reached  # where this chunk starts
@@ -607,6 +753,8 @@ class _Run:
                 ta.time, ta.state[:] = t_chunk, y_chunk
                 for rec, mark in zip(self.recorders, marks):
                     del rec.sink[mark:]  # the chunk runs again: its crossings are recorded again
+                if self.guard is not None:
+                    self.guard.start(ta)
                 keeper = _Keeper(ta)
                 res = self._propagate(t_end, pending if use_grid else None, dense, budget, keeper)
                 self._account(res, pending if use_grid else None, dense)
@@ -677,6 +825,8 @@ class _Run:
     def _propagate(self, t_end, pending, dense, budget, callback):
         ta = self.ta
         self.chunk_start = ta.time
+        if self.guard is not None:
+            callback = self.guard if callback is None else _Both(self.guard, callback)
         if pending is not None:
             return ta.propagate_grid([ta.time] + pending, max_steps=budget, callback=callback)
         return ta.propagate_until(t_end, max_steps=budget, c_output=dense, callback=callback)

@@ -171,3 +171,30 @@ def test_a_run_starting_on_the_surface_counts_crossings_after_its_start(engine):
     assert stop.status == "event" and abs(float(stop.t_reached) - float(refs[0])) < 1e-12
     still = run(0, events=[ls.Event(g, name="s"), ls.Event(g, terminal=True, name="t")])
     assert still.success and len(still.events["s"]["t"]) == 0 and len(still.events["t"]["t"]) == 0
+
+
+@pytest.mark.parametrize("bits", [64, 200, 512])
+@pytest.mark.parametrize("engine", ["taylor", "lie"])
+def test_crossings_of_a_run_starting_on_the_section(engine, bits):
+    """q(t) = sin t from (q, p) = (0, 1): crossings at k pi, k = 1..9, to the run's precision. The run starts on
+    the zero at t = 0; heyoka's own root finding (at >= 180 bits) reports that zero twice and misses pi."""
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], (p**2 + q**2) / 2)
+    events = [ls.Event(q, name="q"), ls.Event(q, direction="negative", name="down")]
+    if engine == "lie":
+        dps = int(bits * 0.30103)
+        sol = ls.lie_integrate(osc, [0, 1], t=30, dps=dps, events=events)
+        bound = 10 ** (3 - dps)
+    else:
+        sol = ls.integrate(osc, [0, 1], t=30, precision=bits, events=events)
+        bound = 2.0 ** (12 - bits)  # the orbit's own error at tol = eps: ~1700 units of 2^-bits by t = 6 pi at 512 bits
+    assert sol.success, sol.message
+    ctx = mp.MPContext()  # a private context: the global mpmath precision stays as it is
+    ctx.prec = bits + 64
+    for name, ks in (("q", range(1, 10)), ("down", range(1, 10, 2))):
+        got = sol.events[name]["t"]
+        assert len(got) == len(ks), (name, [float(t) for t in got])
+        for k, t_got, y_got in zip(ks, got, sol.events[name]["y"]):
+            tf, qf = to_fraction(t_got), to_fraction(y_got[0])
+            assert abs(ctx.mpf(tf.numerator) / tf.denominator - k * ctx.pi) < bound
+            assert abs(qf) < bound
