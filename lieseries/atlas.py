@@ -11,8 +11,10 @@ The driver is shared by both integrators: it calls the integrator on each chart 
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
+import heyoka as hy
 import numpy as np
 
 from .precision import to_fraction
@@ -25,7 +27,7 @@ __all__ = ["run_atlas", "MAX_SWITCHES"]
 MAX_SWITCHES = 100_000
 
 
-def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, **kwargs) -> Solution:
+def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, energy_tol=None, **kwargs) -> Solution:
     """Integrate ``model`` (a chart-aware model such as :class:`lieseries.Sphere`) across its atlas.
 
     Parameters
@@ -36,6 +38,11 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, **kwarg
         ``y0`` is written in ``model.chart``.
     bits : int
         Precision of the run, for the exact chart changes.
+    energy_tol : number, optional
+        The run's tolerance. A run that reached its final time is checked like a single run (the energy guard of
+        :mod:`lieseries.energy`): the Hamiltonian at the end, in the final chart, against its value at ``y0``, in
+        the first chart (not against the last switch's: each segment's drift stays small while the run's adds
+        up); a change beyond sqrt(energy_tol) times the energy scale turns ``success`` into ``invariant_drift``.
     kwargs :
         Passed to the integrator on every segment.
     """
@@ -87,12 +94,50 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, **kwarg
         z = current.change_chart(sol.y_reached, chart, bits)
         current = model.for_chart(chart, edge=switch)
         switches += 1
+    if status == "success" and direction != 0 and energy_tol is not None:
+        status, message = _energy_guard(model, z0, current, sol.y_reached, bits, energy_tol, stats.steps,
+                                        switches, status, message)
     stats = replace(stats, extra={**stats.extra, "chart_switches": switches})
     y = np.stack(rows_y) if rows_y else np.empty((0, model.dimension), dtype=sol.y.dtype)
     tarr = np.array([float(v) for v in rows_t])
     return Solution(tarr, ChartRows(y, rows_c), stats, status, f"{message} ({switches} chart switches)",
                     t_reached=sol.t_reached, t_requested=grid, y_reached=ChartRows(sol.y_reached, current.chart),
                     charts=np.array(rows_c, dtype=int), chart_reached=current.chart, events=events)
+
+
+def _energy(chart_model, y, bits):
+    """(H, the energy scale sum_i |dH/dy_i y_i|) of ``chart_model`` at ``y`` (exact values), at ``bits`` bits."""
+    from .expr import compile_expressions
+    from .precision import bits_to_dps
+
+    ps = chart_model.poisson
+    exprs = [ps.hamiltonian] + [hy.diff(ps.hamiltonian, v) for v in ps.variables]
+    prog = compile_expressions(ps.variables, exprs, len(ps.parameter_values))
+    z = [to_fraction(v) for v in np.asarray(y, dtype=object)]
+    out = prog.evaluate(z, list(ps.parameter_values), max(bits_to_dps(bits), 15))
+    return out[0], math.fsum(abs(float(g) * float(v)) for g, v in zip(out[1:], z))
+
+
+def _energy_guard(model, z0, last, y_end, bits, tol, steps, switches, status, message):
+    """``invariant_drift`` when H at the end (chart of ``last``) differs from H(z0) (the model's chart) by more
+    than sqrt(tol) times the energy scale."""
+    if not model.poisson.is_hamiltonian:
+        return status, message
+    e0, scale = _energy(model, z0, bits)
+    e1, _ = _energy(last, y_end, bits)
+    if not (e0 == e0 and e1 == e1):
+        return status, message
+    if abs(e1 - e0) <= float(to_fraction(tol)) ** 0.5 * max(abs(e0), abs(e1), scale):
+        return status, message
+    rel = abs(e1 - e0) / max(abs(e0), abs(e1), scale)
+    return "invariant_drift", (
+        f"{message[:-1]}, but the result is wrong: the energy H, which the equations conserve, went from "
+        f"{float(e0):.10g} to {float(e1):.10g} (relative change {float(rel):.2g}, beyond sqrt(tol)) over {steps} "
+        f"steps and {switches} chart switches. Each chart's error control is relative to the state's largest "
+        "component: on a sphere whose radius is far from 1 (positions ~ radius, momenta ~ mass |v|) the momenta "
+        "keep fewer digits than the tolerance asks. Rescale lengths (and time) so that the radius and the speed "
+        "are of order one, or use the global form SphereDirac."
+    )
 
 
 def _merge_events(total, part, chart):

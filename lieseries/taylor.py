@@ -517,6 +517,7 @@ def integrate(
 
             warn_coarse_inputs(ps, y0, [t, t0], prec.bits)
             return run_atlas(integrate, system, y0, t, t0=t0, bits=prec.bits, dense=dense, tol=tol,
+                             energy_tol=check_tolerance(tol, prec),
                              precision=prec, max_steps=None if default_budget else max_steps, max_time=max_time,
                              min_step=min_step, compact_mode=compact_mode, high_accuracy=high_accuracy,
                              progress=progress, events=events)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import time as _time
 import warnings
+from fractions import Fraction
 
 import numpy as np
 
@@ -132,6 +133,7 @@ def lie_integrate(
 
         coarse_bits(as_poisson_system(system), y0, dps_to_bits(dps), times=[t, t0])
         return run_atlas(lie_integrate, system, y0, t, t0=t0, bits=dps_to_bits(dps + guard), dense=dense,
+                         energy_tol=tol if tol is not None else Fraction(1, 10**dps),
                          dps=dps, tol=tol, order=order, max_steps=max_steps, max_time=max_time, guard=guard,
                          progress=progress, events=events)
     if isinstance(guard, bool) or not isinstance(guard, int) or guard < 0:
