@@ -189,3 +189,31 @@ def test_rigid_body_series_bad_input():
         ls.rigid_body_series(ls.Sphere(), 3)
     with pytest.raises(ValueError, match="`order`"):
         ls.rigid_body_series(ls.EulerPoisson((1, 2, 3)), 0)
+
+
+def test_lie_tolerance_holds_for_each_component_of_a_badly_scaled_sphere():
+    """Sphere of radius 1e6 at speed 1: positions ~ 1e6, momenta ~ 1. A tolerance relative to the largest
+    component left the momenta with tol * 1e6 (the step estimates said 1e-15 while the result was off by 2.65e-13
+    relative at t = 2e7); per component, the run keeps its 20 digits against the great circle."""
+    from fractions import Fraction
+
+    from lieseries.precision import to_fraction
+
+    R, x0, v0 = "1e6", ("6e5", "0", "8e5"), ("0", "1", "0")
+    s = ls.Sphere(mass=1, radius=R)
+    y0 = s.initial_state(x0, v0)
+    ctx = mp.MPContext()
+    ctx.dps = 45
+
+    def error(sol, t):
+        xe, _ = exact.sphere(R, x0, v0, t, dps=40)
+        return max(abs(to_fraction(a) - Fraction(ctx.nstr(b, 40))) for a, b in zip(list(sol.y_reached)[:3], xe)) / 10**6
+
+    one = ls.lie_integrate(s, y0, t="1e6", dps=20, atlas=False)  # one chart, a turn of 1 radian
+    assert one.success, one.message
+    assert error(one, "1e6") <= sum(one.stats.error_estimates)  # before: 3.3e-16 against a sum of 1.3e-15 (absolute)
+    assert max(one.stats.error_estimates) <= 1e-20
+    long = ls.lie_integrate(s, y0, t="2e7", dps=20)  # 13 chart switches
+    assert long.success, long.message
+    assert long.stats.extra["chart_switches"] >= 10
+    assert error(long, "2e7") < 1e-18  # before: 2.65e-13

@@ -7,15 +7,21 @@ rho / e^2 the truncation error of an order-N step is then near tol, and this N m
 for a Taylor method whose cost grows like N^2. For 50 digits N = 59, for 100 digits N = 117.
 
 Step. At each step the coefficients c_0..c_N of the series at the current state are computed (jets, O(N^2) per
-node of the vector field). With ||.|| the max norm and tol_abs = tol * max(1, ||z||), the step is the largest h
-with ||c_k|| h^k <= tol_abs for the last two orders k = N-1, N (the tail of a converging series is governed by
-its last terms; using two of them tolerates a coefficient that vanishes by symmetry), capped at half the radius
+node of the vector field). The step is the largest h with |c_k,i| h^k <= tol * s_i for every component i and the
+last two orders k = N-1, N (the tail of a converging series is governed by its last terms; using two of them
+tolerates a coefficient that vanishes by symmetry), where s_i = max(1, max_k |c_k,i| h^k) is the component's own
+size over the step: the tolerance is relative for each component above 1 and absolute below (relative to the
+largest component, a momentum of size 1 beside positions of size 1e6 kept only tol * 1e6 of its digits, and its
+error grew into the positions over the run). The step is capped at half the radius
 of convergence estimated from the coefficients, so that a step never reaches the singularity where the series
 diverges. The last step is shortened to land on the final time; output times inside a step are evaluated from
 that step's polynomial (dense output of the same accuracy).
 
 Error estimate. Every step records the geometric-tail estimate of its truncation error
-(:func:`lieseries.lie.operator.tail_estimate`); ``sol.stats.error_estimates`` holds them all.
+(:func:`lieseries.lie.operator.tail_estimate`), per component and relative to s_i (absolute below 1), the
+largest over the components; ``sol.stats.error_estimates`` holds them all. They are local: the error of the
+result is their sum carried along by the flow (for a rotation, a momentum's error turns into a phase error that
+grows with the angle covered).
 
 All work is done with ``guard`` extra digits (default 10) and results are rounded to ``dps``.
 """
@@ -92,7 +98,8 @@ def lie_integrate(
     dps : int
         Decimal digits of the arithmetic and of the results.
     tol : float, optional
-        Local error tolerance per step (absolute for |z| <= 1, relative above). Default 10**-dps.
+        Local error tolerance per step and per component (absolute for components of size <= 1, relative above).
+        Default 10**-dps.
     order : int, optional
         Series order; default from ``tol`` (module docstring).
     dense : bool
@@ -217,6 +224,14 @@ def lie_integrate(
             if h == mp.inf:  # polynomial solution of degree < N - 1: one step reaches the end
                 h = abs(tend - tcur)
             h = min(h, abs(tend - tcur))
+            # per component: the tolerance is relative to the component's own size over the step (absolute below
+            # 1), not to the largest component -- a momentum of size 1 beside positions of size 1e6 would keep
+            # only tol * 1e6 of its digits, and its error grows into the positions over the run
+            scales = _component_scales(coeffs, h)
+            for k in (N - 1, N):
+                for c, s in zip(coeffs[k], scales):
+                    if k >= 1 and c != 0:
+                        h = min(h, (tolm * s / abs(c)) ** (mp.mpf(1) / k))
             if h <= abs(tcur) * mp.mpf(10) ** (-wdps + 2) or h == 0:
                 status = "step_collapse"
                 message = (
@@ -225,7 +240,8 @@ def lie_integrate(
                 )
                 break
             hs = h * sgn
-            err = max(tail_estimate(nrm, h, rho), floor * max(mp.mpf(1), nrm[0]))
+            err = max(max(tail_estimate([abs(ck[i]) for ck in coeffs], h, rho) / s for i, s in enumerate(scales)),
+                      floor)
             if nsteps == 0 and order is not None and N < N_auto:
                 _warn_slow_order(N, N_auto, nrm, tol_abs, rho, abs(tend - tcur))
             znew = horner(coeffs, hs)
@@ -269,6 +285,19 @@ def lie_integrate(
     dense_fn = _Dense(segments, dps, sgn) if segments is not None else None
     return Solution(tarr, y, stats, status, message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
                     y_reached=y_reached, events=user.records(dps, ps.dimension) if user is not None else None)
+
+
+def _component_scales(coeffs, h):
+    """Each component's size over a step of length h: max(1, max_k |c_k,i| h^k) (absolute below 1)."""
+    n = len(coeffs[0])
+    out = []
+    for i in range(n):
+        s, hk = mp.mpf(1), mp.mpf(1)
+        for ck in coeffs:
+            s = max(s, abs(ck[i]) * hk)
+            hk *= h
+        out.append(s)
+    return out
 
 
 def _warn_slow_order(N, N_auto, nrm, tol_abs, rho, span):
