@@ -156,6 +156,7 @@ class _CrossingGuard:
         self.recorders = recorders
         self.bits = bits
         self.recovered = 0
+        self.touches = 0  # zeros heyoka reported where the function does not change sign (dropped)
         self.t_a = self.s_a = None
         self.marks = ()
 
@@ -175,6 +176,8 @@ class _CrossingGuard:
         s_a, s_b = self.s_a, self._signs(ta, ta.state)
         for i, rec in enumerate(self.recorders):
             mark = self.marks[i]
+            if len(rec.sink) > mark:
+                self._crossings_only(ta, i, rec, mark, t_a, t_b)
             found = len(rec.sink) - mark
             a, b, d = s_a[i], s_b[i], self.directions[i]
             if a == 0 or b == 0 or rec.at_t0:
@@ -190,6 +193,29 @@ class _CrossingGuard:
         self.t_a, self.s_a = t_b, s_b
         self.marks = [len(r.sink) for r in self.recorders]
         return True
+
+    def _crossings_only(self, ta, i, rec, mark, t_a, t_b):
+        """Keep, of heyoka's zeros in this step, the crossings: the function has opposite signs just before and
+        just after (a tangency, such as a double zero of M2**2, is reported by heyoka once, twice or not at all;
+        both engines report none). Duplicates (the same zero twice) are kept once."""
+        h = abs(t_b - t_a)
+        width = float(h) * 2.0 ** (-self.bits / 2)
+        kept = []
+        for t, y in rec.sink[mark:]:
+            if kept and abs(float(t - kept[-1][0])) <= width:
+                continue
+            kept.append((t, y))
+        times = [t for t, _ in kept]
+        out = []
+        for j, (t, y) in enumerate(kept):
+            gaps = [abs(t - u) for u in times[:j] + times[j + 1:]]
+            delta = min([h * 2.0 ** (-self.bits / 4)] + [g / 2 for g in gaps])
+            before, after = self._g(ta, t - delta, i), self._g(ta, t + delta, i)
+            if before * after < 0 or before == 0 or after == 0:
+                out.append((t, y))
+        if len(out) != len(rec.sink) - mark:
+            self.touches += len(rec.sink) - mark - len(out)
+            rec.sink[mark:] = out
 
     def _g(self, ta, t, i):
         ta.update_d_output(t)
@@ -627,7 +653,8 @@ def _execute(call, progress):
     stats = Stats(method="taylor (heyoka)", precision=prec.name, tol=plan["tol_float"], order=template.order,
                   build_time=build, cached=cached, run_time=run_time, steps=run.steps, min_step=run.min_h,
                   max_step=run.max_h,
-                  extra={"events_recovered": run.guard.recovered} if getattr(run, "guard", None) else None)
+                  extra={"events_recovered": run.guard.recovered, "event_touches_dropped": run.guard.touches}
+                  if getattr(run, "guard", None) else None)
 
     # the exact value of the time reached (the exact grid's when the run got to the end)
     t_reached = plan["grid_exact"][-1] if run.t_reached == grid_native[-1] else to_fraction(run.t_reached)
