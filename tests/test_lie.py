@@ -217,3 +217,32 @@ def test_lie_tolerance_holds_for_each_component_of_a_badly_scaled_sphere():
     assert long.success, long.message
     assert long.stats.extra["chart_switches"] >= 10
     assert error(long, "2e7") < 1e-18  # before: 2.65e-13
+
+
+def test_lie_integrate_ends_with_a_status_where_the_equations_end():
+    """H = p^2/2 + q^1.5 from (1, 0): q reaches 0 at T = int_0^1 dq / sqrt(2 (1 - q^1.5)) (energy 1), beyond which
+    q^1.5 is not real. The run ends with ``non_finite`` before T and keeps its rows (it raised ValueError)."""
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 + q**1.5)
+    ctx = mp.MPContext()
+    ctx.dps = 30
+    T = ctx.quad(lambda x: 1 / ctx.sqrt(2 * (1 - x**1.5)), [0, 1])  # ~1.2196
+    sol = ls.lie_integrate(osc, [1, 0], t=[Fraction(1, 2), 1, Fraction(5, 2)], dps=20)
+    assert sol.status == "non_finite", sol.message
+    assert len(sol.t) == 2 and abs(float(sol.t_reached) - T) < 1e-6  # where the steps shrink onto the branch point
+    # the rows kept are right: q(1/2) from the quadrature t(q) = int_q^1 dx / sqrt(2 (1 - x^1.5))
+    q_half = ctx.findroot(lambda y: ctx.quad(lambda x: 1 / ctx.sqrt(2 * (1 - x**1.5)), [y, 1]) - ctx.mpf(1) / 2,
+                          ctx.mpf("0.9"))
+    assert abs(sol.y[0][0] - q_half) < 1e-15
+
+
+def test_lie_events_with_a_pole_or_an_unsupported_function():
+    """1/M2 changes sign through poles, never through zero: no crossing (mpmath's findroot raised); sqrt(M2**2)
+    (Abs for the expression compiler) is refused up front, naming `events[0]`."""
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega=OMEGA)
+    sol = ls.lie_integrate(body, y0, t=16, dps=20, events=[ls.Event(lambda b: 1 / b.poisson.variables[10])])
+    assert sol.success, sol.message
+    assert len(sol.events["event0"]["t"]) == 0
+    with pytest.raises(ValueError, match=r"`events\[0\]`"):
+        ls.lie_integrate(body, y0, t=16, dps=20, events=[ls.Event(lambda b: hy.sqrt(b.poisson.variables[10] ** 2))])

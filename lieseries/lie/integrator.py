@@ -205,7 +205,16 @@ def lie_integrate(
                 status = "time_budget"
                 message = f"The wall-time budget ran out at t = {mp.nstr(tcur, 17)}; raise `max_time`."
                 break
-            coeffs = taylor_coefficients(prog, z, pars, N, wdps, mp_context())
+            try:
+                coeffs = taylor_coefficients(prog, z, pars, N, wdps, mp_context())
+            except (ValueError, ZeroDivisionError, OverflowError) as exc:
+                status = "non_finite"
+                message = (
+                    f"The series coefficients cannot be computed at t = {mp.nstr(tcur, 17)} ({exc}): the state has "
+                    "left the domain of the equations (or the vector field is singular there). The rows up to this "
+                    "time are kept."
+                )
+                break
             nrm = norms(coeffs)
             if not all(mp.isfinite(c) for c in nrm):
                 status = "non_finite"
@@ -246,7 +255,15 @@ def lie_integrate(
                 _warn_slow_order(N, N_auto, nrm, tol_abs, rho, abs(tend - tcur))
             znew = horner(coeffs, hs)
             tnew = tcur + hs if abs(tend - tcur) != h else tend
-            stop = user.step(coeffs, tcur, hs, sgn) if user is not None else None
+            try:
+                stop = user.step(coeffs, tcur, hs, sgn) if user is not None else None
+            except (ValueError, ZeroDivisionError, OverflowError) as exc:
+                status = "non_finite"
+                message = (
+                    f"An event expression cannot be evaluated in the step after t = {mp.nstr(tcur, 17)} ({exc}): "
+                    "the state leaves its domain there. The rows up to this time are kept."
+                )
+                break
             if stop is not None:  # a terminal event inside the step: the step ends there
                 hs = stop - tcur
                 h = abs(hs)
@@ -359,7 +376,16 @@ class _UserEvents:
         from ..expr import compile_expressions
 
         self.events = user_events
-        self.prog = compile_expressions(ps.variables, [e[1] for e in user_events], len(ps.parameter_values))
+        npars = len(ps.parameter_values)
+        for i, (name, expr, _direction, _terminal) in enumerate(user_events):
+            try:
+                compile_expressions(ps.variables, [expr], npars)
+            except (NotImplementedError, ValueError, TypeError) as exc:
+                raise ValueError(
+                    f"`events[{i}]` ({name!r}, {expr}) cannot be evaluated by lie_integrate: {exc}. Write it with "
+                    "the supported functions (an absolute value |f| has the same crossings as f: give f)"
+                ) from None
+        self.prog = compile_expressions(ps.variables, [e[1] for e in user_events], npars)
         self.pars = pars
         self.found = {e[0]: [] for e in user_events}
         self.fired = None
@@ -383,7 +409,9 @@ class _UserEvents:
                 if gb == 0:
                     tau = taus[a + 1]
                 else:
-                    tau = mp.findroot(lambda x: self._g(coeffs, x)[i], (taus[a], taus[a + 1]), solver="anderson")
+                    tau = self._solve(coeffs, i, taus[a], taus[a + 1], ga, gb)
+                    if tau is None:
+                        continue  # a sign change through a pole (1/M2), not a zero
                 hits.append((abs(tau), t0 + tau, name, terminal, tau))
         hits.sort(key=lambda h: h[0])
         for _, t_hit, name, terminal, tau in hits:
@@ -392,6 +420,40 @@ class _UserEvents:
                 self.fired = f"the event {name!r} fired"
                 return t_hit
         return None
+
+    def _solve(self, coeffs, i, lo, hi, glo, ghi):
+        """The zero of event ``i`` between ``lo`` and ``hi`` (opposite signs ``glo``, ``ghi``) on the step's
+        polynomial: Anderson's method, bisection when it fails or leaves the bracket; None when the sign changes
+        through a pole (the function grows instead of vanishing)."""
+        def g(x):
+            try:
+                return self._g(coeffs, x)[i]
+            except ZeroDivisionError:  # on a pole
+                return mp.inf
+
+        tau = None
+        try:
+            tau = mp.findroot(g, (lo, hi), solver="anderson")
+        except (ValueError, ZeroDivisionError):
+            pass
+        if tau is None or not (min(lo, hi) <= tau <= max(lo, hi)):
+            a, b, ga = lo, hi, glo
+            for _ in range(4 * mp.prec):
+                mid = (a + b) / 2
+                if mid == a or mid == b:
+                    break
+                gm = g(mid)
+                if gm == 0:
+                    a = b = mid
+                    break
+                if (gm < 0) == (ga < 0):
+                    a, ga = mid, gm
+                else:
+                    b = mid
+            tau = b
+        if abs(g(tau)) > max(abs(glo), abs(ghi)):
+            return None
+        return tau
 
     def records(self, dps, n):
         prec = dps_to_bits(dps)
