@@ -35,7 +35,11 @@ checks run between chunks:
 Threads
 -------
 Compiled integrators are cached once per key and handed out one per concurrent run (a copy is made only when two
-runs of the same key overlap), so ``integrate`` may be called from many threads at once.
+runs of the same key overlap), so ``integrate`` may be called from many threads at once. A run's result does not
+depend on the integrator that served it nor on where its chunks end (they are sized by wall time): each run sets
+the time, state and parameters, and chunks continue heyoka's double-length time exactly (``propagate_until``; the
+rows at output times come from each step's Taylor polynomial), so a call gives the same bits serially and from
+threads.
 """
 
 from __future__ import annotations
@@ -856,7 +860,15 @@ class _Run:
         if self.guard is not None:
             callback = self.guard if callback is None else _Both(self.guard, callback)
         if pending is not None:
-            return ta.propagate_grid([ta.time] + pending, max_steps=budget, callback=callback)
+            # Not propagate_grid: it needs the current time as its first grid point, and heyoka's time is double
+            # length (ta.time is its high part), so each chunk would first step back by the low part and the
+            # result would depend on where the chunks (sized by wall time) end. propagate_until continues exactly;
+            # a step callback takes the rows from each step's Taylor polynomial, as propagate_grid does (rows[0]
+            # stands for the chunk's start, as in propagate_grid's answer).
+            rows = _GridRows(pending, self.direction)
+            res = ta.propagate_until(t_end, max_steps=budget, write_tc=True,
+                                     callback=rows if callback is None else _Both(rows, callback))
+            return (res[0], res[1], res[2], res[3], None, rows.rows)
         return ta.propagate_until(t_end, max_steps=budget, c_output=dense, callback=callback)
 
     def _account(self, res, pending, dense):
@@ -876,6 +888,28 @@ class _Run:
 
     def dense_at(self, t):
         return DenseOutput(self.c_outs, None).at_native(t)
+
+
+class _GridRows:
+    """Step callback of a run with output times: the state at each output time the step covered, from the step's
+    Taylor polynomial (heyoka's dense output)."""
+
+    def __init__(self, pending, direction):
+        self.pending = pending
+        self.direction = direction
+        self.next = 0
+        self.rows = [None]
+
+    def __call__(self, ta) -> bool:
+        pending, k = self.pending, self.next
+        if k < len(pending) and (pending[k] - ta.time) * self.direction <= 0:
+            now = ta.time
+            while k < len(pending) and (pending[k] - now) * self.direction <= 0:
+                ta.update_d_output(pending[k])
+                self.rows.append(np.array(ta.d_output, copy=True))
+                k += 1
+            self.next = k
+        return True
 
 
 class _Keeper:
