@@ -849,7 +849,8 @@ class _Run:
             self.t_reached, self.y_reached = before_t, before
             return True
         self._account(res, pending, dense)
-        self.h_last = abs(float(ta.time) - float(before_t))
+        # heyoka's own step size: the difference of the times reads 0 once the step is below the time's ulp
+        self.h_last = abs(float(ta.last_h)) if _finite(ta.last_h) else abs(float(ta.time) - float(before_t))
         self.change = _relative_change(ta.state, before)
         self.t_reached, self.y_reached = ta.time, np.array(ta.state, copy=True)
         return res[0] != _OUTCOME.step_limit
@@ -968,9 +969,9 @@ def _status(run, event_info, t_reached, t_end, max_steps):
     left = abs(to_fraction(t_end) - to_fraction(run.t_reached))
     hh = run.h_last if run.h_last == run.h_last else h
     need = (f"{short_decimal(left)} time units remain, about {short_decimal(left / Fraction(hh))} steps at this "
-            "step size") if hh > 0 else ""
+            "step size") if 0 < hh < math.inf else f"{short_decimal(left)} time units remain"
     # more steps than any budget could allow: the advice is the time span, not max_steps
-    hopeless = hh > 0 and left / Fraction(hh) > 10**15
+    hopeless = 0 < hh < math.inf and left / Fraction(hh) > 10**15
     outcome = run.outcome
     if run.reason == "time_budget":
         return "time_budget", f"The wall-time budget ran out at {where}; raise `max_time` or lower the accuracy."

@@ -246,3 +246,15 @@ def test_lie_events_with_a_pole_or_an_unsupported_function():
     assert len(sol.events["event0"]["t"]) == 0
     with pytest.raises(ValueError, match=r"`events\[0\]`"):
         ls.lie_integrate(body, y0, t=16, dps=20, events=[ls.Event(lambda b: hy.sqrt(b.poisson.variables[10] ** 2))])
+
+
+def test_lie_integrate_names_dps_when_the_automatic_order_is_too_high():
+    """dps = 3000 gives the automatic order 3455 > 2000: the refusal names `dps` (no `order` was given) and says
+    what to do (it named `order` ... got 3455)."""
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega=OMEGA)
+    with pytest.raises(ValueError, match=r"`dps` = 3000 .*order 3455.*pass `order`.*`dps` = 1736") as info:
+        ls.lie_integrate(body, y0, t=1, dps=3000)
+    assert "got 3455" not in str(info.value)
+    with pytest.raises(ValueError, match=r"`tol` = 1\.0e-3000"):
+        ls.lie_integrate(body, y0, t=1, dps=3000, tol="1e-3000")

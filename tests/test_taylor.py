@@ -339,3 +339,15 @@ def test_runs_are_bit_for_bit_reproducible_whatever_the_chunks_and_threads(monke
         assert run(y0=body.initial_state(omega=(1, "0.1", "0.5"))) == serial  # a new state: a new call plan
     sol = ls.integrate(body, y0, t=t, precision=precision)
     assert rigid_error(sol.y[-1], t[-1]) < bound  # and right
+
+
+def test_collapse_near_a_blow_up_far_from_t0_reports_itself():
+    """q' = q^2 (H = p q^2) from q = 1 at t0 = 1e12 blows up at t0 + 1, where the steps fall below the time's ulp:
+    the probe step read 0 and the message had an empty slot ("from 0.13 earlier: , more than ...")."""
+    q, p = hy.make_vars("q", "p")
+    sys_ = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p * q**2)
+    t0 = 10**12
+    sol = ls.integrate(sys_, [1, 1], t=t0 + 2, t0=t0)
+    assert sol.status in ("non_finite", "step_collapse"), sol.message
+    assert ": ," not in sol.message and "earlier: ," not in sol.message
+    assert abs(float(sol.t_reached - t0) - 1) < 1e-3  # the blow-up of q = 1 / (1 - (t - t0))

@@ -38,6 +38,7 @@ import numpy as np
 from ..events import resolve_events
 from ..poisson import as_poisson_system
 from ..precision import (
+    MAX_ORDER,
     check_callable,
     check_count,
     check_dps,
@@ -164,6 +165,14 @@ def lie_integrate(
                     f"raise `dps` to at least {int(-mp.log10(tolm)) + 1}"
                 )
     N_auto = default_order(tolm)
+    if order is None and N_auto > MAX_ORDER:
+        source = f"`tol` = {mp.nstr(tolm, 3)}" if tol is not None else f"`dps` = {dps}"
+        raise ValueError(
+            f"{source} asks for the automatic series order {N_auto} (ceil(-ln(tol) / 2) + 1), above the largest "
+            f"order {MAX_ORDER}: pass `order` (at most {MAX_ORDER}: shorter steps reach the same accuracy), or "
+            f"ask for fewer digits (the automatic order stays within {MAX_ORDER} up to `dps` = "
+            f"{_largest_auto_dps()})"
+        )
     N = N_auto if order is None else check_order(order)
     bits = coarse_bits(ps, y0, dps_to_bits(dps), times=[t, t0])
 
@@ -302,6 +311,11 @@ def lie_integrate(
     dense_fn = _Dense(segments, dps, sgn) if segments is not None else None
     return Solution(tarr, y, stats, status, message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
                     y_reached=y_reached, events=user.records(dps, ps.dimension) if user is not None else None)
+
+
+def _largest_auto_dps() -> int:
+    """The largest ``dps`` whose automatic order (tol = 10^-dps) is at most MAX_ORDER."""
+    return int(2 * (MAX_ORDER - 1) / math.log(10))
 
 
 def _component_scales(coeffs, h):
