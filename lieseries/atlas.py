@@ -11,12 +11,11 @@ The driver is shared by both integrators: it calls the integrator on each chart 
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
-import heyoka as hy
 import numpy as np
 
+from .energy import energy_exact
 from .precision import to_fraction
 from .solution import ChartRows, Solution, Stats
 from .timegrid import parse_times
@@ -105,26 +104,13 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, energy_
                     charts=np.array(rows_c, dtype=int), chart_reached=current.chart, events=events)
 
 
-def _energy(chart_model, y, bits):
-    """(H, the energy scale sum_i |dH/dy_i y_i|) of ``chart_model`` at ``y`` (exact values), at ``bits`` bits."""
-    from .expr import compile_expressions
-    from .precision import bits_to_dps
-
-    ps = chart_model.poisson
-    exprs = [ps.hamiltonian] + [hy.diff(ps.hamiltonian, v) for v in ps.variables]
-    prog = compile_expressions(ps.variables, exprs, len(ps.parameter_values))
-    z = [to_fraction(v) for v in np.asarray(y, dtype=object)]
-    out = prog.evaluate(z, list(ps.parameter_values), max(bits_to_dps(bits), 15))
-    return out[0], math.fsum(abs(float(g) * float(v)) for g, v in zip(out[1:], z))
-
-
 def _energy_guard(model, z0, last, y_end, bits, tol, steps, switches, status, message):
     """``invariant_drift`` when H at the end (chart of ``last``) differs from H(z0) (the model's chart) by more
     than sqrt(tol) times the energy scale."""
     if not model.poisson.is_hamiltonian:
         return status, message
-    e0, scale = _energy(model, z0, bits)
-    e1, _ = _energy(last, y_end, bits)
+    e0, scale = energy_exact(model.poisson, z0, bits)
+    e1, _ = energy_exact(last.poisson, y_end, bits)
     if not (e0 == e0 and e1 == e1):
         return status, message
     if abs(e1 - e0) <= float(to_fraction(tol)) ** 0.5 * max(abs(e0), abs(e1), scale):

@@ -15,7 +15,7 @@ import heyoka as hy
 import numpy as np
 
 __all__ = ["energy_check", "energy_drift", "energy_function", "energy_verdict", "drift_message",
-           "clear_energy_cache"]
+           "clear_energy_cache", "energy_exact", "exact_energy_verdict"]
 
 _LOCK = threading.Lock()
 
@@ -126,3 +126,27 @@ def clear_energy_cache() -> None:
     """Forget the compiled energy functions."""
     with _LOCK:
         _ENERGY.clear()
+
+
+def energy_exact(ps, y, bits: int):
+    """(H(y), the energy scale sum_i |dH/dy_i y_i|) of ``ps`` at the exact value of ``y``, H in mpmath at ``bits``
+    bits (the scale as a float): the energy check of the mpmath engine and of atlas runs, whose states are not in
+    one heyoka format or one chart."""
+    from .expr import compile_expressions
+    from .precision import bits_to_dps, to_fraction
+
+    exprs = [ps.hamiltonian] + [hy.diff(ps.hamiltonian, v) for v in ps.variables]
+    prog = compile_expressions(ps.variables, exprs, len(ps.parameter_values))
+    z = [to_fraction(v) for v in np.asarray(y, dtype=object)]
+    out = prog.evaluate(z, list(ps.parameter_values), max(bits_to_dps(bits), 15))
+    return out[0], math.fsum(abs(float(g) * float(v)) for g, v in zip(out[1:], z))
+
+
+def exact_energy_verdict(e0, e1, scale, tol, status, message, steps):
+    """``invariant_drift`` (with :func:`drift_message`) when H went from ``e0`` to ``e1`` (mpf) by more than
+    sqrt(tol) * max(|e0|, |e1|, scale); else ``(status, message)``."""
+    if status != "success" or not (e0 == e0 and e1 == e1):
+        return status, message
+    if abs(e1 - e0) <= math.sqrt(float(tol)) * max(abs(e0), abs(e1), scale):
+        return status, message
+    return "invariant_drift", drift_message(message, float(e0), float(e1), steps)

@@ -8,7 +8,7 @@ import pytest
 
 import lieseries as ls
 from lieseries import exact
-from problems import mpf
+from problems import mpf, rigid_error
 
 OMEGA = (1, "0.1", "0.5")
 
@@ -258,3 +258,24 @@ def test_lie_integrate_names_dps_when_the_automatic_order_is_too_high():
     assert "got 3455" not in str(info.value)
     with pytest.raises(ValueError, match=r"`tol` = 1\.0e-3000"):
         ls.lie_integrate(body, y0, t=1, dps=3000, tol="1e-3000")
+
+
+def test_lie_integrate_has_the_energy_guard_of_every_run(monkeypatch):
+    """A step that goes wrong (simulated: every step's end nudged by 1e-8) changes H far beyond sqrt(tol): the run
+    reports ``invariant_drift`` against H(y0), as heyoka runs do, instead of ``success``."""
+    import lieseries.lie.integrator as integrator
+
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega=OMEGA)
+    good = ls.lie_integrate(body, y0, t=2, dps=20)
+    assert good.success, good.message
+    real = integrator.horner
+
+    def nudged(coeffs, t):
+        out = real(coeffs, t)
+        return list(out[:-1]) + [out[-1] * (1 + mp.mpf(10) ** -8)] if t != 0 else out
+
+    monkeypatch.setattr(integrator, "horner", nudged)
+    bad = ls.lie_integrate(body, y0, t=2, dps=20)
+    assert rigid_error(bad.y_reached, 2) > 1e-9  # the result is indeed wrong
+    assert bad.status == "invariant_drift", bad.message

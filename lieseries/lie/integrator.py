@@ -35,6 +35,7 @@ from fractions import Fraction
 
 import numpy as np
 
+from ..energy import energy_exact, exact_energy_verdict
 from ..events import resolve_events
 from ..poisson import as_poisson_system
 from ..precision import (
@@ -298,6 +299,11 @@ def lie_integrate(
                 break
         if status == "success":
             message = f"Reached t = {mp.nstr(tend, 17)}."
+            if direction != 0 and ps.is_hamiltonian:
+                # the energy guard of every run: H at the end against H(y0), beyond sqrt(tol) of its scale
+                e0, scale = energy_exact(ps, z0, dps_to_bits(wdps))
+                e1, _ = energy_exact(ps, export_mpf(list(z)), dps_to_bits(wdps))
+                status, message = exact_energy_verdict(e0, e1, scale, tolm, status, message, nsteps)
         # y_reached keeps the guard digits: a run continued from it (an atlas chart change) loses nothing
         y_reached = export_mpf(np.array(list(z), dtype=object))
         t_reached = to_fraction(tcur)
