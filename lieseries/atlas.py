@@ -15,7 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .energy import energy_exact
+from .energy import drift_threshold, energy_exact
 from .precision import to_fraction
 from .solution import ChartRows, Solution, Stats
 from .timegrid import parse_times
@@ -41,7 +41,8 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, energy_
         The run's tolerance. A run that reached its final time is checked like a single run (the energy guard of
         :mod:`lieseries.energy`): the Hamiltonian at the end, in the final chart, against its value at ``y0``, in
         the first chart (not against the last switch's: each segment's drift stays small while the run's adds
-        up); a change beyond sqrt(energy_tol) times the energy scale turns ``success`` into ``invariant_drift``.
+        up); a change beyond :func:`lieseries.energy.drift_threshold` times the energy scale turns ``success``
+        into ``invariant_drift``.
     kwargs :
         Passed to the integrator on every segment.
     """
@@ -106,20 +107,20 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, energy_
 
 def _energy_guard(model, z0, last, y_end, bits, tol, steps, switches, status, message):
     """``invariant_drift`` when H at the end (chart of ``last``) differs from H(z0) (the model's chart) by more
-    than sqrt(tol) times the energy scale."""
+    than :func:`~lieseries.energy.drift_threshold` times the energy scale."""
     if not model.poisson.is_hamiltonian:
         return status, message
     e0, scale = energy_exact(model.poisson, z0, bits)
     e1, _ = energy_exact(last.poisson, y_end, bits)
     if not (e0 == e0 and e1 == e1):
         return status, message
-    if abs(e1 - e0) <= float(to_fraction(tol)) ** 0.5 * max(abs(e0), abs(e1), scale):
+    if abs(e1 - e0) <= drift_threshold(to_fraction(tol), steps) * max(abs(e0), abs(e1), scale):
         return status, message
     rel = abs(e1 - e0) / max(abs(e0), abs(e1), scale)
     return "invariant_drift", (
         f"{message[:-1]}, but the result is wrong: the energy H, which the equations conserve, went from "
-        f"{float(e0):.10g} to {float(e1):.10g} (relative change {float(rel):.2g}, beyond sqrt(tol)) over {steps} "
-        f"steps and {switches} chart switches. Each chart's error control is relative to the state's largest "
+        f"{float(e0):.10g} to {float(e1):.10g} (relative change {float(rel):.2g}, more than {steps} steps at the "
+        f"tolerance allow) over {steps} steps and {switches} chart switches. Each chart's error control is relative to the state's largest "
         "component: on a sphere whose radius is far from 1 (positions ~ radius, momenta ~ mass |v|) the momenta "
         "keep fewer digits than the tolerance asks. Rescale lengths (and time) so that the radius and the speed "
         "are of order one, or use the global form SphereDirac."

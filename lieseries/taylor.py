@@ -28,9 +28,11 @@ checks run between chunks:
   again on its Taylor polynomial and the missing crossings are added (:class:`_CrossingGuard`);
 - terminal events of the model (e.g. the edge of a sphere chart) end the run with their own status;
 - ``invariant_drift``: after a run that reached its final time, the Hamiltonian (conserved by every Hamiltonian
-  system) is evaluated at both ends; a change beyond sqrt(tol) (relative to max(|H|, 1)) means the result is
-  wrong, whatever the error control believed -- typically a motion much slower or faster than its time span
-  (Taylor coefficients underflow), fixed by rescaling time.
+  system) is evaluated at both ends; a change beyond min(sqrt(tol), 1000 tol per step) of its energy scale
+  (:func:`lieseries.energy.drift_threshold`) means the result is wrong, whatever the error control believed --
+  typically a motion much slower or faster than its time span (Taylor coefficients underflow), fixed by
+  rescaling time, or components of very different sizes (the tolerance is relative to the largest), fixed by
+  rescaling units.
 
 Threads
 -------

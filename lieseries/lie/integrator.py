@@ -300,7 +300,7 @@ def lie_integrate(
         if status == "success":
             message = f"Reached t = {mp.nstr(tend, 17)}."
             if direction != 0 and ps.is_hamiltonian:
-                # the energy guard of every run: H at the end against H(y0), beyond sqrt(tol) of its scale
+                # the energy guard of every run: H at the end against H(y0) (lieseries.energy.drift_threshold)
                 e0, scale = energy_exact(ps, z0, dps_to_bits(wdps))
                 e1, _ = energy_exact(ps, export_mpf(list(z)), dps_to_bits(wdps))
                 status, message = exact_energy_verdict(e0, e1, scale, tolm, status, message, nsteps)
