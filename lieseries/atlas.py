@@ -120,10 +120,10 @@ def _energy_guard(model, z0, last, y_end, bits, tol, steps, switches, status, me
     return "invariant_drift", (
         f"{message[:-1]}, but the result is wrong: the energy H, which the equations conserve, went from "
         f"{float(e0):.10g} to {float(e1):.10g} (relative change {float(rel):.2g}, more than {steps} steps at the "
-        f"tolerance allow) over {steps} steps and {switches} chart switches. Each chart's error control is relative to the state's largest "
-        "component: on a sphere whose radius is far from 1 (positions ~ radius, momenta ~ mass |v|) the momenta "
-        "keep fewer digits than the tolerance asks. Rescale lengths (and time) so that the radius and the speed "
-        "are of order one, or use the global form SphereDirac."
+        f"tolerance allow) over {steps} steps and {switches} chart switches. Each chart's error control is "
+        "relative to the state's largest component: on a sphere whose radius is far from 1 (positions ~ radius, "
+        "momenta ~ mass |v|) the momenta keep fewer digits than the tolerance asks. Rescale lengths (and time) so "
+        "that the radius and the speed are of order one."
     )
 
 

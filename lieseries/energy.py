@@ -16,8 +16,8 @@ import threading
 import heyoka as hy
 import numpy as np
 
-__all__ = ["drift_threshold", "DRIFT_PER_STEP", "energy_check", "energy_drift", "energy_function", "energy_verdict", "drift_message",
-           "clear_energy_cache", "energy_exact", "exact_energy_verdict"]
+__all__ = ["drift_threshold", "DRIFT_PER_STEP", "energy_check", "energy_drift", "energy_function", "energy_verdict",
+           "drift_message", "clear_energy_cache", "energy_exact", "exact_energy_verdict"]
 
 _LOCK = threading.Lock()
 
@@ -75,9 +75,9 @@ def energy_function(ps, prec, y0, parameters=None):
 def energy_drift(ps, tol, Y0, Y1, parameters=None, steps=None) -> dict:
     """The energy check of many double-precision runs at once (an ensemble's batch members): ``{i: (H(Y0[i]),
     H(Y1[i]))}`` for the rows i whose Hamiltonian changed beyond :func:`drift_threshold` (with ``steps[i]``, the
-    rows' step counts; sqrt(tol) when not given) times its scale, as :func:`energy_verdict` decides for one run. ``Y0``, ``Y1``: float64 arrays (k, n); ``parameters``: per-row
-    exact parameter values (k rows), or None for the system's own. One vectorised call of the compiled functions
-    for all rows."""
+    rows' step counts; sqrt(tol) when not given) times its scale, as :func:`energy_verdict` decides for one run.
+    ``Y0``, ``Y1``: float64 arrays (k, n); ``parameters``: per-row exact parameter values (k rows), or None for
+    the system's own. One vectorised call of the compiled functions for all rows."""
     from .precision import resolve_precision
 
     prec = resolve_precision("double")

@@ -650,6 +650,10 @@ def _execute(call, progress):
                 # the run
                 n_user = sum(1 for e in user_events if e[3])
                 run.user_terminal = frozenset(range(len(event_info) - n_user, len(event_info)))
+                if n_user:
+                    # a stop where the expression does not change sign (a tangency) is not a crossing: go on
+                    fn, uses_pars = _event_function(ps, prec, [e[1] for e in user_events if e[3]])
+                    run.terminal_check = (fn, uses_pars, len(event_info) - n_user, prec.bits)
             start = _time.perf_counter()
             run.go(grid_native, t0_native, y0_native, dense, max_steps, call.max_time, call.min_step,
                    stiff_steps=call.stiff_steps, first_chunk=call.first_chunk, progress=progress)
@@ -659,8 +663,9 @@ def _execute(call, progress):
     stats = Stats(method="taylor (heyoka)", precision=prec.name, tol=plan["tol_float"], order=template.order,
                   build_time=build, cached=cached, run_time=run_time, steps=run.steps, min_step=run.min_h,
                   max_step=run.max_h,
-                  extra={"events_recovered": run.guard.recovered, "event_touches_dropped": run.guard.touches}
-                  if getattr(run, "guard", None) else None)
+                  extra={"events_recovered": run.guard.recovered if run.guard else 0,
+                         "event_touches_dropped": (run.guard.touches if run.guard else 0) + run.touches}
+                  if user_events and direction != 0 else None)
 
     # the exact value of the time reached (the exact grid's when the run got to the end)
     t_reached = plan["grid_exact"][-1] if run.t_reached == grid_native[-1] else to_fraction(run.t_reached)
@@ -744,6 +749,8 @@ class _Run:
     stiff_steps = 0
     t_reached = y_reached = None
     user_terminal = frozenset()
+    terminal_check = None
+    touches = 0
     chunk_start = None
 
     def __init__(self, ta, direction, recorders=(), guard=None):
@@ -798,8 +805,8 @@ class _Run:
             self._account(res, pending if use_grid else None, dense)
             self.outcome = outcome
             self.t_reached, self.y_reached = ta.time, np.array(ta.state, copy=True)
-            if self.user_terminal and ta.time == t0 and self._at_user_event(outcome):
-                continue  # the run starts on the event's surface: go on (heyoka's cooldown lets it leave)
+            if self.user_terminal and self._at_user_event(outcome) and (ta.time == t0 or self._touch(outcome)):
+                continue  # the run starts on the event's surface, or touches it: go on (heyoka's cooldown)
             if outcome != _OUTCOME.step_limit:
                 return
             # between chunks: budgets, then one single step to measure the step size and the change it makes
@@ -813,6 +820,8 @@ class _Run:
                 self.reason = "step_collapse"
                 return
             if self._probe(t_end, pending if use_grid else None, dense):
+                if self.user_terminal and self._at_user_event(self.outcome) and self._touch(self.outcome):
+                    continue
                 return
             h = self.h_last
             h_first = self.max_h  # the largest step of the run so far
@@ -838,6 +847,29 @@ class _Run:
             return False
         idx = int(outcome.value)
         return (idx if idx >= 0 else -idx - 1) in self.user_terminal
+
+    def _touch(self, outcome) -> bool:
+        """True when heyoka stopped on a user's terminal event where its expression does not change sign (just
+        before and just after the stop have the same sign): a tangency, not a crossing (what lie_integrate
+        finds)."""
+        if self.terminal_check is None:
+            return False
+        fn, uses_pars, base, bits = self.terminal_check
+        idx = int(outcome.value)
+        j = (idx if idx >= 0 else -idx - 1) - base
+        ta = self.ta
+        t = ta.time
+        delta = abs(ta.last_h) * 2.0 ** (-bits / 4)
+
+        def sign(tt):
+            ta.update_d_output(tt)
+            v = (fn(ta.d_output, pars=ta.pars) if uses_pars else fn(ta.d_output))[j]
+            return int(v > 0) - int(v < 0)
+
+        if sign(t - delta) * sign(t + delta) > 0:
+            self.touches += 1
+            return True
+        return False
 
     def _probe(self, t_end, pending, dense) -> bool:
         """Take one step as part of the run; record its size and the relative change it made.

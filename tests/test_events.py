@@ -216,3 +216,18 @@ def test_a_tangency_is_not_a_crossing_in_either_engine(engine, m2_zeros):
     assert len(sol.events["m2"]["t"]) == len(m2_zeros) >= 2  # the crossings of M2 itself stay
     for (t_ref, _), t_got in zip(m2_zeros, sol.events["m2"]["t"]):
         assert abs(to_fraction(t_got) - to_fraction(t_ref)) < 1e-12
+
+
+@pytest.mark.parametrize("engine", ["double", 200, "lie"])
+def test_a_terminal_event_does_not_stop_at_a_tangency(engine):
+    """A terminal M2**2 never changes sign: neither engine stops (heyoka stopped at 14.69 in double and at 7.25 at
+    200 bits; lie_integrate ran to the end)."""
+    body = ls.EulerPoisson(INERTIA)
+    y0 = body.initial_state(omega=OMEGA)
+    events = [ls.Event(lambda b: m2(b) ** 2, terminal=True, name="touch")]
+    if engine == "lie":
+        sol = ls.lie_integrate(body, y0, t=T, dps=20, events=events)
+    else:
+        sol = ls.integrate(body, y0, t=T, precision=engine, events=events)
+    assert sol.success, sol.message
+    assert to_fraction(sol.t_reached) == T and len(sol.events["touch"]["t"]) == 0
