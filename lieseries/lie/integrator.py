@@ -122,7 +122,8 @@ def lie_integrate(
     Returns
     -------
     Solution
-        ``y`` rows are numpy object arrays of mpf; ``stats.error_estimates`` has one estimate per step;
+        ``y`` rows are numpy object arrays of mpf; ``stats.error_estimates`` has one estimate per step (its
+        truncation error relative to each component's size, absolute below 1; the largest over the components);
         ``stats.extra["max_step_over_radius"]`` is the largest step over the estimated radius of convergence
         (at most 1/2 by construction). When the data carry fewer bits than the run (binary floats), every
         per-step estimate is at least the relative uncertainty of the data (``stats.extra["data_bits"]``), and
