@@ -15,6 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from .energy import drift_threshold, energy_exact
 from .precision import to_fraction
 from .solution import ChartRows, Solution, Stats
 from .timegrid import parse_times
@@ -25,7 +26,7 @@ __all__ = ["run_atlas", "MAX_SWITCHES"]
 MAX_SWITCHES = 100_000
 
 
-def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, **kwargs) -> Solution:
+def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, energy_tol=None, **kwargs) -> Solution:
     """Integrate ``model`` (a chart-aware model such as :class:`lieseries.Sphere`) across its atlas.
 
     Parameters
@@ -36,6 +37,12 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, **kwarg
         ``y0`` is written in ``model.chart``.
     bits : int
         Precision of the run, for the exact chart changes.
+    energy_tol : number, optional
+        The run's tolerance. A run that reached its final time is checked like a single run (the energy guard of
+        :mod:`lieseries.energy`): the Hamiltonian at the end, in the final chart, against its value at ``y0``, in
+        the first chart (not against the last switch's: each segment's drift stays small while the run's adds
+        up); a change beyond :func:`lieseries.energy.drift_threshold` times the energy scale turns ``success``
+        into ``invariant_drift``.
     kwargs :
         Passed to the integrator on every segment.
     """
@@ -87,12 +94,37 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, **kwarg
         z = current.change_chart(sol.y_reached, chart, bits)
         current = model.for_chart(chart, edge=switch)
         switches += 1
+    if status == "success" and direction != 0 and energy_tol is not None:
+        status, message = _energy_guard(model, z0, current, sol.y_reached, bits, energy_tol, stats.steps,
+                                        switches, status, message)
     stats = replace(stats, extra={**stats.extra, "chart_switches": switches})
     y = np.stack(rows_y) if rows_y else np.empty((0, model.dimension), dtype=sol.y.dtype)
     tarr = np.array([float(v) for v in rows_t])
     return Solution(tarr, ChartRows(y, rows_c), stats, status, f"{message} ({switches} chart switches)",
                     t_reached=sol.t_reached, t_requested=grid, y_reached=ChartRows(sol.y_reached, current.chart),
                     charts=np.array(rows_c, dtype=int), chart_reached=current.chart, events=events)
+
+
+def _energy_guard(model, z0, last, y_end, bits, tol, steps, switches, status, message):
+    """``invariant_drift`` when H at the end (chart of ``last``) differs from H(z0) (the model's chart) by more
+    than :func:`~lieseries.energy.drift_threshold` times the energy scale."""
+    if not model.poisson.is_hamiltonian:
+        return status, message
+    e0, scale = energy_exact(model.poisson, z0, bits)
+    e1, _ = energy_exact(last.poisson, y_end, bits)
+    if not (e0 == e0 and e1 == e1):
+        return status, message
+    if abs(e1 - e0) <= drift_threshold(to_fraction(tol), steps) * max(abs(e0), abs(e1), scale):
+        return status, message
+    rel = abs(e1 - e0) / max(abs(e0), abs(e1), scale)
+    return "invariant_drift", (
+        f"{message[:-1]}, but the result is wrong: the energy H, which the equations conserve, went from "
+        f"{float(e0):.10g} to {float(e1):.10g} (relative change {float(rel):.2g}, more than {steps} steps at the "
+        f"tolerance allow) over {steps} steps and {switches} chart switches. Each chart's error control is "
+        "relative to the state's largest component: on a sphere whose radius is far from 1 (positions ~ radius, "
+        "momenta ~ mass |v|) the momenta keep fewer digits than the tolerance asks. Rescale lengths (and time) so "
+        "that the radius and the speed are of order one."
+    )
 
 
 def _merge_events(total, part, chart):

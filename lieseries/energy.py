@@ -1,8 +1,10 @@
 """The energy guard of a run: a Hamiltonian run whose energy H changed far beyond its tolerance is not a success.
 
 heyoka's error control can be fooled (a motion much slower than the time span makes the Taylor coefficients
-underflow, and one huge step "succeeds"); the equations conserve H, so a run that changed H by more than sqrt(tol)
-times the motion's energy scale is reported as ``invariant_drift``. Single runs (:mod:`lieseries.taylor`) and the
+underflow, and one huge step "succeeds"; components whose sizes differ by orders of magnitude keep only tol times
+the largest one, so the small ones lose digits); the equations conserve H, so a run that changed H by more than
+:func:`drift_threshold` (``DRIFT_PER_STEP`` tol per step, at most sqrt(tol)) times the motion's energy scale is
+reported as ``invariant_drift``. Single runs (:mod:`lieseries.taylor`) and the
 members of an ensemble's batches (:mod:`lieseries.ensemble`) both end through :func:`energy_check`.
 """
 
@@ -14,10 +16,22 @@ import threading
 import heyoka as hy
 import numpy as np
 
-__all__ = ["energy_check", "energy_drift", "energy_function", "energy_verdict", "drift_message",
-           "clear_energy_cache"]
+__all__ = ["drift_threshold", "DRIFT_PER_STEP", "energy_check", "energy_drift", "energy_function", "energy_verdict",
+           "drift_message", "clear_energy_cache", "energy_exact", "exact_energy_verdict"]
 
 _LOCK = threading.Lock()
+
+#: A sound run changes H by a few tol per step at most (measured: below 0.05 tol per step for the rigid body,
+#: the quartic oscillator and the unit sphere); the guard allows this many tol per step, and never more than
+#: sqrt(tol) in all.
+DRIFT_PER_STEP = 1000
+
+
+def drift_threshold(tol, steps) -> float:
+    """The largest relative change of H a run of ``steps`` steps at tolerance ``tol`` may make:
+    min(sqrt(tol), DRIFT_PER_STEP * tol * steps)."""
+    tol = float(tol)
+    return min(math.sqrt(tol), DRIFT_PER_STEP * tol * max(int(steps), 1))
 
 _ENERGY: dict = {}
 
@@ -58,12 +72,12 @@ def energy_function(ps, prec, y0, parameters=None):
     return h_fn, pars, float(out[0]), scale
 
 
-def energy_drift(ps, tol, Y0, Y1, parameters=None) -> dict:
+def energy_drift(ps, tol, Y0, Y1, parameters=None, steps=None) -> dict:
     """The energy check of many double-precision runs at once (an ensemble's batch members): ``{i: (H(Y0[i]),
-    H(Y1[i]))}`` for the rows i whose Hamiltonian changed beyond sqrt(tol) times its scale, as
-    :func:`energy_verdict` decides for one run. ``Y0``, ``Y1``: float64 arrays (k, n); ``parameters``: per-row
-    exact parameter values (k rows), or None for the system's own. One vectorised call of the compiled functions
-    for all rows."""
+    H(Y1[i]))}`` for the rows i whose Hamiltonian changed beyond :func:`drift_threshold` (with ``steps[i]``, the
+    rows' step counts; sqrt(tol) when not given) times its scale, as :func:`energy_verdict` decides for one run.
+    ``Y0``, ``Y1``: float64 arrays (k, n); ``parameters``: per-row exact parameter values (k rows), or None for
+    the system's own. One vectorised call of the compiled functions for all rows."""
     from .precision import resolve_precision
 
     prec = resolve_precision("double")
@@ -84,7 +98,9 @@ def energy_drift(ps, tol, Y0, Y1, parameters=None) -> dict:
     e0, scale = out0[0], np.abs(out0[1:] * X0).sum(axis=0)
     e1 = h_fn(X1, **kw)[0]
     with np.errstate(invalid="ignore"):
-        thr = math.sqrt(float(tol)) * np.maximum(np.maximum(np.abs(e0), np.abs(e1)), scale)
+        rel = (np.full(k, math.sqrt(float(tol))) if steps is None
+               else np.array([drift_threshold(tol, s) for s in steps], dtype=np.float64))
+        thr = rel * np.maximum(np.maximum(np.abs(e0), np.abs(e1)), scale)
         bad = np.isfinite(e0) & np.isfinite(e1) & (np.abs(e1 - e0) > thr)
     return {int(i): (float(e0[i]), float(e1[i])) for i in np.flatnonzero(bad)}
 
@@ -93,9 +109,10 @@ def drift_message(message, e0, e1, steps) -> str:
     """The message of a run that reached its final time with H changed from ``e0`` to ``e1``."""
     return (
         f"{message[:-1]}, but the result is wrong: the energy H, which the equations conserve, went from "
-        f"{e0:.6g} to {e1:.6g} in {steps} steps. The error control was fooled, usually because the motion is much "
-        "slower (or faster) than the time span, so that the Taylor coefficients underflow: rescale time so that "
-        "the motion is of order one per unit time."
+        f"{e0:.10g} to {e1:.10g} in {steps} steps. The error control was fooled, usually because the motion is much "
+        "slower (or faster) than the time span, so that the Taylor coefficients underflow, or because the state's "
+        "components differ in size by orders of magnitude (the tolerance is relative to the largest, so the small "
+        "ones lose digits): rescale time and units so that the motion and the components are of order one."
     )
 
 
@@ -111,13 +128,13 @@ def energy_check(ps, prec, tol, y0, y_end, steps, status, message, parameters=No
 
 
 def energy_verdict(energy, sqrt_tol, y_end, steps, status, message):
-    """``invariant_drift`` when the Hamiltonian changed beyond sqrt(tol) * max(|H(y0)|, |H(y_end)|, the energy
-    scale of y0) over a successful run (:func:`energy_function`)."""
+    """``invariant_drift`` when the Hamiltonian changed beyond :func:`drift_threshold` * max(|H(y0)|, |H(y_end)|,
+    the energy scale of y0) over a successful run of ``steps`` steps (:func:`energy_function`)."""
     fn, pars, e0, scale = energy
     e1 = float((fn(y_end) if pars is None else fn(y_end, pars=pars))[0])
     if not (math.isfinite(e0) and math.isfinite(e1)):
         return status, message
-    if abs(e1 - e0) <= sqrt_tol * max(abs(e0), abs(e1), scale):
+    if abs(e1 - e0) <= drift_threshold(sqrt_tol * sqrt_tol, steps) * max(abs(e0), abs(e1), scale):
         return status, message
     return "invariant_drift", drift_message(message, e0, e1, steps)
 
@@ -126,3 +143,28 @@ def clear_energy_cache() -> None:
     """Forget the compiled energy functions."""
     with _LOCK:
         _ENERGY.clear()
+
+
+def energy_exact(ps, y, bits: int):
+    """(H(y), the energy scale sum_i |dH/dy_i y_i|) of ``ps`` at the exact value of ``y``, H in mpmath at ``bits``
+    bits (the scale as a float): the energy check of the mpmath engine and of atlas runs, whose states are not in
+    one heyoka format or one chart."""
+    from .expr import compile_expressions
+    from .precision import bits_to_dps, to_fraction
+
+    exprs = [ps.hamiltonian] + [hy.diff(ps.hamiltonian, v) for v in ps.variables]
+    prog = compile_expressions(ps.variables, exprs, len(ps.parameter_values))
+    exact = getattr(y, "exact", None)  # an ExactState: its exact values, not their doubles
+    z = list(exact) if exact is not None else [to_fraction(v) for v in np.asarray(y, dtype=object)]
+    out = prog.evaluate(z, list(ps.parameter_values), max(bits_to_dps(bits), 15))
+    return out[0], math.fsum(abs(float(g) * float(v)) for g, v in zip(out[1:], z))
+
+
+def exact_energy_verdict(e0, e1, scale, tol, status, message, steps):
+    """``invariant_drift`` (with :func:`drift_message`) when H went from ``e0`` to ``e1`` (mpf) by more than
+    :func:`drift_threshold` * max(|e0|, |e1|, scale); else ``(status, message)``."""
+    if status != "success" or not (e0 == e0 and e1 == e1):
+        return status, message
+    if abs(e1 - e0) <= drift_threshold(tol, steps) * max(abs(e0), abs(e1), scale):
+        return status, message
+    return "invariant_drift", drift_message(message, float(e0), float(e1), steps)

@@ -537,7 +537,8 @@ def integrate_ensemble(
         done_here = [i for i in range(k) if i not in handed_set and res.status[i] == "success"]
         if path == "batch":  # double: all members in one vectorised call
             drifted = energy_drift(ps, tolf, Ynat[done_here], res.y_reached[done_here],
-                                   None if pars is None else [pars[i] for i in done_here])
+                                   None if pars is None else [pars[i] for i in done_here],
+                                   steps=[res.steps[i] for i in done_here])
             for j, (e0, e1) in drifted.items():
                 i = done_here[j]
                 res.status[i] = "invariant_drift"

@@ -23,16 +23,25 @@ checks run between chunks:
   stability, not accuracy;
 - ``non_finite``: heyoka stopped on a non-finite state (it overwrites the state with NaN); the last chunk is run
   again from its start with a per-step copy of the state, so the last finite state is kept;
+- missed crossings: with non-terminal events, the event functions are evaluated at every step's end; a step
+  whose signs disagree with the crossings heyoka reported in it, or that starts or ends on a zero, is searched
+  again on its Taylor polynomial and the missing crossings are added (:class:`_CrossingGuard`);
 - terminal events of the model (e.g. the edge of a sphere chart) end the run with their own status;
 - ``invariant_drift``: after a run that reached its final time, the Hamiltonian (conserved by every Hamiltonian
-  system) is evaluated at both ends; a change beyond sqrt(tol) (relative to max(|H|, 1)) means the result is
-  wrong, whatever the error control believed -- typically a motion much slower or faster than its time span
-  (Taylor coefficients underflow), fixed by rescaling time.
+  system) is evaluated at both ends; a change beyond min(sqrt(tol), 1000 tol per step) of its energy scale
+  (:func:`lieseries.energy.drift_threshold`) means the result is wrong, whatever the error control believed --
+  typically a motion much slower or faster than its time span (Taylor coefficients underflow), fixed by
+  rescaling time, or components of very different sizes (the tolerance is relative to the largest), fixed by
+  rescaling units.
 
 Threads
 -------
 Compiled integrators are cached once per key and handed out one per concurrent run (a copy is made only when two
-runs of the same key overlap), so ``integrate`` may be called from many threads at once.
+runs of the same key overlap), so ``integrate`` may be called from many threads at once. A run's result does not
+depend on the integrator that served it nor on where its chunks end (they are sized by wall time): each run sets
+the time, state and parameters, and chunks continue heyoka's double-length time exactly (``propagate_until``; the
+rows at output times come from each step's Taylor polynomial), so a call gives the same bits serially and from
+threads.
 """
 
 from __future__ import annotations
@@ -105,12 +114,172 @@ class _Recorder:
     def __init__(self):
         self.sink = []
         self.t0 = None
+        self.at_t0 = 0  # zeros reported at t0 (dropped); heyoka may report one twice and miss the next one
 
     def __call__(self, ta, t, d_sgn):
         if t == self.t0:
+            self.at_t0 += 1
             return
         ta.update_d_output(t)
         self.sink.append((t, np.array(ta.d_output, copy=True)))
+
+
+_EVENT_FUNCTIONS: dict = {}
+
+
+def _event_function(ps, prec, exprs):
+    """The non-terminal events' expressions as one compiled function of the state (and parameters), in the run's
+    format: the sign checks of :class:`_CrossingGuard`."""
+    key = (ps.key, prec.name, tuple(str(e) for e in exprs))
+    hit = _EVENT_FUNCTIONS.get(key)
+    if hit is None:
+        kwargs = {} if prec.name == "double" else {"fp_type": prec.fp_type}
+        if prec.is_real:
+            kwargs["prec"] = prec.bits
+        uses_pars = any(hy.get_params(e) for e in exprs)
+        fn = hy.cfunc(list(exprs), ps.variables, compact_mode=prec.name != "double", **kwargs)
+        with _LOCK:
+            hit = _EVENT_FUNCTIONS.setdefault(key, (fn, uses_pars))
+    return hit
+
+
+class _CrossingGuard:
+    """Per-step check of heyoka's non-terminal events, so that a missed crossing is found rather than lost.
+
+    After every step the event functions are evaluated at the step's end. A step whose ends have opposite signs
+    must hold an odd number of crossings (for a one-way event: at least one when the ends go that way), and one that
+    starts or ends on a zero (a run starting on a Poincare section) is where heyoka's root finding is known to
+    fail (heyoka 7.13 at >= 180 bits reports the zero at the start twice and misses the next crossing). Such a
+    step is searched again on its Taylor polynomial (heyoka's dense output of the step): the function is sampled at
+    ``SAMPLES`` points and each sign change is solved by bisection to the run's precision; crossings heyoka did not
+    report are added. ``recovered`` counts them (``stats.extra["events_recovered"]``).
+    """
+
+    SAMPLES = 16
+
+    def __init__(self, fn, uses_pars, directions, recorders, bits):
+        self.fn, self.uses_pars = fn, uses_pars
+        self.directions = directions
+        self.recorders = recorders
+        self.bits = bits
+        self.recovered = 0
+        self.touches = 0  # zeros heyoka reported where the function does not change sign (dropped)
+        self.t_a = self.s_a = None
+        self.marks = ()
+
+    def _signs(self, ta, state):
+        vals = self.fn(state, pars=ta.pars) if self.uses_pars else self.fn(state)
+        return [int(v > 0) - int(v < 0) for v in vals]
+
+    def start(self, ta):
+        """The run (or a chunk run again) starts from the integrator's current time and state."""
+        self.t_a, self.s_a = ta.time, self._signs(ta, ta.state)
+        self.marks = [len(r.sink) for r in self.recorders]
+        for r in self.recorders:
+            r.at_t0 = 0
+
+    def __call__(self, ta) -> bool:
+        t_a, t_b = self.t_a, ta.time
+        s_a, s_b = self.s_a, self._signs(ta, ta.state)
+        for i, rec in enumerate(self.recorders):
+            mark = self.marks[i]
+            if len(rec.sink) > mark:
+                self._crossings_only(ta, i, rec, mark, t_a, t_b)
+            found = len(rec.sink) - mark
+            a, b, d = s_a[i], s_b[i], self.directions[i]
+            if a == 0 or b == 0 or rec.at_t0:
+                suspect = True
+            elif d == 0:
+                suspect = (found % 2 == 1) != (a != b)
+            else:
+                forward = t_b > t_a
+                suspect = found == 0 and (b - a) * d * (1 if forward else -1) > 0
+            if suspect:
+                self._search(ta, i, rec, mark, t_a, t_b)
+            rec.at_t0 = 0
+        self.t_a, self.s_a = t_b, s_b
+        self.marks = [len(r.sink) for r in self.recorders]
+        return True
+
+    def _crossings_only(self, ta, i, rec, mark, t_a, t_b):
+        """Keep, of heyoka's zeros in this step, the crossings: the function has opposite signs just before and
+        just after (a tangency, such as a double zero of M2**2, is reported by heyoka once, twice or not at all;
+        both engines report none). Duplicates (the same zero twice) are kept once."""
+        h = abs(t_b - t_a)
+        width = float(h) * 2.0 ** (-self.bits / 2)
+        kept = []
+        for t, y in rec.sink[mark:]:
+            if kept and abs(float(t - kept[-1][0])) <= width:
+                continue
+            kept.append((t, y))
+        times = [t for t, _ in kept]
+        out = []
+        for j, (t, y) in enumerate(kept):
+            gaps = [abs(t - u) for u in times[:j] + times[j + 1:]]
+            delta = min([h * 2.0 ** (-self.bits / 4)] + [g / 2 for g in gaps])
+            before, after = self._g(ta, t - delta, i), self._g(ta, t + delta, i)
+            if before * after < 0 or before == 0 or after == 0:
+                out.append((t, y))
+        if len(out) != len(rec.sink) - mark:
+            self.touches += len(rec.sink) - mark - len(out)
+            rec.sink[mark:] = out
+
+    def _g(self, ta, t, i):
+        ta.update_d_output(t)
+        v = (self.fn(ta.d_output, pars=ta.pars) if self.uses_pars else self.fn(ta.d_output))[i]
+        return int(v > 0) - int(v < 0)
+
+    def _search(self, ta, i, rec, mark, t_a, t_b):
+        """Crossings of event ``i`` in (t_a, t_b] from the step's polynomial; the ones heyoka missed are added."""
+        n = self.SAMPLES
+        h = t_b - t_a
+        taus = [t_a + h * k / n for k in range(n)] + [t_b]
+        signs = [self._g(ta, t, i) for t in taus]
+        d = self.directions[i]
+        forward = t_b > t_a
+        roots = []
+        for k in range(n):
+            ga, gb = signs[k], signs[k + 1]
+            if not (ga * gb < 0 or (gb == 0 and ga != 0)):
+                continue  # a zero at the step's start is the previous step's crossing (or the run's start)
+            rising = (gb > ga) == forward
+            if d and rising != (d > 0):
+                continue
+            lo, hi = taus[k], taus[k + 1]
+            if gb != 0:
+                for _ in range(self.bits + 8):  # bisection to the last bit of the run's format
+                    mid = lo + (hi - lo) / 2
+                    if mid == lo or mid == hi:
+                        break
+                    gm = self._g(ta, mid, i)
+                    if gm == 0:
+                        lo = hi = mid
+                        break
+                    if gm == ga:
+                        lo = mid
+                    else:
+                        hi = mid
+            roots.append(hi)
+        have = [t for t, _ in rec.sink[mark:]]
+        width = abs(float(h)) * 2.0 ** (-self.bits / 2)
+        added = [t for t in roots if all(abs(float(t - u)) > width for u in have)]
+        if not added:
+            return
+        for t in added:
+            ta.update_d_output(t)
+            rec.sink.append((t, np.array(ta.d_output, copy=True)))
+        rec.sink[mark:] = sorted(rec.sink[mark:], key=lambda r: float(r[0] - t_a) * (1 if forward else -1))
+        self.recovered += len(added)
+
+
+class _Both:
+    """Two step callbacks in turn."""
+
+    def __init__(self, first, second):
+        self.first, self.second = first, second
+
+    def __call__(self, ta) -> bool:
+        return bool(self.first(ta)) & bool(self.second(ta))
 
 
 _HY_DIRECTION = {0: hy.event_direction.any, 1: hy.event_direction.positive, -1: hy.event_direction.negative}
@@ -383,6 +552,7 @@ def integrate(
 
             warn_coarse_inputs(ps, y0, [t, t0], prec.bits)
             return run_atlas(integrate, system, y0, t, t0=t0, bits=prec.bits, dense=dense, tol=tol,
+                             energy_tol=check_tolerance(tol, prec),
                              precision=prec, max_steps=None if default_budget else max_steps, max_time=max_time,
                              min_step=min_step, compact_mode=compact_mode, high_accuracy=high_accuracy,
                              progress=progress, events=events)
@@ -472,12 +642,21 @@ def _execute(call, progress):
             # this run's crossings: the lists, taken before the integrator goes back to the pool (another thread
             # may check it out at once and give its recorders new lists)
             sinks = [rec.sink for rec in recorders]
-            run = _Run(ta, direction, recorders)
+            guard = None
+            if recorders:
+                nt = [e for e in user_events if not e[3]]
+                fn, uses_pars = _event_function(ps, prec, [e[1] for e in nt])
+                guard = _CrossingGuard(fn, uses_pars, [e[2] for e in nt], recorders, prec.bits)
+            run = _Run(ta, direction, recorders, guard)
             if user_events:
                 # the user's terminal events (after the model's in heyoka's order): a zero at t0 does not stop
                 # the run
                 n_user = sum(1 for e in user_events if e[3])
                 run.user_terminal = frozenset(range(len(event_info) - n_user, len(event_info)))
+                if n_user:
+                    # a stop where the expression does not change sign (a tangency) is not a crossing: go on
+                    fn, uses_pars = _event_function(ps, prec, [e[1] for e in user_events if e[3]])
+                    run.terminal_check = (fn, uses_pars, len(event_info) - n_user, prec.bits)
             start = _time.perf_counter()
             run.go(grid_native, t0_native, y0_native, dense, max_steps, call.max_time, call.min_step,
                    stiff_steps=call.stiff_steps, first_chunk=call.first_chunk, progress=progress)
@@ -486,7 +665,10 @@ def _execute(call, progress):
             _release(ta, free)
     stats = Stats(method="taylor (heyoka)", precision=prec.name, tol=plan["tol_float"], order=template.order,
                   build_time=build, cached=cached, run_time=run_time, steps=run.steps, min_step=run.min_h,
-                  max_step=run.max_h)
+                  max_step=run.max_h,
+                  extra={"events_recovered": run.guard.recovered if run.guard else 0,
+                         "event_touches_dropped": (run.guard.touches if run.guard else 0) + run.touches}
+                  if user_events and direction != 0 else None)
 
     # the exact value of the time reached (the exact grid's when the run got to the end)
     t_reached = plan["grid_exact"][-1] if run.t_reached == grid_native[-1] else to_fraction(run.t_reached)
@@ -570,12 +752,15 @@ class _Run:
     stiff_steps = 0
     t_reached = y_reached = None
     user_terminal = frozenset()
+    terminal_check = None
+    touches = 0
     chunk_start = None
 
-    def __init__(self, ta, direction, recorders=()):
+    def __init__(self, ta, direction, recorders=(), guard=None):
         self.ta = ta
         self.direction = direction
         self.recorders = recorders
+        self.guard = guard
         self.c_outs = []  # the other attributes start at the class's values
 
     def go(self, grid, t0, y0, dense, max_steps, max_time, min_step, *, stiff_steps, first_chunk, progress):
@@ -593,6 +778,8 @@ class _Run:
                 self.rows.append(np.array(ta.state, copy=True))
         chunk = first_chunk
         start = _time.perf_counter()
+        if self.guard is not None:
+            self.guard.start(ta)
         while True:
             budget = min(chunk, max_steps - self.steps)
             t_chunk, y_chunk = self.t_reached, self.y_reached  # where this chunk starts
@@ -610,6 +797,8 @@ class _Run:
                 ta.time, ta.state[:] = t_chunk, y_chunk
                 for rec, mark in zip(self.recorders, marks):
                     del rec.sink[mark:]  # the chunk runs again: its crossings are recorded again
+                if self.guard is not None:
+                    self.guard.start(ta)
                 keeper = _Keeper(ta)
                 res = self._propagate(t_end, pending if use_grid else None, dense, budget, keeper)
                 self._account(res, pending if use_grid else None, dense)
@@ -619,8 +808,8 @@ class _Run:
             self._account(res, pending if use_grid else None, dense)
             self.outcome = outcome
             self.t_reached, self.y_reached = ta.time, np.array(ta.state, copy=True)
-            if self.user_terminal and ta.time == t0 and self._at_user_event(outcome):
-                continue  # the run starts on the event's surface: go on (heyoka's cooldown lets it leave)
+            if self.user_terminal and self._at_user_event(outcome) and (ta.time == t0 or self._touch(outcome)):
+                continue  # the run starts on the event's surface, or touches it: go on (heyoka's cooldown)
             if outcome != _OUTCOME.step_limit:
                 return
             # between chunks: budgets, then one single step to measure the step size and the change it makes
@@ -634,6 +823,8 @@ class _Run:
                 self.reason = "step_collapse"
                 return
             if self._probe(t_end, pending if use_grid else None, dense):
+                if self.user_terminal and self._at_user_event(self.outcome) and self._touch(self.outcome):
+                    continue
                 return
             h = self.h_last
             h_first = self.max_h  # the largest step of the run so far
@@ -660,6 +851,29 @@ class _Run:
         idx = int(outcome.value)
         return (idx if idx >= 0 else -idx - 1) in self.user_terminal
 
+    def _touch(self, outcome) -> bool:
+        """True when heyoka stopped on a user's terminal event where its expression does not change sign (just
+        before and just after the stop have the same sign): a tangency, not a crossing (what lie_integrate
+        finds)."""
+        if self.terminal_check is None:
+            return False
+        fn, uses_pars, base, bits = self.terminal_check
+        idx = int(outcome.value)
+        j = (idx if idx >= 0 else -idx - 1) - base
+        ta = self.ta
+        t = ta.time
+        delta = abs(ta.last_h) * 2.0 ** (-bits / 4)
+
+        def sign(tt):
+            ta.update_d_output(tt)
+            v = (fn(ta.d_output, pars=ta.pars) if uses_pars else fn(ta.d_output))[j]
+            return int(v > 0) - int(v < 0)
+
+        if sign(t - delta) * sign(t + delta) > 0:
+            self.touches += 1
+            return True
+        return False
+
     def _probe(self, t_end, pending, dense) -> bool:
         """Take one step as part of the run; record its size and the relative change it made.
         True when that step ended the run (an event, a non-finite state, the final time)."""
@@ -672,7 +886,8 @@ class _Run:
             self.t_reached, self.y_reached = before_t, before
             return True
         self._account(res, pending, dense)
-        self.h_last = abs(float(ta.time) - float(before_t))
+        # heyoka's own step size: the difference of the times reads 0 once the step is below the time's ulp
+        self.h_last = abs(float(ta.last_h)) if _finite(ta.last_h) else abs(float(ta.time) - float(before_t))
         self.change = _relative_change(ta.state, before)
         self.t_reached, self.y_reached = ta.time, np.array(ta.state, copy=True)
         return res[0] != _OUTCOME.step_limit
@@ -680,8 +895,18 @@ class _Run:
     def _propagate(self, t_end, pending, dense, budget, callback):
         ta = self.ta
         self.chunk_start = ta.time
+        if self.guard is not None:
+            callback = self.guard if callback is None else _Both(self.guard, callback)
         if pending is not None:
-            return ta.propagate_grid([ta.time] + pending, max_steps=budget, callback=callback)
+            # Not propagate_grid: it needs the current time as its first grid point, and heyoka's time is double
+            # length (ta.time is its high part), so each chunk would first step back by the low part and the
+            # result would depend on where the chunks (sized by wall time) end. propagate_until continues exactly;
+            # a step callback takes the rows from each step's Taylor polynomial, as propagate_grid does (rows[0]
+            # stands for the chunk's start, as in propagate_grid's answer).
+            rows = _GridRows(pending, self.direction)
+            res = ta.propagate_until(t_end, max_steps=budget, write_tc=True,
+                                     callback=rows if callback is None else _Both(rows, callback))
+            return (res[0], res[1], res[2], res[3], None, rows.rows)
         return ta.propagate_until(t_end, max_steps=budget, c_output=dense, callback=callback)
 
     def _account(self, res, pending, dense):
@@ -701,6 +926,28 @@ class _Run:
 
     def dense_at(self, t):
         return DenseOutput(self.c_outs, None).at_native(t)
+
+
+class _GridRows:
+    """Step callback of a run with output times: the state at each output time the step covered, from the step's
+    Taylor polynomial (heyoka's dense output)."""
+
+    def __init__(self, pending, direction):
+        self.pending = pending
+        self.direction = direction
+        self.next = 0
+        self.rows = [None]
+
+    def __call__(self, ta) -> bool:
+        pending, k = self.pending, self.next
+        if k < len(pending) and (pending[k] - ta.time) * self.direction <= 0:
+            now = ta.time
+            while k < len(pending) and (pending[k] - now) * self.direction <= 0:
+                ta.update_d_output(pending[k])
+                self.rows.append(np.array(ta.d_output, copy=True))
+                k += 1
+            self.next = k
+        return True
 
 
 class _Keeper:
@@ -759,9 +1006,9 @@ def _status(run, event_info, t_reached, t_end, max_steps):
     left = abs(to_fraction(t_end) - to_fraction(run.t_reached))
     hh = run.h_last if run.h_last == run.h_last else h
     need = (f"{short_decimal(left)} time units remain, about {short_decimal(left / Fraction(hh))} steps at this "
-            "step size") if hh > 0 else ""
+            "step size") if 0 < hh < math.inf else f"{short_decimal(left)} time units remain"
     # more steps than any budget could allow: the advice is the time span, not max_steps
-    hopeless = hh > 0 and left / Fraction(hh) > 10**15
+    hopeless = 0 < hh < math.inf and left / Fraction(hh) > 10**15
     outcome = run.outcome
     if run.reason == "time_budget":
         return "time_budget", f"The wall-time budget ran out at {where}; raise `max_time` or lower the accuracy."

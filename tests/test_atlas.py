@@ -102,3 +102,45 @@ def test_atlas_bad_input():
         ls.integrate(s, s.initial_state(X0, V0), t=1, atlas=True, dense=True)
     with pytest.raises(ValueError, match="`chart`"):
         s.change_chart(s.initial_state(X0, V0), 5)
+
+
+def _scaled_position_error(R, sol, t):
+    """max |x - x_exact| / R at the end of a run on the sphere of radius R from (0.6 R, 0, 0.8 R) at speed 1."""
+    s = ls.Sphere(mass=1, radius=R)
+    x = s.position(np.array([sol.y_reached]), chart=[sol.chart_reached])[0]
+    xe, _ = exact.sphere(R, [f"{0.6 * float(R):.17g}", 0, f"{0.8 * float(R):.17g}"], V0, t, dps=30)
+    return max(abs(to_fraction(a) - Fraction(str(b))) for a, b in zip(x, xe)) / Fraction(R)
+
+
+@pytest.mark.parametrize("R, t", [("1e3", "2e4"), ("1e4", "2e5"), ("1e6", "2e7"), ("1e8", "2e9")])
+def test_atlas_run_is_checked_against_the_initial_energy(R, t):
+    """A badly scaled sphere (positions ~ R, momenta ~ 1) loses digits in the chart form; the run switches charts
+    13 times. It must not end in ``success`` unless its result is right (the unit sphere's error is 1.3e-14): the
+    energy guard compares the end with the initial state, not with the last chart switch, and allows a few tol
+    per step (sqrt(tol) let R = 1e4 pass with 1.4e-10)."""
+    s = ls.Sphere(mass=1, radius=R)
+    x0 = [f"{0.6 * float(R):.17g}", 0, f"{0.8 * float(R):.17g}"]
+    y0 = s.initial_state(x0, V0)
+    sol = ls.integrate(s, y0, t=t)
+    assert sol.stats.extra["chart_switches"] >= 10
+    err = _scaled_position_error(R, sol, t)
+    assert sol.status == "invariant_drift" or err < 1e-11, (sol.status, float(err))
+    if sol.status == "invariant_drift":
+        assert "energy" in sol.message and "chart switches" in sol.message
+    # the ensemble's members that switch charts run as single atlas runs: the same verdict
+    ens = ls.integrate(s, np.array([y0, y0]), t=t)
+    for st in ens.status:
+        assert st == "invariant_drift" or err < 1e-11, st
+
+
+def test_ensemble_batch_members_get_the_same_energy_verdict_as_single_runs():
+    """Members that stay in one chart run in heyoka's batch mode; their energy check allows the same few tol per
+    step as a single run's (it allowed sqrt(tol): R = 1e5 over one radian passed with 1.4e-10, 6 digits lost)."""
+    R = "1e5"
+    s = ls.Sphere(mass=1, radius=R, atlas=False)
+    y0 = s.initial_state(["6e4", 0, "8e4"], V0)
+    single = ls.integrate(s, y0, t=R)
+    err = _scaled_position_error(R, single, R)
+    assert single.status == "invariant_drift" or err < 1e-11, (single.status, float(err))
+    ens = ls.integrate(s, np.array([y0, y0, y0]), t=R)
+    assert list(ens.status) == [single.status] * 3

@@ -190,3 +190,63 @@ def test_an_event_using_time_is_refused_when_a_variable_is_named_t():
     # the variable t itself is fine: crossings of t = 0 at pi/2 (t(s) = cos(s) / 2)
     sol = ls.integrate(osc, ["0.5", 0], t=2, events=[ls.Event(t)])
     assert abs(float(sol.events["event0"]["t"][0]) - float(mp.pi / 2)) < 1e-12
+
+
+@pytest.mark.parametrize("bits", [64, 200, 512])
+@pytest.mark.parametrize("engine", ["taylor", "lie"])
+def test_crossings_of_a_run_starting_on_the_section(engine, bits):
+    """q(t) = sin t from (q, p) = (0, 1): crossings at k pi, k = 1..9, to the run's precision. The run starts on
+    the zero at t = 0; heyoka's own root finding (at >= 180 bits) reports that zero twice and misses pi."""
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], (p**2 + q**2) / 2)
+    events = [ls.Event(q, name="q"), ls.Event(q, direction="negative", name="down")]
+    if engine == "lie":
+        dps = int(bits * 0.30103)
+        sol = ls.lie_integrate(osc, [0, 1], t=30, dps=dps, events=events)
+        bound = 10 ** (3 - dps)
+    else:
+        sol = ls.integrate(osc, [0, 1], t=30, precision=bits, events=events)
+        bound = 2.0 ** (12 - bits)  # the orbit's own error at tol = eps: ~1700 units of 2^-bits by t = 6 pi at 512 bits
+    assert sol.success, sol.message
+    ctx = mp.MPContext()  # a private context: the global mpmath precision stays as it is
+    ctx.prec = bits + 64
+    for name, ks in (("q", range(1, 10)), ("down", range(1, 10, 2))):
+        got = sol.events[name]["t"]
+        assert len(got) == len(ks), (name, [float(t) for t in got])
+        for k, t_got, y_got in zip(ks, got, sol.events[name]["y"]):
+            tf, qf = to_fraction(t_got), to_fraction(y_got[0])
+            assert abs(ctx.mpf(tf.numerator) / tf.denominator - k * ctx.pi) < bound
+            assert abs(qf) < bound
+
+
+@pytest.mark.parametrize("engine", ["double", 200, "lie"])
+def test_a_tangency_is_not_a_crossing_in_either_engine(engine, m2_zeros):
+    """M2**2 touches zero where M2 crosses (t = 7.25..., 14.69...) but never changes sign: both engines report
+    crossings (sign changes) only, so none. heyoka alone reported 14.69 twice (9e-10 off) and missed 7.25."""
+    body = ls.EulerPoisson(INERTIA)
+    y0 = body.initial_state(omega=OMEGA)
+    events = [ls.Event(lambda b: m2(b) ** 2, name="touch"), ls.Event(m2, name="m2")]
+    if engine == "lie":
+        sol = ls.lie_integrate(body, y0, t=T, dps=20, events=events)
+    else:
+        sol = ls.integrate(body, y0, t=T, precision=engine, events=events)
+    assert sol.success, sol.message
+    assert len(sol.events["touch"]["t"]) == 0
+    assert len(sol.events["m2"]["t"]) == len(m2_zeros) >= 2  # the crossings of M2 itself stay
+    for (t_ref, _), t_got in zip(m2_zeros, sol.events["m2"]["t"]):
+        assert abs(to_fraction(t_got) - to_fraction(t_ref)) < 1e-12
+
+
+@pytest.mark.parametrize("engine", ["double", 200, "lie"])
+def test_a_terminal_event_does_not_stop_at_a_tangency(engine):
+    """A terminal M2**2 never changes sign: neither engine stops (heyoka stopped at 14.69 in double and at 7.25 at
+    200 bits; lie_integrate ran to the end)."""
+    body = ls.EulerPoisson(INERTIA)
+    y0 = body.initial_state(omega=OMEGA)
+    events = [ls.Event(lambda b: m2(b) ** 2, terminal=True, name="touch")]
+    if engine == "lie":
+        sol = ls.lie_integrate(body, y0, t=T, dps=20, events=events)
+    else:
+        sol = ls.integrate(body, y0, t=T, precision=engine, events=events)
+    assert sol.success, sol.message
+    assert to_fraction(sol.t_reached) == T and len(sol.events["touch"]["t"]) == 0

@@ -8,7 +8,7 @@ import pytest
 
 import lieseries as ls
 from lieseries import exact
-from problems import mpf
+from problems import mpf, rigid_error
 
 OMEGA = (1, "0.1", "0.5")
 
@@ -189,3 +189,93 @@ def test_rigid_body_series_bad_input():
         ls.rigid_body_series(ls.Sphere(), 3)
     with pytest.raises(ValueError, match="`order`"):
         ls.rigid_body_series(ls.EulerPoisson((1, 2, 3)), 0)
+
+
+def test_lie_tolerance_holds_for_each_component_of_a_badly_scaled_sphere():
+    """Sphere of radius 1e6 at speed 1: positions ~ 1e6, momenta ~ 1. A tolerance relative to the largest
+    component left the momenta with tol * 1e6 (the step estimates said 1e-15 while the result was off by 2.65e-13
+    relative at t = 2e7); per component, the run keeps its 20 digits against the great circle."""
+    from fractions import Fraction
+
+    from lieseries.precision import to_fraction
+
+    R, x0, v0 = "1e6", ("6e5", "0", "8e5"), ("0", "1", "0")
+    s = ls.Sphere(mass=1, radius=R)
+    y0 = s.initial_state(x0, v0)
+    ctx = mp.MPContext()
+    ctx.dps = 45
+
+    def error(sol, t):
+        xe, _ = exact.sphere(R, x0, v0, t, dps=40)
+        return max(abs(to_fraction(a) - Fraction(ctx.nstr(b, 40))) for a, b in zip(list(sol.y_reached)[:3], xe)) / 10**6
+
+    one = ls.lie_integrate(s, y0, t="1e6", dps=20, atlas=False)  # one chart, a turn of 1 radian
+    assert one.success, one.message
+    assert error(one, "1e6") <= sum(one.stats.error_estimates)  # before: 3.3e-16 against a sum of 1.3e-15 (absolute)
+    assert max(one.stats.error_estimates) <= 1e-20
+    long = ls.lie_integrate(s, y0, t="2e7", dps=20)  # 13 chart switches
+    assert long.success, long.message
+    assert long.stats.extra["chart_switches"] >= 10
+    assert error(long, "2e7") < 1e-18  # before: 2.65e-13
+
+
+def test_lie_integrate_ends_with_a_status_where_the_equations_end():
+    """H = p^2/2 + q^1.5 from (1, 0): q reaches 0 at T = int_0^1 dq / sqrt(2 (1 - q^1.5)) (energy 1), beyond which
+    q^1.5 is not real. The run ends with ``non_finite`` before T and keeps its rows (it raised ValueError)."""
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 + q**1.5)
+    ctx = mp.MPContext()
+    ctx.dps = 30
+    T = ctx.quad(lambda x: 1 / ctx.sqrt(2 * (1 - x**1.5)), [0, 1])  # ~1.2196
+    sol = ls.lie_integrate(osc, [1, 0], t=[Fraction(1, 2), 1, Fraction(5, 2)], dps=20)
+    assert sol.status == "non_finite", sol.message
+    assert len(sol.t) == 2 and abs(float(sol.t_reached) - T) < 1e-6  # where the steps shrink onto the branch point
+    # the rows kept are right: q(1/2) from the quadrature t(q) = int_q^1 dx / sqrt(2 (1 - x^1.5))
+    q_half = ctx.findroot(lambda y: ctx.quad(lambda x: 1 / ctx.sqrt(2 * (1 - x**1.5)), [y, 1]) - ctx.mpf(1) / 2,
+                          ctx.mpf("0.9"))
+    assert abs(sol.y[0][0] - q_half) < 1e-15
+
+
+def test_lie_events_with_a_pole_or_an_unsupported_function():
+    """1/M2 changes sign through poles, never through zero: no crossing (mpmath's findroot raised); sqrt(M2**2)
+    (Abs for the expression compiler) is refused up front, naming `events[0]`."""
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega=OMEGA)
+    sol = ls.lie_integrate(body, y0, t=16, dps=20, events=[ls.Event(lambda b: 1 / b.poisson.variables[10])])
+    assert sol.success, sol.message
+    assert len(sol.events["event0"]["t"]) == 0
+    with pytest.raises(ValueError, match=r"`events\[0\]`"):
+        ls.lie_integrate(body, y0, t=16, dps=20, events=[ls.Event(lambda b: hy.sqrt(b.poisson.variables[10] ** 2))])
+
+
+def test_lie_integrate_names_dps_when_the_automatic_order_is_too_high():
+    """dps = 3000 gives the automatic order 3455 > 2000: the refusal names `dps` (no `order` was given) and says
+    what to do (it named `order` ... got 3455)."""
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega=OMEGA)
+    with pytest.raises(ValueError, match=r"`dps` = 3000 .*order 3455.*pass `order`.*`dps` = 1736") as info:
+        ls.lie_integrate(body, y0, t=1, dps=3000)
+    assert "got 3455" not in str(info.value)
+    with pytest.raises(ValueError, match=r"`tol` = 1\.0e-3000"):
+        ls.lie_integrate(body, y0, t=1, dps=3000, tol="1e-3000")
+
+
+def test_lie_integrate_has_the_energy_guard_of_every_run(monkeypatch):
+    """A step that goes wrong (simulated: every step's end nudged by 1e-8) changes H far beyond sqrt(tol): the run
+    reports ``invariant_drift`` against H(y0), as heyoka runs do, instead of ``success``."""
+    import lieseries.lie.integrator as integrator
+
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega=OMEGA)
+    good = ls.lie_integrate(body, y0, t=2, dps=20)
+    assert good.success, good.message
+    real = integrator.horner
+
+    def nudged(coeffs, t):
+        out = real(coeffs, t)
+        return list(out[:-1]) + [out[-1] * (1 + mp.mpf(10) ** -8)] if t != 0 else out
+
+    monkeypatch.setattr(integrator, "horner", nudged)
+    bad = ls.lie_integrate(body, y0, t=2, dps=20)
+    assert rigid_error(bad.y_reached, 2) > 1e-9  # the result is indeed wrong
+    assert bad.status == "invariant_drift", bad.message

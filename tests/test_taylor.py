@@ -307,3 +307,47 @@ def test_progress_is_reported_on_a_long_run():
     sol = ls.integrate(body, body.initial_state((1.0, 0.1, 0.5)), t=2e5, progress=seen.append)
     assert sol.success
     assert len(seen) >= 2 and all(0 <= a <= b <= 1 for a, b in zip(seen, seen[1:]))
+
+
+@pytest.mark.parametrize("precision, t, bound", [("double", [5, 200], 1e-11),
+                                                 pytest.param(90, [5, 20], 1e-22, marks=pytest.mark.slow)])
+def test_runs_are_bit_for_bit_reproducible_whatever_the_chunks_and_threads(monkeypatch, precision, t, bound):
+    """A run with output times went chunk by chunk through propagate_grid, whose first grid point (ta.time) is only
+    the high part of heyoka's double-length time: each chunk stepped back by the low part, so the result depended on
+    where the wall-time-sized chunks ended (at 90 bits, 9 distinct results in 40 runs from 4 threads)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import lieseries.taylor as taylor
+
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega=(1, "0.1", "0.5"))
+
+    def run(_=None, y0=y0):
+        sol = ls.integrate(body, y0, t=t, precision=precision)
+        assert sol.success, sol.message
+        return tuple(str(v) for row in sol.y for v in row)
+
+    serial = run()
+    assert run() == serial
+    with ThreadPoolExecutor(4) as pool:
+        assert set(pool.map(run, range(8))) == {serial}
+    for first in (1, 3, 100):  # other chunk boundaries (what a loaded machine makes of wall-time chunks)
+        if precision == "double":
+            monkeypatch.setitem(taylor.FIRST_CHUNK, "double", first)
+        else:
+            monkeypatch.setattr(taylor, "FIRST_CHUNK_REAL", first)
+        assert run(y0=body.initial_state(omega=(1, "0.1", "0.5"))) == serial  # a new state: a new call plan
+    sol = ls.integrate(body, y0, t=t, precision=precision)
+    assert rigid_error(sol.y[-1], t[-1]) < bound  # and right
+
+
+def test_collapse_near_a_blow_up_far_from_t0_reports_itself():
+    """q' = q^2 (H = p q^2) from q = 1 at t0 = 1e12 blows up at t0 + 1, where the steps fall below the time's ulp:
+    the probe step read 0 and the message had an empty slot ("from 0.13 earlier: , more than ...")."""
+    q, p = hy.make_vars("q", "p")
+    sys_ = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p * q**2)
+    t0 = 10**12
+    sol = ls.integrate(sys_, [1, 1], t=t0 + 2, t0=t0)
+    assert sol.status in ("non_finite", "step_collapse"), sol.message
+    assert ": ," not in sol.message and "earlier: ," not in sol.message
+    assert abs(float(sol.t_reached - t0) - 1) < 1e-3  # the blow-up of q = 1 / (1 - (t - t0))

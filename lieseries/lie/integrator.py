@@ -7,15 +7,21 @@ rho / e^2 the truncation error of an order-N step is then near tol, and this N m
 for a Taylor method whose cost grows like N^2. For 50 digits N = 59, for 100 digits N = 117.
 
 Step. At each step the coefficients c_0..c_N of the series at the current state are computed (jets, O(N^2) per
-node of the vector field). With ||.|| the max norm and tol_abs = tol * max(1, ||z||), the step is the largest h
-with ||c_k|| h^k <= tol_abs for the last two orders k = N-1, N (the tail of a converging series is governed by
-its last terms; using two of them tolerates a coefficient that vanishes by symmetry), capped at half the radius
+node of the vector field). The step is the largest h with |c_k,i| h^k <= tol * s_i for every component i and the
+last two orders k = N-1, N (the tail of a converging series is governed by its last terms; using two of them
+tolerates a coefficient that vanishes by symmetry), where s_i = max(1, max_k |c_k,i| h^k) is the component's own
+size over the step: the tolerance is relative for each component above 1 and absolute below (relative to the
+largest component, a momentum of size 1 beside positions of size 1e6 kept only tol * 1e6 of its digits, and its
+error grew into the positions over the run). The step is capped at half the radius
 of convergence estimated from the coefficients, so that a step never reaches the singularity where the series
 diverges. The last step is shortened to land on the final time; output times inside a step are evaluated from
 that step's polynomial (dense output of the same accuracy).
 
 Error estimate. Every step records the geometric-tail estimate of its truncation error
-(:func:`lieseries.lie.operator.tail_estimate`); ``sol.stats.error_estimates`` holds them all.
+(:func:`lieseries.lie.operator.tail_estimate`), per component and relative to s_i (absolute below 1), the
+largest over the components; ``sol.stats.error_estimates`` holds them all. They are local: the error of the
+result is their sum carried along by the flow (for a rotation, a momentum's error turns into a phase error that
+grows with the angle covered).
 
 All work is done with ``guard`` extra digits (default 10) and results are rounded to ``dps``.
 """
@@ -25,12 +31,16 @@ from __future__ import annotations
 import math
 import time as _time
 import warnings
+from fractions import Fraction
 
 import numpy as np
 
+from ..energy import energy_exact, exact_energy_verdict
 from ..events import resolve_events
 from ..poisson import as_poisson_system
 from ..precision import (
+    MAX_ORDER,
+    check_callable,
     check_progress,
     check_count,
     check_dps,
@@ -91,7 +101,8 @@ def lie_integrate(
     dps : int
         Decimal digits of the arithmetic and of the results.
     tol : float, optional
-        Local error tolerance per step (absolute for |z| <= 1, relative above). Default 10**-dps.
+        Local error tolerance per step and per component (absolute for components of size <= 1, relative above).
+        Default 10**-dps.
     order : int, optional
         Series order; default from ``tol`` (module docstring).
     dense : bool
@@ -112,7 +123,8 @@ def lie_integrate(
     Returns
     -------
     Solution
-        ``y`` rows are numpy object arrays of mpf; ``stats.error_estimates`` has one estimate per step;
+        ``y`` rows are numpy object arrays of mpf; ``stats.error_estimates`` has one estimate per step (its
+        truncation error relative to each component's size, absolute below 1; the largest over the components);
         ``stats.extra["max_step_over_radius"]`` is the largest step over the estimated radius of convergence
         (at most 1/2 by construction). When the data carry fewer bits than the run (binary floats), every
         per-step estimate is at least the relative uncertainty of the data (``stats.extra["data_bits"]``), and
@@ -132,6 +144,7 @@ def lie_integrate(
 
         coarse_bits(as_poisson_system(system), y0, dps_to_bits(dps), times=[t, t0])
         return run_atlas(lie_integrate, system, y0, t, t0=t0, bits=dps_to_bits(dps + guard), dense=dense,
+                         energy_tol=tol if tol is not None else Fraction(1, 10**dps),
                          dps=dps, tol=tol, order=order, max_steps=max_steps, max_time=max_time, guard=guard,
                          progress=progress, events=events)
     if isinstance(guard, bool) or not isinstance(guard, int) or guard < 0:
@@ -155,6 +168,14 @@ def lie_integrate(
                     f"raise `dps` to at least {int(-mp.log10(tolm)) + 1}"
                 )
     N_auto = default_order(tolm)
+    if order is None and N_auto > MAX_ORDER:
+        source = f"`tol` = {mp.nstr(tolm, 3)}" if tol is not None else f"`dps` = {dps}"
+        raise ValueError(
+            f"{source} asks for the automatic series order {N_auto} (ceil(-ln(tol) / 2) + 1), above the largest "
+            f"order {MAX_ORDER}: pass `order` (at most {MAX_ORDER}: shorter steps reach the same accuracy), or "
+            f"ask for fewer digits (the automatic order stays within {MAX_ORDER} up to `dps` = "
+            f"{_largest_auto_dps()})"
+        )
     N = N_auto if order is None else check_order(order)
     bits = coarse_bits(ps, y0, dps_to_bits(dps), times=[t, t0])
 
@@ -196,7 +217,16 @@ def lie_integrate(
                 status = "time_budget"
                 message = f"The wall-time budget ran out at t = {mp.nstr(tcur, 17)}; raise `max_time`."
                 break
-            coeffs = taylor_coefficients(prog, z, pars, N, wdps, mp_context())
+            try:
+                coeffs = taylor_coefficients(prog, z, pars, N, wdps, mp_context())
+            except (ValueError, ZeroDivisionError, OverflowError) as exc:
+                status = "non_finite"
+                message = (
+                    f"The series coefficients cannot be computed at t = {mp.nstr(tcur, 17)} ({exc}): the state has "
+                    "left the domain of the equations (or the vector field is singular there). The rows up to this "
+                    "time are kept."
+                )
+                break
             nrm = norms(coeffs)
             if not all(mp.isfinite(c) for c in nrm):
                 status = "non_finite"
@@ -215,6 +245,14 @@ def lie_integrate(
             if h == mp.inf:  # polynomial solution of degree < N - 1: one step reaches the end
                 h = abs(tend - tcur)
             h = min(h, abs(tend - tcur))
+            # per component: the tolerance is relative to the component's own size over the step (absolute below
+            # 1), not to the largest component -- a momentum of size 1 beside positions of size 1e6 would keep
+            # only tol * 1e6 of its digits, and its error grows into the positions over the run
+            scales = _component_scales(coeffs, h)
+            for k in (N - 1, N):
+                for c, s in zip(coeffs[k], scales):
+                    if k >= 1 and c != 0:
+                        h = min(h, (tolm * s / abs(c)) ** (mp.mpf(1) / k))
             if h <= abs(tcur) * mp.mpf(10) ** (-wdps + 2) or h == 0:
                 status = "step_collapse"
                 message = (
@@ -223,12 +261,21 @@ def lie_integrate(
                 )
                 break
             hs = h * sgn
-            err = max(tail_estimate(nrm, h, rho), floor * max(mp.mpf(1), nrm[0]))
+            err = max(max(tail_estimate([abs(ck[i]) for ck in coeffs], h, rho) / s for i, s in enumerate(scales)),
+                      floor)
             if nsteps == 0 and order is not None and N < N_auto:
                 _warn_slow_order(N, N_auto, nrm, tol_abs, rho, abs(tend - tcur))
             znew = horner(coeffs, hs)
             tnew = tcur + hs if abs(tend - tcur) != h else tend
-            stop = user.step(coeffs, tcur, hs, sgn) if user is not None else None
+            try:
+                stop = user.step(coeffs, tcur, hs, sgn) if user is not None else None
+            except (ValueError, ZeroDivisionError, OverflowError) as exc:
+                status = "non_finite"
+                message = (
+                    f"An event expression cannot be evaluated in the step after t = {mp.nstr(tcur, 17)} ({exc}): "
+                    "the state leaves its domain there. The rows up to this time are kept."
+                )
+                break
             if stop is not None:  # a terminal event inside the step: the step ends there
                 hs = stop - tcur
                 h = abs(hs)
@@ -254,6 +301,11 @@ def lie_integrate(
                 break
         if status == "success":
             message = f"Reached t = {mp.nstr(tend, 17)}."
+            if direction != 0 and ps.is_hamiltonian:
+                # the energy guard of every run: H at the end against H(y0) (lieseries.energy.drift_threshold)
+                e0, scale = energy_exact(ps, z0, dps_to_bits(wdps))
+                e1, _ = energy_exact(ps, export_mpf(list(z)), dps_to_bits(wdps))
+                status, message = exact_energy_verdict(e0, e1, scale, tolm, status, message, nsteps)
         # y_reached keeps the guard digits: a run continued from it (an atlas chart change) loses nothing
         y_reached = export_mpf(np.array(list(z), dtype=object))
         t_reached = to_fraction(tcur)
@@ -267,6 +319,24 @@ def lie_integrate(
     dense_fn = _Dense(segments, dps, sgn) if segments is not None else None
     return Solution(tarr, y, stats, status, message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
                     y_reached=y_reached, events=user.records(dps, ps.dimension) if user is not None else None)
+
+
+def _largest_auto_dps() -> int:
+    """The largest ``dps`` whose automatic order (tol = 10^-dps) is at most MAX_ORDER."""
+    return int(2 * (MAX_ORDER - 1) / math.log(10))
+
+
+def _component_scales(coeffs, h):
+    """Each component's size over a step of length h: max(1, max_k |c_k,i| h^k) (absolute below 1)."""
+    n = len(coeffs[0])
+    out = []
+    for i in range(n):
+        s, hk = mp.mpf(1), mp.mpf(1)
+        for ck in coeffs:
+            s = max(s, abs(ck[i]) * hk)
+            hk *= h
+        out.append(s)
+    return out
 
 
 def _warn_slow_order(N, N_auto, nrm, tol_abs, rho, span):
@@ -328,7 +398,16 @@ class _UserEvents:
         from ..expr import compile_expressions
 
         self.events = user_events
-        self.prog = compile_expressions(ps.variables, [e[1] for e in user_events], len(ps.parameter_values))
+        npars = len(ps.parameter_values)
+        for i, (name, expr, _direction, _terminal) in enumerate(user_events):
+            try:
+                compile_expressions(ps.variables, [expr], npars)
+            except (NotImplementedError, ValueError, TypeError) as exc:
+                raise ValueError(
+                    f"`events[{i}]` ({name!r}, {expr}) cannot be evaluated by lie_integrate: {exc}. Write it with "
+                    "the supported functions (an absolute value |f| has the same crossings as f: give f)"
+                ) from None
+        self.prog = compile_expressions(ps.variables, [e[1] for e in user_events], npars)
         self.pars = pars
         self.found = {e[0]: [] for e in user_events}
         self.fired = None
@@ -352,7 +431,9 @@ class _UserEvents:
                 if gb == 0:
                     tau = taus[a + 1]
                 else:
-                    tau = mp.findroot(lambda x: self._g(coeffs, x)[i], (taus[a], taus[a + 1]), solver="anderson")
+                    tau = self._solve(coeffs, i, taus[a], taus[a + 1], ga, gb)
+                    if tau is None:
+                        continue  # a sign change through a pole (1/M2), not a zero
                 hits.append((abs(tau), t0 + tau, name, terminal, tau))
         hits.sort(key=lambda h: h[0])
         for _, t_hit, name, terminal, tau in hits:
@@ -361,6 +442,40 @@ class _UserEvents:
                 self.fired = f"the event {name!r} fired"
                 return t_hit
         return None
+
+    def _solve(self, coeffs, i, lo, hi, glo, ghi):
+        """The zero of event ``i`` between ``lo`` and ``hi`` (opposite signs ``glo``, ``ghi``) on the step's
+        polynomial: Anderson's method, bisection when it fails or leaves the bracket; None when the sign changes
+        through a pole (the function grows instead of vanishing)."""
+        def g(x):
+            try:
+                return self._g(coeffs, x)[i]
+            except ZeroDivisionError:  # on a pole
+                return mp.inf
+
+        tau = None
+        try:
+            tau = mp.findroot(g, (lo, hi), solver="anderson")
+        except (ValueError, ZeroDivisionError):
+            pass
+        if tau is None or not (min(lo, hi) <= tau <= max(lo, hi)):
+            a, b, ga = lo, hi, glo
+            for _ in range(4 * mp.prec):
+                mid = (a + b) / 2
+                if mid == a or mid == b:
+                    break
+                gm = g(mid)
+                if gm == 0:
+                    a = b = mid
+                    break
+                if (gm < 0) == (ga < 0):
+                    a, ga = mid, gm
+                else:
+                    b = mid
+            tau = b
+        if abs(g(tau)) > max(abs(glo), abs(ghi)):
+            return None
+        return tau
 
     def records(self, dps, n):
         prec = dps_to_bits(dps)
