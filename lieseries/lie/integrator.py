@@ -40,7 +40,6 @@ from ..events import resolve_events
 from ..poisson import as_poisson_system
 from ..precision import (
     MAX_ORDER,
-    check_callable,
     check_progress,
     check_count,
     check_dps,
