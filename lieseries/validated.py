@@ -106,7 +106,23 @@ def _powi(x, n: int, one):
     return result
 
 
+class _Singular(ValueError):
+    """The field cannot be evaluated on the balls: an operation's argument reaches its singularity (a divisor, a
+    series' leading term, a root's or logarithm's argument containing 0 or a negative value)."""
+
+    def __init__(self, op, cause):
+        super().__init__(f"`{op}` is singular on its argument ({cause})")
+        self.op = op
+
+
 def _apply(op, a, data, one):
+    try:
+        return _apply_op(op, a, data, one)
+    except (ValueError, ZeroDivisionError) as e:
+        raise _Singular(op, e) from None
+
+
+def _apply_op(op, a, data, one):
     if op == "add":
         s = a[0]
         for x in a[1:]:
@@ -400,7 +416,10 @@ def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECE
             lo, hi = dt * piece, dt * (piece + 1)
             seg = (lo + hi) / 2 + arb(0, abs(hi - lo) / 2)
             Bi = [_horner([cz], seg)[0] + d[K + 1] * seg ** (K + 1) for cz, d in zip(CZ, D)]
-            vals = _evaluate(jprog, Bi, pars, consts, arb(1))
+            try:
+                vals = _evaluate(jprog, Bi, pars, consts, arb(1))
+            except _Singular:
+                return None
             M = arb_mat([[(v if isinstance(v, arb) else arb(v)) * dt for v in vals[i * n:(i + 1) * n]]
                          for i in range(n)])
             if not all(M[i, j].is_finite() for i in range(n) for j in range(n)):
@@ -512,6 +531,23 @@ def _step_estimate(g, N, tol, flint) -> float:
         return 0.97 * float(h.mid()) * _root(tol / estimate(h), N + 1)
     finally:
         flint.ctx.prec = saved
+
+
+def _check_regular(prog, z, pars, consts, flint):
+    """Refuse initial data whose centre is a singular point of the field (a pole, a root at 0): no step from there
+    can be proved. A ball around a regular centre that reaches a singularity is left to the run (it ends with
+    ``validation_failed`` at t0)."""
+    arb = flint.arb
+    centre = [arb(v.mid()) for v in z]
+    try:
+        values = _evaluate(prog, centre, pars, consts, arb(1))
+        ok = all((v if isinstance(v, arb) else arb(v)).is_finite() for v in values)
+    except _Singular:
+        ok = False
+    if not ok:
+        raise ValueError(f"`y0` = {[float(v.mid()) for v in centre]} is a singular point of the vector field (it "
+                         "cannot be evaluated there: a division by 0, or a root or logarithm at its branch point); "
+                         "start from a regular point")
 
 
 # -- the driver ------------------------------------------------------------------------------------------------------
@@ -649,6 +685,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 z, current = _switch_chart(system, current, best, z, flint), system.for_chart(best, edge=system.ATLAS_SWITCH)
         ps, prog, pars, consts, events, ev_consts, jprog, jconsts = _chart_context(current, flint)
         ev_pars = pars
+        _check_regular(prog, z, pars, consts, flint)
         # the set of states is m + A r: a centre point, a matrix (the identity to start) and a box around 0
         m, A, r = _lohner_set(z, flint)
         rows_t, rows_y, widths, tails, rows_c = [], [], [], [], []
@@ -667,6 +704,8 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
         unit = arb(10) ** -dps
         rem_tol = arb(REMAINDER_FACTOR) * unit
         t_end = grid[-1]
+        # the shortest step tried: 2^-40 of the run's time span (a time, whatever the size of the state)
+        h_min = float(abs(t_end - t0f)) * 2.0**-40
         while direction and (t_end - tcur) * direction > 0:
             if steps >= max_steps:
                 status, message = "step_budget", f"The step budget max_steps = {max_steps} ran out at t = {float(tcur):.17g}."
@@ -678,16 +717,25 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
             tol = rem_tol * scale
             wide = any(zi.rad() > unit * scale for zi in z)  # wider than 10^-dps of the state's size
             pieces = 2 * JACOBIAN_PIECES if wide else JACOBIAN_PIECES
-            C = _centre_polynomial(prog, m, pars, ps.parameter_values, consts, N, flint)  # from the centre
-            g = _defect_coefficients(prog, C, pars, consts, flint)
-            CZ = _taylor(prog, z, pars, consts, BOX_ORDER, flint, bits=64)  # from the whole enclosure
+            try:
+                C = _centre_polynomial(prog, m, pars, ps.parameter_values, consts, N, flint)  # from the centre
+                g = _defect_coefficients(prog, C, pars, consts, flint)
+                CZ = _taylor(prog, z, pars, consts, BOX_ORDER, flint, bits=64)  # from the whole enclosure
+            except _Singular as e:
+                # the enclosure of the state itself reaches a singularity of the field: nothing beyond is proved
+                status = "validation_failed"
+                message = (f"Validation failed at t = {float(tcur):.17g}: the vector field cannot be evaluated on "
+                           f"the enclosure of the state ({e}): the solution is at or near a singularity of the "
+                           f"field (widest ball {max(float(zi.rad()) for zi in z):.3g}); every row up to here is "
+                           "a proven enclosure.")
+                break
             left = abs(t_end - tcur)
             h_f = min(_step_estimate(g, N, tol, flint), float(left))
             proved = None
             event_hit = None
             h_event_start = h_f
             for _attempt in range(60):
-                if not (h_f > scale * 2.0**-40 or h_f >= float(left)):
+                if not (h_f > h_min or h_f >= float(left)):
                     break
                 h = left if h_f >= float(left) else Fraction(math.floor(h_f * 2**50), 2**50)
                 if h <= 0:
@@ -733,7 +781,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 break
             if proved is None:
                 status = "validation_failed"
-                message = (f"Validation failed at t = {float(tcur):.17g}: no step down to {scale * 2.0**-40:.3g} "
+                message = (f"Validation failed at t = {float(tcur):.17g}: no step down to {h_min:.3g} "
                            "has an a priori enclosure with a small enough remainder (the field is singular near "
                            f"the enclosure, or the enclosure is too wide: widest ball "
                            f"{max(float(zi.rad()) for zi in z):.3g}).")
@@ -755,14 +803,22 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 return [phi[i] + spread[i, 0] for i in range(n)]
 
             while pending and (pending[0] - tnew) * direction <= 0:
-                tk = pending.pop(0)
-                phi_k, _, ta = point(tk - tcur)
+                phi_k, _, ta = point(pending[0] - tcur)
                 Jk = _flow_jacobian(jprog, CZ, D, pars, jconsts, ta, flint, pieces)
+                if Jk is None:  # the field's Jacobian cannot be bounded over the shorter span: stop here
+                    status = "validation_failed"
+                    message = (f"Validation failed at t = {float(tcur):.17g}: the flow's Jacobian up to the output "
+                               f"time {float(pending[0]):.17g} cannot be bounded (the field is singular or too "
+                               "steep near the enclosure); every row up to here is a proven enclosure.")
+                    break
+                tk = pending.pop(0)
                 yk = whole(phi_k, Jk * A)
                 rows_t.append(tk)
                 rows_c.append(getattr(current, "chart", None))
                 rows_y.append(yk)
                 widths.append(max(_float_up(v.rad()) for v in yk))
+            if status != "success":
+                break
             phi, tail_h, _ = point(hs)
             JA = J * A
             z = whole(phi, JA)
