@@ -52,6 +52,7 @@ from .precision import (
     to_fraction,
     warn_if_coarse,
 )
+from .lie.jets import DeadlineExceeded
 from .solution import ChartRows, Solution, Stats
 from .timegrid import parse_times
 
@@ -187,14 +188,16 @@ def _check_ops(prog):
                          f"it supports {', '.join(SUPPORTED_OPS)}")
 
 
-def _taylor(prog, z0, pars, consts, order, flint, *, bits=None):
+def _taylor(prog, z0, pars, consts, order, flint, *, bits=None, deadline=None):
     """Ball Taylor coefficients c_0..c_order of the flow from the balls z0: out[i][j] for component i, order j.
 
     Picard iteration on Arb power series, one coefficient per iteration: the (m-1)-th coefficient of f(z) depends
     only on c_0..c_{m-1}, so iteration m evaluates f on the series known so far (length m) and appends
     c_m = f_{m-1} / m, keeping the earlier coefficients. ``bits``: the precision to work at (default: the
-    current one); a lower precision only widens the balls, it never makes them wrong.
+    current one); a lower precision only widens the balls, it never makes them wrong. ``deadline``: a
+    perf_counter value after which :class:`~lieseries.lie.jets.DeadlineExceeded` is raised (checked every order).
     """
+
     arb, arb_series = flint.arb, flint.arb_series
     if flint.ctx.cap < order + 2:
         raise AssertionError("the series cap must exceed the order")  # pragma: no cover - set by the driver
@@ -203,6 +206,8 @@ def _taylor(prog, z0, pars, consts, order, flint, *, bits=None):
     coeffs = [[c] for c in z0]
     try:
         for m in range(1, order + 1):
+            if deadline is not None and _time.perf_counter() > deadline:
+                raise DeadlineExceeded(m - 1)
             one = arb_series([arb(1)], prec=m)
             f = _evaluate(prog, [arb_series(cs, prec=m) for cs in coeffs], pars, consts, one)
             for cs, fi in zip(coeffs, f):
@@ -217,13 +222,14 @@ def _taylor(prog, z0, pars, consts, order, flint, *, bits=None):
     return coeffs
 
 
-def _centre_polynomial(prog, m, pars, pars_exact, consts, order, flint):
+def _centre_polynomial(prog, m, pars, pars_exact, consts, order, flint, deadline=None):
     """The Taylor polynomial of order ``order`` of the flow from the point m, as exact binary balls (radius 0).
 
     Nothing about these coefficients needs proving: the remainder bound (:func:`_defect`) holds for any
     polynomial p with p(0) = m, and only its size depends on p being close to the flow. They come from the mpmath
     jets (:mod:`lieseries.lie.jets`, the Lie engine's Taylor-mode recurrence, several times faster than Picard
-    iteration on Arb series), or from that Picard iteration when the jets fail."""
+    iteration on Arb series), or from that Picard iteration when the jets fail. Past ``deadline`` (a perf_counter
+    value) both stop with :class:`~lieseries.lie.jets.DeadlineExceeded`."""
     from mpmath.libmp import from_man_exp, from_rational, round_nearest
 
     from .lie.jets import taylor_coefficients_raw
@@ -233,12 +239,13 @@ def _centre_polynomial(prog, m, pars, pars_exact, consts, order, flint):
     try:
         jets = taylor_coefficients_raw(prog, [from_man_exp(*(int(q) for q in v.mid().man_exp())) for v in m],
                                        [from_rational(q.numerator, q.denominator, wp, round_nearest)
-                                        for q in pars_exact], order, wp)
+                                        for q in pars_exact], order, wp, deadline)
         rows = [[arb(mpmath.make_mpf(c)) for c in row] for row in jets]
     except (ZeroDivisionError, ValueError, ArithmeticError):
         rows = None
     if rows is None or not all(c.is_finite() for row in rows for c in row):
-        rows = [[arb(c.mid()) for c in row] for row in _taylor(prog, m, pars, consts, order, flint)]
+        rows = [[arb(c.mid()) for c in row] for row in _taylor(prog, m, pars, consts, order, flint,
+                                                                deadline=deadline)]
     return [[mi] + row[1:] for mi, row in zip(m, rows)]
 
 
@@ -628,7 +635,8 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     order : int, optional
         Series order (default ceil(ln(10) dps / 2) + 1, the Jorba-Zou choice).
     max_steps, max_time :
-        Budgets (statuses ``step_budget``, ``time_budget``).
+        Budgets (statuses ``step_budget``, ``time_budget``); the clock is read between steps and after every order
+        of a step's series, so a long step stops within about one order's work of ``max_time``.
     max_width : number, optional
         Stop with ``validation_failed`` when a ball grows wider than this (default 1e-3 x max(1, |z|)).
     atlas : bool, optional
@@ -662,6 +670,13 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     for name, b in list(ps.coarse_data().items()) + [("t", data_bits([t, t0]))]:
         warn_if_coarse(b, dps_to_bits(dps), name)
     start = _time.perf_counter()
+    deadline = None if max_time is None else start + max_time
+
+    def budget_message():
+        return (f"The wall-time budget `max_time` = {max_time:g} s ran out at t = {float(tcur):.17g} (checked between "
+                f"and inside the steps: one step of order {N} at {dps} digits may take longer); every row up to here "
+                "is a proven enclosure.")
+
     with _working_precision(bits, cap=max(N, BOX_ORDER + 1) + DEFECT_EXTRA + 4) as flint:
         arb = flint.arb
         z = _initial_balls(system, y0, ps.dimension, flint)
@@ -710,17 +725,20 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
             if steps >= max_steps:
                 status, message = "step_budget", f"The step budget max_steps = {max_steps} ran out at t = {float(tcur):.17g}."
                 break
-            if max_time is not None and _time.perf_counter() - start > max_time:
-                status, message = "time_budget", f"The wall-time budget ran out at t = {float(tcur):.17g}."
+            if deadline is not None and _time.perf_counter() > deadline:
+                status, message = "time_budget", budget_message()
                 break
             scale = max([1.0] + [abs(float(zi.mid())) for zi in z])
             tol = rem_tol * scale
             wide = any(zi.rad() > unit * scale for zi in z)  # wider than 10^-dps of the state's size
             pieces = 2 * JACOBIAN_PIECES if wide else JACOBIAN_PIECES
             try:
-                C = _centre_polynomial(prog, m, pars, ps.parameter_values, consts, N, flint)  # from the centre
+                C = _centre_polynomial(prog, m, pars, ps.parameter_values, consts, N, flint, deadline)  # centre
                 g = _defect_coefficients(prog, C, pars, consts, flint)
                 CZ = _taylor(prog, z, pars, consts, BOX_ORDER, flint, bits=64)  # from the whole enclosure
+            except DeadlineExceeded:
+                status, message = "time_budget", budget_message()
+                break
             except _Singular as e:
                 # the enclosure of the state itself reaches a singularity of the field: nothing beyond is proved
                 status = "validation_failed"
@@ -733,9 +751,13 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
             h_f = min(_step_estimate(g, N, tol, flint), float(left))
             proved = None
             event_hit = None
+            out_of_time = False
             h_event_start = h_f
             for _attempt in range(60):
                 if not (h_f > h_min or h_f >= float(left)):
+                    break
+                if deadline is not None and _time.perf_counter() > deadline:
+                    out_of_time = True
                     break
                 h = left if h_f >= float(left) else Fraction(math.floor(h_f * 2**50), 2**50)
                 if h <= 0:
@@ -762,6 +784,9 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 # the remainder scales like h^(N+1): aim just below the tolerance (halve when unproved)
                 shrink = 0.5 if worst is None or not worst.is_finite() else min(0.9 * _root(tol / worst, N + 1), 0.9)
                 h_f = float(h) * shrink
+            if proved is None and out_of_time:
+                status, message = "time_budget", budget_message()
+                break
             if proved is None and event_hit is not None and atlas and switches < MAX_SWITCHES:
                 # the chart is ending: rewrite the enclosure in the chart of the largest coordinate (in ball
                 # arithmetic: the box of the map's values over the box) and go on from there

@@ -310,3 +310,21 @@ def test_unsupported_functions_are_named():
         compile_expressions([x], [x + y])
     with pytest.raises(ValueError, match="npars"):
         compile_expressions([x], [x + hy.par[2]], npars=1)
+
+
+def test_a_passed_deadline_stops_the_expansion_and_none_changes_nothing():
+    import time
+
+    from lieseries.lie.jets import DeadlineExceeded
+
+    x, v = hy.make_vars("x", "v")
+    sys_ = [(x, v), (v, -x)]
+    with pytest.raises(DeadlineExceeded) as info:
+        taylor_coefficients(sys_, [1, 0], [], 40, 30, deadline=time.perf_counter() - 1)
+    assert info.value.order == 1  # the clock is read after every order
+    c = taylor_coefficients(sys_, [1, 0], [], 40, 30, deadline=time.perf_counter() + 3600)
+    # x = cos t: c_k = (-1)^(k/2) / k! for even k
+    from lieseries.precision import to_fraction
+
+    assert all(abs(to_fraction(c[k][0]) - Fraction((-1) ** (k // 2), factorial(k))) < Fraction(1, 10**29)
+               for k in range(0, 41, 2))

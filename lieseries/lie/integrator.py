@@ -118,7 +118,7 @@ def lie_integrate(
         per-step estimate is at least the relative uncertainty of the data (``stats.extra["data_bits"]``), and
         one :class:`~lieseries.precision.PrecisionWarning` says so.
     """
-    from .jets import taylor_coefficients
+    from .jets import DeadlineExceeded, taylor_coefficients
 
     dps = check_dps(dps)
     user_events_arg = events
@@ -196,7 +196,13 @@ def lie_integrate(
                 status = "time_budget"
                 message = f"The wall-time budget ran out at t = {mp.nstr(tcur, 17)}; raise `max_time`."
                 break
-            coeffs = taylor_coefficients(prog, z, pars, N, wdps, mp_context())
+            try:
+                coeffs = taylor_coefficients(prog, z, pars, N, wdps, mp_context(),
+                                             deadline=None if max_time is None else start + max_time)
+            except DeadlineExceeded:  # the budget ran out inside the step's expansion
+                status = "time_budget"
+                message = f"The wall-time budget ran out at t = {mp.nstr(tcur, 17)}; raise `max_time`."
+                break
             nrm = norms(coeffs)
             if not all(mp.isfinite(c) for c in nrm):
                 status = "non_finite"

@@ -35,6 +35,8 @@ compiled functions.
 
 from __future__ import annotations
 
+from time import perf_counter as _clock
+
 import mpmath
 from mpmath.libmp import (
     fone,
@@ -56,7 +58,16 @@ from .. import expr as _expr
 from ..precision import check_dps, check_order
 from ..expr import RND, rounded_mpf, Constant, Node, Program, eval_nodes, POINTWISE
 
-__all__ = ["taylor_coefficients", "taylor_coefficients_raw", "jet_guard_bits"]
+__all__ = ["taylor_coefficients", "taylor_coefficients_raw", "jet_guard_bits", "DeadlineExceeded"]
+
+
+class DeadlineExceeded(Exception):
+    """An expansion passed its ``deadline`` (a :func:`time.perf_counter` value) before reaching its order: the
+    caller's wall-time budget ran out inside one step. ``order`` is the last order completed."""
+
+    def __init__(self, order):
+        super().__init__(f"the deadline passed after order {order}")
+        self.order = order
 
 
 def jet_guard_bits(order):
@@ -551,7 +562,7 @@ def _resolve_program(program_or_system, name="program_or_system"):
     return prog
 
 
-def taylor_coefficients_raw(program, y0_raw, pars_raw, order, prec):
+def taylor_coefficients_raw(program, y0_raw, pars_raw, order, prec, deadline=None):
     """Taylor-mode expansion on raw mpfs (no checks, no final rounding).
 
     Parameters
@@ -564,6 +575,10 @@ def taylor_coefficients_raw(program, y0_raw, pars_raw, order, prec):
         Highest coefficient computed (>= 1).
     prec : int
         Working precision in bits (guard bits included by the caller).
+    deadline : float, optional
+        A :func:`time.perf_counter` value: the clock is read after every
+        order, and :class:`DeadlineExceeded` raised once it is passed (a long
+        expansion then stops within one order's work of its budget).
 
     Returns
     -------
@@ -639,6 +654,8 @@ def taylor_coefficients_raw(program, y0_raw, pars_raw, order, prec):
     ints = [from_int(n) for n in range(order + 2)]
 
     for k in range(order):
+        if deadline is not None and k and _clock() > deadline:
+            raise DeadlineExceeded(k)
         for st in steps:
             st(k)
         kk = ints[k + 1]
@@ -648,7 +665,7 @@ def taylor_coefficients_raw(program, y0_raw, pars_raw, order, prec):
     return [J[i] for i in range(nvars)]
 
 
-def taylor_coefficients(program_or_system, y0, pars, order, dps, ctx=None):
+def taylor_coefficients(program_or_system, y0, pars, order, dps, ctx=None, deadline=None):
     """Normalised Taylor coefficients of the solution of ``dz/dt = rhs(z)``.
 
     Parameters
@@ -670,6 +687,9 @@ def taylor_coefficients(program_or_system, y0, pars, order, dps, ctx=None):
     dps : int
         Decimal digits of the results (>= 5).  The computation runs with
         :func:`jet_guard_bits` extra bits.
+    deadline : float, optional
+        A :func:`time.perf_counter` value after which the expansion stops with
+        :class:`DeadlineExceeded` (checked after every order).
 
     Returns
     -------
@@ -699,7 +719,7 @@ def taylor_coefficients(program_or_system, y0, pars, order, dps, ctx=None):
     y0r = _expr.convert_vector(y0, program.nvars, wp, "y0")
     pr = _expr.convert_vector(pars, program.npars, wp, "pars")
     try:
-        jets = taylor_coefficients_raw(program, y0r, pr, order, wp)
+        jets = taylor_coefficients_raw(program, y0r, pr, order, wp, deadline)
     except ZeroDivisionError as exc:
         raise ValueError(
             f"the Taylor expansion does not exist at `y0` ({exc}; a zero denominator "
