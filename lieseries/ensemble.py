@@ -174,11 +174,23 @@ def _cached(key, evs, make):
 
 
 # -- input checks ------------------------------------------------------------------------------------------------
+#: The most SIMD lanes per batch: heyoka compiles one function of ``batch_size`` lanes, and its compilation time
+#: grows fast with the lanes (rigid body: 9 s at 8, 29 s at 16, 79 s at 64) while lanes beyond the CPU's SIMD width
+#: (``heyoka.recommended_simd_size()``, 2 to 8) bring no speed.
+MAX_BATCH_SIZE = 16
+
+
 def _check_batch_size(batch_size) -> int:
     if batch_size is None:
-        return int(hy.recommended_simd_size())
+        return min(int(hy.recommended_simd_size()), MAX_BATCH_SIZE)
     if isinstance(batch_size, bool) or not isinstance(batch_size, numbers.Integral) or batch_size < 1:
         raise ValueError(f"`batch_size` must be a positive integer; got {batch_size!r}")
+    if batch_size > MAX_BATCH_SIZE:
+        raise ValueError(
+            f"`batch_size` must be at most {MAX_BATCH_SIZE}; got {batch_size}: heyoka compiles one function of "
+            f"`batch_size` lanes, which takes minutes beyond that (79 s at 64 for the rigid body), and lanes beyond "
+            f"the CPU's SIMD width ({int(hy.recommended_simd_size())} here) bring no speed. Leave it out for the "
+            "recommended size")
     return int(batch_size)
 
 
@@ -416,7 +428,10 @@ def integrate_ensemble(
     model = structure if isinstance(structure, Model) else None
     Y0 = _exact_rows(Y0)
     prec = _infer_precision(precision, Y0)
-    grid, direction, t0f = parse_times(t, t0)
+    # the output: k members x n values per time (hy.real: an object of ~48 bytes plus its limbs)
+    members_k = len(Y0) if hasattr(Y0, "__len__") else 1
+    grid, direction, t0f = parse_times(t, t0, values_per_time=max(1, members_k) * ps.dimension,
+                                       bytes_per_value=48 + prec.bits // 8 if prec.is_real else np.dtype(prec.numpy_dtype).itemsize)
     tolf = check_tolerance(tol, prec)
     workers = _check_count(workers, "workers")
     chunk_size = _check_count(chunk_size, "chunk_size")

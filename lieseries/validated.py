@@ -663,8 +663,9 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     if atlas and not hasattr(system, "chart_change_expressions"):
         raise ValueError(f"`atlas` needs a model with an atlas of charts (Sphere); {type(system).__name__} has one "
                          "global chart")
-    grid, direction, t0f = parse_times(t, t0)
     bits = dps_to_bits(dps) + GUARD_BITS
+    # the rows: n balls per time (an arb object, its midpoint's limbs and its radius)
+    grid, direction, t0f = parse_times(t, t0, values_per_time=ps.dimension, bytes_per_value=64 + bits // 8)
     # binary model data (inertia 1.1 as a double) or times (t = 0.1 as a double) in a longer run: the enclosures
     # are proven for those binary values, not for the decimals they round
     for name, b in list(ps.coarse_data().items()) + [("t", data_bits([t, t0]))]:
