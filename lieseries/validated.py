@@ -30,6 +30,7 @@ duration and restores the precision afterwards, so runs from several threads are
 
 from __future__ import annotations
 
+import copyreg
 import functools
 import math
 import threading
@@ -75,7 +76,41 @@ def _flint():
         import flint
     except ImportError:  # pragma: no cover - python-flint is a dependency
         raise ImportError("`validated_integrate` needs python-flint: pip install python-flint") from None
+    if not _PICKLING:
+        # flint.arb has no pickle support of its own: a validated Solution (its rows are arbs) pickles through
+        # this reducer, which keeps every ball exactly (midpoint and radius as integer mantissa and exponent)
+        copyreg.pickle(flint.arb, _reduce_arb)
+        _PICKLING.append(True)
     return flint
+
+
+_PICKLING: list = []
+
+
+def _arb_part(x):
+    """An exact arb value (a midpoint, or a radius as an arb) as (mantissa, exponent), or 'nan' / '+inf' / '-inf'."""
+    if x.is_finite():
+        man, exp = x.man_exp()
+        return int(man), int(exp)
+    if x.is_nan():
+        return "nan"
+    return "+inf" if x > 0 else "-inf"
+
+
+def _reduce_arb(x):
+    return _rebuild_arb, (_arb_part(x.mid()), _arb_part(x.rad()))
+
+
+def _rebuild_arb(mid, rad):
+    """The ball of :func:`_reduce_arb`, exactly (arb((man, exp), ...) takes the binary data without rounding)."""
+    import flint
+
+    def part(p):
+        return p if isinstance(p, tuple) else p.replace("+", "")
+
+    if not isinstance(rad, tuple):  # an infinite (or nan) radius
+        return flint.arb(part(mid), "inf") if isinstance(mid, tuple) else flint.arb(part(mid))
+    return flint.arb(part(mid), rad)
 
 
 @contextmanager
