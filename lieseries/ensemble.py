@@ -46,6 +46,9 @@ one task that receives the system (pickled: the model or PoissonSystem with its 
 compiled integrator), the chunk's initial conditions already rounded to the working precision, and the options;
 the worker runs :func:`integrate_ensemble` on its chunk, compiling the integrator once per worker process (module
 cache). The chunks are gathered into one :class:`~lieseries.solution.EnsembleSolution`, equal to the local one.
+A chunk whose worker dies is rerun (``DASK_RETRIES`` times: on another worker, or on the same one restarted by its
+nanny); a closed client, or a chunk that cannot be rerun (a single worker without a nanny), raises a RuntimeError
+naming ``client`` with the cause and what to do.
 """
 
 from __future__ import annotations
@@ -1009,10 +1012,45 @@ def _chunk_task(system, rows, pars, t, t0, opts):
     return integrate_ensemble(system, rows, t, t0=t0, params=pars, workers=1, **opts)
 
 
+#: Times Dask may rerun a chunk whose worker died (on another worker, or on the same one restarted by its nanny).
+DASK_RETRIES = 2
+
+
+def _dask_failure(err, what):
+    """A RuntimeError naming `client`, saying what happened and what to do."""
+    name = type(err).__name__
+    if "Cancelled" in name or "KilledWorker" in name:
+        cause = (f"a chunk was cancelled or its worker died ({name}: {err}) and could not be rerun "
+                 f"({DASK_RETRIES} retries): with a single worker there is nowhere to rerun it")
+        todo = "give the cluster more than one worker, or workers with nannies (processes=True) that restart them"
+    else:
+        cause = f"{name}: {err}"
+        todo = "check that the cluster is running and reachable, or pass a new Client"
+    return RuntimeError(f"`client`: the Dask run failed while {what} ({cause}); {todo}. Or leave `client` out to "
+                        "run the members here.")
+
+
+def _is_dask_error(err) -> bool:
+    """An error of Dask's machinery (a cancelled future, a killed worker, a lost connection), not of the run."""
+    import asyncio
+    import concurrent.futures
+
+    from distributed.comm.core import CommClosedError
+    from distributed.scheduler import KilledWorker
+
+    return isinstance(err, (concurrent.futures.CancelledError, asyncio.CancelledError, KilledWorker, CommClosedError,
+                            OSError))
+
+
 def _run_dask(client, system, Ynat, pars, t, t0, opts, chunk_size, progress, k):
     Client = _dask_client_class()
     if not isinstance(client, Client):
         raise TypeError(f"`client` must be a dask.distributed.Client; got {type(client).__name__}")
+    status = str(getattr(client, "status", "running"))
+    if status in ("closed", "closing", "failed"):
+        raise RuntimeError(f"`client` is {status} (client.status = {status!r}): it can no longer send work to a "
+                           "cluster. Create a new dask.distributed.Client (or call client.restart() before closing), "
+                           "or leave `client` out to run the members here.")
     if chunk_size is None:
         try:
             threads = sum(client.nthreads().values())
@@ -1024,21 +1062,30 @@ def _run_dask(client, system, Ynat, pars, t, t0, opts, chunk_size, progress, k):
     from distributed import as_completed
 
     start = _time.perf_counter()
-    sys_future = client.scatter(system, broadcast=True)
     futures = {}
-    for lo in range(0, k, chunk_size):
-        hi = min(k, lo + chunk_size)
-        p = None if pars is None else [list(r) for r in pars[lo:hi]]
-        f = client.submit(_chunk_task, sys_future, Ynat[lo:hi], p, t, t0, opts, pure=False)
-        futures[f] = lo
+    # the system travels with every task (not scattered once): data scattered to a worker that dies is lost, and
+    # every task depending on it would be cancelled; a task that carries its inputs can be rerun elsewhere
+    try:
+        for lo in range(0, k, chunk_size):
+            hi = min(k, lo + chunk_size)
+            p = None if pars is None else [list(r) for r in pars[lo:hi]]
+            f = client.submit(_chunk_task, system, Ynat[lo:hi], p, t, t0, opts, pure=False, retries=DASK_RETRIES)
+            futures[f] = lo
+    except Exception as err:
+        raise _dask_failure(err, "sending the chunks") from err
     parts = {}
     done = 0
-    for f in as_completed(list(futures)):
-        part = f.result()
-        parts[futures[f]] = part
-        done += len(part.status)
-        if progress is not None:
-            progress(done, k)
+    try:
+        for f in as_completed(list(futures)):
+            part = f.result()
+            parts[futures[f]] = part
+            done += len(part.status)
+            if progress is not None:
+                progress(done, k)
+    except Exception as err:
+        if not _is_dask_error(err):
+            raise  # an error of the run itself (raised on the worker): as a local run would raise it
+        raise _dask_failure(err, f"collecting the chunks ({done} of {k} members back)") from err
     ordered = [parts[lo] for lo in sorted(parts)]
     es = EnsembleSolution.concatenate(ordered)
     es.stats["run_time"] = _time.perf_counter() - start
