@@ -112,6 +112,7 @@ def build_batch_integrator(system, tol=None, batch_size=None, *, compact_mode=No
     prec = resolve_precision("double")
     tolf = check_tolerance(tol, prec)
     B = _check_batch_size(batch_size)
+    _check_flag(compact_mode, "compact_mode")
     evs = system.events() if isinstance(system, Model) else []
     n = ps.dimension
     if compact_mode is None:
@@ -197,6 +198,14 @@ def _check_batch_size(batch_size) -> int:
     return int(batch_size)
 
 
+def _check_flag(value, argname, allow_none=True):
+    """A switch must be True or False (or None for the default): 'yes' or 0 would silently pick one."""
+    if (value is None and allow_none) or isinstance(value, (bool, np.bool_)):
+        return
+    raise TypeError(f"`{argname}` must be True or False{' (or None for the default)' if allow_none else ''}; got "
+                    f"{type(value).__name__} {value!r}")
+
+
 def _check_count(value, argname):
     if value is None:
         return None
@@ -237,6 +246,14 @@ def _states(model, ps, Y0, prec: Precision):
     if isinstance(Y0, np.ndarray) and Y0.dtype != object:
         arr = Y0
     else:
+        if isinstance(Y0, (list, tuple)) and Y0:
+            # ragged rows: name the first whose length differs from the first row's
+            lens = [len(r) if hasattr(r, "__len__") and not isinstance(r, (str, bytes)) else None for r in Y0]
+            for i, ln in enumerate(lens):
+                if ln != lens[0]:
+                    what = f"has {ln} numbers" if ln is not None else "is not a row of numbers"
+                    raise ValueError(f"`Y0[{i}]` {what}, `Y0[0]` has {lens[0]}: every row of `Y0` must be one initial state of {n} numbers "
+                                     f"(shape (k, {n}))")
         if isinstance(Y0, (str, bytes)) or np.ndim(Y0) == 0:
             raise ValueError(f"`Y0` must have shape (k, {n}): one initial state per row; got {type(Y0).__name__}")
         try:
@@ -438,6 +455,8 @@ def integrate_ensemble(
     tolf = check_tolerance(tol, prec)
     workers = _check_count(workers, "workers")
     chunk_size = _check_count(chunk_size, "chunk_size")
+    _check_flag(compact_mode, "compact_mode")
+    _check_flag(high_accuracy, "high_accuracy", allow_none=False)
     B = _check_batch_size(batch_size)
     if max_steps is not None:
         _check_count(max_steps, "max_steps")

@@ -690,6 +690,9 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     dps = check_dps(dps)
     max_steps = check_count(max_steps, "max_steps")
     max_time = check_seconds(max_time, "max_time")
+    if max_width is not None and not to_fraction(max_width, "max_width") > 0:
+        raise ValueError(f"`max_width` must be a positive radius (the widest ball the run may carry); got "
+                         f"{max_width!r}. Leave it out for the default, 1e-3 x max(1, |z|)")
     N = check_order(order) if order is not None else max(8, math.ceil(math.log(10) * dps / 2) + 1)
     ps = as_poisson_system(system)
     _check_ops(ps.program)

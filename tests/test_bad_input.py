@@ -131,6 +131,22 @@ CASES.update({
                                       r"`t` asks for 10000000000 output times"),
 })
 
+# messages that name the user's argument (not an internal value, not numpy's or heyoka's words)
+CASES.update({
+    "lie_series: dps above the limit names the user's dps": (lambda: ls.lie_series(BODY, Y0, order=3, dps=10001),
+                                                             ValueError, r"`dps` .* got 10001$"),
+    "ensemble: ragged Y0 names the row": (lambda: _ensemble(BODY, [list(Y0), list(Y0)[:11]], t=1), ValueError,
+                                          r"`Y0\[1\]` has 11 numbers"),
+    "integrate: ragged Y0 names the row": (lambda: ls.integrate(BODY, [list(Y0), list(Y0)[:11]], t=1), ValueError,
+                                           r"`Y0\[1\]` has 11 numbers"),
+    "ensemble: compact_mode 'yes'": (lambda: _ensemble(BODY, np.stack([Y0, Y0]), t=1, compact_mode="yes"),
+                                     TypeError, "`compact_mode` must be True or False"),
+    "validated: max_width -1": (lambda: ls.validated_integrate(BODY, Y0, t=1, max_width=-1), ValueError,
+                                "`max_width` must be a positive radius"),
+    "validated: max_width 0": (lambda: ls.validated_integrate(BODY, Y0, t=1, max_width=0), ValueError,
+                               "`max_width` must be a positive radius"),
+})
+
 
 def _derived_atlas_rows():
     rows = ls.integrate(SPHERE, S0, t=[1, 4]).y

@@ -55,10 +55,14 @@ from mpmath.libmp import (
 )
 
 from .. import expr as _expr
-from ..precision import check_dps, check_order
+from ..precision import MAX_DPS, check_dps, check_order
 from ..expr import RND, rounded_mpf, Constant, Node, Program, eval_nodes, POINTWISE
 
 __all__ = ["taylor_coefficients", "taylor_coefficients_raw", "jet_guard_bits", "DeadlineExceeded"]
+
+
+#: Working digits above ``MAX_DPS`` that the engines may add as guard digits to a user's ``dps``.
+MAX_GUARD_DIGITS = 1000
 
 
 class DeadlineExceeded(Exception):
@@ -685,8 +689,9 @@ def taylor_coefficients(program_or_system, y0, pars, order, dps, ctx=None, deadl
     order : int
         Highest coefficient (>= 1); ``order + 1`` coefficients are returned.
     dps : int
-        Decimal digits of the results (>= 5).  The computation runs with
-        :func:`jet_guard_bits` extra bits.
+        Decimal digits of the results (>= 5; at most ``MAX_DPS``, plus up to
+        ``MAX_GUARD_DIGITS`` guard digits an engine adds to its user's dps).
+        The computation runs with :func:`jet_guard_bits` extra bits.
     deadline : float, optional
         A :func:`time.perf_counter` value after which the expansion stops with
         :class:`DeadlineExceeded` (checked after every order).
@@ -712,7 +717,11 @@ def taylor_coefficients(program_or_system, y0, pars, order, dps, ctx=None, deadl
     """
     program = _resolve_program(program_or_system)
     order = check_order(order)
-    dps = check_dps(dps)
+    # the engines call this with their guard digits added to the user's dps (already checked, by the user's name)
+    if isinstance(dps, int) and not isinstance(dps, bool) and MAX_DPS < dps <= MAX_DPS + MAX_GUARD_DIGITS:
+        dps = int(dps)
+    else:
+        dps = check_dps(dps)
     # explicit precision: mpmath's global context is never touched
     prec = mpmath.libmp.dps_to_prec(dps)
     wp = prec + jet_guard_bits(order)
