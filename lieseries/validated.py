@@ -412,6 +412,9 @@ _JACOBIANS: dict = {}
 #: a double's width, the final ball narrows from 1.2e-14 to 9.4e-15 for 17% more time).
 JACOBIAN_TERMS = 10
 JACOBIAN_PIECES = 8
+#: More pieces, up to MAX_JACOBIAN_PIECES, when |Df| |tau| over the step exceeds JACOBIAN_MU per piece.
+JACOBIAN_MU = 1.0
+MAX_JACOBIAN_PIECES = 1024
 #: Order of the Taylor polynomials from the whole enclosure that the a priori box is built around.
 BOX_ORDER = 12
 
@@ -452,6 +455,19 @@ def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECE
     saved = flint.ctx.prec
     flint.ctx.prec = 64
     try:
+        # a badly scaled field (|Df| |tau| large: a fast oscillation in a slow state) needs more pieces: the
+        # series of each piece converges like mu^j / j!, and mu near JACOBIAN_TERMS makes the enclosure explode
+        span = tau / 2 + arb(0, abs(tau) / 2)
+        try:
+            whole = _evaluate(jprog, [_horner([cz], span)[0] + d[K + 1] * span ** (K + 1) for cz, d in zip(CZ, D)],
+                              pars, consts, arb(1))
+        except _Singular:
+            return None
+        norm = max(sum((abs(v if isinstance(v, arb) else arb(v)).upper() for v in whole[i * n:(i + 1) * n]),
+                       arb(0)) for i in range(n)) * abs(tau)
+        if not norm.is_finite():
+            return None
+        pieces = max(pieces, min(MAX_JACOBIAN_PIECES, math.ceil(float(norm.upper()) / JACOBIAN_MU)))
         J = eye
         dt = tau / pieces
         for piece in range(pieces):

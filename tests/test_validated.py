@@ -357,3 +357,19 @@ def test_a_validated_solution_pickles_with_every_ball_identical(kind):
     assert all(_same_ball(a, b) for ra, rb in zip(sol.y, back.y) for a, b in zip(ra, rb))
     assert all(_same_ball(a, b) for a, b in zip(sol.y_reached, back.y_reached))
     assert sol.y.shape == back.y.shape and max(radii(back)[-1]) < 1e-30
+
+
+def test_a_badly_scaled_oscillator_is_enclosed_with_more_jacobian_pieces():
+    # H = (p^2 + 10^4 q^2) / 2: |Df| = 10^4 in the max norm while the motion's rate is 100; with a fixed number of
+    # pieces per step the Jacobian's enclosure exploded (radius 5.7e28 by t = 0.023)
+    q, p = hy.make_vars("q", "p")
+    osc = _canonical([q, p], (p**2 + 10000 * q**2) / 2, "fast oscillator")
+    times = [Fraction(1, 8), Fraction(1, 4)]
+    sol = validated_integrate(osc, [0, 1], times, dps=20)
+    assert sol.status == "success", sol.message
+    ctx = mp.MPContext()
+    ctx.dps = 60
+    for tk, row in zip(times, sol.y):
+        wt = 100 * ctx.mpf(tk.numerator) / tk.denominator
+        assert inside(row[0], ctx.sin(wt) / 100) and inside(row[1], ctx.cos(wt))
+    assert max(radii(sol)[-1]) < 1e-15
