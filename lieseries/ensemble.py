@@ -46,6 +46,9 @@ one task that receives the system (pickled: the model or PoissonSystem with its 
 compiled integrator), the chunk's initial conditions already rounded to the working precision, and the options;
 the worker runs :func:`integrate_ensemble` on its chunk, compiling the integrator once per worker process (module
 cache). The chunks are gathered into one :class:`~lieseries.solution.EnsembleSolution`, equal to the local one.
+A chunk whose worker dies is rerun (``DASK_RETRIES`` times: on another worker, or on the same one restarted by its
+nanny); a closed client, or a chunk that cannot be rerun (a single worker without a nanny), raises a RuntimeError
+naming ``client`` with the cause and what to do.
 """
 
 from __future__ import annotations
@@ -109,6 +112,7 @@ def build_batch_integrator(system, tol=None, batch_size=None, *, compact_mode=No
     prec = resolve_precision("double")
     tolf = check_tolerance(tol, prec)
     B = _check_batch_size(batch_size)
+    _check_flag(compact_mode, "compact_mode")
     evs = system.events() if isinstance(system, Model) else []
     n = ps.dimension
     if compact_mode is None:
@@ -174,12 +178,32 @@ def _cached(key, evs, make):
 
 
 # -- input checks ------------------------------------------------------------------------------------------------
+#: The most SIMD lanes per batch: heyoka compiles one function of ``batch_size`` lanes, and its compilation time
+#: grows fast with the lanes (rigid body: 9 s at 8, 29 s at 16, 79 s at 64) while lanes beyond the CPU's SIMD width
+#: (``heyoka.recommended_simd_size()``, 2 to 8) bring no speed.
+MAX_BATCH_SIZE = 16
+
+
 def _check_batch_size(batch_size) -> int:
     if batch_size is None:
-        return int(hy.recommended_simd_size())
+        return min(int(hy.recommended_simd_size()), MAX_BATCH_SIZE)
     if isinstance(batch_size, bool) or not isinstance(batch_size, numbers.Integral) or batch_size < 1:
         raise ValueError(f"`batch_size` must be a positive integer; got {batch_size!r}")
+    if batch_size > MAX_BATCH_SIZE:
+        raise ValueError(
+            f"`batch_size` must be at most {MAX_BATCH_SIZE}; got {batch_size}: heyoka compiles one function of "
+            f"`batch_size` lanes, which takes minutes beyond that (79 s at 64 for the rigid body), and lanes beyond "
+            f"the CPU's SIMD width ({int(hy.recommended_simd_size())} here) bring no speed. Leave it out for the "
+            "recommended size")
     return int(batch_size)
+
+
+def _check_flag(value, argname, allow_none=True):
+    """A switch must be True or False (or None for the default): 'yes' or 0 would silently pick one."""
+    if (value is None and allow_none) or isinstance(value, (bool, np.bool_)):
+        return
+    raise TypeError(f"`{argname}` must be True or False{' (or None for the default)' if allow_none else ''}; got "
+                    f"{type(value).__name__} {value!r}")
 
 
 def _check_count(value, argname):
@@ -222,6 +246,14 @@ def _states(model, ps, Y0, prec: Precision):
     if isinstance(Y0, np.ndarray) and Y0.dtype != object:
         arr = Y0
     else:
+        if isinstance(Y0, (list, tuple)) and Y0:
+            # ragged rows: name the first whose length differs from the first row's
+            lens = [len(r) if hasattr(r, "__len__") and not isinstance(r, (str, bytes)) else None for r in Y0]
+            for i, ln in enumerate(lens):
+                if ln != lens[0]:
+                    what = f"has {ln} numbers" if ln is not None else "is not a row of numbers"
+                    raise ValueError(f"`Y0[{i}]` {what}, `Y0[0]` has {lens[0]}: every row of `Y0` must be one initial state of {n} numbers "
+                                     f"(shape (k, {n}))")
         if isinstance(Y0, (str, bytes)) or np.ndim(Y0) == 0:
             raise ValueError(f"`Y0` must have shape (k, {n}): one initial state per row; got {type(Y0).__name__}")
         try:
@@ -416,10 +448,15 @@ def integrate_ensemble(
     model = structure if isinstance(structure, Model) else None
     Y0 = _exact_rows(Y0)
     prec = _infer_precision(precision, Y0)
-    grid, direction, t0f = parse_times(t, t0)
+    # the output: k members x n values per time (hy.real: an object of ~48 bytes plus its limbs)
+    members_k = len(Y0) if hasattr(Y0, "__len__") else 1
+    grid, direction, t0f = parse_times(t, t0, values_per_time=max(1, members_k) * ps.dimension,
+                                       bytes_per_value=48 + prec.bits // 8 if prec.is_real else np.dtype(prec.numpy_dtype).itemsize)
     tolf = check_tolerance(tol, prec)
     workers = _check_count(workers, "workers")
     chunk_size = _check_count(chunk_size, "chunk_size")
+    _check_flag(compact_mode, "compact_mode")
+    _check_flag(high_accuracy, "high_accuracy", allow_none=False)
     B = _check_batch_size(batch_size)
     if max_steps is not None:
         _check_count(max_steps, "max_steps")
@@ -995,10 +1032,45 @@ def _chunk_task(system, rows, pars, t, t0, opts):
     return integrate_ensemble(system, rows, t, t0=t0, params=pars, workers=1, **opts)
 
 
+#: Times Dask may rerun a chunk whose worker died (on another worker, or on the same one restarted by its nanny).
+DASK_RETRIES = 2
+
+
+def _dask_failure(err, what):
+    """A RuntimeError naming `client`, saying what happened and what to do."""
+    name = type(err).__name__
+    if "Cancelled" in name or "KilledWorker" in name:
+        cause = (f"a chunk was cancelled or its worker died ({name}: {err}) and could not be rerun "
+                 f"({DASK_RETRIES} retries): with a single worker there is nowhere to rerun it")
+        todo = "give the cluster more than one worker, or workers with nannies (processes=True) that restart them"
+    else:
+        cause = f"{name}: {err}"
+        todo = "check that the cluster is running and reachable, or pass a new Client"
+    return RuntimeError(f"`client`: the Dask run failed while {what} ({cause}); {todo}. Or leave `client` out to "
+                        "run the members here.")
+
+
+def _is_dask_error(err) -> bool:
+    """An error of Dask's machinery (a cancelled future, a killed worker, a lost connection), not of the run."""
+    import asyncio
+    import concurrent.futures
+
+    from distributed.comm.core import CommClosedError
+    from distributed.scheduler import KilledWorker
+
+    return isinstance(err, (concurrent.futures.CancelledError, asyncio.CancelledError, KilledWorker, CommClosedError,
+                            OSError))
+
+
 def _run_dask(client, system, Ynat, pars, t, t0, opts, chunk_size, progress, k):
     Client = _dask_client_class()
     if not isinstance(client, Client):
         raise TypeError(f"`client` must be a dask.distributed.Client; got {type(client).__name__}")
+    status = str(getattr(client, "status", "running"))
+    if status in ("closed", "closing", "failed"):
+        raise RuntimeError(f"`client` is {status} (client.status = {status!r}): it can no longer send work to a "
+                           "cluster. Create a new dask.distributed.Client (or call client.restart() before closing), "
+                           "or leave `client` out to run the members here.")
     if chunk_size is None:
         try:
             threads = sum(client.nthreads().values())
@@ -1010,21 +1082,30 @@ def _run_dask(client, system, Ynat, pars, t, t0, opts, chunk_size, progress, k):
     from distributed import as_completed
 
     start = _time.perf_counter()
-    sys_future = client.scatter(system, broadcast=True)
     futures = {}
-    for lo in range(0, k, chunk_size):
-        hi = min(k, lo + chunk_size)
-        p = None if pars is None else [list(r) for r in pars[lo:hi]]
-        f = client.submit(_chunk_task, sys_future, Ynat[lo:hi], p, t, t0, opts, pure=False)
-        futures[f] = lo
+    # the system travels with every task (not scattered once): data scattered to a worker that dies is lost, and
+    # every task depending on it would be cancelled; a task that carries its inputs can be rerun elsewhere
+    try:
+        for lo in range(0, k, chunk_size):
+            hi = min(k, lo + chunk_size)
+            p = None if pars is None else [list(r) for r in pars[lo:hi]]
+            f = client.submit(_chunk_task, system, Ynat[lo:hi], p, t, t0, opts, pure=False, retries=DASK_RETRIES)
+            futures[f] = lo
+    except Exception as err:
+        raise _dask_failure(err, "sending the chunks") from err
     parts = {}
     done = 0
-    for f in as_completed(list(futures)):
-        part = f.result()
-        parts[futures[f]] = part
-        done += len(part.status)
-        if progress is not None:
-            progress(done, k)
+    try:
+        for f in as_completed(list(futures)):
+            part = f.result()
+            parts[futures[f]] = part
+            done += len(part.status)
+            if progress is not None:
+                progress(done, k)
+    except Exception as err:
+        if not _is_dask_error(err):
+            raise  # an error of the run itself (raised on the worker): as a local run would raise it
+        raise _dask_failure(err, f"collecting the chunks ({done} of {k} members back)") from err
     ordered = [parts[lo] for lo in sorted(parts)]
     es = EnsembleSolution.concatenate(ordered)
     es.stats["run_time"] = _time.perf_counter() - start

@@ -138,6 +138,27 @@ def _check_dps(dps):
     return check_dps(dps)
 
 
+#: The most digits the rigid body's closed form is computed to: at 2000 digits one state takes ~20 s (three
+#: incomplete elliptic integrals of the third kind, by Carlson's duplication, whose cost grows like dps^2.3), the
+#: constants alone ~0.6 s; at 10000 digits the constants alone take minutes.
+MAX_RIGID_DPS = 2000
+#: The most digits with ``psi_method='quad'`` (mpmath.quad of psi' over the periods: ~25 s at 400 digits, ~450 s
+#: at 1000).
+MAX_QUAD_DPS = 400
+
+
+def _check_rigid_dps(dps, psi_method="elliptic"):
+    dps = check_dps(dps)
+    limit, what = (MAX_QUAD_DPS, "with `psi_method`='quad'") if psi_method == "quad" else (MAX_RIGID_DPS, "")
+    if dps > limit:
+        raise ValueError(
+            f"`dps` = {dps} is above {limit}, the most digits the rigid body's closed form {what}"
+            f"{' ' if what else ''}computes in reasonable time (its elliptic integrals' cost grows like dps^2.3: "
+            f"about 20 s for a state at 2000 digits); ask for at most {limit} digits"
+            + ("" if psi_method != "quad" else " or use psi_method='elliptic'"))
+    return dps
+
+
 def _public(fn):
     """Results leave in mpmath's global types (their values unchanged): the work is done in this thread's private
     mpmath context, so that calls from several threads never change each other's precision."""
@@ -764,8 +785,9 @@ class _RigidBody:
         else:
             u0 = mp.ellipf(phi0, m)
         self.u0 = u0
-        self.Pi_complete = mp.ellippi(self.nchar, m)
-        self.Pi0 = self._Pi_am(u0)
+        # Pi(n | m) and Pi(n; am(u0) | m) are computed on first use (only the precession angle needs them; the
+        # incomplete elliptic integrals of the third kind are the costliest part at high precision)
+        self._Pi_complete = self._Pi0 = None
         self.period = 4 * K / lam
         jn = mp.nint(u0 / (2 * K))
         dist = u0 - 2 * K * jn
@@ -826,7 +848,11 @@ class _RigidBody:
         sn, cn, dn, j, ur = self._sncndn(u)
         sgn = -1 if int(j) % 2 else 1
         phi = mp.atan2(sgn * sn, sgn * cn)  # am(ur) in [-pi/2, pi/2]
-        return 2 * j * self.Pi_complete + mp.ellippi(self.nchar, phi, self.m)
+        if j == 0:
+            return mp.ellippi(self.nchar, phi, self.m)
+        if self._Pi_complete is None:
+            self._Pi_complete = mp.ellippi(self.nchar, self.m)
+        return 2 * j * self._Pi_complete + mp.ellippi(self.nchar, phi, self.m)
 
     # -- momentum -------------------------------------------------------------
     def momentum(self, t):
@@ -870,7 +896,9 @@ class _RigidBody:
             return self.psi_rate * t + self.psi_coef * (
                 mp.atan(self.sqnu * mp.tanh(u)) - self.atan0)
         u = self.u0 + self.lam * t
-        return self.psi_rate * t + self.psi_coef * (self._Pi_am(u) - self.Pi0)
+        if self._Pi0 is None:
+            self._Pi0 = self._Pi_am(self.u0)
+        return self.psi_rate * t + self.psi_coef * (self._Pi_am(u) - self._Pi0)
 
     def _psi_dot(self, s):
         M = self.momentum(s)
@@ -974,7 +1002,7 @@ def rigid_body_constants(inertia, omega, dps=30):
     omega : sequence of 3 reals
         Initial body angular velocity ``Omega(0)``.
     dps : int, optional
-        Decimal digits of the returned numbers (default 30).
+        Decimal digits of the returned numbers (default 30; at most ``MAX_RIGID_DPS`` = 2000).
 
     Returns
     -------
@@ -1022,7 +1050,7 @@ def rigid_body_constants(inertia, omega, dps=30):
       itself is ill-conditioned: input errors grow like ``exp(lam |t|)``
       while it stays near the axis.
     """
-    dps = _check_dps(dps)
+    dps = _check_rigid_dps(dps)
     return _RigidBody(inertia, omega, dps).constants()
 
 
@@ -1040,7 +1068,8 @@ def euler_poisson(inertia, omega, t, dps=30, psi_method="elliptic"):
     t : real
         Time (may be negative).
     dps : int, optional
-        Decimal digits of the result (default 30).
+        Decimal digits of the result (default 30; at most ``MAX_RIGID_DPS`` = 2000, ``MAX_QUAD_DPS`` = 400
+        with ``psi_method='quad'``: the elliptic integrals' cost grows like dps^2.3).
     psi_method : {'elliptic', 'quad'}, optional
         How the precession angle is computed on the elliptic and separatrix
         branches: closed form with the incomplete elliptic integral of the
@@ -1074,8 +1103,8 @@ def euler_poisson(inertia, omega, t, dps=30, psi_method="elliptic"):
     euler_poisson_many : several times with one set-up.
     rigid_body_constants : regime, period and pole distance.
     """
-    dps = _check_dps(dps)
     _check_psi_method(psi_method)
+    dps = _check_rigid_dps(dps, psi_method)
     return euler_poisson_many(inertia, omega, [t], dps, psi_method)[0]
 
 
@@ -1098,8 +1127,8 @@ def euler_poisson_many(inertia, omega, ts, dps=30, psi_method="elliptic"):
     list of tuple of 12 mpf
         One state (``R`` row-major, then ``M``) per time.
     """
-    dps = _check_dps(dps)
     _check_psi_method(psi_method)
+    dps = _check_rigid_dps(dps, psi_method)
     if not _is_sequence(ts):
         raise TypeError(f"`ts` must be a sequence of real times; got {type(ts).__name__}")
     with mp.workdps(15):
@@ -1131,7 +1160,7 @@ def angular_velocity(inertia, omega, t, dps=30):
     tuple of 3 mpf or mpc
         ``Omega(t)`` in the user's body frame.
     """
-    dps = _check_dps(dps)
+    dps = _check_rigid_dps(dps)
     with mp.workdps(15):
         tt = _to_time(t, "t", allow_complex=True)
         extra = _time_digits([abs(tt)])

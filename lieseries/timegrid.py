@@ -2,14 +2,47 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from .precision import to_fraction
 
-__all__ = ["parse_times"]
+__all__ = ["parse_times", "output_bytes", "MAX_OUTPUT_BYTES"]
 
 
-def parse_times(t, t0=0, argname: str = "t"):
+def _half_the_memory() -> int:
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 2
+    except (AttributeError, ValueError, OSError):  # pragma: no cover - no sysconf: a fixed 4 GiB
+        return 4 << 30
+
+
+#: The largest output a run may ask for, in bytes: half the machine's physical memory (4 GiB where it cannot be
+#: read). Requests beyond it are refused before any integration, naming ``t`` and the estimate.
+MAX_OUTPUT_BYTES = _half_the_memory()
+#: Bytes per output time besides its row: the exact time (a Fraction), the float time, the list and array slots.
+PER_TIME_BYTES = 400
+
+
+def output_bytes(n_times: int, values_per_time: int, bytes_per_value: int) -> int:
+    """An estimate of the memory ``n_times`` output rows take: each row's values (twice: the rows are assembled,
+    then stacked) and the time's own bookkeeping."""
+    return int(n_times) * (2 * int(values_per_time) * int(bytes_per_value) + PER_TIME_BYTES)
+
+
+def _check_size(n_times, values_per_time, bytes_per_value, argname):
+    est = output_bytes(n_times, values_per_time, bytes_per_value)
+    if est > MAX_OUTPUT_BYTES:
+        raise ValueError(
+            f"`{argname}` asks for {n_times} output times: about {est / 2**30:.3g} GiB of output "
+            f"({values_per_time} values of ~{bytes_per_value} bytes per time), more than the "
+            f"{MAX_OUTPUT_BYTES / 2**30:.3g} GiB allowed (half the physical memory); ask for fewer output times, "
+            "or split the run and keep what you need of each part"
+        )
+
+
+def parse_times(t, t0=0, argname: str = "t", *, values_per_time: int = 1, bytes_per_value: int = 8):
     """Validate output times.
 
     A scalar ``t`` asks for the state at ``t`` (before ``t0`` integrates backward); the outputs are then
@@ -23,6 +56,10 @@ def parse_times(t, t0=0, argname: str = "t"):
     direction : int
         +1 forward, -1 backward, 0 when nothing is to be integrated.
     t0 : Fraction
+
+    ``values_per_time`` and ``bytes_per_value`` (the caller's row: state size, members, bytes per number) size the
+    estimate of the output's memory: a grid whose output would not fit in :data:`MAX_OUTPUT_BYTES` is refused,
+    naming ``t``, before anything is converted or integrated.
     """
     t0 = to_fraction(t0, "t0")
     if isinstance(t, (str, bytes)) or np.ndim(t) == 0:
@@ -30,6 +67,8 @@ def parse_times(t, t0=0, argname: str = "t"):
         if tf == t0:
             return [t0], 0, t0
         return [t0, tf], (tf > t0) - (tf < t0), t0
+    _check_size(np.size(t) if isinstance(t, np.ndarray) else len(t) if hasattr(t, "__len__") else 0,
+                values_per_time, bytes_per_value, argname)
     arr = np.asarray(t, dtype=object)
     if arr.ndim != 1:
         raise ValueError(f"`{argname}` must be a final time or a 1-d sequence of output times; got shape {arr.shape}")

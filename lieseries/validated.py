@@ -30,6 +30,7 @@ duration and restores the precision afterwards, so runs from several threads are
 
 from __future__ import annotations
 
+import copyreg
 import functools
 import math
 import threading
@@ -52,6 +53,7 @@ from .precision import (
     to_fraction,
     warn_if_coarse,
 )
+from .lie.jets import DeadlineExceeded
 from .solution import ChartRows, Solution, Stats
 from .timegrid import parse_times
 
@@ -74,7 +76,41 @@ def _flint():
         import flint
     except ImportError:  # pragma: no cover - python-flint is a dependency
         raise ImportError("`validated_integrate` needs python-flint: pip install python-flint") from None
+    if not _PICKLING:
+        # flint.arb has no pickle support of its own: a validated Solution (its rows are arbs) pickles through
+        # this reducer, which keeps every ball exactly (midpoint and radius as integer mantissa and exponent)
+        copyreg.pickle(flint.arb, _reduce_arb)
+        _PICKLING.append(True)
     return flint
+
+
+_PICKLING: list = []
+
+
+def _arb_part(x):
+    """An exact arb value (a midpoint, or a radius as an arb) as (mantissa, exponent), or 'nan' / '+inf' / '-inf'."""
+    if x.is_finite():
+        man, exp = x.man_exp()
+        return int(man), int(exp)
+    if x.is_nan():
+        return "nan"
+    return "+inf" if x > 0 else "-inf"
+
+
+def _reduce_arb(x):
+    return _rebuild_arb, (_arb_part(x.mid()), _arb_part(x.rad()))
+
+
+def _rebuild_arb(mid, rad):
+    """The ball of :func:`_reduce_arb`, exactly (arb((man, exp), ...) takes the binary data without rounding)."""
+    import flint
+
+    def part(p):
+        return p if isinstance(p, tuple) else p.replace("+", "")
+
+    if not isinstance(rad, tuple):  # an infinite (or nan) radius
+        return flint.arb(part(mid), "inf") if isinstance(mid, tuple) else flint.arb(part(mid))
+    return flint.arb(part(mid), rad)
 
 
 @contextmanager
@@ -106,7 +142,23 @@ def _powi(x, n: int, one):
     return result
 
 
+class _Singular(ValueError):
+    """The field cannot be evaluated on the balls: an operation's argument reaches its singularity (a divisor, a
+    series' leading term, a root's or logarithm's argument containing 0 or a negative value)."""
+
+    def __init__(self, op, cause):
+        super().__init__(f"`{op}` is singular on its argument ({cause})")
+        self.op = op
+
+
 def _apply(op, a, data, one):
+    try:
+        return _apply_op(op, a, data, one)
+    except (ValueError, ZeroDivisionError) as e:
+        raise _Singular(op, e) from None
+
+
+def _apply_op(op, a, data, one):
     if op == "add":
         s = a[0]
         for x in a[1:]:
@@ -171,14 +223,16 @@ def _check_ops(prog):
                          f"it supports {', '.join(SUPPORTED_OPS)}")
 
 
-def _taylor(prog, z0, pars, consts, order, flint, *, bits=None):
+def _taylor(prog, z0, pars, consts, order, flint, *, bits=None, deadline=None):
     """Ball Taylor coefficients c_0..c_order of the flow from the balls z0: out[i][j] for component i, order j.
 
     Picard iteration on Arb power series, one coefficient per iteration: the (m-1)-th coefficient of f(z) depends
     only on c_0..c_{m-1}, so iteration m evaluates f on the series known so far (length m) and appends
     c_m = f_{m-1} / m, keeping the earlier coefficients. ``bits``: the precision to work at (default: the
-    current one); a lower precision only widens the balls, it never makes them wrong.
+    current one); a lower precision only widens the balls, it never makes them wrong. ``deadline``: a
+    perf_counter value after which :class:`~lieseries.lie.jets.DeadlineExceeded` is raised (checked every order).
     """
+
     arb, arb_series = flint.arb, flint.arb_series
     if flint.ctx.cap < order + 2:
         raise AssertionError("the series cap must exceed the order")  # pragma: no cover - set by the driver
@@ -187,6 +241,8 @@ def _taylor(prog, z0, pars, consts, order, flint, *, bits=None):
     coeffs = [[c] for c in z0]
     try:
         for m in range(1, order + 1):
+            if deadline is not None and _time.perf_counter() > deadline:
+                raise DeadlineExceeded(m - 1)
             one = arb_series([arb(1)], prec=m)
             f = _evaluate(prog, [arb_series(cs, prec=m) for cs in coeffs], pars, consts, one)
             for cs, fi in zip(coeffs, f):
@@ -201,13 +257,14 @@ def _taylor(prog, z0, pars, consts, order, flint, *, bits=None):
     return coeffs
 
 
-def _centre_polynomial(prog, m, pars, pars_exact, consts, order, flint):
+def _centre_polynomial(prog, m, pars, pars_exact, consts, order, flint, deadline=None):
     """The Taylor polynomial of order ``order`` of the flow from the point m, as exact binary balls (radius 0).
 
     Nothing about these coefficients needs proving: the remainder bound (:func:`_defect`) holds for any
     polynomial p with p(0) = m, and only its size depends on p being close to the flow. They come from the mpmath
     jets (:mod:`lieseries.lie.jets`, the Lie engine's Taylor-mode recurrence, several times faster than Picard
-    iteration on Arb series), or from that Picard iteration when the jets fail."""
+    iteration on Arb series), or from that Picard iteration when the jets fail. Past ``deadline`` (a perf_counter
+    value) both stop with :class:`~lieseries.lie.jets.DeadlineExceeded`."""
     from mpmath.libmp import from_man_exp, from_rational, round_nearest
 
     from .lie.jets import taylor_coefficients_raw
@@ -217,12 +274,13 @@ def _centre_polynomial(prog, m, pars, pars_exact, consts, order, flint):
     try:
         jets = taylor_coefficients_raw(prog, [from_man_exp(*(int(q) for q in v.mid().man_exp())) for v in m],
                                        [from_rational(q.numerator, q.denominator, wp, round_nearest)
-                                        for q in pars_exact], order, wp)
+                                        for q in pars_exact], order, wp, deadline)
         rows = [[arb(mpmath.make_mpf(c)) for c in row] for row in jets]
     except (ZeroDivisionError, ValueError, ArithmeticError):
         rows = None
     if rows is None or not all(c.is_finite() for row in rows for c in row):
-        rows = [[arb(c.mid()) for c in row] for row in _taylor(prog, m, pars, consts, order, flint)]
+        rows = [[arb(c.mid()) for c in row] for row in _taylor(prog, m, pars, consts, order, flint,
+                                                                deadline=deadline)]
     return [[mi] + row[1:] for mi, row in zip(m, rows)]
 
 
@@ -354,6 +412,9 @@ _JACOBIANS: dict = {}
 #: a double's width, the final ball narrows from 1.2e-14 to 9.4e-15 for 17% more time).
 JACOBIAN_TERMS = 10
 JACOBIAN_PIECES = 8
+#: More pieces, up to MAX_JACOBIAN_PIECES, when |Df| |tau| over the step exceeds JACOBIAN_MU per piece.
+JACOBIAN_MU = 1.0
+MAX_JACOBIAN_PIECES = 1024
 #: Order of the Taylor polynomials from the whole enclosure that the a priori box is built around.
 BOX_ORDER = 12
 
@@ -394,13 +455,29 @@ def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECE
     saved = flint.ctx.prec
     flint.ctx.prec = 64
     try:
+        # a badly scaled field (|Df| |tau| large: a fast oscillation in a slow state) needs more pieces: the
+        # series of each piece converges like mu^j / j!, and mu near JACOBIAN_TERMS makes the enclosure explode
+        span = tau / 2 + arb(0, abs(tau) / 2)
+        try:
+            whole = _evaluate(jprog, [_horner([cz], span)[0] + d[K + 1] * span ** (K + 1) for cz, d in zip(CZ, D)],
+                              pars, consts, arb(1))
+        except _Singular:
+            return None
+        norm = max(sum((abs(v if isinstance(v, arb) else arb(v)).upper() for v in whole[i * n:(i + 1) * n]),
+                       arb(0)) for i in range(n)) * abs(tau)
+        if not norm.is_finite():
+            return None
+        pieces = max(pieces, min(MAX_JACOBIAN_PIECES, math.ceil(float(norm.upper()) / JACOBIAN_MU)))
         J = eye
         dt = tau / pieces
         for piece in range(pieces):
             lo, hi = dt * piece, dt * (piece + 1)
             seg = (lo + hi) / 2 + arb(0, abs(hi - lo) / 2)
             Bi = [_horner([cz], seg)[0] + d[K + 1] * seg ** (K + 1) for cz, d in zip(CZ, D)]
-            vals = _evaluate(jprog, Bi, pars, consts, arb(1))
+            try:
+                vals = _evaluate(jprog, Bi, pars, consts, arb(1))
+            except _Singular:
+                return None
             M = arb_mat([[(v if isinstance(v, arb) else arb(v)) * dt for v in vals[i * n:(i + 1) * n]]
                          for i in range(n)])
             if not all(M[i, j].is_finite() for i in range(n) for j in range(n)):
@@ -514,6 +591,23 @@ def _step_estimate(g, N, tol, flint) -> float:
         flint.ctx.prec = saved
 
 
+def _check_regular(prog, z, pars, consts, flint):
+    """Refuse initial data whose centre is a singular point of the field (a pole, a root at 0): no step from there
+    can be proved. A ball around a regular centre that reaches a singularity is left to the run (it ends with
+    ``validation_failed`` at t0)."""
+    arb = flint.arb
+    centre = [arb(v.mid()) for v in z]
+    try:
+        values = _evaluate(prog, centre, pars, consts, arb(1))
+        ok = all((v if isinstance(v, arb) else arb(v)).is_finite() for v in values)
+    except _Singular:
+        ok = False
+    if not ok:
+        raise ValueError(f"`y0` = {[float(v.mid()) for v in centre]} is a singular point of the vector field (it "
+                         "cannot be evaluated there: a division by 0, or a root or logarithm at its branch point); "
+                         "start from a regular point")
+
+
 # -- the driver ------------------------------------------------------------------------------------------------------
 def _initial_balls(system, y0, n, flint):
     """Balls of the initial state: exact values (rounded outward once), or the user's (value, radius) / arb."""
@@ -592,7 +686,8 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     order : int, optional
         Series order (default ceil(ln(10) dps / 2) + 1, the Jorba-Zou choice).
     max_steps, max_time :
-        Budgets (statuses ``step_budget``, ``time_budget``).
+        Budgets (statuses ``step_budget``, ``time_budget``); the clock is read between steps and after every order
+        of a step's series, so a long step stops within about one order's work of ``max_time``.
     max_width : number, optional
         Stop with ``validation_failed`` when a ball grows wider than this (default 1e-3 x max(1, |z|)).
     atlas : bool, optional
@@ -611,6 +706,9 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     dps = check_dps(dps)
     max_steps = check_count(max_steps, "max_steps")
     max_time = check_seconds(max_time, "max_time")
+    if max_width is not None and not to_fraction(max_width, "max_width") > 0:
+        raise ValueError(f"`max_width` must be a positive radius (the widest ball the run may carry); got "
+                         f"{max_width!r}. Leave it out for the default, 1e-3 x max(1, |z|)")
     N = check_order(order) if order is not None else max(8, math.ceil(math.log(10) * dps / 2) + 1)
     ps = as_poisson_system(system)
     _check_ops(ps.program)
@@ -619,13 +717,21 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     if atlas and not hasattr(system, "chart_change_expressions"):
         raise ValueError(f"`atlas` needs a model with an atlas of charts (Sphere); {type(system).__name__} has one "
                          "global chart")
-    grid, direction, t0f = parse_times(t, t0)
     bits = dps_to_bits(dps) + GUARD_BITS
+    # the rows: n balls per time (an arb object, its midpoint's limbs and its radius)
+    grid, direction, t0f = parse_times(t, t0, values_per_time=ps.dimension, bytes_per_value=64 + bits // 8)
     # binary model data (inertia 1.1 as a double) or times (t = 0.1 as a double) in a longer run: the enclosures
     # are proven for those binary values, not for the decimals they round
     for name, b in list(ps.coarse_data().items()) + [("t", data_bits([t, t0]))]:
         warn_if_coarse(b, dps_to_bits(dps), name)
     start = _time.perf_counter()
+    deadline = None if max_time is None else start + max_time
+
+    def budget_message():
+        return (f"The wall-time budget `max_time` = {max_time:g} s ran out at t = {float(tcur):.17g} (checked between "
+                f"and inside the steps: one step of order {N} at {dps} digits may take longer); every row up to here "
+                "is a proven enclosure.")
+
     with _working_precision(bits, cap=max(N, BOX_ORDER + 1) + DEFECT_EXTRA + 4) as flint:
         arb = flint.arb
         z = _initial_balls(system, y0, ps.dimension, flint)
@@ -649,6 +755,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 z, current = _switch_chart(system, current, best, z, flint), system.for_chart(best, edge=system.ATLAS_SWITCH)
         ps, prog, pars, consts, events, ev_consts, jprog, jconsts = _chart_context(current, flint)
         ev_pars = pars
+        _check_regular(prog, z, pars, consts, flint)
         # the set of states is m + A r: a centre point, a matrix (the identity to start) and a box around 0
         m, A, r = _lohner_set(z, flint)
         rows_t, rows_y, widths, tails, rows_c = [], [], [], [], []
@@ -667,27 +774,45 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
         unit = arb(10) ** -dps
         rem_tol = arb(REMAINDER_FACTOR) * unit
         t_end = grid[-1]
+        # the shortest step tried: 2^-40 of the run's time span (a time, whatever the size of the state)
+        h_min = float(abs(t_end - t0f)) * 2.0**-40
         while direction and (t_end - tcur) * direction > 0:
             if steps >= max_steps:
                 status, message = "step_budget", f"The step budget max_steps = {max_steps} ran out at t = {float(tcur):.17g}."
                 break
-            if max_time is not None and _time.perf_counter() - start > max_time:
-                status, message = "time_budget", f"The wall-time budget ran out at t = {float(tcur):.17g}."
+            if deadline is not None and _time.perf_counter() > deadline:
+                status, message = "time_budget", budget_message()
                 break
             scale = max([1.0] + [abs(float(zi.mid())) for zi in z])
             tol = rem_tol * scale
             wide = any(zi.rad() > unit * scale for zi in z)  # wider than 10^-dps of the state's size
             pieces = 2 * JACOBIAN_PIECES if wide else JACOBIAN_PIECES
-            C = _centre_polynomial(prog, m, pars, ps.parameter_values, consts, N, flint)  # from the centre
-            g = _defect_coefficients(prog, C, pars, consts, flint)
-            CZ = _taylor(prog, z, pars, consts, BOX_ORDER, flint, bits=64)  # from the whole enclosure
+            try:
+                C = _centre_polynomial(prog, m, pars, ps.parameter_values, consts, N, flint, deadline)  # centre
+                g = _defect_coefficients(prog, C, pars, consts, flint)
+                CZ = _taylor(prog, z, pars, consts, BOX_ORDER, flint, bits=64)  # from the whole enclosure
+            except DeadlineExceeded:
+                status, message = "time_budget", budget_message()
+                break
+            except _Singular as e:
+                # the enclosure of the state itself reaches a singularity of the field: nothing beyond is proved
+                status = "validation_failed"
+                message = (f"Validation failed at t = {float(tcur):.17g}: the vector field cannot be evaluated on "
+                           f"the enclosure of the state ({e}): the solution is at or near a singularity of the "
+                           f"field (widest ball {max(float(zi.rad()) for zi in z):.3g}); every row up to here is "
+                           "a proven enclosure.")
+                break
             left = abs(t_end - tcur)
             h_f = min(_step_estimate(g, N, tol, flint), float(left))
             proved = None
             event_hit = None
+            out_of_time = False
             h_event_start = h_f
             for _attempt in range(60):
-                if not (h_f > scale * 2.0**-40 or h_f >= float(left)):
+                if not (h_f > h_min or h_f >= float(left)):
+                    break
+                if deadline is not None and _time.perf_counter() > deadline:
+                    out_of_time = True
                     break
                 h = left if h_f >= float(left) else Fraction(math.floor(h_f * 2**50), 2**50)
                 if h <= 0:
@@ -714,6 +839,9 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 # the remainder scales like h^(N+1): aim just below the tolerance (halve when unproved)
                 shrink = 0.5 if worst is None or not worst.is_finite() else min(0.9 * _root(tol / worst, N + 1), 0.9)
                 h_f = float(h) * shrink
+            if proved is None and out_of_time:
+                status, message = "time_budget", budget_message()
+                break
             if proved is None and event_hit is not None and atlas and switches < MAX_SWITCHES:
                 # the chart is ending: rewrite the enclosure in the chart of the largest coordinate (in ball
                 # arithmetic: the box of the map's values over the box) and go on from there
@@ -733,7 +861,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 break
             if proved is None:
                 status = "validation_failed"
-                message = (f"Validation failed at t = {float(tcur):.17g}: no step down to {scale * 2.0**-40:.3g} "
+                message = (f"Validation failed at t = {float(tcur):.17g}: no step down to {h_min:.3g} "
                            "has an a priori enclosure with a small enough remainder (the field is singular near "
                            f"the enclosure, or the enclosure is too wide: widest ball "
                            f"{max(float(zi.rad()) for zi in z):.3g}).")
@@ -755,14 +883,22 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 return [phi[i] + spread[i, 0] for i in range(n)]
 
             while pending and (pending[0] - tnew) * direction <= 0:
-                tk = pending.pop(0)
-                phi_k, _, ta = point(tk - tcur)
+                phi_k, _, ta = point(pending[0] - tcur)
                 Jk = _flow_jacobian(jprog, CZ, D, pars, jconsts, ta, flint, pieces)
+                if Jk is None:  # the field's Jacobian cannot be bounded over the shorter span: stop here
+                    status = "validation_failed"
+                    message = (f"Validation failed at t = {float(tcur):.17g}: the flow's Jacobian up to the output "
+                               f"time {float(pending[0]):.17g} cannot be bounded (the field is singular or too "
+                               "steep near the enclosure); every row up to here is a proven enclosure.")
+                    break
+                tk = pending.pop(0)
                 yk = whole(phi_k, Jk * A)
                 rows_t.append(tk)
                 rows_c.append(getattr(current, "chart", None))
                 rows_y.append(yk)
                 widths.append(max(_float_up(v.rad()) for v in yk))
+            if status != "success":
+                break
             phi, tail_h, _ = point(hs)
             JA = J * A
             z = whole(phi, JA)

@@ -107,6 +107,46 @@ CASES.update({
                                           "no longer knows their charts"),
 })
 
+# budgets that bound: refused up front, naming the argument and the limit
+def _ensemble(*args, **kwargs):
+    from lieseries.ensemble import integrate_ensemble
+
+    return integrate_ensemble(*args, **kwargs)
+
+
+_HUGE_GRID = np.broadcast_to(np.float64(1), (10**10,))  # 10^10 output times, no memory of its own
+CASES.update({
+    "exact: rigid body above its digits limit": (lambda: exact.euler_poisson((1, 2, 3), (1, 0.1, 0.5), 1, dps=2001),
+                                                 ValueError, r"`dps` = 2001 is above 2000"),
+    "exact: quadrature above its digits limit": (lambda: exact.euler_poisson((1, 2, 3), (1, 0.1, 0.5), 1, dps=401,
+                                                                             psi_method="quad"),
+                                                 ValueError, r"`dps` = 401 is above 400"),
+    "exact: angular velocity at 10000 digits": (lambda: exact.angular_velocity((1, 2, 3), (1, 0.1, 0.5), 1,
+                                                                               dps=10000), ValueError, "`dps`"),
+    "ensemble: batch_size 64": (lambda: _ensemble(BODY, np.stack([Y0, Y0]), t=1, batch_size=64),
+                                ValueError, "`batch_size` must be at most 16"),
+    "ensemble: 10^10 output times": (lambda: _ensemble(BODY, np.stack([Y0, Y0]), t=_HUGE_GRID),
+                                     ValueError, r"`t` asks for 10000000000 output times: about .* GiB"),
+    "validated: 10^10 output times": (lambda: ls.validated_integrate(BODY, Y0, t=_HUGE_GRID), ValueError,
+                                      r"`t` asks for 10000000000 output times"),
+})
+
+# messages that name the user's argument (not an internal value, not numpy's or heyoka's words)
+CASES.update({
+    "lie_series: dps above the limit names the user's dps": (lambda: ls.lie_series(BODY, Y0, order=3, dps=10001),
+                                                             ValueError, r"`dps` .* got 10001$"),
+    "ensemble: ragged Y0 names the row": (lambda: _ensemble(BODY, [list(Y0), list(Y0)[:11]], t=1), ValueError,
+                                          r"`Y0\[1\]` has 11 numbers"),
+    "integrate: ragged Y0 names the row": (lambda: ls.integrate(BODY, [list(Y0), list(Y0)[:11]], t=1), ValueError,
+                                           r"`Y0\[1\]` has 11 numbers"),
+    "ensemble: compact_mode 'yes'": (lambda: _ensemble(BODY, np.stack([Y0, Y0]), t=1, compact_mode="yes"),
+                                     TypeError, "`compact_mode` must be True or False"),
+    "validated: max_width -1": (lambda: ls.validated_integrate(BODY, Y0, t=1, max_width=-1), ValueError,
+                                "`max_width` must be a positive radius"),
+    "validated: max_width 0": (lambda: ls.validated_integrate(BODY, Y0, t=1, max_width=0), ValueError,
+                               "`max_width` must be a positive radius"),
+})
+
 
 def _derived_atlas_rows():
     rows = ls.integrate(SPHERE, S0, t=[1, 4]).y

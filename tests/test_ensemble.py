@@ -417,3 +417,54 @@ def test_dask_equals_local(client):
     a, b = run(ps, Y0, 2.0), run(ps, Y0, 2.0, client=client)
     assert list(b.status) == list(a.status) == ["non_finite", "success"]
     assert np.array_equal(a.y, b.y, equal_nan=True)
+
+
+def test_a_closed_client_is_named_with_what_to_do():
+    distributed = pytest.importorskip("distributed")
+    cluster = distributed.LocalCluster(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=None)
+    cl = distributed.Client(cluster)
+    cl.close()
+    cluster.close()
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    with pytest.raises(RuntimeError, match=r"`client` is closed .* new dask.distributed.Client"):
+        run(body, body_states(body, omegas(2)), 1.0, client=cl)
+
+
+def test_dask_machinery_errors_become_a_runtime_error_naming_client():
+    pytest.importorskip("distributed")
+    from distributed.client import FutureCancelledError
+
+    from lieseries.ensemble import _dask_failure, _is_dask_error
+
+    err = FutureCancelledError("key", "lost")
+    assert _is_dask_error(err) and not _is_dask_error(ValueError("`y0` bad"))
+    out = _dask_failure(err, "collecting the chunks")
+    assert isinstance(out, RuntimeError) and "`client`" in str(out) and "more than one worker" in str(out)
+
+
+
+@pytest.mark.slow
+def test_a_single_worker_that_dies_mid_run_is_restarted_and_its_chunks_rerun():
+    # the system is not scattered: each chunk carries its inputs, so Dask reruns it on the restarted worker
+    # (before: FutureCancelledError, the scattered system being lost with the worker)
+    import os
+    import threading
+
+    distributed = pytest.importorskip("distributed")
+    cluster = distributed.LocalCluster(processes=True, n_workers=1, threads_per_worker=1, host="127.0.0.1",
+                                       dashboard_address=None)
+    cl = distributed.Client(cluster)
+    try:
+        body = ls.EulerPoisson(inertia=(1, 2, 3))
+        Y0 = body_states(body, omegas(4, seed=1))
+        times = [1, 5000, 10000, 20000]
+        local = run(body, Y0, times, precision="long double")
+        cl.submit(abs, 1).result()  # the worker is up
+        killer = threading.Timer(1.5, lambda: cl.run(lambda: os._exit(1)))
+        killer.start()
+        dist = run(body, Y0, times, precision="long double", client=cl, chunk_size=1)
+        killer.join()
+        assert list(dist.status) == list(local.status) and np.array_equal(dist.y, local.y)
+    finally:
+        cl.close()
+        cluster.close()

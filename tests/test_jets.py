@@ -310,3 +310,36 @@ def test_unsupported_functions_are_named():
         compile_expressions([x], [x + y])
     with pytest.raises(ValueError, match="npars"):
         compile_expressions([x], [x + hy.par[2]], npars=1)
+
+
+def test_a_passed_deadline_stops_the_expansion_and_none_changes_nothing():
+    import time
+
+    from lieseries.lie.jets import DeadlineExceeded
+
+    x, v = hy.make_vars("x", "v")
+    sys_ = [(x, v), (v, -x)]
+    with pytest.raises(DeadlineExceeded) as info:
+        taylor_coefficients(sys_, [1, 0], [], 40, 30, deadline=time.perf_counter() - 1)
+    assert info.value.order == 1  # the clock is read after every order
+    c = taylor_coefficients(sys_, [1, 0], [], 40, 30, deadline=time.perf_counter() + 3600)
+    # x = cos t: c_k = (-1)^(k/2) / k! for even k
+    from lieseries.precision import to_fraction
+
+    assert all(abs(to_fraction(c[k][0]) - Fraction((-1) ** (k // 2), factorial(k))) < Fraction(1, 10**29)
+               for k in range(0, 41, 2))
+
+
+def test_the_engines_guard_digits_above_the_user_limit_are_accepted():
+    # an engine asks for the user's dps (at most MAX_DPS) plus its guard digits: 10000 + 10 must work
+    from lieseries.precision import MAX_DPS
+
+    x, v = hy.make_vars("x", "v")
+    c = taylor_coefficients([(x, v), (v, -x)], [1, 0], [], 4, MAX_DPS + 10)
+    ctx = mp.MPContext()
+    ctx.dps = MAX_DPS + 40
+    # x = cos t, v = -sin t: to 10010 digits
+    for got, ref in ((c[2][0], ctx.mpf(-1) / 2), (c[4][0], ctx.mpf(1) / 24), (c[3][1], ctx.mpf(1) / 6)):
+        assert abs(ctx.convert(got) - ref) < ctx.mpf(10) ** -(MAX_DPS + 9)
+    with pytest.raises(ValueError, match="`dps`"):
+        taylor_coefficients([(x, v), (v, -x)], [1, 0], [], 4, MAX_DPS + 5000)

@@ -241,3 +241,135 @@ def test_very_low_orders_run_and_stay_proven(order):
     ctx.dps = 40
     tk = ctx.mpf(1) / 100000000
     assert inside(sol.y[0][0], ctx.cos(tk)) and inside(sol.y[0][1], -ctx.sin(tk))
+
+
+# -- singular fields: the run ends with validation_failed and keeps what it proved ----------------------------------
+def _canonical(variables, hamiltonian, name):
+    n = len(variables) // 2
+    tensor = [[(1 if j == i + n else -1 if i == j + n else 0) for j in range(2 * n)] for i in range(2 * n)]
+    return ls.PoissonSystem(variables, tensor, hamiltonian, name=name)
+
+
+def _root_closed_form(t, ctx):
+    """H = p^2/2 + sqrt(q) from (q, p) = (1, 0): with s = sqrt(1 - sqrt(q)), t = sqrt(2) (2 s - 2 s^3 / 3), so
+    q = (1 - s^2)^2, p = -sqrt(2) s, until q reaches 0 (the field's singularity) at t = 4 sqrt(2) / 3."""
+    t = ctx.mpf(t.numerator) / t.denominator
+    s = ctx.findroot(lambda s: ctx.sqrt(2) * (2 * s - 2 * s**3 / 3) - t, (ctx.mpf(0), ctx.mpf(1)),
+                     solver="anderson")
+    return [(1 - s**2) ** 2, -ctx.sqrt(2) * s]
+
+
+def test_a_root_field_reaching_its_branch_point_ends_as_validation_failed_with_the_rows_proved():
+    q, p = hy.make_vars("q", "p")
+    system = _canonical([q, p], p**2 / 2 + hy.sqrt(q), "root potential")
+    times = [Fraction(k, 4) for k in range(1, 11)]  # q reaches 0 at t = 4 sqrt(2) / 3 = 1.8856...
+    sol = validated_integrate(system, ["1", "0"], times, dps=30)
+    assert sol.status == "validation_failed" and "t = 1.88" in sol.message and "singular" in sol.message
+    assert len(sol.t) == 7 and float(sol.t_reached) < 4 * 2**0.5 / 3
+    ctx = mp.MPContext()
+    ctx.dps = 60
+    for tk, row in zip(times, sol.y):
+        assert all(inside(b, v) for b, v in zip(row, _root_closed_form(tk, ctx)))
+    assert max(radii(sol)[-1]) < 1e-14
+
+
+def _kepler_closed_form(t, ctx):
+    """Kepler's problem from (q, p) = (1, 0, 0, 1/10), the apocentre of the orbit with a = 100/199, e = 99/100 (the
+    energy is -199/200, the angular momentum 1/10): Kepler's equation E - e sin E = pi + n t, n = a^(-3/2),
+    turned by pi (the apocentre on the positive q1 axis)."""
+    a, e = ctx.mpf(100) / 199, ctx.mpf(99) / 100
+    n = a ** ctx.mpf(-1.5)
+    M = ctx.pi + n * (ctx.mpf(t.numerator) / t.denominator)
+    E = ctx.findroot(lambda E: E - e * ctx.sin(E) - M, M)
+    b = a * ctx.sqrt(1 - e**2)
+    dE = n / (1 - e * ctx.cos(E))
+    return [-a * (ctx.cos(E) - e), -b * ctx.sin(E), a * ctx.sin(E) * dE, -b * ctx.cos(E) * dE]
+
+
+@pytest.mark.slow
+def test_kepler_near_collision_ends_as_validation_failed_before_the_pericentre_with_the_rows_proved():
+    q1, q2, p1, p2 = hy.make_vars("q1", "q2", "p1", "p2")
+    system = _canonical([q1, q2, p1, p2], (p1**2 + p2**2) / 2 - 1 / hy.sqrt(q1**2 + q2**2), "kepler")
+    times = [Fraction(k, 4) for k in range(1, 13)]  # pericentre (r = 1/199) at half the period, t = 1.119...
+    sol = validated_integrate(system, ["1", "0", "0", "0.1"], times, dps=30)
+    assert sol.status == "validation_failed" and "Validation failed at t = " in sol.message
+    assert 4 <= len(sol.t) < 12
+    ctx = mp.MPContext()
+    ctx.dps = 60
+    for tk, row in zip(times, sol.y):
+        assert all(inside(b, v) for b, v in zip(row, _kepler_closed_form(tk, ctx)))
+
+
+def test_initial_data_at_a_pole_are_refused_by_name():
+    q, p = hy.make_vars("q", "p")
+    with pytest.raises(ValueError, match=r"`y0` .* singular point"):
+        validated_integrate(_canonical([q, p], p**2 / 2 + 1 / q, "pole"), ["0", "1"], 1, dps=20)
+    with pytest.raises(ValueError, match=r"`y0` .* singular point"):
+        validated_integrate(_canonical([q, p], p**2 / 2 + hy.sqrt(q), "root"), ["0", "1"], 1, dps=20)
+
+
+def test_the_shortest_step_is_a_time_not_a_state_size():
+    # a large state (10^15) moving on a time scale of 1: steps of ~1 are right, whatever the state's size
+    q, p = hy.make_vars("q", "p")
+    osc = _canonical([q, p], (p**2 + q**2) / 2, "oscillator")
+    times = [Fraction(1, 2), Fraction(2)]
+    sol = validated_integrate(osc, [10**15, 0], times, dps=20)
+    assert sol.status == "success", sol.message
+    ctx = mp.MPContext()
+    ctx.dps = 60
+    for tk, row in zip(times, sol.y):
+        tt = ctx.mpf(tk.numerator) / tk.denominator
+        assert inside(row[0], 10**15 * ctx.cos(tt)) and inside(row[1], -(10**15) * ctx.sin(tt))
+    assert max(radii(sol)[-1]) < 1e-3
+
+
+def _same_ball(a, b) -> bool:
+    """b is a: the same midpoint, exactly, and the same radius -- or, where python-flint's constructor cannot set
+    a radius whose 30-bit mantissa is odd (it rounds it up by one unit), one unit of the radius's 30th bit more:
+    b then contains a."""
+    if not a.is_finite():
+        return str(a) == str(b)
+    if a.mid().man_exp() != b.mid().man_exp():
+        return False
+    ra, rb = a.rad(), b.rad()
+    return ra.man_exp() == rb.man_exp() or (b.contains(a) and rb <= ra * (1 + flint.arb(2) ** -28))
+
+
+@pytest.mark.parametrize("kind", ["body", "sphere"])
+def test_a_validated_solution_pickles_with_every_ball_identical(kind):
+    import pickle
+
+    if kind == "body":
+        system = ls.EulerPoisson(RIGID_INERTIA)
+        y0 = system.initial_state(omega=RIGID_OMEGA)
+    else:
+        system = ls.Sphere()
+        y0 = system.initial_state(("0.6", 0, "0.8"), (0, 1, 0))
+    sol = validated_integrate(system, y0, t=[Fraction(1, 4), Fraction(1, 2)], dps=40)
+    assert sol.status == "success", sol.message
+    old = flint.ctx.prec
+    flint.ctx.prec = 53  # unpickling does not depend on the working precision
+    try:
+        back = pickle.loads(pickle.dumps(sol))
+    finally:
+        flint.ctx.prec = old
+    assert back.status == sol.status and list(back.t) == list(sol.t)
+    assert all(_same_ball(a, b) for ra, rb in zip(sol.y, back.y) for a, b in zip(ra, rb))
+    assert all(_same_ball(a, b) for a, b in zip(sol.y_reached, back.y_reached))
+    assert sol.y.shape == back.y.shape and max(radii(back)[-1]) < 1e-30
+
+
+def test_a_badly_scaled_oscillator_is_enclosed_with_more_jacobian_pieces():
+    # H = (p^2 + 10^4 q^2) / 2: |Df| = 10^4 in the max norm while the motion's rate is 100; with a fixed number of
+    # pieces per step the Jacobian's enclosure exploded (radius 5.7e28 by t = 0.023)
+    q, p = hy.make_vars("q", "p")
+    osc = _canonical([q, p], (p**2 + 10000 * q**2) / 2, "fast oscillator")
+    times = [Fraction(1, 8), Fraction(1, 4)]
+    sol = validated_integrate(osc, [0, 1], times, dps=20)
+    assert sol.status == "success", sol.message
+    ctx = mp.MPContext()
+    ctx.dps = 60
+    for tk, row in zip(times, sol.y):
+        wt = 100 * ctx.mpf(tk.numerator) / tk.denominator
+        assert inside(row[0], ctx.sin(wt) / 100) and inside(row[1], ctx.cos(wt))
+    assert max(radii(sol)[-1]) < 1e-15

@@ -129,7 +129,7 @@ def lie_integrate(
         per-step estimate is at least the relative uncertainty of the data (``stats.extra["data_bits"]``), and
         one :class:`~lieseries.precision.PrecisionWarning` says so.
     """
-    from .jets import taylor_coefficients
+    from .jets import DeadlineExceeded, taylor_coefficients
 
     dps = check_dps(dps)
     user_events_arg = events
@@ -217,7 +217,12 @@ def lie_integrate(
                 message = f"The wall-time budget ran out at t = {mp.nstr(tcur, 17)}; raise `max_time`."
                 break
             try:
-                coeffs = taylor_coefficients(prog, z, pars, N, wdps, mp_context())
+                coeffs = taylor_coefficients(prog, z, pars, N, wdps, mp_context(),
+                                             deadline=None if max_time is None else start + max_time)
+            except DeadlineExceeded:  # the budget ran out inside the step's expansion
+                status = "time_budget"
+                message = f"The wall-time budget ran out at t = {mp.nstr(tcur, 17)}; raise `max_time`."
+                break
             except (ValueError, ZeroDivisionError, OverflowError) as exc:
                 status = "non_finite"
                 message = (

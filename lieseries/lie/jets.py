@@ -35,6 +35,8 @@ compiled functions.
 
 from __future__ import annotations
 
+from time import perf_counter as _clock
+
 import mpmath
 from mpmath.libmp import (
     fone,
@@ -53,10 +55,23 @@ from mpmath.libmp import (
 )
 
 from .. import expr as _expr
-from ..precision import check_dps, check_order
+from ..precision import MAX_DPS, check_dps, check_order
 from ..expr import RND, rounded_mpf, Constant, Node, Program, eval_nodes, POINTWISE
 
-__all__ = ["taylor_coefficients", "taylor_coefficients_raw", "jet_guard_bits"]
+__all__ = ["taylor_coefficients", "taylor_coefficients_raw", "jet_guard_bits", "DeadlineExceeded"]
+
+
+#: Working digits above ``MAX_DPS`` that the engines may add as guard digits to a user's ``dps``.
+MAX_GUARD_DIGITS = 1000
+
+
+class DeadlineExceeded(Exception):
+    """An expansion passed its ``deadline`` (a :func:`time.perf_counter` value) before reaching its order: the
+    caller's wall-time budget ran out inside one step. ``order`` is the last order completed."""
+
+    def __init__(self, order):
+        super().__init__(f"the deadline passed after order {order}")
+        self.order = order
 
 
 def jet_guard_bits(order):
@@ -551,7 +566,7 @@ def _resolve_program(program_or_system, name="program_or_system"):
     return prog
 
 
-def taylor_coefficients_raw(program, y0_raw, pars_raw, order, prec):
+def taylor_coefficients_raw(program, y0_raw, pars_raw, order, prec, deadline=None):
     """Taylor-mode expansion on raw mpfs (no checks, no final rounding).
 
     Parameters
@@ -564,6 +579,10 @@ def taylor_coefficients_raw(program, y0_raw, pars_raw, order, prec):
         Highest coefficient computed (>= 1).
     prec : int
         Working precision in bits (guard bits included by the caller).
+    deadline : float, optional
+        A :func:`time.perf_counter` value: the clock is read after every
+        order, and :class:`DeadlineExceeded` raised once it is passed (a long
+        expansion then stops within one order's work of its budget).
 
     Returns
     -------
@@ -639,6 +658,8 @@ def taylor_coefficients_raw(program, y0_raw, pars_raw, order, prec):
     ints = [from_int(n) for n in range(order + 2)]
 
     for k in range(order):
+        if deadline is not None and k and _clock() > deadline:
+            raise DeadlineExceeded(k)
         for st in steps:
             st(k)
         kk = ints[k + 1]
@@ -648,7 +669,7 @@ def taylor_coefficients_raw(program, y0_raw, pars_raw, order, prec):
     return [J[i] for i in range(nvars)]
 
 
-def taylor_coefficients(program_or_system, y0, pars, order, dps, ctx=None):
+def taylor_coefficients(program_or_system, y0, pars, order, dps, ctx=None, deadline=None):
     """Normalised Taylor coefficients of the solution of ``dz/dt = rhs(z)``.
 
     Parameters
@@ -668,8 +689,12 @@ def taylor_coefficients(program_or_system, y0, pars, order, dps, ctx=None):
     order : int
         Highest coefficient (>= 1); ``order + 1`` coefficients are returned.
     dps : int
-        Decimal digits of the results (>= 5).  The computation runs with
-        :func:`jet_guard_bits` extra bits.
+        Decimal digits of the results (>= 5; at most ``MAX_DPS``, plus up to
+        ``MAX_GUARD_DIGITS`` guard digits an engine adds to its user's dps).
+        The computation runs with :func:`jet_guard_bits` extra bits.
+    deadline : float, optional
+        A :func:`time.perf_counter` value after which the expansion stops with
+        :class:`DeadlineExceeded` (checked after every order).
 
     Returns
     -------
@@ -692,14 +717,18 @@ def taylor_coefficients(program_or_system, y0, pars, order, dps, ctx=None):
     """
     program = _resolve_program(program_or_system)
     order = check_order(order)
-    dps = check_dps(dps)
+    # the engines call this with their guard digits added to the user's dps (already checked, by the user's name)
+    if isinstance(dps, int) and not isinstance(dps, bool) and MAX_DPS < dps <= MAX_DPS + MAX_GUARD_DIGITS:
+        dps = int(dps)
+    else:
+        dps = check_dps(dps)
     # explicit precision: mpmath's global context is never touched
     prec = mpmath.libmp.dps_to_prec(dps)
     wp = prec + jet_guard_bits(order)
     y0r = _expr.convert_vector(y0, program.nvars, wp, "y0")
     pr = _expr.convert_vector(pars, program.npars, wp, "pars")
     try:
-        jets = taylor_coefficients_raw(program, y0r, pr, order, wp)
+        jets = taylor_coefficients_raw(program, y0r, pr, order, wp, deadline)
     except ZeroDivisionError as exc:
         raise ValueError(
             f"the Taylor expansion does not exist at `y0` ({exc}; a zero denominator "
