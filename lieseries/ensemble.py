@@ -67,7 +67,7 @@ from .energy import drift_message, energy_check, energy_drift
 from .events import resolve_events
 from .models.base import Model, state_fractions
 from .poisson import PoissonSystem, as_poisson_system
-from .precision import (Precision, check_tolerance, data_bits, precision_of_dtype, resolve_precision, to_fraction,
+from .precision import (Precision, check_flag, check_tolerance, data_bits, precision_of_dtype, resolve_precision, to_fraction,
                         warn_if_coarse)
 from .solution import EnsembleSolution
 from .timegrid import parse_times
@@ -112,7 +112,7 @@ def build_batch_integrator(system, tol=None, batch_size=None, *, compact_mode=No
     prec = resolve_precision("double")
     tolf = check_tolerance(tol, prec)
     B = _check_batch_size(batch_size)
-    _check_flag(compact_mode, "compact_mode")
+    check_flag(compact_mode, "compact_mode")
     evs = system.events() if isinstance(system, Model) else []
     n = ps.dimension
     if compact_mode is None:
@@ -196,14 +196,6 @@ def _check_batch_size(batch_size) -> int:
             f"the CPU's SIMD width ({int(hy.recommended_simd_size())} here) bring no speed. Leave it out for the "
             "recommended size")
     return int(batch_size)
-
-
-def _check_flag(value, argname, allow_none=True):
-    """A switch must be True or False (or None for the default): 'yes' or 0 would silently pick one."""
-    if (value is None and allow_none) or isinstance(value, (bool, np.bool_)):
-        return
-    raise TypeError(f"`{argname}` must be True or False{' (or None for the default)' if allow_none else ''}; got "
-                    f"{type(value).__name__} {value!r}")
 
 
 def _check_count(value, argname):
@@ -455,8 +447,8 @@ def integrate_ensemble(
     tolf = check_tolerance(tol, prec)
     workers = _check_count(workers, "workers")
     chunk_size = _check_count(chunk_size, "chunk_size")
-    _check_flag(compact_mode, "compact_mode")
-    _check_flag(high_accuracy, "high_accuracy", allow_none=False)
+    check_flag(compact_mode, "compact_mode")
+    check_flag(high_accuracy, "high_accuracy", allow_none=False)
     B = _check_batch_size(batch_size)
     if max_steps is not None:
         _check_count(max_steps, "max_steps")

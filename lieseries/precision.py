@@ -28,6 +28,7 @@ import mpmath as mp
 import numpy as np
 
 __all__ = [
+    "check_flag",
     "MIN_DPS",
     "MAX_DPS",
     "MAX_BITS",
@@ -831,3 +832,11 @@ def export_mpf(value, prec: int | None = None):
     if isinstance(value, dict):
         return {k: export_mpf(v, prec) for k, v in value.items()}
     return value
+
+
+def check_flag(value, argname, allow_none=True):
+    """A switch must be True or False (or None for the default): 'yes' or 0 would silently pick one."""
+    if (value is None and allow_none) or isinstance(value, (bool, np.bool_)):
+        return
+    raise TypeError(f"`{argname}` must be True or False{' (or None for the default)' if allow_none else ''}; got "
+                    f"{type(value).__name__} {value!r}")

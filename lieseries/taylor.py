@@ -62,6 +62,7 @@ from .poisson import as_poisson_system
 from .precision import (
     Precision,
     check_callable,
+    check_flag,
     check_progress,
     check_count,
     check_seconds,
@@ -521,6 +522,8 @@ def integrate(
         ``sol.t``, ``sol.y`` (one row per output time reached), ``sol.stats``, ``sol.status``, ``sol.message``.
     """
     progress = check_progress(progress, title="integrate")  # True: show a bar
+    check_flag(compact_mode, "compact_mode")
+    check_flag(high_accuracy, "high_accuracy", allow_none=False)
     if (client is not None or params is not None or workers is not None or isinstance(system, (list, tuple))
             or (y0.ndim == 2 if isinstance(y0, np.ndarray)
                 else isinstance(y0, (list, tuple)) and len(y0) > 0 and np.ndim(y0[0]) == 1)):

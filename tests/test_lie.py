@@ -279,3 +279,19 @@ def test_lie_integrate_has_the_energy_guard_of_every_run(monkeypatch):
     bad = ls.lie_integrate(body, y0, t=2, dps=20)
     assert rigid_error(bad.y_reached, 2) > 1e-9  # the result is indeed wrong
     assert bad.status == "invariant_drift", bad.message
+
+
+def test_a_lie_series_pickles_and_answers_as_before():
+    """A LieSeries travels between processes (its norms and radius were mpfs of the thread's private context):
+    after a round trip its values, error estimates and radius are the same numbers, and the series still agrees
+    with the closed form of the rigid body."""
+    import pickle
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    y0 = body.initial_state(omega=(1, "0.1", "0.5"))
+    series = ls.lie_series(body, y0, order=24, dps=30)
+    again = pickle.loads(pickle.dumps(series))
+    t = "0.2"
+    assert again(t) == series(t)
+    assert again.error_estimate(t) == series.error_estimate(t) and again.radius() == series.radius()
+    ref = exact.euler_poisson((1, 2, 3), (1, "0.1", "0.5"), t, dps=40)
+    assert max(abs(a - b) for a, b in zip(again(t), ref)) < 10 * again.error_estimate(t) + mp.mpf(10) ** -28

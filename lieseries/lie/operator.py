@@ -158,10 +158,11 @@ class LieSeries:
         self.t0 = t0
         self.data_bits = data_bits
         with mp.workdps(dps + GUARD_DIGITS):
-            self._norms = norms(_local(coefficients))
-            self._radius = estimate_radius(self._norms)
-            self._floor = (mp.mpf(2) ** (-data_bits) * max(mp.mpf(1), self._norms[0])
-                           if data_bits is not None else mp.mpf(0))
+            nrm = norms(_local(coefficients))
+            radius = estimate_radius(nrm)
+            floor = mp.mpf(2) ** (-data_bits) * max(mp.mpf(1), nrm[0]) if data_bits is not None else mp.mpf(0)
+        # plain mpmath numbers (not the thread's private context), so a LieSeries pickles
+        self._norms, self._radius, self._floor = export_mpf(nrm), export_mpf(radius), export_mpf(floor)
         self.coefficients = export_mpf(coefficients)
 
     def __call__(self, t):
