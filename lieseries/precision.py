@@ -536,10 +536,10 @@ def _exact_value(value, argname: str) -> Fraction:
             if exp:
                 raise ValueError(f"`{argname}` must be finite; got {value}")
             return Fraction(0)
-        if abs(exp) > 4 * MAX_EXPONENT:
+        if abs(exp + int(man).bit_length()) > 4 * MAX_EXPONENT:  # the magnitude, whatever the mantissa's length
             raise ValueError(f"`{argname}` = {value} is out of range (|x| beyond 1e{MAX_EXPONENT})")
         f = Fraction(int(man) << exp) if exp >= 0 else Fraction(int(man), 1 << -exp)
-        return -f if sign else f
+        return _bounded(-f if sign else f, argname)
     if hasattr(value, "_mpc_"):
         raise TypeError(f"`{argname}` must be a real number; got the complex {value}")
     if isinstance(value, (float, np.floating)):

@@ -93,3 +93,15 @@ def test_to_mpf_of_every_kind_is_an_mpf():
         for v in (decimal.Decimal("0.1"), sympy.Rational(1, 10), "0.1", Fraction(1, 10)):
             x = to_mpf(v)
             assert isinstance(x, mp.mpf) and abs(x - mp.mpf(1) / 10) < mp.mpf(10) ** -39
+
+
+def test_an_mpf_of_many_bits_is_read_exactly():
+    """An mpf held at 50000 bits is an ordinary number: its exact value is read (1/24 rounded at 50000 bits differs
+    from 1/24 by less than 2^-50000), and the range check looks at its magnitude, not its binary exponent."""
+    with mp.workprec(50000):
+        x = mp.mpf(1) / 24
+    f = to_fraction(x)
+    assert abs(f - Fraction(1, 24)) < Fraction(1, 2**49990)
+    with mp.workprec(200):
+        with pytest.raises(ValueError, match="out of range"):
+            to_fraction(mp.mpf(2) ** 14000)
