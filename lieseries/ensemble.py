@@ -307,11 +307,16 @@ def _warn_coarse(prec: Precision, inputs, systems) -> None:
     """One :class:`~lieseries.precision.PrecisionWarning` per input (``(name, values)``: Y0, params, t, t0) or
     model parameter that carries fewer bits than the run (binary doubles in a run of more bits), as a single run
     gives."""
-    if prec.bits <= 53:
+    narrow = any(isinstance(v, np.ndarray) and v.dtype.kind == "f" and np.finfo(v.dtype).nmant < 52
+                 for _, v in inputs)  # float32 / float16 data carry fewer bits than even a double run
+    if prec.bits <= 53 and not narrow:
         return
     for name, values in inputs:
         if values is not None:
-            warn_if_coarse(data_bits(np.asarray(values, dtype=object)), prec.bits, name, stacklevel=5)
+            # a numeric array keeps its dtype (a float32 0.1 carries 24 bits, the double it widens to looks exact)
+            arr = values if isinstance(values, np.ndarray) and values.dtype != object else np.asarray(values,
+                                                                                                     dtype=object)
+            warn_if_coarse(data_bits(arr), prec.bits, name, stacklevel=5)
     seen = set()
     for s in systems:
         for name, bits in as_poisson_system(s).coarse_data().items():

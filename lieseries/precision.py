@@ -676,7 +676,7 @@ def carried_bits(value):
         if not np.isfinite(value):
             return None  # not a number's precision: refused by the checks of the argument itself
         n, _d = float(value).as_integer_ratio() if not isinstance(value, np.longdouble) else value.as_integer_ratio()
-        return _significand_bits(n, 53 if not isinstance(value, np.float32) else 24)
+        return _significand_bits(n, np.finfo(value.dtype).nmant + 1 if isinstance(value, np.floating) else 53)
     if isinstance(value, hy.real128):
         return _significand_bits(to_fraction(value).numerator, 113)
     if isinstance(value, hy.real):
@@ -689,7 +689,9 @@ def _significand_bits(man: int, fmt_bits: int):
     if man == 0:
         return None
     man >>= (man & -man).bit_length() - 1  # drop trailing zero bits
-    return None if man.bit_length() <= EXACT_BITS else int(fmt_bits)
+    # a narrow format (float32: 24 bits, float16: 11) holds every number in at most its own bits: there, a number
+    # is taken as what was meant only when it leaves 8 of them unused (float32 0.5 and 0.375 are; 0.1 is not)
+    return None if man.bit_length() <= min(EXACT_BITS, int(fmt_bits) - 8) else int(fmt_bits)
 
 
 #: Bits at which helpers evaluate an exact state (it has no format of its own; well above quad).

@@ -105,3 +105,35 @@ def test_state_rounded_to_a_wider_format_from_binary_input_says_so():
         warnings.simplefilter("error", ls.PrecisionWarning)
         body.initial_state(omega=(1, 0.1, 0.5), precision="double")  # nothing lost, nothing to say
         body.initial_state(omega=(1, "0.1", 0.5), precision="quad")
+
+
+@pytest.mark.parametrize("dtype, bits", [(np.float32, 24), (np.float16, 11)])
+def test_narrow_float_arrays_carry_their_own_bits(dtype, bits):
+    """A float32 (float16) array holds every number in at most 24 (11) bits, so its 0.1 is no more exact than a
+    double's: lie_series carries its bits and never estimates below them (the truth, against the closed form of
+    the decimals, is about 2^-bits), and single runs and ensembles warn naming the argument, even in double."""
+    body = ls.EulerPoisson(BODY)
+    y = np.asarray(body.initial_state(omega=(1, "0.1", "0.5")), dtype=dtype)
+    series, msgs = _precision_warnings(lambda: ls.lie_series(body, y, order=30, dps=40))
+    assert series.data_bits == bits and any(f"{bits} bits" in m for m in msgs)
+    truth = _max_err(series("0.01"), exact.euler_poisson(BODY, (1, "0.1", "0.5"), "0.01", dps=50))
+    assert truth > mp.mpf(2) ** (-bits - 8) and series.error_estimate("0.01") >= truth / 16
+    _, msgs = _precision_warnings(lambda: ls.integrate(body, y, t=1))
+    assert any("`y0`" in m and f"{bits} bits" in m for m in msgs)
+    _, msgs = _precision_warnings(lambda: ls.integrate(body, np.stack([y, y]), t=1, precision="quad"))
+    assert any("`Y0`" in m and f"{bits} bits" in m for m in msgs)
+
+
+def test_energy_check_compares_energies_in_the_working_format():
+    """The float32 state (1, 0.2, 1.5) gives an H whose 237-bit value lies on a double's rounding midpoint: the
+    check rounded H(y0) and H(end) to doubles first and called a sound 3-step run invariant_drift. The run agrees
+    with a 400-bit run from the same binary data."""
+    body = ls.EulerPoisson(BODY)
+    y = np.asarray(body.initial_state(omega=(1, "0.1", "0.5")), dtype=np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ls.PrecisionWarning)
+        sol = ls.integrate(body, y, t=1, precision=237)
+        ref = ls.integrate(body, y, t=1, precision=400, tol=mp.mpf(2) ** -390)
+    assert sol.status == "success", sol.message
+    diff = max(abs(ls.precision.to_fraction(a) - ls.precision.to_fraction(b)) for a, b in zip(sol.y[-1], ref.y[-1]))
+    assert diff < Fraction(1, 2**225)
