@@ -14,6 +14,7 @@ import math
 import threading
 
 import heyoka as hy
+import mpmath
 import numpy as np
 
 __all__ = ["drift_threshold", "DRIFT_PER_STEP", "energy_check", "energy_drift", "energy_function", "energy_verdict",
@@ -68,13 +69,32 @@ def energy_function(ps, prec, y0, parameters=None):
     else:
         pars = prec.array(list(parameters)[:npar])
     out = scale_fn(y0) if pars is None else scale_fn(y0, pars=pars)
-    scale = math.fsum(abs(float(g) * float(v)) for g, v in zip(out[1:], y0))
-    return h_fn, pars, out[0], scale  # H(y0) in the working format: the check differences it there
+    h0 = out[0]
+    scale = sum((abs(g * v) for g, v in zip(out[1:], y0)), h0 * 0)  # in the working format: no float underflow
+    tiny = _smallest_normal(prec)
+    beyond = None
+    if tiny is not None and not abs(h0) >= tiny and not abs(scale) >= tiny:
+        # H(y0) is zero or subnormal in this format: the motion's energy (and with it the Taylor coefficients the
+        # step-size control reads) may lie beyond the format's range; the exact energy tells
+        h_exact, _ = energy_exact(ps, y0, 64)
+        if h_exact != 0 and abs(h_exact) < tiny:
+            beyond = (prec.name, tiny, h_exact)
+    return h_fn, pars, h0, scale, beyond
+
+
+def _smallest_normal(prec):
+    """The smallest normal number of a fixed format, in that format (None for heyoka.real: its exponent range is
+    vast)."""
+    if prec.is_real:
+        return None
+    if prec.name == "quad":
+        return hy.real128("3.36210314311209350626267781732175260e-4932")  # 2^-16382
+    return np.finfo(prec.numpy_dtype).tiny
 
 
 def energy_drift(ps, tol, Y0, Y1, parameters=None, steps=None) -> dict:
-    """The energy check of many double-precision runs at once (an ensemble's batch members): ``{i: (H(Y0[i]),
-    H(Y1[i]))}`` for the rows i whose Hamiltonian changed beyond :func:`drift_threshold` (with ``steps[i]``, the
+    """The energy check of many double-precision runs at once (an ensemble's batch members): ``({i: (H(Y0[i]),
+    H(Y1[i]))}, low)`` for the rows i whose Hamiltonian changed beyond :func:`drift_threshold` (with ``steps[i]``, the
     rows' step counts; sqrt(tol) when not given) times its scale, as :func:`energy_verdict` decides for one run.
     ``Y0``, ``Y1``: float64 arrays (k, n); ``parameters``: per-row exact parameter values (k rows), or None for
     the system's own. One vectorised call of the compiled functions for all rows."""
@@ -84,7 +104,7 @@ def energy_drift(ps, tol, Y0, Y1, parameters=None, steps=None) -> dict:
     h_fn, scale_fn, npar = _compiled(ps, prec)
     k = len(Y0)
     if k == 0:
-        return {}
+        return {}, []
     X0 = np.ascontiguousarray(np.asarray(Y0, dtype=np.float64).T)
     X1 = np.ascontiguousarray(np.asarray(Y1, dtype=np.float64).T)
     kw = {}
@@ -102,14 +122,18 @@ def energy_drift(ps, tol, Y0, Y1, parameters=None, steps=None) -> dict:
                else np.array([drift_threshold(tol, s) for s in steps], dtype=np.float64))
         thr = rel * np.maximum(np.maximum(np.abs(e0), np.abs(e1)), scale)
         bad = np.isfinite(e0) & np.isfinite(e1) & (np.abs(e1 - e0) > thr)
-    return {int(i): (float(e0[i]), float(e1[i])) for i in np.flatnonzero(bad)}
+        # H(y0) zero or subnormal in double: the energy may lie below the format's range (the single run's check
+        # with the exact energy decides those rows)
+        tiny = np.finfo(np.float64).tiny
+        low = ~(np.abs(e0) >= tiny) & ~(scale >= tiny) & ~bad
+    return {int(i): (float(e0[i]), float(e1[i])) for i in np.flatnonzero(bad)}, [int(i) for i in np.flatnonzero(low)]
 
 
 def drift_message(message, e0, e1, steps) -> str:
     """The message of a run that reached its final time with H changed from ``e0`` to ``e1``."""
     return (
         f"{message[:-1]}, but the result is wrong: the energy H, which the equations conserve, went from "
-        f"{e0:.10g} to {e1:.10g} in {steps} steps. The error control was fooled, usually because the motion is much "
+        f"{_short(e0)} to {_short(e1)} in {steps} steps. The error control was fooled, usually because the motion is much "
         "slower (or faster) than the time span, so that the Taylor coefficients underflow, or because the state's "
         "components differ in size by orders of magnitude (the tolerance is relative to the largest, so the small "
         "ones lose digits): rescale time and units so that the motion and the components are of order one."
@@ -130,16 +154,32 @@ def energy_check(ps, prec, tol, y0, y_end, steps, status, message, parameters=No
 def energy_verdict(energy, sqrt_tol, y_end, steps, status, message):
     """``invariant_drift`` when the Hamiltonian changed beyond :func:`drift_threshold` * max(|H(y0)|, |H(y_end)|,
     the energy scale of y0) over a successful run of ``steps`` steps (:func:`energy_function`)."""
-    fn, pars, h0, scale = energy
+    fn, pars, h0, scale, beyond = energy
+    if beyond is not None:
+        name, tiny, h_exact = beyond
+        return "invariant_drift", (
+            f"{message[:-1]}, but the result cannot be trusted: the energy H(y0) = {mpmath.nstr(h_exact, 3)} lies "
+            f"below the smallest normal number of {name} ({_short(tiny)}), so the Taylor coefficients underflow, the "
+            f"step-size control cannot see the motion ({steps} steps) and the energy check cannot either. Rescale "
+            "time and units so that the motion is of order one, or use a format of wider range (quad, or a number "
+            "of bits).")
     h1 = (fn(y_end) if pars is None else fn(y_end, pars=pars))[0]
-    e0, e1 = float(h0), float(h1)
-    if not (math.isfinite(e0) and math.isfinite(e1)):
+    if not (_finite(h0) and _finite(h1)):
         return status, message
-    # the change is taken in the working format and only then made a float: two energies that agree to 237 bits
-    # may round to neighbouring doubles
-    if float(abs(h1 - h0)) <= drift_threshold(sqrt_tol * sqrt_tol, steps) * max(abs(e0), abs(e1), scale):
+    # compared in the working format (quad's 1e-400 is a double's 0; two 237-bit energies on a double's midpoint
+    # round apart), only the threshold is a float
+    if abs(h1 - h0) <= drift_threshold(sqrt_tol * sqrt_tol, steps) * max(abs(h0), abs(h1), scale):
         return status, message
-    return "invariant_drift", drift_message(message, e0, e1, steps)
+    return "invariant_drift", drift_message(message, h0, h1, steps)
+
+
+def _finite(x) -> bool:
+    return x - x == 0  # in any format: inf - inf and nan are not 0
+
+
+def _short(x) -> str:
+    """A number of any format (double, long double, real128, heyoka.real) to 10 significant digits."""
+    return mpmath.nstr(mpmath.mpf(str(x)), 10)
 
 
 def clear_energy_cache() -> None:

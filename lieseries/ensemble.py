@@ -307,7 +307,7 @@ def _warn_coarse(prec: Precision, inputs, systems) -> None:
     """One :class:`~lieseries.precision.PrecisionWarning` per input (``(name, values)``: Y0, params, t, t0) or
     model parameter that carries fewer bits than the run (binary doubles in a run of more bits), as a single run
     gives."""
-    narrow = any(isinstance(v, np.ndarray) and v.dtype.kind == "f" and np.finfo(v.dtype).nmant < 52
+    narrow = any(isinstance(v, np.ndarray) and v.dtype in (np.float16, np.float32)
                  for _, v in inputs)  # float32 / float16 data carry fewer bits than even a double run
     if prec.bits <= 53 and not narrow:
         return
@@ -570,13 +570,18 @@ def integrate_ensemble(
         handed_set = set(handed)
         done_here = [i for i in range(k) if i not in handed_set and res.status[i] == "success"]
         if path == "batch":  # double: all members in one vectorised call
-            drifted = energy_drift(ps, tolf, Ynat[done_here], res.y_reached[done_here],
-                                   None if pars is None else [pars[i] for i in done_here],
-                                   steps=[res.steps[i] for i in done_here])
+            drifted, low = energy_drift(ps, tolf, Ynat[done_here], res.y_reached[done_here],
+                                        None if pars is None else [pars[i] for i in done_here],
+                                        steps=[res.steps[i] for i in done_here])
             for j, (e0, e1) in drifted.items():
                 i = done_here[j]
                 res.status[i] = "invariant_drift"
                 res.message[i] = drift_message(res.message[i], e0, e1, res.steps[i])
+            for j in low:  # an energy below double's range: the single run's check, with the exact energy
+                i = done_here[j]
+                res.status[i], res.message[i] = energy_check(ps, prec, tolf, Ynat[i], res.y_reached[i], res.steps[i],
+                                                             "success", res.message[i],
+                                                             None if pars is None else pars[i])
         else:
             for i in done_here:
                 res.status[i], res.message[i] = energy_check(ps, prec, tolf, Ynat[i], res.y_reached[i], res.steps[i],

@@ -439,3 +439,24 @@ def test_scenes_and_studies_never_set_mpmath_global_precision(tmp_path, monkeypa
     assert min(result.studies["error_vs_order"][0][1].errors) < 1e-30
     dm = departure_map(grid=(2, 2), T=1, samples=2, precisions=("double",), dps=40)
     assert float(np.max(dm.max_error["double"])) < 1e-14
+
+
+def test_a_motion_whose_energy_lies_beyond_the_format_is_not_a_success():
+    """omega ~ 1e-200 to t = 2e201 is the motion of omega = (1, 0.1, 0.5) to t = 2, slowed down: its energy ~1e-400
+    is 0 in double and its Taylor coefficients underflow in double and quad, so heyoka takes one step over the whole
+    span (double: the state unchanged; quad: R entries ~1e19). Neither may read success; long double, whose range
+    holds the motion, is right against the closed form."""
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    om, T = ("1e-200", "1e-201", "5e-201"), "2e201"
+    y0 = body.initial_state(omega=om)
+    ref = exact.euler_poisson((1, 2, 3), om, T, dps=30)
+    for p in ("double", "quad"):
+        sol = ls.integrate(body, y0, t=T, precision=p)
+        assert sol.status == "invariant_drift", (p, sol.status)
+        assert abs(float(sol.y[-1][0]) - float(ref[0])) > 0.1  # the state is indeed wrong
+    ens = ls.integrate(body, [y0, y0], t=T)  # the batch members in double
+    assert list(ens.status) == ["invariant_drift"] * 2 and "below the smallest normal" in ens.message[0]
+    sol = ls.integrate(body, y0, t=T, precision="long double")
+    if np.finfo(np.longdouble).nmant > 52:  # an x87 long double (range 1e-4932)
+        assert sol.status == "success"
+        assert max(abs(float(a) - float(b)) for a, b in zip(sol.y[-1][:9], ref[:9])) < 1e-12
