@@ -768,6 +768,9 @@ class Scene:
         for key in ("omega", "R0", "x", "v", "y0"):
             if self.initial.get(key) is not None:
                 out.update(binary_inputs(self.initial[key], f"initial.{key}"))
+        for key in ("t", "t0"):  # the runs use the double 2.1 as their end time (and its messages say so)
+            if (self.run or {}).get(key) is not None:
+                out.update(binary_inputs(self.run[key], f"run.{key}"))
         return out
 
     def binary_note(self) -> str:

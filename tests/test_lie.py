@@ -295,3 +295,16 @@ def test_a_lie_series_pickles_and_answers_as_before():
     assert again.error_estimate(t) == series.error_estimate(t) and again.radius() == series.radius()
     ref = exact.euler_poisson((1, 2, 3), (1, "0.1", "0.5"), t, dps=40)
     assert max(abs(a - b) for a, b in zip(again(t), ref)) < 10 * again.error_estimate(t) + mp.mpf(10) ** -28
+
+
+def test_a_lie_series_estimate_never_claims_digits_below_its_working_precision():
+    """At dps = 15 the truncation error of an order-40 series at t = 0.01 is ~1e-100, but the values are rounded
+    to 15 digits: the estimate may not be smaller than what the result carries (the truth against the closed form
+    is ~1e-17)."""
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    series = ls.lie_series(body, body.initial_state(omega=OMEGA), order=40, dps=15)
+    with mp.workdps(60):
+        ref = exact.euler_poisson((1, 2, 3), OMEGA, "0.01", dps=60)
+        truth = max(abs(mp.mpf(a) - mp.mpf(b)) for a, b in zip(series("0.01"), ref))
+    est = series.error_estimate("0.01")
+    assert est >= truth and est >= mp.mpf(2) ** -53

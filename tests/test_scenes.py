@@ -331,3 +331,11 @@ def test_a_scene_report_with_binary_floats_says_so(tmp_path):
     assert "`initial.omega[1]`" in md and "binary data" in md
     exact = run_scene(parse_scene(RIGID.replace("t = 2", "t = 0.5")), progress=False)
     assert not any("binary" in n for n in exact.notes)
+
+
+def test_a_binary_end_time_is_listed_with_the_binary_data():
+    """[run] t = 2.1 is the double 2.1 (the runs end at 2.1000000000000001): the scene lists it as binary input;
+    t = 2 and t = "2.1" are exact."""
+    assert parse_scene(RIGID.replace("t = 2", "t = 2.1")).binary_inputs() == {"run.t": 53}
+    assert parse_scene(RIGID.replace("t = 2", 't = "2.1"')).binary_inputs() == {}
+    assert parse_scene(RIGID).binary_inputs() == {}

@@ -157,10 +157,12 @@ class LieSeries:
         self.names = names
         self.t0 = t0
         self.data_bits = data_bits
+        prec = dps_to_bits(dps)
         with mp.workdps(dps + GUARD_DIGITS):
             nrm = norms(_local(coefficients))
             radius = estimate_radius(nrm)
-            floor = mp.mpf(2) ** (-data_bits) * max(mp.mpf(1), nrm[0]) if data_bits is not None else mp.mpf(0)
+            # never below what the data carry, nor below the rounding of the result to `dps` digits
+            floor = mp.mpf(2) ** (-min(data_bits or prec, prec)) * max(mp.mpf(1), nrm[0])
         # plain mpmath numbers (not the thread's private context), so a LieSeries pickles
         self._norms, self._radius, self._floor = export_mpf(nrm), export_mpf(radius), export_mpf(floor)
         self.coefficients = export_mpf(coefficients)
@@ -188,7 +190,8 @@ class LieSeries:
 
     def error_estimate(self, t):
         """Estimated error at ``t``: the truncation error, and never less than the uncertainty the data carry
-        (``data_bits``); ``inf`` where the series diverges (|t| >= radius)."""
+        (``data_bits``) nor the rounding of the result to ``dps`` digits; ``inf`` where the series diverges
+        (|t| >= radius)."""
         with mp.workdps(self.dps + GUARD_DIGITS):
             ts, scalar = _times(t, self.dps)
             nrm = [mp.make_mpf(v._mpf_) for v in self._norms]
