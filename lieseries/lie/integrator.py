@@ -50,7 +50,6 @@ from .operator import (
     coarse_bits,
     estimate_radius,
     horner,
-    norms,
     prepare,
     tail_estimate,
 )
@@ -118,7 +117,7 @@ def lie_integrate(
         per-step estimate is at least the relative uncertainty of the data (``stats.extra["data_bits"]``), and
         one :class:`~lieseries.precision.PrecisionWarning` says so.
     """
-    from .jets import taylor_coefficients
+    from .fixed import FixedStepper
 
     dps = check_dps(dps)
     user_events_arg = events
@@ -159,6 +158,7 @@ def lie_integrate(
     bits = coarse_bits(ps, y0, dps_to_bits(dps), times=[t, t0])
 
     prog = ps.program
+    stepper = FixedStepper(prog, pars, N, wdps)  # the jets in fixed-point big integers
     start = _time.perf_counter()
     estimates, extra = [], {"data_bits": bits}
     events = _event_checks(model, ps, wdps)
@@ -196,8 +196,8 @@ def lie_integrate(
                 status = "time_budget"
                 message = f"The wall-time budget ran out at t = {mp.nstr(tcur, 17)}; raise `max_time`."
                 break
-            coeffs = taylor_coefficients(prog, z, pars, N, wdps, mp_context())
-            nrm = norms(coeffs)
+            jet = stepper.expand(z, abs(tend - tcur))
+            coeffs, nrm = jet.coefficients, jet.norms
             if not all(mp.isfinite(c) for c in nrm):
                 status = "non_finite"
                 message = (
@@ -226,7 +226,7 @@ def lie_integrate(
             err = max(tail_estimate(nrm, h, rho), floor * max(mp.mpf(1), nrm[0]))
             if nsteps == 0 and order is not None and N < N_auto:
                 _warn_slow_order(N, N_auto, nrm, tol_abs, rho, abs(tend - tcur))
-            znew = horner(coeffs, hs)
+            znew = jet.horner(hs)
             tnew = tcur + hs if abs(tend - tcur) != h else tend
             stop = user.step(coeffs, tcur, hs, sgn) if user is not None else None
             if stop is not None:  # a terminal event inside the step: the step ends there

@@ -35,6 +35,8 @@ compiled functions.
 
 from __future__ import annotations
 
+from time import perf_counter as _clock
+
 import mpmath
 from mpmath.libmp import (
     fone,
@@ -56,7 +58,16 @@ from .. import expr as _expr
 from ..precision import check_dps, check_order
 from ..expr import RND, rounded_mpf, Constant, Node, Program, eval_nodes, POINTWISE
 
-__all__ = ["taylor_coefficients", "taylor_coefficients_raw", "jet_guard_bits"]
+__all__ = ["taylor_coefficients", "taylor_coefficients_raw", "jet_guard_bits", "DeadlineExceeded"]
+
+
+class DeadlineExceeded(Exception):
+    """An expansion passed its ``deadline`` (a :func:`time.perf_counter` value) before reaching its order: the
+    caller's wall-time budget ran out inside one step. ``order`` is the last order completed."""
+
+    def __init__(self, order):
+        super().__init__(f"the deadline passed after order {order}")
+        self.order = order
 
 
 def jet_guard_bits(order):
@@ -521,6 +532,17 @@ def _plan_for(program):
         plan = _Plan(program)
         program._engine_cache["jets"] = plan
     return plan
+
+
+def jet_plan(program):
+    """The jet instructions of a :class:`Program` (built once, cached on it), for other jet engines
+    (:mod:`lieseries.lie.fixed`)."""
+    return _plan_for(program)
+
+
+def resolve_program(program_or_system, name="program_or_system"):
+    """A :class:`Program` from a Program or a heyoka-style system, checked to have one output per variable."""
+    return _resolve_program(program_or_system, name)
 
 
 # --------------------------------------------------------------------------
