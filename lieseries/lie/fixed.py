@@ -26,6 +26,7 @@ Big integers are gmpy2's ``mpz`` when gmpy2 imports, Python ``int`` otherwise; t
 from __future__ import annotations
 
 import os
+import weakref
 from operator import mul as _mul
 from time import perf_counter as _clock
 
@@ -207,8 +208,117 @@ def _mk_mul(run, out, a, b):
     def step(k):
         if k == 0:
             U[out] = U[a] + U[b] + F
-        C.append(_sh(_dot(A[:k + 1], B[k::-1]), F))
+        C.append(_sh(sum(map(_mul, A, reversed(B))), F))
     return step
+
+
+def _mk_sop(run, out, prods, lins, offset):
+    """out = sum of ±c (a * b) product terms and ±c x linear terms (c a raw constant or None) plus an offset:
+    all terms exact at their finest exponent, one rounding (a lin whose terms' products were fused into it)."""
+    J, U, F = run.J, run.U, run.F
+    C = J[out]
+    terms = []
+    st = {}
+
+    def const(c):
+        if c is None:
+            return 1, 0, 0
+        cs, cm, ce, cbc = c
+        return (-_Z(cm) if cs else _Z(cm)), ce, cbc
+
+    def step(k):
+        if k == 0:
+            xs, noms = [], []
+            raw_terms = []
+            for a, b, c, ng in prods:
+                cm, ce, cbc = const(c)
+                if not cm:
+                    continue
+                x = U[a] + U[b] + ce
+                xs.append(x)
+                noms.append(x + F + cbc)
+                raw_terms.append((J[a], J[b], -cm if ng else cm, x))
+            for a, c, ng in lins:
+                cm, ce, cbc = const(c)
+                if not cm:
+                    continue
+                x = U[a] + ce
+                xs.append(x)
+                noms.append(x + cbc)
+                raw_terms.append((J[a], None, -cm if ng else cm, x))
+            if not xs:
+                xs = noms = [min(U[a] for a, *_ in list(prods) + list(lins))]
+            x0 = min(xs)
+            uo = min(noms)
+            U[out] = uo
+            for A, B, cm, x in raw_terms:
+                terms.append((A, B, None if cm == 1 else (-1 if cm == -1 else cm), x - x0))
+            st.update(fin=uo - x0, off=_to_int(offset, x0) if offset is not None else 0)
+        tot = st["off"] if k == 0 else 0
+        for A, B, cm, d in terms:
+            v = sum(map(_mul, A, reversed(B))) if B is not None else A[k]
+            if cm is not None:
+                v = -v if cm == -1 else v * cm
+            tot += v << d if d else v
+        C.append(_sh(tot, st["fin"]))
+    return step
+
+
+_FUSED = weakref.WeakKeyDictionary()  # jet plan -> its fused instructions
+
+
+def _fuse(plan):
+    """The plan's instructions with every lin whose terms are single-use products (possibly scaled by a
+    constant) or scaled slots turned into one ``sop`` instruction."""
+    uses = {}
+
+    def use(x):
+        uses[x] = uses.get(x, 0) + 1
+
+    for kind, out, args, extra in plan.instrs:
+        if kind == "lin":
+            for x, _ in args:
+                use(x)
+        else:
+            for x in args:
+                use(x)
+    for o in plan.outputs:
+        use(o)
+    producer = {}
+    for ins in plan.instrs:
+        kind, out = ins[0], ins[1]
+        if kind in ("mul", "sqr", "scale"):
+            producer[out] = ins
+    fused = set()
+    new = []
+    for ins in plan.instrs:
+        kind, out, args, extra = ins
+        if kind != "lin":
+            new.append(ins)
+            continue
+        prods, lins = [], []
+        for v, ng in args:
+            p = producer.get(v) if uses.get(v) == 1 else None
+            c = None
+            if p is not None and p[0] == "scale":
+                inner = producer.get(p[2][0]) if uses.get(p[2][0]) == 1 else None
+                if inner is not None and inner[0] in ("mul", "sqr"):
+                    fused.update((v, inner[1]))
+                    a = inner[2][0]
+                    b = inner[2][1] if inner[0] == "mul" else a
+                    prods.append((a, b, ("const", p[3]), ng))
+                else:
+                    fused.add(v)
+                    lins.append((p[2][0], ("const", p[3]), ng))
+            elif p is not None and p[0] in ("mul", "sqr"):
+                fused.add(v)
+                a = p[2][0]
+                b = p[2][1] if p[0] == "mul" else a
+                prods.append((a, b, None, ng))
+            else:
+                lins.append((v, None, ng))
+        new.append(("sop", out, (tuple(prods), tuple(lins)), extra))
+    return [ins for ins in new if ins[1] not in fused or ins[0] == "sop"]
 
 
 def _sqr_sum(A, k):
@@ -501,14 +611,22 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
         if not is_const[x]:
             J[x] = []
     steps = []
-    for kind, out, args, extra in plan.instrs:
-        if kind == "lin":
+    instrs = _FUSED.get(plan)
+    if instrs is None:
+        instrs = _FUSED[plan] = _fuse(plan)
+    for kind, out, args, extra in instrs:
+        if kind in ("lin", "sop"):
             offset = None
             if extra:
                 offset = fzero
                 for x, ng in extra:
                     offset = (mpf_sub if ng else mpf_add)(offset, cv[x], 2 * wp, RND)
-            steps.append(_mk_lin(run, out, args, offset))
+            if kind == "lin":
+                steps.append(_mk_lin(run, out, args, offset))
+            else:
+                prods = [(a, b, None if c is None else cv[c[1]], ng) for a, b, c, ng in args[0]]
+                lins = [(a, None if c is None else cv[c[1]], ng) for a, c, ng in args[1]]
+                steps.append(_mk_sop(run, out, prods, lins, offset))
         elif kind == "scale":
             steps.append(_mk_scale(run, out, args[0], cv[extra]))
         elif kind == "mul":
