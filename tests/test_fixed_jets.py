@@ -65,6 +65,11 @@ def test_rigid_body(bigint, dps, s):
     check(compile_system(*rigid_body()), RB_Y0, RB_PARS, 40, dps, s, 1.5)
 
 
+def test_time_scale_far_above_the_radius(bigint):
+    # sigma = 2**8 >> radius: the scaled coefficients grow by ~8 bits per order (packed products widen)
+    check(compile_system(*rigid_body()), RB_Y0, RB_PARS, 40, 30, 8)
+
+
 def test_rigid_body_exact_series(bigint):
     # the order-1 and order-2 coefficients in closed form: M' = M x Omega, R' = R hat(Omega)
     got = fixed.fixed_taylor_coefficients(compile_system(*rigid_body()), RB_Y0, RB_PARS, 3, 40)

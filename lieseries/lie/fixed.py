@@ -212,11 +212,14 @@ def _mk_mul(run, out, a, b):
     return step
 
 
-def _mk_sop(run, out, prods, lins, offset):
+def _mk_sop(run, out, prods, lins, offset, state=None):
     """out = sum of ±c (a * b) product terms and ±c x linear terms (c a raw constant or None) plus an offset:
-    all terms exact at their finest exponent, one rounding (a lin whose terms' products were fused into it)."""
+    all terms exact at their finest exponent, one rounding (a lin whose terms' products were fused into it).
+    With ``state`` = i (out is the right-hand side of state variable i and used nowhere else) the step appends
+    the state's next coefficient sigma out_k / (k + 1) instead, with the same single rounding."""
     J, U, F = run.J, run.U, run.F
     C = J[out]
+    nxt = run.nxt
     terms = []
     st = {}
 
@@ -230,14 +233,14 @@ def _mk_sop(run, out, prods, lins, offset):
         if k == 0:
             xs, noms = [], []
             raw_terms = []
-            for a, b, c, ng in prods:
+            for a, b, c, ng, key in prods:
                 cm, ce, cbc = const(c)
                 if not cm:
                     continue
                 x = U[a] + U[b] + ce
                 xs.append(x)
                 noms.append(x + F + cbc)
-                raw_terms.append((J[a], J[b], -cm if ng else cm, x))
+                raw_terms.append((J[a], J[b] if key is None else key, -cm if ng else cm, x))
             for a, c, ng in lins:
                 cm, ce, cbc = const(c)
                 if not cm:
@@ -252,16 +255,127 @@ def _mk_sop(run, out, prods, lins, offset):
             uo = min(noms)
             U[out] = uo
             for A, B, cm, x in raw_terms:
+                if isinstance(B, int):  # a dot product computed by a dots step
+                    A, B = B, None
                 terms.append((A, B, None if cm == 1 else (-1 if cm == -1 else cm), x - x0))
-            st.update(fin=uo - x0, off=_to_int(offset, x0) if offset is not None else 0)
+            st.update(fin=uo - x0 if state is None else x0 + run.s - U[state],
+                      off=_to_int(offset, x0) if offset is not None else 0)
         tot = st["off"] if k == 0 else 0
+        dv = run.dv
         for A, B, cm, d in terms:
-            v = sum(map(_mul, A, reversed(B))) if B is not None else A[k]
+            if B is not None:
+                v = sum(map(_mul, A, reversed(B)))
+            else:
+                v = dv[A] if A.__class__ is int else A[k]
             if cm is not None:
                 v = -v if cm == -1 else v * cm
             tot += v << d if d else v
-        C.append(_sh(tot, st["fin"]))
+        if state is None:
+            C.append(_sh(tot, st["fin"]))
+        else:  # appended after the order's last step: every step of order k sees k + 1 state coefficients
+            nxt[state] = _divr(tot, k + 1, st["fin"])
     return step
+
+
+def _mk_dots(run, pivot, partners, keys):
+    """Several Cauchy products sharing one operand in one dot product: the partners' coefficients are packed
+    into one integer per order (fields of W bits, W above the bits any of the products can reach, checked at
+    every order) and the products' k-th coefficients are read back from the fields of one sum."""
+    J, dv = run.J, run.dv
+    A = J[pivot]
+    Bs = [J[b] for b in partners]
+    rBs = Bs[::-1]
+    P = []
+    W = ba = bb = 0
+    mask = full = half = 0
+
+    def step(k):
+        nonlocal W, ba, bb, mask, full, half
+        x = A[k].bit_length()
+        if x > ba:
+            ba = x
+        for B in Bs:
+            x = B[k].bit_length()
+            if x > bb:
+                bb = x
+        need = ba + bb + (k + 1).bit_length() + 2
+        if need > W:
+            W = need + 32
+            full, half = 1 << W, 1 << (W - 1)
+            mask = full - 1
+            P[:] = []
+            for j in range(k):
+                v = 0
+                for B in rBs:
+                    v = (v << W) + B[j]
+                P.append(v)
+        v = 0
+        for B in rBs:
+            v = (v << W) + B[k]
+        P.append(v)
+        D = sum(map(_mul, A, reversed(P)))
+        for key in keys:
+            r = D & mask
+            if r >= half:
+                r -= full
+            dv[key] = r
+            D = (D - r) >> W
+    return step
+
+
+def _arg_slots(ins):
+    """The slots an instruction reads."""
+    kind, out, args, extra = ins
+    if kind == "lin":
+        return [x for x, _ in args]
+    if kind == "sop":
+        return [x for a, b, *_ in args[0] for x in (a, b)] + [a for a, *_ in args[1]]
+    if kind == "dots":
+        return [args[0], *args[1]]
+    return list(args)
+
+
+def _group(instrs):
+    """Insert ``dots`` steps: the products of the ``sop`` steps that share an operand, computed together at the
+    first step that needs one of them (when both operands are computed by then)."""
+    pos = {}
+    for i, ins in enumerate(instrs):
+        outs = ins[1] if isinstance(ins[1], tuple) else (ins[1],)
+        for o in outs:
+            pos[o] = i
+    count = {}
+    prods = []  # (consumer index, term index, a, b)
+    for i, ins in enumerate(instrs):
+        if ins[0] == "sop":
+            for t, (a, b, c, ng) in enumerate(ins[2][0]):
+                prods.append((i, t, a, b))
+                for x in {a, b}:
+                    count[x] = count.get(x, 0) + 1
+    groups = {}
+    for i, t, a, b in prods:
+        pv, pt = (a, b) if (count[a], -a) >= (count[b], -b) else (b, a)
+        groups.setdefault(pv, []).append((i, t, pt))
+    at = {}  # instruction index -> dots steps to run before it
+    keyed = {}
+    nkeys = 0
+    for pv, members in groups.items():
+        P = min(i for i, _, _ in members)
+        ready = [m for m in members if pos.get(pv, -1) < P and pos.get(m[2], -1) < P]
+        if len(ready) < 2:
+            continue
+        keys = tuple(range(nkeys, nkeys + len(ready)))
+        nkeys += len(ready)
+        for (i, t, _), key in zip(ready, keys):
+            keyed[(i, t)] = key
+        at.setdefault(P, []).append(("dots", None, (pv, tuple(m[2] for m in ready)), keys))
+    out = []
+    for i, ins in enumerate(instrs):
+        out.extend(at.get(i, ()))
+        if ins[0] == "sop":
+            prods_i = tuple((a, b, c, ng, keyed.get((i, t))) for t, (a, b, c, ng) in enumerate(ins[2][0]))
+            ins = ("sop", ins[1], (prods_i, ins[2][1]), ins[3])
+        out.append(ins)
+    return out, nkeys
 
 
 _FUSED = weakref.WeakKeyDictionary()  # jet plan -> its fused instructions
@@ -611,10 +725,25 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
         if not is_const[x]:
             J[x] = []
     steps = []
-    instrs = _FUSED.get(plan)
-    if instrs is None:
-        instrs = _FUSED[plan] = _fuse(plan)
+    fused = _FUSED.get(plan)
+    if fused is None:
+        instrs, nkeys = _group(_fuse(plan))
+        uses = {}
+        for ins in instrs:
+            for x in _arg_slots(ins):
+                uses[x] = uses.get(x, 0) + 1
+        for o in plan.outputs:
+            uses[o] = uses.get(o, 0) + 1
+        to_state = {o: i for i, o in enumerate(plan.outputs) if uses[o] == 1}
+        fused = _FUSED[plan] = (instrs, nkeys, to_state)
+    instrs, nkeys, to_state = fused
+    run.dv = [None] * nkeys
+    run.nxt = [None] * nvars
+    run.s = s
     for kind, out, args, extra in instrs:
+        if kind == "dots":
+            steps.append(_mk_dots(run, args[0], args[1], extra))
+            continue
         if kind in ("lin", "sop"):
             offset = None
             if extra:
@@ -624,9 +753,9 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
             if kind == "lin":
                 steps.append(_mk_lin(run, out, args, offset))
             else:
-                prods = [(a, b, None if c is None else cv[c[1]], ng) for a, b, c, ng in args[0]]
+                prods = [(a, b, None if c is None else cv[c[1]], ng, key) for a, b, c, ng, key in args[0]]
                 lins = [(a, None if c is None else cv[c[1]], ng) for a, c, ng in args[1]]
-                steps.append(_mk_sop(run, out, prods, lins, offset))
+                steps.append(_mk_sop(run, out, prods, lins, offset, to_state.get(out)))
         elif kind == "scale":
             steps.append(_mk_scale(run, out, args[0], cv[extra]))
         elif kind == "mul":
@@ -655,7 +784,12 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
         else:  # pragma: no cover
             raise AssertionError(kind)
     srcs = []
+    fused_out = {o for kind, o, *_ in instrs if kind == "sop" and o in to_state}
+    deferred = [(J[to_state[o]], to_state[o]) for o in fused_out]
+    nxt = run.nxt
     for i, o in enumerate(plan.outputs):
+        if o in fused_out:
+            continue
         if is_const[o]:
             srcs.append((J[i], i, None, cv[o]))
         else:
@@ -665,6 +799,8 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
             raise DeadlineExceeded(k)
         for st in steps:
             st(k)
+        for zi, i in deferred:
+            zi.append(nxt[i])
         k1 = k + 1
         for zi, i, o, c in srcs:
             if o is not None:
@@ -687,7 +823,8 @@ class FixedJets:
 
     ``norms`` are the max-norms of the coefficient vectors (mpf, 64 bits, rounded up); :meth:`horner` evaluates
     the polynomial at ``|t| <= 2**s`` in integers; ``coefficients`` is a lazily converted sequence of the
-    coefficient vectors (mpf at ``prec`` bits), for dense output and events.
+    coefficient vectors (mpf at ``prec`` bits), for dense output and events; ``rho`` (set by
+    :class:`FixedStepper`) is :func:`~lieseries.lie.operator.estimate_radius` of the norms.
     """
 
     def __init__(self, M, U, s, prec):
@@ -808,6 +945,7 @@ class FixedStepper:
             self.expansions += 1
             jets = FixedJets(M, U, self.s, self.prec)
             s_new = self._scale(jets.norms, self.s, span)
+            jets.rho = self.last_rho
             sigma = mp.ldexp(1, self.s)
             rho = self.last_rho
             grow = rho > 2 * sigma if rho != mp.inf else sigma < span

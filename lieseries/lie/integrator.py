@@ -48,7 +48,6 @@ from ..timegrid import parse_times
 from .operator import (
     GUARD_DIGITS,
     coarse_bits,
-    estimate_radius,
     horner,
     prepare,
     tail_estimate,
@@ -205,7 +204,7 @@ def lie_integrate(
                     "singular at this state."
                 )
                 break
-            rho = estimate_radius(nrm)
+            rho = jet.rho  # estimate_radius(nrm), computed once by the stepper
             tol_abs = tolm * max(mp.mpf(1), nrm[0])
             h = mp.inf
             for k in (N - 1, N):
