@@ -323,6 +323,16 @@ def _mk_dots(run, pivot, partners, keys):
     return step
 
 
+def _cprod(cv, slots):
+    """The exact product of constant slots (None for none)."""
+    if not slots:
+        return None
+    r = cv[slots[0]]
+    for x in slots[1:]:
+        r = mpf_mul(r, cv[x])
+    return r
+
+
 def _arg_slots(ins):
     """The slots an instruction reads."""
     kind, out, args, extra = ins
@@ -361,13 +371,15 @@ def _group(instrs):
     for pv, members in groups.items():
         P = min(i for i, _, _ in members)
         ready = [m for m in members if pos.get(pv, -1) < P and pos.get(m[2], -1) < P]
-        if len(ready) < 2:
+        partners = list(dict.fromkeys(m[2] for m in ready))  # a product used twice is computed once
+        if len(partners) < 2:
             continue
-        keys = tuple(range(nkeys, nkeys + len(ready)))
-        nkeys += len(ready)
-        for (i, t, _), key in zip(ready, keys):
-            keyed[(i, t)] = key
-        at.setdefault(P, []).append(("dots", None, (pv, tuple(m[2] for m in ready)), keys))
+        keys = tuple(range(nkeys, nkeys + len(partners)))
+        nkeys += len(partners)
+        key_of = dict(zip(partners, keys))
+        for i, t, pt in ready:
+            keyed[(i, t)] = key_of[pt]
+        at.setdefault(P, []).append(("dots", None, (pv, tuple(partners)), keys))
     out = []
     for i, ins in enumerate(instrs):
         out.extend(at.get(i, ()))
@@ -405,6 +417,19 @@ def _fuse(plan):
             producer[out] = ins
     fused = set()
     new = []
+
+    def unscale(a, b, cs, ng):
+        """A product term with scaled operands (c y) written as c (y * ...)."""
+        ops = []
+        for x in (a, b):
+            p = producer.get(x)
+            while p is not None and p[0] == "scale":
+                cs = cs + (p[3],)
+                x = p[2][0]
+                p = producer.get(x)
+            ops.append(x)
+        return ops[0], ops[1], cs, ng
+
     for ins in plan.instrs:
         kind, out, args, extra = ins
         if kind != "lin":
@@ -413,26 +438,37 @@ def _fuse(plan):
         prods, lins = [], []
         for v, ng in args:
             p = producer.get(v) if uses.get(v) == 1 else None
-            c = None
             if p is not None and p[0] == "scale":
                 inner = producer.get(p[2][0]) if uses.get(p[2][0]) == 1 else None
                 if inner is not None and inner[0] in ("mul", "sqr"):
                     fused.update((v, inner[1]))
                     a = inner[2][0]
                     b = inner[2][1] if inner[0] == "mul" else a
-                    prods.append((a, b, ("const", p[3]), ng))
+                    prods.append(unscale(a, b, (p[3],), ng))
                 else:
                     fused.add(v)
-                    lins.append((p[2][0], ("const", p[3]), ng))
+                    lins.append((p[2][0], (p[3],), ng))
             elif p is not None and p[0] in ("mul", "sqr"):
                 fused.add(v)
                 a = p[2][0]
                 b = p[2][1] if p[0] == "mul" else a
-                prods.append((a, b, None, ng))
+                prods.append(unscale(a, b, (), ng))
             else:
-                lins.append((v, None, ng))
+                lins.append((v, (), ng))
         new.append(("sop", out, (tuple(prods), tuple(lins)), extra))
-    return [ins for ins in new if ins[1] not in fused or ins[0] == "sop"]
+    new = [ins for ins in new if ins[1] not in fused or ins[0] == "sop"]
+    # scalings whose every use moved into products are dropped
+    while True:
+        used = {}
+        for ins in new:
+            for x in _arg_slots(ins):
+                used[x] = used.get(x, 0) + 1
+        for o in plan.outputs:
+            used[o] = used.get(o, 0) + 1
+        keep = [ins for ins in new if ins[0] != "scale" or used.get(ins[1])]
+        if len(keep) == len(new):
+            return new
+        new = keep
 
 
 def _sqr_sum(A, k):
@@ -753,8 +789,8 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
             if kind == "lin":
                 steps.append(_mk_lin(run, out, args, offset))
             else:
-                prods = [(a, b, None if c is None else cv[c[1]], ng, key) for a, b, c, ng, key in args[0]]
-                lins = [(a, None if c is None else cv[c[1]], ng) for a, c, ng in args[1]]
+                prods = [(a, b, _cprod(cv, cs), ng, key) for a, b, cs, ng, key in args[0]]
+                lins = [(a, _cprod(cv, cs), ng) for a, cs, ng in args[1]]
                 steps.append(_mk_sop(run, out, prods, lins, offset, to_state.get(out)))
         elif kind == "scale":
             steps.append(_mk_scale(run, out, args[0], cv[extra]))
