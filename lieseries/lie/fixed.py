@@ -51,11 +51,16 @@ from .jets import DeadlineExceeded, jet_guard_bits, jet_plan, resolve_program
 __all__ = ["backend", "set_backend", "fixed_taylor_coefficients", "FixedStepper", "FixedJets"]
 
 try:  # pragma: no cover - depends on the installation
+    from gmpy2 import bit_length as _gmpy_bit_length
     from gmpy2 import mpz as _mpz
 except ImportError:  # pragma: no cover
-    _mpz = None
+    _mpz = _gmpy_bit_length = None
 
 _Z = int
+
+
+def _bitlen(x):
+    return x.bit_length()
 
 
 def set_backend(name=None):
@@ -66,7 +71,9 @@ def set_backend(name=None):
         name = "int" if os.environ.get("LIESERIES_BIGINT", "").strip().lower() == "int" else "gmpy"
     if name not in ("gmpy", "int"):
         raise ValueError(f"`name` must be 'gmpy', 'int' or None; got {name!r}")
+    global _bitlen
     _Z = _mpz if (name == "gmpy" and _mpz is not None) else int
+    _bitlen = _gmpy_bit_length if _Z is _mpz else int.bit_length
     return backend()
 
 
@@ -294,10 +301,9 @@ def _mk_dots(run, pivot, partners, keys):
         x = A[k].bit_length()
         if x > ba:
             ba = x
-        for B in Bs:
-            x = B[k].bit_length()
-            if x > bb:
-                bb = x
+        x = max(map(_bitlen, [B[k] for B in Bs]))
+        if x > bb:
+            bb = x
         need = ba + bb + (k + 1).bit_length() + 2
         if need > W:
             W = need + 32
@@ -866,14 +872,19 @@ class FixedJets:
     def __init__(self, M, U, s, prec):
         self.M, self.U, self.s, self.prec = M, U, s, prec
         make = mp_context().make_mpf
+        # per order, the largest |M| of the variables sharing an exponent, then across exponents
+        by_u = {}
+        for Mi, ui in zip(M, U):
+            by_u.setdefault(ui, []).append(list(map(abs, Mi)))
+        cols = [(u, list(map(max, *ms)) if len(ms) > 1 else ms[0]) for u, ms in by_u.items()]
         nrm = []
         for k in range(len(M[0])):
             bm, bu = 0, None
-            for Mi, ui in zip(M, U):
-                m = Mi[k]
-                if m and (bu is None or _gt(m, ui, bm, bu)):
-                    bm, bu = m, ui
-            nrm.append(make(from_man_exp(abs(bm), bu - s * k, 64, "u") if bu is not None else fzero))
+            for u, col in cols:
+                m = col[k]
+                if m and (bu is None or _gt(m, u, bm, bu)):
+                    bm, bu = m, u
+            nrm.append(make(from_man_exp(bm, bu - s * k, 64, "u") if bu is not None else fzero))
         self.norms = nrm
         self.coefficients = _LazyCoefficients(M, U, s, prec)
 
