@@ -871,6 +871,9 @@ class FixedJets:
 
     def __init__(self, M, U, s, prec):
         self.M, self.U, self.s, self.prec = M, U, s, prec
+        self.max_step = mp_context().ldexp(1, s)
+        self.rho = None
+        self.stepper = None
         make = mp_context().make_mpf
         # per order, the largest |M| of the variables sharing an exponent, then across exponents
         by_u = {}
@@ -889,8 +892,13 @@ class FixedJets:
         self.coefficients = _LazyCoefficients(M, U, s, prec)
 
     def horner(self, t):
-        """sum_k c_k t^k as mpf at ``prec`` bits (``t`` an mpf with |t| <= 2**s)."""
+        """sum_k c_k t^k as mpf at ``prec`` bits (``t`` an mpf with |t| <= ``max_step``); a
+        :class:`FixedStepper`'s next time scale follows this step."""
         make = mp_context().make_mpf
+        if abs(t) > self.max_step:
+            raise RuntimeError(f"a step of {mp.nstr(t, 5)} beyond the jets' time scale {mp.nstr(self.max_step, 5)}")
+        if self.stepper is not None:
+            self.stepper.h_last = abs(t)
         raw = t._mpf_
         sg, tm, te, _ = raw
         if not tm:
@@ -949,19 +957,18 @@ def _estimate_radius(nrm):
     return estimate_radius(nrm)
 
 
-def _pow2_exponent(x):
-    """n with 2**n nearest x (x > 0 mpf) in ratio."""
-    m, e = mp.frexp(x)  # x = m 2**e, 0.5 <= m < 1
-    return int(e) - 1 if m * m < 0.5 else int(e)
-
-
 class FixedStepper:
     """Repeated expansions of one system at one order and precision (the Lie step's jets).
 
-    ``expand(z, span)`` returns :class:`FixedJets` for the state ``z`` (mpf): its time scale ``sigma`` is the
-    nearest power of two to the radius of convergence estimated at the previous expansion; the expansion is
-    done again with a larger ``sigma`` when its own radius estimate exceeds ``2 sigma`` (or is infinite and the
-    remaining ``span`` exceeds ``sigma``), so that a step of at most half the radius is always within ``sigma``.
+    ``expand(z, span)`` returns :class:`FixedJets` for the state ``z`` (mpf) with a time scale ``sigma`` (a power
+    of two, ``max_step`` of the result) that the caller's step must not exceed.  Integers hold
+    ``c_k sigma**k`` to a fixed number of bits relative to the state, so a coefficient carries exactly the
+    absolute accuracy that a step of at most ``sigma`` needs, and no more: with ``sigma`` a few times the step
+    (and below the radius of convergence) the high orders, which a step multiplies by ``(h / rho)**k``, are
+    held with correspondingly fewer bits.  ``sigma`` is ``2**(ceil(log2 h) + 1)`` for the last step ``h`` that
+    :meth:`FixedJets.horner` evaluated (at most the largest power of two below the last radius estimate), a
+    quarter of the radius estimated by a short expansion at the first call, and at least ``span`` when the
+    solution is a polynomial (an infinite radius).
     """
 
     def __init__(self, program, pars, order, dps):
@@ -971,6 +978,8 @@ class FixedStepper:
         self.wp = self.prec + jet_guard_bits(order)
         self.pars_raw = _expr.convert_vector(pars, program.npars, self.wp, "pars")
         self.s = None
+        self.h_last = None
+        self.last_rho = None
         self.expansions = 0
 
     def expand(self, z, span, deadline=None):
@@ -986,27 +995,33 @@ class FixedStepper:
         zr = _expr.convert_vector(z, self.program.nvars, self.wp, "z")
         if self.s is None:  # a short expansion to find the time scale
             M, U = expand(self.program, zr, self.pars_raw, min(self.order, 12), self.wp, 0, deadline)
-            self.s = self._scale(FixedJets(M, U, 0, self.prec).norms, 0, span)
+            rho = _estimate_radius(FixedJets(M, U, 0, self.prec).norms)
+            self.s = _ceil_log2(span) if rho == mp.inf else _floor_log2(rho) - 2
+        elif self.h_last:
+            s = _ceil_log2(self.h_last) + 1
+            if self.last_rho is not None and self.last_rho != mp.inf:
+                s = min(s, _floor_log2(self.last_rho))
+            self.s = s
         for _ in range(3):
             M, U = expand(self.program, zr, self.pars_raw, self.order, self.wp, self.s, deadline)
             self.expansions += 1
             jets = FixedJets(M, U, self.s, self.prec)
-            s_new = self._scale(jets.norms, self.s, span)
-            jets.rho = self.last_rho
-            sigma = mp.ldexp(1, self.s)
-            rho = self.last_rho
-            grow = rho > 2 * sigma if rho != mp.inf else sigma < span
-            self.s = s_new
-            if not grow:
-                return jets
+            jets.rho = self.last_rho = _estimate_radius(jets.norms)
+            jets.stepper = self
+            if jets.rho == mp.inf and span > jets.max_step:  # a polynomial: one step may reach the end
+                self.s = _ceil_log2(span)
+                continue
+            return jets
         return jets
 
-    def _scale(self, nrm, s_old, span):
-        rho = _estimate_radius(nrm)
-        self.last_rho = rho
-        if rho == mp.inf:
-            return max(s_old, _pow2_exponent(span) + 1) if span > 0 else s_old
-        return _pow2_exponent(rho)
+
+def _ceil_log2(x):
+    m, e = mp.frexp(x)  # x = m 2**e, 1/2 <= m < 1
+    return int(e) if m > 0.5 else int(e) - 1
+
+
+def _floor_log2(x):
+    return int(mp.frexp(x)[1]) - 1
 
 
 def fixed_taylor_coefficients(program_or_system, y0, pars, order, dps, time_scale=0, ctx=None):

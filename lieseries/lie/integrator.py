@@ -213,7 +213,7 @@ def lie_integrate(
             h = min(h, rho / 2)
             if h == mp.inf:  # polynomial solution of degree < N - 1: one step reaches the end
                 h = abs(tend - tcur)
-            h = min(h, abs(tend - tcur))
+            h = min(h, abs(tend - tcur), jet.max_step)  # the jets hold what steps up to max_step need
             if h <= abs(tcur) * mp.mpf(10) ** (-wdps + 2) or h == 0:
                 status = "step_collapse"
                 message = (
