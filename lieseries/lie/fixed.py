@@ -25,6 +25,7 @@ Big integers are gmpy2's ``mpz`` when gmpy2 imports, Python ``int`` otherwise; t
 
 from __future__ import annotations
 
+import math
 import os
 import weakref
 from operator import mul as _mul
@@ -952,9 +953,36 @@ class _LazyCoefficients:
 # --------------------------------------------------------------------------
 
 def _estimate_radius(nrm):
-    from .operator import estimate_radius
+    """:func:`lieseries.lie.operator.estimate_radius` of the norms, in floating point (the radius steers the
+    step and enters the error estimate as h / rho: a few digits are all it carries)."""
+    N = len(nrm) - 1
 
-    return estimate_radius(nrm)
+    def ln(x):
+        _, m, e, bc = x._mpf_
+        return math.log(m) + e * _LN2
+
+    pts = [(k, ln(nrm[k])) for k in range(max(1, N // 2), N + 1) if nrm[k]]
+    if len(pts) < 2:
+        pts = [(k, ln(nrm[k])) for k in range(1, N + 1) if nrm[k]]
+    ctx = mp_context()
+    if not pts:
+        return ctx.inf
+    if len(pts) == 1:
+        k, lg = pts[0]
+        return ctx.exp(-lg / k)
+    n = len(pts)
+    kbar = sum(k for k, _ in pts) / n
+    lbar = sum(lg for _, lg in pts) / n
+    num = sum((k - kbar) * (lg - lbar) for k, lg in pts)
+    den = sum((k - kbar) ** 2 for k, _ in pts)
+    slope = num / den
+    if slope >= 0:  # not decaying: the root test on the last one
+        k, lg = pts[-1]
+        return ctx.exp(-lg / k)
+    return ctx.exp(-slope)
+
+
+_LN2 = math.log(2)
 
 
 class FixedStepper:
