@@ -206,3 +206,13 @@ def test_stepper_deadline(bigint):
     with pytest.raises(DeadlineExceeded):
         stepper.expand([mp.mpf(v) for v in [1, 0, 0, 0, 1, 0, 0, 0, 1, 1, "0.2", "1.5"]], 10,
                        deadline=perf_counter() - 1)
+
+
+def test_dense_output_pickles_and_matches_the_closed_form(bigint):
+    import pickle
+
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state((1, "0.1", "0.5"))
+    sol = pickle.loads(pickle.dumps(ls.lie_integrate(body, y0, t=3, dps=30, dense=True)))
+    for t in ("0.7", "2.9"):
+        assert rigid_error(list(sol(mp.mpf(t))), mp.mpf(t), dps=50) < mp.mpf(10) ** -29

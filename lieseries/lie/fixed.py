@@ -923,29 +923,33 @@ def _gt(m1, u1, m2, u2):
     return m1 > (m2 << (u2 - u1))
 
 
-class _LazyCoefficients:
-    """coefficients[k][i] = c_{i,k} as mpf, converted on first access."""
+class _LazyCoefficients(list):
+    """coefficients[k][i] = c_{i,k} as mpf, converted on first access (a list: what copies lists, such as
+    :func:`lieseries.precision.export_mpf`, gets the converted rows)."""
 
     def __init__(self, M, U, s, prec):
+        super().__init__()
         self._M, self._U, self._s, self._prec = M, U, s, prec
-        self._rows = None
+        self._built = False
 
     def _build(self):
-        if self._rows is None:
+        if not self._built:
             make = mp_context().make_mpf
             M, U, s, p = self._M, self._U, self._s, self._prec
             n, N = len(M), len(M[0])
-            self._rows = [[make(_raw(M[i][k], U[i] - s * k, p)) for i in range(n)] for k in range(N)]
-        return self._rows
+            list.extend(self, [[make(_raw(M[i][k], U[i] - s * k, p)) for i in range(n)] for k in range(N)])
+            self._built = True
 
     def __len__(self):
         return len(self._M[0])
 
     def __getitem__(self, k):
-        return self._build()[k]
+        self._build()
+        return list.__getitem__(self, k)
 
     def __iter__(self):
-        return iter(self._build())
+        self._build()
+        return list.__iter__(self)
 
 
 # --------------------------------------------------------------------------
