@@ -13,11 +13,16 @@ Scaling (why fixed point loses nothing)
   of its own value (a zero one the smallest exponent of the non-zero ones), so states of size 1e6 or 1e-6 and
   parameters of any size keep ``F`` bits relative to their own scale.  Sums are exact (finest exponent); every
   other result is rounded once to half a unit.
-* With ``sigma`` near the radius of convergence the scaled coefficients ``C_k`` are of the size of the state,
-  so each is known to ``F`` bits relative to the state's scale; a Lie step evaluates the series at
-  ``|h| <= sigma``, where every term's absolute error stays below that of ``C_k``.  :class:`FixedStepper` keeps
-  ``sigma`` within a factor sqrt(2) of the radius estimated at the previous step and expands again (once) when
-  the new radius exceeds ``2 sigma``, so the step ``h <= radius / 2`` never exceeds ``sigma``.
+* The integers hold ``c_k sigma**k`` to ``F`` bits relative to the state's scale, i.e. each ``c_k`` with the
+  absolute accuracy that a step of at most ``sigma`` needs: a Lie step ``h <= sigma`` multiplies the error of
+  ``c_k`` by ``h**k``, so every term of the step's sum is known to ``F`` bits of the state.  :class:`FixedStepper`
+  takes ``sigma`` two to four times the last step (and below the radius of convergence), and ``lie_integrate``
+  never steps beyond it: the high orders, which a step multiplies by ``(h / rho)**k``, then carry
+  correspondingly fewer bits, which is where fixed point saves work over floating point.
+* Rounding: sums and products are exact, and every stored coefficient is rounded once (half a unit); the error
+  a coefficient inherits through the recurrences grows with the order and the depth of the expression by a
+  factor of a few powers of two, well inside the :func:`~lieseries.lie.jets.jet_guard_bits` the working
+  precision carries (tests/test_fixed_jets.py checks every instruction against the mpf jets at twice the digits).
 
 Big integers are gmpy2's ``mpz`` when gmpy2 imports, Python ``int`` otherwise; the environment variable
 ``LIESERIES_BIGINT=int`` (or :func:`set_backend`) forces Python ints.
@@ -197,7 +202,7 @@ def _mk_lin(run, out, vterms, offset):
 
 
 def _mk_scale(run, out, a, craw):
-    J, U, F = run.J, run.U, run.F
+    J, U = run.J, run.U
     A, C = J[a], J[out]
     s, m, e, bc = craw
     cm = -_Z(m) if s else _Z(m)
@@ -1061,8 +1066,9 @@ def fixed_taylor_coefficients(program_or_system, y0, pars, order, dps, time_scal
 
     Same arguments as :func:`lieseries.lie.jets.taylor_coefficients`, plus ``time_scale`` = s: the computation
     holds ``c_k * 2**(s k)`` to ``dps`` digits plus guard bits relative to the scale of each variable (the size
-    of its initial value), so ``c_k`` is accurate relative to ``scale * 2**(-s k)``: choose ``2**s`` near the
-    radius of convergence.  Returns ``c[k][i]`` as mpf of ``ctx`` at ``dps`` digits.
+    of its initial value), so ``c_k`` is accurate relative to ``scale * 2**(-s k)``, which is what a step of at
+    most ``2**s`` needs (with ``2**s`` near the radius of convergence, every coefficient to about ``dps``
+    digits).  Returns ``c[k][i]`` as mpf of ``ctx`` (the thread's context by default) at ``dps`` digits.
     """
     program = resolve_program(program_or_system)
     order = check_order(order)
