@@ -65,6 +65,11 @@ def test_rigid_body(bigint, dps, s):
     check(compile_system(*rigid_body()), RB_Y0, RB_PARS, 40, dps, s, 1.5)
 
 
+def test_high_precision(bigint):
+    # above ~100 digits Python ints take the products one by one (no packed dot products)
+    check(compile_system(*rigid_body()), RB_Y0, RB_PARS, 30, 130, -1, 1.5)
+
+
 def test_time_scale_far_above_the_radius(bigint):
     # sigma = 2**8 >> radius: the scaled coefficients grow by ~8 bits per order (packed products widen)
     check(compile_system(*rigid_body()), RB_Y0, RB_PARS, 40, 30, 8)

@@ -357,9 +357,12 @@ def _arg_slots(ins):
     return list(args)
 
 
-def _group(instrs):
+_INT_GROUP_BITS = 400
+
+
+def _group(instrs, enabled=True):
     """Insert ``dots`` steps: the products of the ``sop`` steps that share an operand, computed together at the
-    first step that needs one of them (when both operands are computed by then)."""
+    first step that needs one of them (when both operands are computed by then); none when not ``enabled``."""
     pos = {}
     for i, ins in enumerate(instrs):
         outs = ins[1] if isinstance(ins[1], tuple) else (ins[1],)
@@ -374,7 +377,7 @@ def _group(instrs):
                 for x in {a, b}:
                     count[x] = count.get(x, 0) + 1
     groups = {}
-    for i, t, a, b in prods:
+    for i, t, a, b in (prods if enabled else ()):
         pv, pt = (a, b) if (count[a], -a) >= (count[b], -b) else (b, a)
         groups.setdefault(pv, []).append((i, t, pt))
     at = {}  # instruction index -> dots steps to run before it
@@ -773,9 +776,13 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
         if not is_const[x]:
             J[x] = []
     steps = []
-    fused = _FUSED.get(plan)
+    # packed dot products pay off with gmpy2 at every precision, with Python ints (Karatsuba on the packed
+    # integers) only up to about 100 digits
+    grouped = _Z is not int or wp <= _INT_GROUP_BITS
+    cache = _FUSED.setdefault(plan, {})
+    fused = cache.get(grouped)
     if fused is None:
-        instrs, nkeys = _group(_fuse(plan))
+        instrs, nkeys = _group(_fuse(plan), grouped)
         uses = {}
         for ins in instrs:
             for x in _arg_slots(ins):
@@ -783,7 +790,7 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
         for o in plan.outputs:
             uses[o] = uses.get(o, 0) + 1
         to_state = {o: i for i, o in enumerate(plan.outputs) if uses[o] == 1}
-        fused = _FUSED[plan] = (instrs, nkeys, to_state)
+        fused = cache[grouped] = (instrs, nkeys, to_state)
     instrs, nkeys, to_state = fused
     run.dv = [None] * nkeys
     run.nxt = [None] * nvars
