@@ -153,6 +153,7 @@ def _raw_to_fraction(raw, name):
         if exp:
             raise ValueError(f"`{name}` must be finite; got {mpmath.mpf(raw)}")
         return Fraction(0)
+    man = int(man)  # an mpz under the gmpy2 backend: Fractions (and sympy Rationals) get Python ints
     v = Fraction(man << exp) if exp >= 0 else Fraction(man, 1 << -exp)
     return -v if sign else v
 

@@ -57,9 +57,7 @@ from ..timegrid import parse_times
 from .operator import (
     GUARD_DIGITS,
     coarse_bits,
-    estimate_radius,
     horner,
-    norms,
     prepare,
     tail_estimate,
 )
@@ -129,7 +127,8 @@ def lie_integrate(
         per-step estimate is at least the relative uncertainty of the data (``stats.extra["data_bits"]``), and
         one :class:`~lieseries.precision.PrecisionWarning` says so.
     """
-    from .jets import DeadlineExceeded, taylor_coefficients
+    from .fixed import FixedStepper
+    from .jets import DeadlineExceeded
 
     dps = check_dps(dps)
     user_events_arg = events
@@ -179,6 +178,7 @@ def lie_integrate(
     bits = coarse_bits(ps, y0, dps_to_bits(dps), times=[t, t0])
 
     prog = ps.program
+    stepper = FixedStepper(prog, pars, N, wdps)  # the jets in fixed-point big integers
     start = _time.perf_counter()
     estimates, extra = [], {"data_bits": bits}
     events = _event_checks(model, ps, wdps)
@@ -217,8 +217,7 @@ def lie_integrate(
                 message = f"The wall-time budget ran out at t = {mp.nstr(tcur, 17)}; raise `max_time`."
                 break
             try:
-                coeffs = taylor_coefficients(prog, z, pars, N, wdps, mp_context(),
-                                             deadline=None if max_time is None else start + max_time)
+                jet = stepper.expand(z, abs(tend - tcur), deadline=None if max_time is None else start + max_time)
             except DeadlineExceeded:  # the budget ran out inside the step's expansion
                 status = "time_budget"
                 message = f"The wall-time budget ran out at t = {mp.nstr(tcur, 17)}; raise `max_time`."
@@ -231,7 +230,7 @@ def lie_integrate(
                     "time are kept."
                 )
                 break
-            nrm = norms(coeffs)
+            coeffs, nrm = jet.coefficients, jet.norms
             if not all(mp.isfinite(c) for c in nrm):
                 status = "non_finite"
                 message = (
@@ -239,7 +238,7 @@ def lie_integrate(
                     "singular at this state."
                 )
                 break
-            rho = estimate_radius(nrm)
+            rho = jet.rho  # estimate_radius(nrm), computed once by the stepper
             tol_abs = tolm * max(mp.mpf(1), nrm[0])
             h = mp.inf
             for k in (N - 1, N):
@@ -248,15 +247,16 @@ def lie_integrate(
             h = min(h, rho / 2)
             if h == mp.inf:  # polynomial solution of degree < N - 1: one step reaches the end
                 h = abs(tend - tcur)
-            h = min(h, abs(tend - tcur))
+            h = min(h, abs(tend - tcur), jet.max_step)  # the jets hold what steps up to max_step need
             # per component: the tolerance is relative to the component's own size over the step (absolute below
             # 1), not to the largest component -- a momentum of size 1 beside positions of size 1e6 would keep
             # only tol * 1e6 of its digits, and its error grows into the positions over the run
-            scales = _component_scales(coeffs, h)
-            for k in (N - 1, N):
-                for c, s in zip(coeffs[k], scales):
-                    if k >= 1 and c != 0:
-                        h = min(h, (tolm * s / abs(c)) ** (mp.mpf(1) / k))
+            scales = jet.component_scales(h)
+            last = {k: jet.column(k) for k in (N - 1, N) if k >= 1}
+            for k, col in last.items():
+                for c, sc in zip(col, scales):
+                    if c != 0:
+                        h = min(h, (tolm * sc / c) ** (mp.mpf(1) / k))
             if h <= abs(tcur) * mp.mpf(10) ** (-wdps + 2) or h == 0:
                 status = "step_collapse"
                 message = (
@@ -265,11 +265,12 @@ def lie_integrate(
                 )
                 break
             hs = h * sgn
-            err = max(max(tail_estimate([abs(ck[i]) for ck in coeffs], h, rho) / s for i, s in enumerate(scales)),
-                      floor)
+            pad = [mp.mpf(0)] * (N - 1)  # tail_estimate reads the last two orders
+            err = max(max(tail_estimate(pad + [last[N - 1][i] if N >= 2 else mp.mpf(0), last[N][i]], h, rho) / sc
+                          for i, sc in enumerate(scales)), floor)
             if nsteps == 0 and order is not None and N < N_auto:
                 _warn_slow_order(N, N_auto, nrm, tol_abs, rho, abs(tend - tcur))
-            znew = horner(coeffs, hs)
+            znew = jet.horner(hs)
             tnew = tcur + hs if abs(tend - tcur) != h else tend
             try:
                 stop = user.step(coeffs, tcur, hs, sgn) if user is not None else None
@@ -328,19 +329,6 @@ def lie_integrate(
 def _largest_auto_dps() -> int:
     """The largest ``dps`` whose automatic order (tol = 10^-dps) is at most MAX_ORDER."""
     return int(2 * (MAX_ORDER - 1) / math.log(10))
-
-
-def _component_scales(coeffs, h):
-    """Each component's size over a step of length h: max(1, max_k |c_k,i| h^k) (absolute below 1)."""
-    n = len(coeffs[0])
-    out = []
-    for i in range(n):
-        s, hk = mp.mpf(1), mp.mpf(1)
-        for ck in coeffs:
-            s = max(s, abs(ck[i]) * hk)
-            hk *= h
-        out.append(s)
-    return out
 
 
 def _warn_slow_order(N, N_auto, nrm, tol_abs, rho, span):

@@ -538,6 +538,17 @@ def _plan_for(program):
     return plan
 
 
+def jet_plan(program):
+    """The jet instructions of a :class:`Program` (built once, cached on it), for other jet engines
+    (:mod:`lieseries.lie.fixed`)."""
+    return _plan_for(program)
+
+
+def resolve_program(program_or_system, name="program_or_system"):
+    """A :class:`Program` from a Program or a heyoka-style system, checked to have one output per variable."""
+    return _resolve_program(program_or_system, name)
+
+
 # --------------------------------------------------------------------------
 # Public API
 # --------------------------------------------------------------------------
