@@ -1,7 +1,8 @@
 """Built-in models: each a PoissonSystem plus state helpers, invariants and input checks."""
 
 from .base import Model
+from .constrained import ConstrainedDirac, ConstrainedSystem
 from .euler_poisson import DampedEulerPoisson, EulerPoisson
 from .sphere import Sphere, SphereDirac
 
-__all__ = ["Model", "EulerPoisson", "DampedEulerPoisson", "Sphere", "SphereDirac"]
+__all__ = ["Model", "EulerPoisson", "DampedEulerPoisson", "Sphere", "SphereDirac", "ConstrainedSystem", "ConstrainedDirac"]
