@@ -290,3 +290,15 @@ def test_hessian_depending_on_q_is_checked_at_the_initial_point():
     with pytest.raises(ValueError, match=r"`q`: the velocity Hessian .* at this point is not positive definite"):
         cs2 = ls.ConstrainedSystem("(x_dot**2 + x*y_dot**2)/2", ["x", "y"], ["x + y**2 + 1/2"])
         cs2.dirac().initial_state(q=("-0.75", "0.5"), qdot=(1, -1))
+
+
+def test_p8_1_block_inverse_of_the_constraint_matrix():
+    """(p8.1): [[0, b], [-b^T, c]]^-1 = [[b^-T c b^-1, -b^-T], [b^-1, 0]] for any invertible b and antisymmetric c
+    (checked symbolically for k = 2; the derivation uses this form)."""
+    b = sp.Matrix(2, 2, sp.symbols("b0:4"))
+    c01 = sp.Symbol("c01")
+    c = sp.Matrix([[0, c01], [-c01, 0]])
+    delta = sp.BlockMatrix([[sp.zeros(2), b], [-b.T, c]]).as_explicit()
+    binv = b.inv()
+    inv = sp.BlockMatrix([[binv.T * c * binv, -binv.T], [binv, sp.zeros(2)]]).as_explicit()
+    assert sp.simplify(delta * inv - sp.eye(4)) == sp.zeros(4)
