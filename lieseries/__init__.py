@@ -3,6 +3,7 @@
 Public API (stable names)::
 
     ls.EulerPoisson, ls.Sphere, ls.SphereDirac     models
+    ls.HeavyTop                                    the rigid body with gravity (EulerPoisson's layout)
     ls.PoissonSystem                               write your own from a bracket and a Hamiltonian
     ls.ConstrainedSystem                           a Lagrangian and holonomic constraints -> Dirac-bracket model
     ls.integrate                                   heyoka's adaptive Taylor method, any precision
@@ -23,7 +24,7 @@ hold_while_importing(__name__)  # Ctrl-C now would break a C extension half way:
 
 from . import exact, studies  # noqa: E402
 from .events import Event
-from .models import ConstrainedSystem, DampedEulerPoisson, EulerPoisson, Model, Sphere, SphereDirac
+from .models import ConstrainedSystem, DampedEulerPoisson, EulerPoisson, HeavyTop, Model, Sphere, SphereDirac
 from .poisson import PoissonSystem
 from .precision import Precision, PrecisionWarning, resolve_precision
 from .solution import EnsembleSolution, Solution, Stats
@@ -42,6 +43,7 @@ __all__ = [
     "Sphere",
     "SphereDirac",
     "ConstrainedSystem",
+    "HeavyTop",
     "PoissonSystem",
     "Event",
     "PrecisionWarning",

@@ -3,6 +3,8 @@
 from .base import Model
 from .constrained import ConstrainedDirac, ConstrainedSystem
 from .euler_poisson import DampedEulerPoisson, EulerPoisson
+from .heavy_top import HeavyTop
 from .sphere import Sphere, SphereDirac
 
-__all__ = ["Model", "EulerPoisson", "DampedEulerPoisson", "Sphere", "SphereDirac", "ConstrainedSystem", "ConstrainedDirac"]
+__all__ = ["Model", "EulerPoisson", "DampedEulerPoisson", "HeavyTop", "Sphere", "SphereDirac", "ConstrainedSystem",
+           "ConstrainedDirac"]
