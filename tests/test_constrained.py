@@ -302,3 +302,61 @@ def test_p8_1_block_inverse_of_the_constraint_matrix():
     binv = b.inv()
     inv = sp.BlockMatrix([[binv.T * c * binv, -binv.T], [binv, sp.zeros(2)]]).as_explicit()
     assert sp.simplify(delta * inv - sp.eye(4)) == sp.zeros(4)
+
+
+# -- the reduced form on the intermediate submanifold (p8.13) -------------------------------------------------------
+@pytest.mark.parametrize("precision", ["double", "quad"])
+def test_reduced_sphere_follows_the_great_circle_and_stops_at_its_chart_edge(sphere, precision):
+    """(x1, x2, x3, p1, p2) with p3 = -(x1 p1 + x2 p2)/x3 eliminated: the great circle x3 = 0.8 cos t, until
+    |x3| = 0.05 |x| at t = acos(1/16) = 1.508, where the run stops with status chart_edge."""
+    model = sphere.reduced()
+    assert model.names == ("x1", "x2", "x3", "p_x1", "p_x2")
+    x0, v0 = ("0.6", "0", "0.8"), ("0", "1", "0")
+    y0 = model.initial_state(q=x0, qdot=v0)
+    assert y0.exact == (Fraction(3, 5), 0, Fraction(4, 5), 0, Fraction(3, 2))
+    ts = ["0.5", 1, "1.4"]
+    sol = ls.integrate(model, y0, t=ts, precision=precision)
+    assert sol.success
+    eps = float(resolve_precision(precision).eps)
+    c = ctx(40)
+    for row_q, row_v, t in zip(model.configuration(sol), model.velocity(sol), ts):
+        xt, vt = ls.exact.sphere(1, x0, v0, t, dps=40)
+        err = max(abs(mpf(c, a) - b) for a, b in zip(list(row_q) + list(row_v), list(xt) + list(vt)))
+        assert err < 200 * eps, (t, err)  # grows like 1/x3 near the edge
+    stop = ls.integrate(model, y0, t=3, precision=precision)
+    assert stop.status == "chart_edge" and "1.508" in stop.message
+
+
+def test_reduced_bracket_is_poisson_with_G_a_casimir(sphere):
+    ps = sphere.reduced().poisson
+    pts = [[str(v) for v in row] for row in np.random.default_rng(2).uniform(0.3, 1.3, size=(3, 5))]
+    assert ps.antisymmetry_residual(pts, 50) == 0
+    assert ps.jacobi_residual(pts, 50) < mpmath.mpf(10) ** -40  # everywhere: Phi = 0 is a union of leaves
+    assert ps.casimir_residual("G1", pts, 50) < mpmath.mpf(10) ** -40
+    assert set(ps.casimirs) == {"G1"}
+
+
+def test_reduced_planar_pendulum_matches_the_closed_form():
+    """(x, y, p_x), p_y eliminated (y < 0 along the swing): against the elliptic closed form in quad."""
+    cs = ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - g*y", ["x", "y"], ["x**2 + y**2 - 1"],
+                              parameters={"g": "9.81"})
+    model = cs.reduced(dependent="y")
+    y0 = model.initial_state(q=("0.6", "-0.8"), qdot=(0, 0))
+    sol = ls.integrate(model, y0, t=[1, 2, 3], precision="quad")
+    assert sol.success
+    c = ctx(50)
+    k2 = (1 - c.mpf("0.8")) / 2
+    for row, t in zip(model.configuration(sol), [1, 2, 3]):
+        ref = _pendulum_closed_form(k2, c.sqrt(c.mpf("9.81")), c.mpf(t), c)
+        assert max(abs(mpf(c, a) - b) for a, b in zip(row, ref)) < 1000 * float(resolve_precision("quad").eps)
+
+
+def test_bad_reduced_arguments_name_the_argument(sphere):
+    with pytest.raises(ValueError, match="`dependent`"):
+        sphere.reduced(dependent=("x1", "x2"))
+    with pytest.raises(ValueError, match="`dependent`"):
+        sphere.reduced(dependent="z")
+    with pytest.raises(ValueError, match="`edge`"):
+        sphere.reduced(edge=2)
+    with pytest.raises(ValueError, match="`q` is at or beyond the edge"):
+        sphere.reduced().initial_state(q=("0.6", "0.8", "0"), qdot=(0, 0, 1))

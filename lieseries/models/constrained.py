@@ -41,7 +41,7 @@ from ..precision import BinaryFraction, binary_inputs, bits_to_dps, data_bits, s
 from ..precision import thread_mp as mp
 from .base import Model, make_state
 
-__all__ = ["ConstrainedSystem", "ConstrainedDirac"]
+__all__ = ["ConstrainedSystem", "ConstrainedDirac", "ConstrainedReduced"]
 
 #: Functions a Lagrangian or constraint string may use (all of them convert to heyoka).
 FUNCTIONS = {
@@ -327,6 +327,40 @@ class ConstrainedSystem:
             self._dirac = ConstrainedDirac(self)
         return self._dirac
 
+    def reduced(self, dependent=None, edge="0.05") -> "ConstrainedReduced":
+        """The model on the intermediate submanifold Phi = 0 with coordinates (q^A, p_i) (paper, p8.10-p8.15).
+
+        The momenta of the coordinates ``dependent`` (k indices; default: the last k) are eliminated by solving
+        Phi_alpha = 0 for them, p_alpha = f_alpha(q, p_i); the bracket is the Dirac bracket of the remaining
+        variables with p_alpha = f_alpha substituted (p8.13), the Hamiltonian H_0 likewise (p8.14). Like a chart,
+        it holds where the k x k block D = (G_q M^-1)[:, dependent] is invertible: runs stop (status
+        ``"chart_edge"``) when det(D)^2 falls to ``edge``^2 det(W W^T), W = G_q M^-1 (for the sphere with x3
+        dependent: |x3| = edge |x|). Cached per (dependent, edge)."""
+        k = len(self.constraints)
+        n = len(self.coordinates)
+        if dependent is None:
+            dependent = tuple(range(n - k, n))
+        if isinstance(dependent, (int, np.integer, str)):
+            dependent = (dependent,)
+        dep = []
+        for d in dependent:
+            if isinstance(d, str) and d in self.coordinates:
+                d = self.coordinates.index(d)
+            if isinstance(d, bool) or not isinstance(d, (int, np.integer)) or not 0 <= int(d) < n:
+                raise ValueError(f"`dependent` must name {k} of the coordinates {list(self.coordinates)} (or their "
+                                 f"indices); got {dependent!r}")
+            dep.append(int(d))
+        if len(dep) != k or len(set(dep)) != k:
+            raise ValueError(f"`dependent` must name {k} distinct coordinates (one per constraint); got {dependent!r}")
+        edge_f = to_fraction(edge, "edge")
+        if not 0 < edge_f < 1:
+            raise ValueError(f"`edge` must lie in (0, 1) (a fraction of the largest possible |det D|); got {edge!r}")
+        cache = self.__dict__.setdefault("_reduced", {})
+        key = (tuple(dep), edge_f)
+        if key not in cache:
+            cache[key] = ConstrainedReduced(self, tuple(dep), edge_f)
+        return cache[key]
+
     def __repr__(self) -> str:
         return (f"ConstrainedSystem({str(self.lagrangian)!r}, {list(self.coordinates)}, "
                 f"{[str(g) for g in self.constraints]}, parameters={ {k: str(v) for k, v in self.parameter_values.items()} })")
@@ -533,7 +567,7 @@ class ConstrainedDirac(Model):
         """Refuse a point off G = 0 or a velocity not tangent to it (relative residuals at 60 digits)."""
         tol_exact = _residual_tolerance(bits)
         n = self.n
-        point = list(q) + [0] * n
+        point = list(q) + [0] * (len(self.variables) - n)
         k = len(self._terms)
         flat = [t for ts in self._terms for t in ts] + [g for row in self._gradients for g in row]
         vals = self._eval(flat, point)
@@ -628,8 +662,8 @@ class ConstrainedDirac(Model):
         """q^A(t): the first n entries of each state (a Solution, one state or a 2-d array of states)."""
         y, _ = self._with_charts(y, None)
         arr = y if isinstance(y, np.ndarray) else np.asarray(y, dtype=object)
-        if arr.shape[-1] != 2 * self.n:
-            raise ValueError(f"`y` must have {2 * self.n} entries per state; got shape {arr.shape}")
+        if arr.shape[-1] != self.dimension:
+            raise ValueError(f"`y` must have {self.dimension} entries per state; got shape {arr.shape}")
         return np.asarray(arr)[..., :self.n]
 
     def velocity(self, y) -> np.ndarray:
@@ -648,3 +682,100 @@ class ConstrainedDirac(Model):
 
     def __repr__(self) -> str:
         return f"ConstrainedDirac({self.system.name!r}, variables={list(self.names)})"
+
+
+class ConstrainedReduced(ConstrainedDirac):
+    """A :class:`ConstrainedSystem` on the intermediate submanifold Phi = 0, coordinates (q^A, p_i) (paper,
+    p8.13-p8.15); see :meth:`ConstrainedSystem.reduced`. State: the n coordinates, then the n - k independent
+    momenta. ``invariants``: ``energy`` H'_0 and the Casimirs ``G1..``."""
+
+    def __init__(self, system: ConstrainedSystem, dependent: tuple, edge: Fraction):
+        self.system = system
+        self.dependent = dependent
+        self.edge = edge
+        n = len(system.coordinates)
+        k = len(system.constraints)
+        self.n = n
+        d = system.dirac_bracket()
+        q, p = d["q"], d["p"]
+        free = [i for i in range(n) if i not in dependent]
+        self.free = tuple(free)
+        # Phi = W (p - A), W = G_q M^-1: linear in p; solve for the dependent momenta
+        pdep = [p[a] for a in dependent]
+        sol = sp.solve(d["Phi"], pdep, dict=True)
+        W = sp.Matrix([[sp.diff(phi, p[a]) for a in range(n)] for phi in d["Phi"]])
+        D = W[:, list(dependent)]
+        detD = sp.cancel(D.det(method="berkowitz"))
+        if not sol or detD == 0:
+            raise ValueError(f"`dependent`: the constraints Phi = 0 cannot be solved for the momenta of "
+                             f"{[system.coordinates[a] for a in dependent]} (the block of dPhi/dp is singular "
+                             "everywhere); choose other coordinates")
+        f = {pa: sp.cancel(sol[0][pa]) for pa in pdep}
+        idx = list(range(n)) + [n + i for i in free]
+        names = list(system.coordinates) + [f"p_{system.coordinates[i]}" for i in free]
+        z = hy.make_vars(*names)
+        syms = q + [p[i] for i in free]
+        conv = _HeyokaConverter(system, list(zip(syms, z)))
+        T = d["tensor"]
+        m = len(idx)
+        tensor = [[0] * m for _ in range(m)]
+        self._sym_tensor = sp.zeros(m, m)
+        for a in range(m):
+            for b in range(a + 1, m):
+                e = T[idx[a], idx[b]]
+                if e != 0:
+                    e = _tidy(e.xreplace(f))
+                if e != 0:
+                    self._sym_tensor[a, b], self._sym_tensor[b, a] = e, -e
+                    tensor[a][b] = conv(e)
+                    tensor[b][a] = -tensor[a][b]
+        H0 = sp.cancel(d["H0"].xreplace(f))
+        self._sym_hamiltonian = H0
+        self._sym_dependent = f
+        H = conv(H0)
+        casimirs = {f"G{a + 1}": conv(d["G"][a]) for a in range(k)}
+        self._velocity_exprs = [conv(sp.cancel(e.xreplace(f))) for e in d["velocity"]]
+        self._gradients = [[conv(sp.diff(g, qa)) for qa in q] for g in d["G"]]
+        self._terms = [[conv(t) for t in sp.Add.make_args(sp.expand(g))] for g in d["G"]]
+        gram = sp.cancel((W * W.T).det(method="berkowitz"))
+        self._edge_expr = conv(detD**2) - conv(gram) * hy.par[len(conv.names)]
+        self._edge_ratio = (conv(detD**2), conv(gram))
+        self.variables = z
+        params = {nm: conv.values[nm] for nm in conv.names}
+        edge_name = "edge2"
+        while edge_name in params:
+            edge_name = "_" + edge_name
+        params[edge_name] = edge * edge
+        sources = {nm: f"parameters[{nm!r}]" for nm in system.parameter_values}
+        sources.update({nm: "lagrangian" for nm in params if nm not in system.parameter_values})
+        sources[edge_name] = "edge"
+        bits = dict(system._parameter_bits)
+        bits.update(system._input_bits)
+        self.poisson = PoissonSystem(z, tensor, H, parameters=params, casimirs=casimirs,
+                                     name=f"{system.name} (reduced, p of {', '.join(system.coordinates[a] for a in dependent)} "
+                                          "eliminated)", input_bits=bits, parameter_sources=sources)
+
+    def events(self):
+        return [(self._edge_expr, "chart_edge",
+                 f"the chart of the momenta of {[self.system.coordinates[a] for a in self.dependent]} is ending "
+                 f"(det D reached {float(self.edge)} of its largest value)")]
+
+    def initial_state(self, q, qdot, precision=None) -> np.ndarray:
+        """The state (q, p_i) from a point on the surface and a tangent velocity (checks as
+        :meth:`ConstrainedDirac.initial_state`), refused at or beyond the chart's edge."""
+        full = ConstrainedDirac.initial_state(self, q, qdot, precision=None)
+        vals = list(full.exact)
+        n = self.n
+        qv = vals[:n]
+        num, den = self._eval(list(self._edge_ratio), qv + [0] * (n - len(self.dependent)))
+        if not num > den * (mp.mpf(self.edge.numerator) / self.edge.denominator) ** 2:
+            raise ValueError(
+                f"`q` is at or beyond the edge of the chart that eliminates the momenta of "
+                f"{[self.system.coordinates[a] for a in self.dependent]} (det D^2 / det W W^T = "
+                f"{mp.nstr(num / den if den else mp.mpf(0), 4)} <= edge^2 = {float(self.edge) ** 2:.4g}); "
+                "choose other `dependent` coordinates, or use the global form dirac()")
+        given = {"q": q, "qdot": qdot}
+        return make_state(qv + [vals[n + i] for i in self.free], precision, inputs=given)
+
+    def __repr__(self) -> str:
+        return f"ConstrainedReduced({self.system.name!r}, variables={list(self.names)})"
