@@ -360,3 +360,14 @@ def test_bad_reduced_arguments_name_the_argument(sphere):
         sphere.reduced(edge=2)
     with pytest.raises(ValueError, match="`q` is at or beyond the edge"):
         sphere.reduced().initial_state(q=("0.6", "0.8", "0"), qdot=(0, 0, 1))
+
+
+def test_a_run_can_restart_from_its_own_end_state(spherical_pendulum):
+    """A double run's last row has drifted off the surface by rounding (5e-15 at t = 200): accepted as a new start; a raw
+    state far off is refused (test above)."""
+    model = spherical_pendulum.dirac()
+    y0 = model.initial_state(q=("0.6", "0", "-0.8"), qdot=(0, 1, 0))
+    end = ls.integrate(model, y0, t=200).y[-1]  # G1 = 5.2e-15: more than 53 bits allow, far less than 2^-24
+    assert 0 < abs(model.invariants(end)["G1"]) < 1e-12
+    again = ls.integrate(model, end, t=1)
+    assert again.success
