@@ -245,7 +245,8 @@ BAD = {
         "x1**2 + x2**2 + x3**2 - 1", "2*(x1**2 + x2**2 + x3**2) - 2"], parameters={"m": 1}),
         "`constraints` are functionally dependent"),
     "velocity in a constraint": (lambda: ls.ConstrainedSystem(SPHERE_L, SPHERE_Q, ["x1*x1_dot + x2"],
-                                                              parameters={"m": 1}), "`constraints[0]` uses the velocities"),
+                                                              parameters={"m": 1}),
+                                 "`constraints[0]` uses the velocities"),
     "unknown symbol": (lambda: ls.ConstrainedSystem(SPHERE_L + " - m*g*x3", SPHERE_Q, SPHERE_G,
                                                     parameters={"m": 1, "c": 1}), "`lagrangian` uses `g`"),
     "unknown symbol in a constraint": (lambda: ls.ConstrainedSystem(SPHERE_L, SPHERE_Q, SPHERE_G,
@@ -363,8 +364,8 @@ def test_bad_reduced_arguments_name_the_argument(sphere):
 
 
 def test_a_run_can_restart_from_its_own_end_state(spherical_pendulum):
-    """A double run's last row has drifted off the surface by rounding (5e-15 at t = 200): accepted as a new start; a raw
-    state far off is refused (test above)."""
+    """A double run's last row has drifted off the surface by rounding (5e-15 at t = 200): accepted as a new start;
+    a raw state far off is refused (test above)."""
     model = spherical_pendulum.dirac()
     y0 = model.initial_state(q=("0.6", "0", "-0.8"), qdot=(0, 1, 0))
     end = ls.integrate(model, y0, t=200).y[-1]  # G1 = 5.2e-15: more than 53 bits allow, far less than 2^-24

@@ -363,7 +363,8 @@ class ConstrainedSystem:
 
     def __repr__(self) -> str:
         return (f"ConstrainedSystem({str(self.lagrangian)!r}, {list(self.coordinates)}, "
-                f"{[str(g) for g in self.constraints]}, parameters={ {k: str(v) for k, v in self.parameter_values.items()} })")
+                f"{[str(g) for g in self.constraints]}, "
+                f"parameters={ {k: str(v) for k, v in self.parameter_values.items()} })")
 
 
 # -- helpers ---------------------------------------------------------------------------------------------------------
@@ -759,8 +760,9 @@ class ConstrainedReduced(ConstrainedDirac):
         bits = dict(system._parameter_bits)
         bits.update(system._input_bits)
         self.poisson = PoissonSystem(z, tensor, H, parameters=params, casimirs=casimirs,
-                                     name=f"{system.name} (reduced, p of {', '.join(system.coordinates[a] for a in dependent)} "
-                                          "eliminated)", input_bits=bits, parameter_sources=sources)
+                                     name=f"{system.name} (reduced, p of "
+                                          f"{', '.join(system.coordinates[a] for a in dependent)} eliminated)",
+                                     input_bits=bits, parameter_sources=sources)
 
     def events(self):
         return [(self._edge_expr, "chart_edge",
