@@ -3,7 +3,9 @@
 Public API (stable names)::
 
     ls.EulerPoisson, ls.Sphere, ls.SphereDirac     models
+    ls.HeavyTop                                    the rigid body with gravity (EulerPoisson's layout)
     ls.PoissonSystem                               write your own from a bracket and a Hamiltonian
+    ls.ConstrainedSystem                           a Lagrangian and holonomic constraints -> Dirac-bracket model
     ls.integrate                                   heyoka's adaptive Taylor method, any precision
     ls.Event                                       zero crossings to record or stop at (both engines)
     ls.PrecisionWarning                            binary data fed to a run above their precision
@@ -22,7 +24,7 @@ hold_while_importing(__name__)  # Ctrl-C now would break a C extension half way:
 
 from . import exact, studies  # noqa: E402
 from .events import Event
-from .models import DampedEulerPoisson, EulerPoisson, Model, Sphere, SphereDirac
+from .models import ConstrainedSystem, DampedEulerPoisson, EulerPoisson, HeavyTop, Model, Sphere, SphereDirac
 from .poisson import PoissonSystem
 from .precision import Precision, PrecisionWarning, resolve_precision
 from .solution import EnsembleSolution, Solution, Stats
@@ -40,6 +42,8 @@ __all__ = [
     "Model",
     "Sphere",
     "SphereDirac",
+    "ConstrainedSystem",
+    "HeavyTop",
     "PoissonSystem",
     "Event",
     "PrecisionWarning",

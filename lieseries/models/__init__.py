@@ -1,7 +1,10 @@
 """Built-in models: each a PoissonSystem plus state helpers, invariants and input checks."""
 
 from .base import Model
+from .constrained import ConstrainedDirac, ConstrainedSystem
 from .euler_poisson import DampedEulerPoisson, EulerPoisson
+from .heavy_top import HeavyTop
 from .sphere import Sphere, SphereDirac
 
-__all__ = ["Model", "EulerPoisson", "DampedEulerPoisson", "Sphere", "SphereDirac"]
+__all__ = ["Model", "EulerPoisson", "DampedEulerPoisson", "HeavyTop", "Sphere", "SphereDirac", "ConstrainedSystem",
+           "ConstrainedDirac"]

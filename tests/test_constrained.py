@@ -1,0 +1,374 @@
+"""ConstrainedSystem: a Lagrangian with holonomic constraints -> the Dirac-bracket model (paper, p8.1 and p8.7).
+
+References are independent of the derivation: the Dirac bracket of the sphere written by hand (seed NOTES), the
+great circle (``ls.exact.sphere``), mpmath's ``odefun`` on the equations of motion in angles, and the pendulum's
+closed form in Jacobi elliptic functions.
+"""
+
+import re
+from fractions import Fraction
+
+import mpmath
+import numpy as np
+import pytest
+import sympy as sp
+
+import lieseries as ls
+from lieseries.precision import resolve_precision, to_fraction
+
+SPHERE_L = "m/2*(x1_dot**2 + x2_dot**2 + x3_dot**2)"
+SPHERE_Q = ["x1", "x2", "x3"]
+SPHERE_G = ["x1**2 + x2**2 + x3**2 - c**2"]
+
+
+def ctx(dps):
+    """A private mpmath context (the global one is never touched)."""
+    c = mpmath.MPContext()
+    c.dps = dps
+    return c
+
+
+def mpf(c, v):
+    f = to_fraction(v)
+    return c.mpf(f.numerator) / f.denominator
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    return ls.ConstrainedSystem(SPHERE_L, SPHERE_Q, SPHERE_G, parameters={"m": "3/2", "c": 1})
+
+
+@pytest.fixture(scope="module")
+def spherical_pendulum():
+    return ls.ConstrainedSystem(SPHERE_L + " - m*g*x3", SPHERE_Q, ["x1**2 + x2**2 + x3**2 - l**2"],
+                                parameters={"m": 1, "g": "9.81", "l": 1})
+
+
+# -- the derivation ----------------------------------------------------------------------------------------------
+def test_sphere_dirac_bracket_is_the_known_one(sphere):
+    """{x_i, x_j}_D = 0, {x_i, p_j}_D = delta_ij - x_i x_j/|x|^2, {p_i, p_j}_D = (p_i x_j - x_i p_j)/|x|^2 and
+    H_0 = |p|^2/2m, symbolically (NOTES.md, 'Useful facts'); the constraints are |x|^2 - c^2 and 2 x.p/m."""
+    d = sphere.dirac_bracket()
+    x, p = d["q"], d["p"]
+    r2 = sum(v**2 for v in x)
+    expected = sp.zeros(6, 6)
+    for i in range(3):
+        for j in range(3):
+            expected[i, 3 + j] = sp.KroneckerDelta(i, j) - x[i] * x[j] / r2
+            expected[3 + j, i] = -expected[i, 3 + j]
+            expected[3 + i, 3 + j] = (p[i] * x[j] - x[i] * p[j]) / r2
+    assert sp.simplify(d["tensor"] - expected) == sp.zeros(6, 6)
+    m = sp.Symbol("m", real=True)
+    assert sp.simplify(d["H0"] - sum(v**2 for v in p) / (2 * m)) == 0
+    assert sp.simplify(d["Phi"][0] - 2 * sum(a * b for a, b in zip(x, p)) / m) == 0
+
+
+def test_derived_sphere_field_equals_the_hand_written_dirac_model(sphere):
+    """The derived vector field and SphereDirac's (written by hand) agree at a state on the sphere."""
+    model = sphere.dirac()
+    hand = ls.SphereDirac(mass="3/2", radius=1)
+    y = model.initial_state(q=("0.6", "0", "0.8"), qdot=("0.48", "1", "-0.36"))
+    z = hand.initial_state(x=("0.6", "0", "0.8"), v=("0.48", "1", "-0.36"))
+    assert list(y.exact) == list(z.exact)
+    from lieseries.expr import compile_expressions
+
+    def field(m, state):
+        prog = compile_expressions(m.poisson.variables, m.poisson.vector_field, len(m.poisson.parameter_values))
+        return prog.evaluate(list(state.exact), list(m.poisson.parameter_values), 40)
+
+    for a, b in zip(field(model, y), field(hand, z)):
+        assert abs(a - b) < mpmath.mpf(10) ** -38
+
+
+def test_dirac_bracket_is_poisson_with_the_constraints_as_casimirs():
+    """Antisymmetric, Jacobi (the Dirac bracket is Poisson everywhere C is invertible, on and off the surface),
+    and G, Phi Casimirs, for a system with two constraints (a particle on a tilted circle)."""
+    cs = ls.ConstrainedSystem("(x_dot**2 + 2*y_dot**2 + z_dot**2)/2 - y", ["x", "y", "z"],
+                              ["x**2 + y**2 + z**2 - 1", "x + y + 2*z - 1/3"])
+    model = cs.dirac()
+    ps = model.poisson
+    assert set(ps.casimirs) == {"G1", "G2", "Phi1", "Phi2"}
+    pts = [[str(v) for v in row] for row in np.random.default_rng(1).uniform(0.3, 1.3, size=(3, 6))]
+    assert ps.antisymmetry_residual(pts, 50) == 0
+    assert ps.jacobi_residual(pts, 50) < mpmath.mpf(10) ** -40
+    ps.check_jacobi()
+    for name in ps.casimirs:
+        assert ps.casimir_residual(name, pts, 50) < mpmath.mpf(10) ** -40
+    # H_0 is (1/2) p.M^-1.p + y: M = diag(1, 2, 1)
+    inv = model.invariants(["1", "0", "0", "2", "4", "6"])
+    assert inv["energy"] == 24  # 4/2 + 16/4 + 36/2 + y
+
+
+def test_derivation_is_cached(sphere):
+    assert sphere.dirac() is sphere.dirac()
+    assert sphere.dirac_bracket() is sphere.dirac_bracket()
+
+
+# -- motions against independent references ------------------------------------------------------------------------
+@pytest.mark.parametrize("precision", ["double", "quad"])
+def test_derived_sphere_follows_the_great_circle(sphere, precision):
+    model = sphere.dirac()
+    x0, v0 = ("0.6", "0", "0.8"), ("0", "1", "0")
+    y0 = model.initial_state(q=x0, qdot=v0)
+    ts = [1, 2, 5, 10]
+    sol = ls.integrate(model, y0, t=ts, precision=precision)
+    assert sol.success
+    eps = resolve_precision(precision).eps
+    q, v = model.configuration(sol), model.velocity(sol)
+    c = ctx(40)
+    worst = 0
+    for row_q, row_v, t in zip(q, v, ts):
+        xt, vt = ls.exact.sphere(1, x0, v0, t, dps=40)
+        err = max(abs(mpf(c, a) - b) for a, b in zip(list(row_q) + list(row_v), list(xt) + list(vt)))
+        worst = max(worst, err / (t * float(eps)))
+    # measured: 0.87 eps t (double), 5.7 eps t (quad)
+    assert worst < 100
+
+
+@pytest.mark.parametrize("precision", ["double", "quad"])
+def test_spherical_pendulum_conserves_energy_and_constraints(spherical_pendulum, precision):
+    model = spherical_pendulum.dirac()
+    y0 = model.initial_state(q=("0.6", "0", "-0.8"), qdot=(0, 1, 0))
+    sol = ls.integrate(model, y0, t=np.linspace(0, 10, 6).tolist(), precision=precision)
+    assert sol.success
+    eps = float(resolve_precision(precision).eps)
+    inv = model.invariants(sol)
+    e0 = model.invariants(y0)["energy"]
+    c = ctx(90)
+    assert abs(c.mpf(e0) - c.mpf(-7348) / 1000) < c.mpf(10) ** -80  # 1/2 |v|^2 + g x3 = 1/2 - 0.8 * 9.81
+    for e, g, phi in zip(inv["energy"], inv["G1"], inv["Phi1"]):
+        assert abs(e - e0) < 200 * eps * abs(e0)
+        assert abs(g) < 200 * eps and abs(phi) < 200 * eps
+
+
+def _spherical_angles_reference(theta0, dtheta0, dphi0, g, ts, bits=256):
+    """The spherical pendulum (l = 1) written by hand in angles, theta from the upward vertical (x3 = cos theta,
+    potential g cos theta): theta'' = sin cos phi'^2 + g sin theta, phi'' = -2 cot(theta) theta' phi', integrated by
+    heyoka directly at ``bits`` bits (mpmath's odefun takes minutes for t = 2 at 40 digits). Returns x(t)."""
+    import heyoka as hy
+
+    th, ph, u, w = hy.make_vars("th", "ph", "u", "w")
+    sys_ = [(th, u), (ph, w), (u, hy.sin(th) * hy.cos(th) * w**2 + hy.par[0] * hy.sin(th)),
+            (w, -2.0 * hy.cos(th) / hy.sin(th) * u * w)]
+    r = lambda v: hy.real(str(v), bits)  # noqa: E731
+    ta = hy.taylor_adaptive(sys_, [r(theta0), r(0), r(dtheta0), r(dphi0)], fp_type=hy.real, prec=bits,
+                            pars=[r(g)])
+    out = ta.propagate_grid([r(t) for t in [0] + list(ts)])[-1][1:]
+    c = ctx(bits // 4)
+    res = []
+    for row in out:
+        t_, p_ = (c.mpf(str(v)) for v in row[:2])
+        res.append([c.sin(t_) * c.cos(p_), c.sin(t_) * c.sin(p_), c.cos(t_)])
+    return c, res
+
+
+def test_spherical_pendulum_matches_the_equations_in_angles(spherical_pendulum):
+    """At 160 bits (48 digits) the Cartesian Dirac model agrees with the motion in (theta, phi) to 1e-40 at t = 1, 2."""
+    model = spherical_pendulum.dirac()
+    # x = (3/5, 0, -4/5): sin theta = 3/5, cos theta = -4/5, phi = 0; v = (0.3, 1, 0.225) =
+    # (cos th th', sin th phi', -sin th th'): theta' = -3/8, phi' = 5/3
+    y0 = model.initial_state(q=("0.6", "0", "-0.8"), qdot=("0.3", "1", "0.225"))
+    c = ctx(80)
+    theta0 = c.nstr(c.pi - c.asin(c.mpf(3) / 5), 78)
+    c, ref = _spherical_angles_reference(theta0, "-0.375", c.nstr(c.mpf(5) / 3, 78), "9.81", [1, 2])
+    sol = ls.integrate(model, y0, t=[1, 2], precision=160)
+    assert sol.success
+    for row, r in zip(model.configuration(sol), ref):
+        err = max(abs(mpf(c, a) - b) for a, b in zip(row, r))
+        assert err < c.mpf(10) ** -40, err  # measured: 1.5e-48
+
+
+def _pendulum_closed_form(k2, omega, t, c):
+    """Released at rest from theta0 (sin^2(theta0/2) = k2): sin(theta/2) = k sn(K - omega t, k)."""
+    K = c.ellipk(k2)
+    s = c.sqrt(k2) * c.ellipfun("sn", K - omega * t, m=k2)
+    # x = l sin theta = 2 l s sqrt(1 - s^2) (theta and sn change sign together), y = -l cos theta = -l (1 - 2 s^2)
+    return [2 * s * c.sqrt(1 - s**2), -(1 - 2 * s**2)]
+
+
+@pytest.mark.parametrize("precision", ["double", "quad"])
+def test_planar_pendulum_in_cartesian_coordinates_matches_the_closed_form(precision):
+    """g written in the Lagrangian as 981/100 (not a binary number): the quad run agrees with the closed form to
+    quad's epsilon, so it is a runtime parameter, exact at every precision, not the double nearest 9.81."""
+    cs = ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - 9.81*y", ["x", "y"], ["x**2 + y**2 - 1"])
+    model = cs.dirac()
+    assert model.poisson.coarse_data() == {}  # nothing binary
+    y0 = model.initial_state(q=("0.6", "-0.8"), qdot=(0, 0))
+    ts = [1, 2, 3]
+    sol = ls.integrate(model, y0, t=ts, precision=precision)
+    assert sol.success
+    c = ctx(50)
+    eps = float(resolve_precision(precision).eps)
+    k2 = (1 - c.mpf("0.8")) / 2   # sin^2(theta0/2) = (1 - cos theta0)/2
+    omega = c.sqrt(c.mpf("9.81"))
+    for row, t in zip(model.configuration(sol), ts):
+        ref = _pendulum_closed_form(k2, omega, c.mpf(t), c)
+        err = max(abs(mpf(c, a) - b) for a, b in zip(row, ref))
+        assert err < 500 * eps * t, (t, err)
+
+
+# -- state helpers and exactness -------------------------------------------------------------------------------------
+def test_initial_state_is_exact_and_velocity_roundtrips(spherical_pendulum):
+    model = spherical_pendulum.dirac()
+    y0 = model.initial_state(q=("0.6", "0", "-0.8"), qdot=("0.3", "1", "0.225"))
+    assert y0.exact == (Fraction(3, 5), 0, Fraction(-4, 5), Fraction(3, 10), 1, Fraction(9, 40))
+    assert y0.data_bits is None
+    np.testing.assert_array_equal(model.velocity(y0), [0.3, 1, 0.225])
+    np.testing.assert_array_equal(model.configuration(y0), [0.6, 0, -0.8])
+
+
+def test_binary_input_on_the_surface_to_its_precision_is_accepted_and_carried():
+    cs = ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2", ["x", "y"], ["x**2 + y**2 - 1"])
+    model = cs.dirac()
+    th = 0.3
+    y0 = model.initial_state(q=(np.cos(th), np.sin(th)), qdot=(-np.sin(th), np.cos(th)))
+    assert y0.data_bits == 53 and "q[0]" in y0.binary_inputs
+
+
+def test_float_parameter_is_reported_as_binary_data():
+    cs = ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - g*y", ["x", "y"], ["x**2 + y**2 - 1"],
+                              parameters={"g": 9.81})
+    assert cs.dirac().poisson.coarse_data() == {"parameters['g']": 53}
+
+
+# -- refusals ------------------------------------------------------------------------------------------------------
+BAD = {
+    "singular Lagrangian": (lambda: ls.ConstrainedSystem("x_dot**2/2 - y", ["x", "y"], ["x - y**3"]),
+                            "`lagrangian` is singular"),
+    "not positive definite": (lambda: ls.ConstrainedSystem("(x_dot**2 - y_dot**2)/2", ["x", "y"], ["x - y**3"]),
+                              "`lagrangian`: the velocity Hessian"),
+    "negative mass": (lambda: ls.ConstrainedSystem("m*(x_dot**2 + y_dot**2)/2", ["x", "y"], ["x**2 + y**2 - 1"],
+                                                   parameters={"m": -1}), "not positive definite"),
+    "not quadratic": (lambda: ls.ConstrainedSystem("-sqrt(1 - x_dot**2 - y_dot**2)", ["x", "y"],
+                                                   ["x**2 + y**2 - 1"]), "`lagrangian` must be quadratic"),
+    "dependent constraints": (lambda: ls.ConstrainedSystem(SPHERE_L, SPHERE_Q, [
+        "x1**2 + x2**2 + x3**2 - 1", "2*(x1**2 + x2**2 + x3**2) - 2"], parameters={"m": 1}),
+        "`constraints` are functionally dependent"),
+    "velocity in a constraint": (lambda: ls.ConstrainedSystem(SPHERE_L, SPHERE_Q, ["x1*x1_dot + x2"],
+                                                              parameters={"m": 1}),
+                                 "`constraints[0]` uses the velocities"),
+    "unknown symbol": (lambda: ls.ConstrainedSystem(SPHERE_L + " - m*g*x3", SPHERE_Q, SPHERE_G,
+                                                    parameters={"m": 1, "c": 1}), "`lagrangian` uses `g`"),
+    "unknown symbol in a constraint": (lambda: ls.ConstrainedSystem(SPHERE_L, SPHERE_Q, SPHERE_G,
+                                                                    parameters={"m": 1}), "`constraints[0]` uses `c`"),
+    "imaginary unit": (lambda: ls.ConstrainedSystem(SPHERE_L, SPHERE_Q, ["x1**2 + x2**2 + x3**2 - I"],
+                                                    parameters={"m": 1}), "`constraints[0]` uses `I`"),
+    "unparsable": (lambda: ls.ConstrainedSystem("m/2*(x1_dot**2 +", SPHERE_Q, SPHERE_G, parameters={"m": 1, "c": 1}),
+                   "`lagrangian` could not be read"),
+    "too many constraints": (lambda: ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2", ["x", "y"], ["x", "y"]),
+                             "`constraints`: 2 constraints on 2 coordinates"),
+    "no constraint": (lambda: ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2", ["x", "y"], []), "`constraints`"),
+    "bad coordinate": (lambda: ls.ConstrainedSystem("x_dot**2", ["x y"], ["x"]), "`coordinates[0]`"),
+    "parameter named like a coordinate": (lambda: ls.ConstrainedSystem(SPHERE_L, SPHERE_Q, SPHERE_G,
+                                                                       parameters={"x1": 1}), "`parameters`"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD), ids=list(BAD))
+def test_bad_system_is_refused_naming_the_argument(case):
+    make, match = BAD[case]
+    with pytest.raises((ValueError, TypeError), match=re.escape(match)):
+        make()
+
+
+def test_off_surface_point_and_normal_velocity_are_refused_with_the_residual(spherical_pendulum):
+    model = spherical_pendulum.dirac()
+    with pytest.raises(ValueError, match=r"`q` is not on the constraint surface: G1 = .* = 1.0e-20 at it"):
+        model.initial_state(q=("0.6", "0", "-0.80000000000000000000625"), qdot=(0, 1, 0))
+    with pytest.raises(ValueError, match=r"`qdot` is not tangent .* = 1.2 "):
+        model.initial_state(q=("0.6", "0", "-0.8"), qdot=(1, 1, 0))
+    with pytest.raises(ValueError, match=r"`q` must be 3 numbers"):
+        model.initial_state(q=(1, 0), qdot=(0, 1, 0))
+    with pytest.raises(ValueError, match=r"`y0` is not on the constraint surface"):
+        ls.integrate(model, [1, 1, 1, 0, 0, 0], t=1)
+
+
+def test_hessian_depending_on_q_is_checked_at_the_initial_point():
+    """M = diag(1, x): positive only for x > 0; the derivation goes through, a state at x < 0 is refused."""
+    cs = ls.ConstrainedSystem("(x_dot**2 + x*y_dot**2)/2", ["x", "y"], ["x - y**2 - 1/2"])
+    model = cs.dirac()
+    model.initial_state(q=("0.75", "0.5"), qdot=(1, 1))
+    with pytest.raises(ValueError, match=r"`q`: the velocity Hessian .* at this point is not positive definite"):
+        cs2 = ls.ConstrainedSystem("(x_dot**2 + x*y_dot**2)/2", ["x", "y"], ["x + y**2 + 1/2"])
+        cs2.dirac().initial_state(q=("-0.75", "0.5"), qdot=(1, -1))
+
+
+def test_p8_1_block_inverse_of_the_constraint_matrix():
+    """(p8.1): [[0, b], [-b^T, c]]^-1 = [[b^-T c b^-1, -b^-T], [b^-1, 0]] for any invertible b and antisymmetric c
+    (checked symbolically for k = 2; the derivation uses this form)."""
+    b = sp.Matrix(2, 2, sp.symbols("b0:4"))
+    c01 = sp.Symbol("c01")
+    c = sp.Matrix([[0, c01], [-c01, 0]])
+    delta = sp.BlockMatrix([[sp.zeros(2), b], [-b.T, c]]).as_explicit()
+    binv = b.inv()
+    inv = sp.BlockMatrix([[binv.T * c * binv, -binv.T], [binv, sp.zeros(2)]]).as_explicit()
+    assert sp.simplify(delta * inv - sp.eye(4)) == sp.zeros(4)
+
+
+# -- the reduced form on the intermediate submanifold (p8.13) -------------------------------------------------------
+@pytest.mark.parametrize("precision", ["double", "quad"])
+def test_reduced_sphere_follows_the_great_circle_and_stops_at_its_chart_edge(sphere, precision):
+    """(x1, x2, x3, p1, p2) with p3 = -(x1 p1 + x2 p2)/x3 eliminated: the great circle x3 = 0.8 cos t, until
+    |x3| = 0.05 |x| at t = acos(1/16) = 1.508, where the run stops with status chart_edge."""
+    model = sphere.reduced()
+    assert model.names == ("x1", "x2", "x3", "p_x1", "p_x2")
+    x0, v0 = ("0.6", "0", "0.8"), ("0", "1", "0")
+    y0 = model.initial_state(q=x0, qdot=v0)
+    assert y0.exact == (Fraction(3, 5), 0, Fraction(4, 5), 0, Fraction(3, 2))
+    ts = ["0.5", 1, "1.4"]
+    sol = ls.integrate(model, y0, t=ts, precision=precision)
+    assert sol.success
+    eps = float(resolve_precision(precision).eps)
+    c = ctx(40)
+    for row_q, row_v, t in zip(model.configuration(sol), model.velocity(sol), ts):
+        xt, vt = ls.exact.sphere(1, x0, v0, t, dps=40)
+        err = max(abs(mpf(c, a) - b) for a, b in zip(list(row_q) + list(row_v), list(xt) + list(vt)))
+        assert err < 200 * eps, (t, err)  # grows like 1/x3 near the edge
+    stop = ls.integrate(model, y0, t=3, precision=precision)
+    assert stop.status == "chart_edge" and "1.508" in stop.message
+
+
+def test_reduced_bracket_is_poisson_with_G_a_casimir(sphere):
+    ps = sphere.reduced().poisson
+    pts = [[str(v) for v in row] for row in np.random.default_rng(2).uniform(0.3, 1.3, size=(3, 5))]
+    assert ps.antisymmetry_residual(pts, 50) == 0
+    assert ps.jacobi_residual(pts, 50) < mpmath.mpf(10) ** -40  # everywhere: Phi = 0 is a union of leaves
+    assert ps.casimir_residual("G1", pts, 50) < mpmath.mpf(10) ** -40
+    assert set(ps.casimirs) == {"G1"}
+
+
+def test_reduced_planar_pendulum_matches_the_closed_form():
+    """(x, y, p_x), p_y eliminated (y < 0 along the swing): against the elliptic closed form in quad."""
+    cs = ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - g*y", ["x", "y"], ["x**2 + y**2 - 1"],
+                              parameters={"g": "9.81"})
+    model = cs.reduced(dependent="y")
+    y0 = model.initial_state(q=("0.6", "-0.8"), qdot=(0, 0))
+    sol = ls.integrate(model, y0, t=[1, 2, 3], precision="quad")
+    assert sol.success
+    c = ctx(50)
+    k2 = (1 - c.mpf("0.8")) / 2
+    for row, t in zip(model.configuration(sol), [1, 2, 3]):
+        ref = _pendulum_closed_form(k2, c.sqrt(c.mpf("9.81")), c.mpf(t), c)
+        assert max(abs(mpf(c, a) - b) for a, b in zip(row, ref)) < 1000 * float(resolve_precision("quad").eps)
+
+
+def test_bad_reduced_arguments_name_the_argument(sphere):
+    with pytest.raises(ValueError, match="`dependent`"):
+        sphere.reduced(dependent=("x1", "x2"))
+    with pytest.raises(ValueError, match="`dependent`"):
+        sphere.reduced(dependent="z")
+    with pytest.raises(ValueError, match="`edge`"):
+        sphere.reduced(edge=2)
+    with pytest.raises(ValueError, match="`q` is at or beyond the edge"):
+        sphere.reduced().initial_state(q=("0.6", "0.8", "0"), qdot=(0, 0, 1))
+
+
+def test_a_run_can_restart_from_its_own_end_state(spherical_pendulum):
+    """A double run's last row has drifted off the surface by rounding (5e-15 at t = 200): accepted as a new start;
+    a raw state far off is refused (test above)."""
+    model = spherical_pendulum.dirac()
+    y0 = model.initial_state(q=("0.6", "0", "-0.8"), qdot=(0, 1, 0))
+    end = ls.integrate(model, y0, t=200).y[-1]  # G1 = 5.2e-15: more than 53 bits allow, far less than 2^-24
+    assert 0 < abs(model.invariants(end)["G1"]) < 1e-12
+    again = ls.integrate(model, end, t=1)
+    assert again.success
