@@ -397,8 +397,17 @@ class PoissonSystem:
 
     @property
     def ode_system(self) -> list:
-        """The vector field as heyoka's ``[(variable, rhs), ...]``."""
-        return list(zip(self._variables, self.vector_field))
+        """The vector field as heyoka's ``[(variable, rhs), ...]``. heyoka counts an ODE's parameters as one more
+        than the largest index its expressions use and refuses any other number of values; when the field does
+        not read the last declared parameter (one that enters only an event, an invariant, or nothing), the last
+        component gets ``+ (par[k] - par[k])``, exactly 0, so the integrator takes every declared value."""
+        pairs = list(zip(self._variables, self.vector_field))
+        k = len(self._param_values) - 1
+        if k >= 0 and pairs and 1 + max((int(str(p)[1:]) for p in hy.get_params([e for _, e in pairs])),
+                                         default=-1) <= k:
+            v, e = pairs[-1]
+            pairs[-1] = (v, e + (hy.par[k] - hy.par[k]))
+        return pairs
 
     @property
     def key(self) -> str:

@@ -230,3 +230,18 @@ def test_builtin_brackets_pass_the_explicit_jacobi_check():
     for model in (ls.EulerPoisson((1, 2, 3)), ls.EulerPoisson((1, 2, 3), bracket="intermediate"), ls.Sphere(),
                   ls.SphereDirac()):
         model.poisson.check_jacobi()
+
+
+def test_a_parameter_the_field_does_not_read_is_accepted_by_every_engine():
+    """The oscillator H = p^2/2 + k q^2/2 with a second declared parameter that nothing reads: heyoka counts only
+    the parameters an ODE uses and refused the two values. Every engine runs it and follows cos t."""
+    import math
+    q, p = hy.make_vars("q", "p")
+    ps = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 + hy.par[0] * q**2 / 2,
+                          parameters={"k": 1, "unused": 2})
+    runs = [ls.integrate(ps, [1, 0], t=1), ls.integrate(ps, [1, 0], t=1, precision="quad"),
+            ls.lie_integrate(ps, [1, 0], t=1, dps=20)]
+    for sol in runs:
+        assert sol.status == "success" and abs(float(sol.y[-1][0]) - math.cos(1)) < 1e-14
+    ens = ls.integrate(ps, [[1, 0], [0, 1]], t=1)
+    assert list(ens.status) == ["success"] * 2 and abs(float(ens.y[1][-1][0]) - math.sin(1)) < 1e-14
