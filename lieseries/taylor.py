@@ -433,11 +433,12 @@ def infer_precision(precision, y0) -> Precision:
 
 
 def warn_coarse_inputs(ps, y0, times, work_bits: int, *, stacklevel: int = 4) -> bool:
-    """One :class:`~lieseries.precision.PrecisionWarning` per input that carries fewer bits than the run uses.
-    True when there was one."""
+    """One :class:`~lieseries.precision.PrecisionWarning` per input that carries fewer bits than the run uses
+    (``times`` is ``(t, t0)``, each named on its own). True when there was one."""
     if work_bits <= 53 and data_bits(y0) is None:
         return False
-    coarse = [(data_bits(y0), "y0"), (data_bits(times), "t")]
+    t, t0 = times
+    coarse = [(data_bits(y0), "y0"), (data_bits(t), "t"), (data_bits(t0), "t0")]
     if work_bits > 53:
         coarse += [(bits, name) for name, bits in ps.coarse_data().items()]
     coarse = [(bits, name) for bits, name in coarse if bits is not None and bits < work_bits]

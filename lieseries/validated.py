@@ -722,7 +722,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     grid, direction, t0f = parse_times(t, t0, values_per_time=ps.dimension, bytes_per_value=64 + bits // 8)
     # binary model data (inertia 1.1 as a double) or times (t = 0.1 as a double) in a longer run: the enclosures
     # are proven for those binary values, not for the decimals they round
-    for name, b in list(ps.coarse_data().items()) + [("t", data_bits([t, t0]))]:
+    for name, b in list(ps.coarse_data().items()) + [("t", data_bits(t)), ("t0", data_bits(t0))]:
         warn_if_coarse(b, dps_to_bits(dps), name)
     start = _time.perf_counter()
     deadline = None if max_time is None else start + max_time

@@ -90,7 +90,8 @@ def test_binary_times_warn_in_every_engine_and_the_run_is_for_their_binary_value
         "validated t0": lambda: ls.validated_integrate(body, y0, t=1, t0=0.1, dps=30),
     }
     for name, call in calls.items():
-        with pytest.warns(PrecisionWarning, match="`t` carries only 53 bits"):
+        arg = "t0" if name.endswith("t0") else "t"  # each time argument is named as the user passed it
+        with pytest.warns(PrecisionWarning, match=f"`{arg}` carries only 53 bits"):
             call()
     with pytest.warns(PrecisionWarning, match="`t` carries only 53 bits"):
         sol = ls.validated_integrate(body, y0, t=0.1, dps=30)

@@ -254,7 +254,8 @@ def coarse_bits(ps, y0, work_bits: int, *, times=(), stacklevel: int = 4):
     found = {"y0": data_bits(y0)}
     found.update(ps.coarse_data())
     bits = [b for b in found.values() if b is not None]
-    found["t"] = data_bits(list(times))
+    for name, value in zip(("t", "t0"), times):
+        found[name] = data_bits(value)
     for name, b in found.items():
         warn_if_coarse(b, work_bits, name, stacklevel=stacklevel)
     return min(bits) if bits else None
