@@ -201,6 +201,7 @@ class PoissonSystem:
         if jacobi or (jacobi is None and n <= JACOBI_AUTO_DIMENSION):
             try:
                 self.check_jacobi()
+                self.check_casimirs()
             except NotImplementedError:  # a function the mpmath compiler lacks: not checked automatically
                 if jacobi is True:
                     raise
@@ -332,6 +333,36 @@ class PoissonSystem:
                     )
         if not checked and points is not None:
             raise ValueError("`points`: the Jacobiator is singular or undefined at every point given; choose others")
+
+    def check_casimirs(self, points=None, dps: int = 40) -> None:
+        """Check that every declared Casimir C Poisson-commutes with every coordinate, {C, z_a} = 0, numerically
+        as :meth:`check_jacobi` does (a value that stays the same at ``dps`` and ``dps + 20`` digits is not
+        rounding noise). Runs at construction with the Jacobi check.
+
+        Raises
+        ------
+        ValueError
+            Naming the Casimir and the coordinate it does not commute with, with the value.
+        """
+        if not self._casimirs:
+            return
+        dps = check_dps(dps)
+        pts = self._sample_points() if points is None else [self._state_rows(p, "points")[0][0] for p in points]
+        names = list(self._casimirs)
+        exprs = [self.bracket(self._casimirs[c], v) for c in names for v in self._variables]
+        n = self.dimension
+        for z in pts:
+            lo = self._values_at(exprs, [z], dps)
+            hi = self._values_at(exprs, [z], dps + 20)
+            if not lo or not hi:
+                continue
+            for idx, (a, b) in enumerate(zip(lo[0], hi[0])):
+                if b != 0 and abs(a - b) <= mp.mpf(10) ** -6 * abs(b):
+                    c, v = names[idx // n], self._names[idx % n]
+                    raise ValueError(
+                        f"`casimirs[{c!r}]` is not a Casimir of this bracket: {{{c}, {v}}} = {mp.nstr(b, 8)} at a "
+                        "sample state (a Casimir commutes with every coordinate). Declare it only if it is one "
+                        "(an invariant of this Hamiltonian alone is checked by `invariants`, not declared here)")
 
     # -- structure ---------------------------------------------------------------------------------------------
     @property

@@ -245,3 +245,15 @@ def test_a_parameter_the_field_does_not_read_is_accepted_by_every_engine():
         assert sol.status == "success" and abs(float(sol.y[-1][0]) - math.cos(1)) < 1e-14
     ens = ls.integrate(ps, [[1, 0], [0, 1]], t=1)
     assert list(ens.status) == ["success"] * 2 and abs(float(ens.y[1][-1][0]) - math.sin(1)) < 1e-14
+
+
+def test_a_declared_casimir_that_is_not_one_is_refused():
+    """q is no Casimir of the canonical bracket ({q, p} = 1): declaring it is refused naming it; |m|^2 of the
+    so(3) bracket is one (it commutes with x, y, z by hand) and is accepted."""
+    q, p = hy.make_vars("q", "p")
+    with pytest.raises(ValueError, match=r"`casimirs\['fake'\]` is not a Casimir"):
+        ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], (p**2 + q**2) / 2, casimirs={"fake": q})
+    x, y, z = hy.make_vars("x", "y", "z")
+    ps = ls.PoissonSystem([x, y, z], [[0, z, -y], [-z, 0, x], [y, -x, 0]], (x**2 + 2 * y**2 + 3 * z**2) / 2,
+                          casimirs={"m2": x**2 + y**2 + z**2})
+    assert abs(ps.invariants(["0.1", "0.2", "0.3"])["m2"] - mp.mpf("0.14")) < mp.mpf(10) ** -30
