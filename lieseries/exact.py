@@ -92,7 +92,6 @@ from __future__ import annotations
 
 import decimal
 import fractions
-import math
 import numbers
 from dataclasses import dataclass
 from typing import Optional
@@ -100,7 +99,7 @@ from typing import Optional
 import dataclasses
 import functools
 
-from .precision import check_dps, export_mpf, mp_context, to_mpf
+from .precision import carried_bits, check_dps, dps_to_bits, export_mpf, mp_context, to_mpf, warn_if_coarse
 from .precision import thread_mp as mp
 
 __all__ = [
@@ -198,40 +197,19 @@ def _magnitude(t):
 
 
 def _to_mpf(x, name):
-    """Convert one real scalar exactly (at the current working precision)."""
+    """Convert one real scalar exactly (at the current working precision); a binary float that carries fewer bits
+    than the digits asked for (the double 0.1 in a 40-digit closed form) gives one PrecisionWarning naming it."""
     if isinstance(x, bool):
         raise TypeError(f"`{name}` must contain real numbers, not booleans; got {x!r}")
+    if isinstance(x, numbers.Real) and not isinstance(x, (numbers.Rational, decimal.Decimal)) or hasattr(x, "_mpf_"):
+        # the caller works GUARD_DIGITS above the digits asked for
+        warn_if_coarse(carried_bits(x), mp_context().prec - dps_to_bits(GUARD_DIGITS), name, stacklevel=5)
     if isinstance(x, (str, float, decimal.Decimal, fractions.Fraction, numbers.Integral)) or hasattr(x, "_mpf_"):
         return to_mpf(x, name, ctx=mp_context())
-    if hasattr(x, "_mpf_"):
-        return +x
-    if isinstance(x, numbers.Integral):
-        return mp.mpf(int(x))
-    if isinstance(x, fractions.Fraction):
-        return mp.mpf(x.numerator) / mp.mpf(x.denominator)
     if isinstance(x, numbers.Rational):
         return mp.mpf(int(x.numerator)) / mp.mpf(int(x.denominator))
-    if isinstance(x, float):
-        if not math.isfinite(x):
-            raise ValueError(f"`{name}` must be finite; got {x!r}")
-        return mp.mpf(x)
-    if isinstance(x, decimal.Decimal):
-        if not x.is_finite():
-            raise ValueError(f"`{name}` must be finite; got {x!r}")
-        return mp.mpf(str(x))
-    if isinstance(x, str):
-        try:
-            v = mp.mpf(x)
-        except (ValueError, TypeError):
-            raise ValueError(f"`{name}` must be a number; could not parse {x!r}") from None
-        if not mp.isfinite(v):
-            raise ValueError(f"`{name}` must be finite; got {x!r}")
-        return v
-    if isinstance(x, numbers.Real):
-        v = float(x)
-        if not math.isfinite(v):
-            raise ValueError(f"`{name}` must be finite; got {x!r}")
-        return mp.mpf(v)
+    if isinstance(x, numbers.Real):  # numpy float32 and the like: their exact binary value
+        return to_mpf(float(x), name, ctx=mp_context())
     raise TypeError(
         f"`{name}` must be a real number (int, float, str, Fraction, Decimal or mpf); "
         f"got {type(x).__name__} {x!r}")

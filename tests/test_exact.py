@@ -759,3 +759,20 @@ def test_bad_input_sphere():
         sphere_pole_distance(1, (1, 0, 0), (0, 1, 0), axis=3)
     # within the documented tolerance max(1e-12, 10**(-dps/2)) it is accepted
     sphere(1, (1, 0, 1e-7), (0, 1, 0), 1.0, dps=15)
+
+
+def test_binary_floats_in_a_closed_form_of_more_digits_warn_by_name():
+    """euler_poisson((1, 2, 3), (1, 0.1, 0.5), t, dps=40) is the closed form for the double nearest 0.1, which
+    differs from 1/10 by 5.6e-18: it warns naming `omega`, and its result differs from the exact-input one by
+    about that much; short binary numbers (0.5, 2.5) and strings are silent."""
+    import warnings
+    import lieseries as ls
+    with pytest.warns(ls.PrecisionWarning, match="`omega`"):
+        binary = euler_poisson((1, 2, 3), (1, 0.1, 0.5), 2, dps=40)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ls.PrecisionWarning)
+        decimal = euler_poisson((1, 2, 3), (1, "0.1", 0.5), "2.5", dps=40)
+        decimal = euler_poisson((1, 2, 3), (1, "0.1", 0.5), 2, dps=40)
+    assert 1e-19 < max(abs(float(a - b)) for a, b in zip(binary, decimal)) < 1e-15
+    with pytest.warns(ls.PrecisionWarning, match="`x`"):
+        sphere(1, (0.6, 0, 0.8), (0, 1, 0), 1, dps=30)
