@@ -105,3 +105,17 @@ def test_an_mpf_of_many_bits_is_read_exactly():
     with mp.workprec(200):
         with pytest.raises(ValueError, match="out of range"):
             to_fraction(mp.mpf(2) ** 14000)
+
+
+def test_a_grid_of_doubles_is_read_exactly_as_any_other_grid():
+    """The fast path for float64 arrays gives the same exact times, direction and refusals as the general path
+    (a list of the same doubles), and names a non-finite entry."""
+    from lieseries.timegrid import parse_times
+    for t in (np.linspace(0, 7, 50)[1:], np.linspace(-1, -3, 9), np.array([0.1, 0.2, 0.3])):
+        assert parse_times(t) == parse_times(t.tolist())
+        assert all(g == Fraction(*float(v).as_integer_ratio()) for g, v in zip(parse_times(t)[0], t))
+    for bad, msg in ((np.array([0.5, np.nan]), r"`t\[1\]` must be finite"),
+                     (np.array([0.5, 0.25, 1.0]), "strictly increasing"),
+                     (np.array([-0.5, 1.0]), "starts before t0")):
+        with pytest.raises(ValueError, match=msg):
+            parse_times(bad)
