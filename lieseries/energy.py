@@ -45,11 +45,13 @@ def _compiled(ps, prec):
         kwargs = {} if prec.name == "double" else {"fp_type": prec.fp_type}
         if prec.is_real:
             kwargs["prec"] = prec.bits
-        npar = 1 + max((int(str(p)[1:]) for p in hy.get_params([ps.hamiltonian])), default=-1)
+        cas = list(ps.casimirs.values())
+        npar = 1 + max((int(str(p)[1:]) for p in hy.get_params([ps.hamiltonian] + cas)), default=-1)
         compact = prec.name != "double"
-        # H alone for the check at the end of every run; H and its gradient once per initial state
-        h_fn = hy.cfunc([ps.hamiltonian], ps.variables, compact_mode=compact, **kwargs)
-        grad = [ps.hamiltonian] + [hy.diff(ps.hamiltonian, v) for v in ps.variables]
+        # H and the declared Casimirs for the check at the end of every run; with their gradients once per
+        # initial state: [H, dH/dy..., C_1, dC_1/dy..., ...]
+        h_fn = hy.cfunc([ps.hamiltonian] + cas, ps.variables, compact_mode=compact, **kwargs)
+        grad = [e for f in [ps.hamiltonian] + cas for e in [f] + [hy.diff(f, v) for v in ps.variables]]
         scale_fn = hy.cfunc(grad, ps.variables, compact_mode=compact, **kwargs)
         with _LOCK:
             entry = _ENERGY.setdefault(key, (h_fn, scale_fn, npar))
@@ -69,8 +71,15 @@ def energy_function(ps, prec, y0, parameters=None):
     else:
         pars = prec.array(list(parameters)[:npar])
     out = scale_fn(y0) if pars is None else scale_fn(y0, pars=pars)
+    n = len(y0)
     h0 = out[0]
-    scale = sum((abs(g * v) for g, v in zip(out[1:], y0)), h0 * 0)  # in the working format: no float underflow
+    scale = sum((abs(g * v) for g, v in zip(out[1:n + 1], y0)), h0 * 0)  # in the working format: no float underflow
+    # the declared Casimirs (R R^T of the rigid body, |x|^2 of the sphere) with the size of their terms; one that
+    # vanishes at y0 with its terms (an off-diagonal entry of R R^T at R = 1) is measured on the largest scale
+    cas = [(out[j], sum((abs(g * v) for g, v in zip(out[j + 1:j + n + 1], y0)), h0 * 0))
+           for j in range(n + 1, len(out), n + 1)]
+    top = max((max(abs(c), sc) for c, sc in cas), default=h0 * 0)
+    casimirs = [(c, max(abs(c), sc, top) if not (abs(c) > 0 or sc > 0) else max(abs(c), sc)) for c, sc in cas]
     tiny = _smallest_normal(prec)
     beyond = None
     if tiny is not None and not abs(h0) >= tiny and not abs(scale) >= tiny:
@@ -79,7 +88,7 @@ def energy_function(ps, prec, y0, parameters=None):
         h_exact, _ = energy_exact(ps, y0, 64)
         if h_exact != 0 and abs(h_exact) < tiny:
             beyond = (prec.name, tiny, h_exact)
-    return h_fn, pars, h0, scale, beyond
+    return h_fn, pars, h0, scale, beyond, casimirs
 
 
 def _smallest_normal(prec):
@@ -115,7 +124,8 @@ def energy_drift(ps, tol, Y0, Y1, parameters=None, steps=None) -> dict:
         else:
             kw["pars"] = np.ascontiguousarray(np.array([[float(v) for v in row[:npar]] for row in parameters]).T)
     out0 = scale_fn(X0, **kw)
-    e0, scale = out0[0], np.abs(out0[1:] * X0).sum(axis=0)
+    n = X0.shape[0]
+    e0, scale = out0[0], np.abs(out0[1:n + 1] * X0).sum(axis=0)
     e1 = h_fn(X1, **kw)[0]
     with np.errstate(invalid="ignore"):
         rel = (np.full(k, math.sqrt(float(tol))) if steps is None
@@ -154,7 +164,7 @@ def energy_check(ps, prec, tol, y0, y_end, steps, status, message, parameters=No
 def energy_verdict(energy, sqrt_tol, y_end, steps, status, message):
     """``invariant_drift`` when the Hamiltonian changed beyond :func:`drift_threshold` * max(|H(y0)|, |H(y_end)|,
     the energy scale of y0) over a successful run of ``steps`` steps (:func:`energy_function`)."""
-    fn, pars, h0, scale, beyond = energy
+    fn, pars, h0, scale, beyond, casimirs = energy
     if beyond is not None:
         name, tiny, h_exact = beyond
         return "invariant_drift", (
@@ -163,14 +173,23 @@ def energy_verdict(energy, sqrt_tol, y_end, steps, status, message):
             f"step-size control cannot see the motion ({steps} steps) and the energy check cannot either. Rescale "
             "time and units so that the motion is of order one, or use a format of wider range (quad, or a number "
             "of bits).")
-    h1 = (fn(y_end) if pars is None else fn(y_end, pars=pars))[0]
+    out = fn(y_end) if pars is None else fn(y_end, pars=pars)
+    h1 = out[0]
     if not (_finite(h0) and _finite(h1)):
         return status, message
     # compared in the working format (quad's 1e-400 is a double's 0; two 237-bit energies on a double's midpoint
     # round apart), only the threshold is a float
-    if abs(h1 - h0) <= drift_threshold(sqrt_tol * sqrt_tol, steps) * max(abs(h0), abs(h1), scale):
-        return status, message
-    return "invariant_drift", drift_message(message, h0, h1, steps)
+    thr = drift_threshold(sqrt_tol * sqrt_tol, steps)
+    if abs(h1 - h0) > thr * max(abs(h0), abs(h1), scale):
+        return "invariant_drift", drift_message(message, h0, h1, steps)
+    for (c0, sc), c1 in zip(casimirs, out[1:]):
+        if _finite(c1) and abs(c1 - c0) > thr * max(sc, abs(c1)):
+            return "invariant_drift", (
+                f"{message[:-1]}, but the result is wrong: a Casimir of the bracket, which every motion conserves, "
+                f"went from {_short(c0)} to {_short(c1)} in {steps} steps (the energy did not show it). The error "
+                "control was fooled, usually because the motion is much slower than the time span (its Taylor "
+                "coefficients underflow): rescale time and units so that the motion is of order one.")
+    return status, message
 
 
 def _finite(x) -> bool:

@@ -994,18 +994,27 @@ def _finite(v) -> bool:
         return False
 
 
+def _t(t) -> str:
+    """A time of any format to 17 digits, beyond the double range too (t = 2e2001 in quad)."""
+    f = to_fraction(t)
+    try:
+        return f"{float(f):.17g}"
+    except OverflowError:
+        return short_decimal(f)
+
+
 def _reached(t_end) -> str:
-    return f"Reached t = {float(t_end):.17g}."
+    return f"Reached t = {_t(t_end)}."
 
 
 def _status(run, event_info, t_reached, t_end, max_steps):
     if run.direction == 0:
-        return "success", f"Nothing to integrate: t equals t0 = {float(t_reached):.17g}."
+        return "success", f"Nothing to integrate: t equals t0 = {_t(t_reached)}."
     if run.reason is None and run.outcome == _OUTCOME.time_limit:
         return "success", _reached(t_end)
     ta = run.ta
     h = abs(float(ta.last_h)) if _finite(ta.last_h) else float("nan")
-    where = f"t = {float(t_reached):.17g} (last step size {h:.3g})"
+    where = f"t = {_t(t_reached)} (last step size {h:.3g})"
     # exactly: the time left may be beyond the double range (t = 1e400 in quad)
     left = abs(to_fraction(t_end) - to_fraction(run.t_reached))
     hh = run.h_last if run.h_last == run.h_last else h
@@ -1043,7 +1052,7 @@ def _status(run, event_info, t_reached, t_end, max_steps):
         return "success", _reached(t_end)
     if outcome == _OUTCOME.err_nf_state:
         return "non_finite", (
-            f"The state became non-finite (NaN or infinity) in the step after t = {float(t_reached):.17g}: the "
+            f"The state became non-finite (NaN or infinity) in the step after t = {_t(t_reached)}: the "
             "solution blows up or leaves the domain of the equations there, or a number of the step (a Taylor "
             "coefficient grows like rate^order) exceeds the range of the format -- rescale a state or rate of "
             "order 1e300. The last finite state is kept."

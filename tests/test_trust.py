@@ -461,3 +461,33 @@ def test_a_motion_whose_energy_lies_beyond_the_format_is_not_a_success():
     if np.finfo(np.longdouble).nmant > 52:  # an x87 long double (range 1e-4932)
         assert sol.status == "success"
         assert max(abs(float(a) - float(b)) for a, b in zip(sol.y[-1][:9], ref[:9])) < 1e-12
+
+
+def test_the_guard_reads_the_casimirs_of_the_bracket_too():
+    """The rigid body's energy depends on M alone: an end state whose R was wrecked (doubled) keeps H exactly, but
+    the entries of R R^T are Casimirs of the Chetaev bracket ({R, R} = 0 and M_i moves R by R -> R exp(tA), A
+    antisymmetric), so the guard reports invariant_drift; the true end state passes."""
+    from lieseries.energy import energy_function, energy_verdict
+    from lieseries.precision import resolve_precision
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    y0 = body.initial_state(omega=OMEGA)
+    assert set(body.poisson.casimirs) == {"RRT11", "RRT12", "RRT13", "RRT22", "RRT23", "RRT33"}
+    prec = resolve_precision("double")
+    true_end = np.array([float(v) for v in exact.euler_poisson(INERTIA, OMEGA, 2, dps=30)])
+    energy = energy_function(body.poisson, prec, np.asarray(y0, dtype=float))
+    assert energy_verdict(energy, 1.5e-8, true_end, 10, "success", "Reached t = 2.")[0] == "success"
+    wrecked = true_end.copy()
+    wrecked[:9] *= 2
+    status, message = energy_verdict(energy, 1.5e-8, wrecked, 10, "success", "Reached t = 2.")
+    assert status == "invariant_drift" and "Casimir" in message
+
+
+def test_statuses_beyond_the_double_range_of_time():
+    """omega ~1e-2000 to t = 2e2001 (the same motion slowed down): quad, long double and 113 bits all end without
+    success (the Taylor coefficients underflow), and their messages print the time instead of failing to make a
+    double of it (an OverflowError at 113 bits)."""
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    y0 = body.initial_state(omega=("1e-2000", "1e-2001", "5e-2001"))
+    for p in ("quad", 113):
+        sol = ls.integrate(body, y0, t="2e2001", precision=p)
+        assert sol.status != "success" and ("1e2001" in sol.message or "1e2000" in sol.message), (p, sol.message)

@@ -204,8 +204,13 @@ class EulerPoisson(Model):
                 for j in range(3):
                     P[9 + i][3 * j + k] = Rm[j][m] if sign > 0 else -Rm[j][m]
                     P[3 * j + k][9 + i] = -Rm[j][m] if sign > 0 else Rm[j][m]
+        # Chetaev bracket: M_i moves R as R -> R exp(t A) with A antisymmetric and R commutes with R, so the entries
+        # of R R^T are Casimirs (the energy guard checks them: a run can keep H and wreck R)
+        casimirs = ({f"RRT{a + 1}{b + 1}": hy.sum([R[a][m] * R[b][m] for m in range(3)])
+                     for a in range(3) for b in range(a, 3)} if self.bracket == "chetaev" else None)
         return PoissonSystem(z, P, H, parameters=params, name=f"Euler-Poisson ({self.bracket})",
                              input_bits=self._input_bits, parameter_sources={k: "inertia" for k in params},
+                             casimirs=casimirs,
                              jacobi=False)  # the bracket is checked by the tests (tests/test_poisson.py)
 
     # -- state helpers -----------------------------------------------------------------------------------------
