@@ -11,7 +11,6 @@ import time as _time
 from dataclasses import dataclass, field
 from fractions import Fraction
 
-import mpmath
 import numpy as np
 
 from .methods import (

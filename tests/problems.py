@@ -105,3 +105,16 @@ def nonlinear():
            hy.log(z) - x**1.5 / (1.0 + y * y) + p,
            hy.cos(x * y) - z**-2.0 * p]
     return list(v), rhs
+
+
+def private_ctx(dps):
+    """A private mpmath context at ``dps`` digits (mpmath's global one is never touched)."""
+    c = mp.MPContext()
+    c.dps = dps
+    return c
+
+
+def ctx_mpf(c, v):
+    """The exact value of ``v`` (str, int, Fraction, float, mpf) as a number of the context ``c``."""
+    f = to_fraction(v)
+    return c.mpf(f.numerator) / f.denominator

@@ -14,23 +14,14 @@ import pytest
 import sympy as sp
 
 import lieseries as ls
-from lieseries.precision import resolve_precision, to_fraction
+from lieseries.precision import resolve_precision
+from problems import ctx_mpf, private_ctx
 
 SPHERE_L = "m/2*(x1_dot**2 + x2_dot**2 + x3_dot**2)"
 SPHERE_Q = ["x1", "x2", "x3"]
 SPHERE_G = ["x1**2 + x2**2 + x3**2 - c**2"]
 
 
-def ctx(dps):
-    """A private mpmath context (the global one is never touched)."""
-    c = mpmath.MPContext()
-    c.dps = dps
-    return c
-
-
-def mpf(c, v):
-    f = to_fraction(v)
-    return c.mpf(f.numerator) / f.denominator
 
 
 @pytest.fixture(scope="module")
@@ -115,11 +106,11 @@ def test_derived_sphere_follows_the_great_circle(sphere, precision):
     assert sol.success
     eps = resolve_precision(precision).eps
     q, v = model.configuration(sol), model.velocity(sol)
-    c = ctx(40)
+    c = private_ctx(40)
     worst = 0
     for row_q, row_v, t in zip(q, v, ts):
         xt, vt = ls.exact.sphere(1, x0, v0, t, dps=40)
-        err = max(abs(mpf(c, a) - b) for a, b in zip(list(row_q) + list(row_v), list(xt) + list(vt)))
+        err = max(abs(ctx_mpf(c, a) - b) for a, b in zip(list(row_q) + list(row_v), list(xt) + list(vt)))
         worst = max(worst, err / (t * float(eps)))
     # measured: 0.87 eps t (double), 5.7 eps t (quad)
     assert worst < 100
@@ -134,7 +125,7 @@ def test_spherical_pendulum_conserves_energy_and_constraints(spherical_pendulum,
     eps = float(resolve_precision(precision).eps)
     inv = model.invariants(sol)
     e0 = model.invariants(y0)["energy"]
-    c = ctx(90)
+    c = private_ctx(90)
     assert abs(c.mpf(e0) - c.mpf(-7348) / 1000) < c.mpf(10) ** -80  # 1/2 |v|^2 + g x3 = 1/2 - 0.8 * 9.81
     for e, g, phi in zip(inv["energy"], inv["G1"], inv["Phi1"]):
         assert abs(e - e0) < 200 * eps * abs(e0)
@@ -154,7 +145,7 @@ def _spherical_angles_reference(theta0, dtheta0, dphi0, g, ts, bits=256):
     ta = hy.taylor_adaptive(sys_, [r(theta0), r(0), r(dtheta0), r(dphi0)], fp_type=hy.real, prec=bits,
                             pars=[r(g)])
     out = ta.propagate_grid([r(t) for t in [0] + list(ts)])[-1][1:]
-    c = ctx(bits // 4)
+    c = private_ctx(bits // 4)
     res = []
     for row in out:
         t_, p_ = (c.mpf(str(v)) for v in row[:2])
@@ -168,13 +159,13 @@ def test_spherical_pendulum_matches_the_equations_in_angles(spherical_pendulum):
     # x = (3/5, 0, -4/5): sin theta = 3/5, cos theta = -4/5, phi = 0; v = (0.3, 1, 0.225) =
     # (cos th th', sin th phi', -sin th th'): theta' = -3/8, phi' = 5/3
     y0 = model.initial_state(q=("0.6", "0", "-0.8"), qdot=("0.3", "1", "0.225"))
-    c = ctx(80)
+    c = private_ctx(80)
     theta0 = c.nstr(c.pi - c.asin(c.mpf(3) / 5), 78)
     c, ref = _spherical_angles_reference(theta0, "-0.375", c.nstr(c.mpf(5) / 3, 78), "9.81", [1, 2])
     sol = ls.integrate(model, y0, t=[1, 2], precision=160)
     assert sol.success
     for row, r in zip(model.configuration(sol), ref):
-        err = max(abs(mpf(c, a) - b) for a, b in zip(row, r))
+        err = max(abs(ctx_mpf(c, a) - b) for a, b in zip(row, r))
         assert err < c.mpf(10) ** -40, err  # measured: 1.5e-48
 
 
@@ -197,13 +188,13 @@ def test_planar_pendulum_in_cartesian_coordinates_matches_the_closed_form(precis
     ts = [1, 2, 3]
     sol = ls.integrate(model, y0, t=ts, precision=precision)
     assert sol.success
-    c = ctx(50)
+    c = private_ctx(50)
     eps = float(resolve_precision(precision).eps)
     k2 = (1 - c.mpf("0.8")) / 2   # sin^2(theta0/2) = (1 - cos theta0)/2
     omega = c.sqrt(c.mpf("9.81"))
     for row, t in zip(model.configuration(sol), ts):
         ref = _pendulum_closed_form(k2, omega, c.mpf(t), c)
-        err = max(abs(mpf(c, a) - b) for a, b in zip(row, ref))
+        err = max(abs(ctx_mpf(c, a) - b) for a, b in zip(row, ref))
         assert err < 500 * eps * t, (t, err)
 
 
@@ -319,10 +310,10 @@ def test_reduced_sphere_follows_the_great_circle_and_stops_at_its_chart_edge(sph
     sol = ls.integrate(model, y0, t=ts, precision=precision)
     assert sol.success
     eps = float(resolve_precision(precision).eps)
-    c = ctx(40)
+    c = private_ctx(40)
     for row_q, row_v, t in zip(model.configuration(sol), model.velocity(sol), ts):
         xt, vt = ls.exact.sphere(1, x0, v0, t, dps=40)
-        err = max(abs(mpf(c, a) - b) for a, b in zip(list(row_q) + list(row_v), list(xt) + list(vt)))
+        err = max(abs(ctx_mpf(c, a) - b) for a, b in zip(list(row_q) + list(row_v), list(xt) + list(vt)))
         assert err < 200 * eps, (t, err)  # grows like 1/x3 near the edge
     stop = ls.integrate(model, y0, t=3, precision=precision)
     assert stop.status == "chart_edge" and "1.508" in stop.message
@@ -345,11 +336,11 @@ def test_reduced_planar_pendulum_matches_the_closed_form():
     y0 = model.initial_state(q=("0.6", "-0.8"), qdot=(0, 0))
     sol = ls.integrate(model, y0, t=[1, 2, 3], precision="quad")
     assert sol.success
-    c = ctx(50)
+    c = private_ctx(50)
     k2 = (1 - c.mpf("0.8")) / 2
     for row, t in zip(model.configuration(sol), [1, 2, 3]):
         ref = _pendulum_closed_form(k2, c.sqrt(c.mpf("9.81")), c.mpf(t), c)
-        assert max(abs(mpf(c, a) - b) for a, b in zip(row, ref)) < 1000 * float(resolve_precision("quad").eps)
+        assert max(abs(ctx_mpf(c, a) - b) for a, b in zip(row, ref)) < 1000 * float(resolve_precision("quad").eps)
 
 
 def test_bad_reduced_arguments_name_the_argument(sphere):

@@ -3,23 +3,14 @@ Euler-Poisson equations written here in mpmath (independent of heyoka and of the
 
 from fractions import Fraction
 
-import mpmath
 import numpy as np
 import pytest
 
 import lieseries as ls
 from lieseries.precision import resolve_precision, to_fraction
+from problems import ctx_mpf, private_ctx
 
 
-def ctx(dps):
-    c = mpmath.MPContext()
-    c.dps = dps
-    return c
-
-
-def mpf(c, v):
-    f = to_fraction(v)
-    return c.mpf(f.numerator) / f.denominator
 
 
 def euler_poisson_reference(inertia, weight, M0, G0, ts, c, order=36, h="1/16"):
@@ -27,11 +18,11 @@ def euler_poisson_reference(inertia, weight, M0, G0, ts, c, order=36, h="1/16"):
     fixed-step Taylor series whose coefficients follow from the bilinear right-hand side (Cauchy products).
     Returns (M, Gamma) at each of the times ``ts`` (multiples of ``h``)."""
     step = to_fraction(h)
-    h = mpf(c, h)
-    Iinv = [1 / mpf(c, i) for i in inertia]
-    w = [mpf(c, v) for v in weight]
-    M = [mpf(c, v) for v in M0]
-    G = [mpf(c, v) for v in G0]
+    h = ctx_mpf(c, h)
+    Iinv = [1 / ctx_mpf(c, i) for i in inertia]
+    w = [ctx_mpf(c, v) for v in weight]
+    M = [ctx_mpf(c, v) for v in M0]
+    G = [ctx_mpf(c, v) for v in G0]
 
     out, done = [], 0
     for t_end in ts:
@@ -75,12 +66,12 @@ def test_heavy_top_matches_the_euler_poisson_equations_at_44_digits():
     y0 = top.initial_state(omega=OMEGA)
     sol = ls.integrate(top, y0, t=["0.5", 1], precision=160)
     assert sol.success
-    c = ctx(55)
+    c = private_ctx(55)
     weight = [Fraction(981, 100) * to_fraction(v) for v in TOP["com"]]
     M0 = [3 * 1, 4 * Fraction(1, 2), 5 * Fraction(-3, 10)]
     ref = euler_poisson_reference(TOP["inertia"], weight, M0, [0, 0, 1], ["0.5", 1], c)
     for t, row, (M, G) in zip(["0.5", 1], sol.y, ref):
-        err = max(abs(mpf(c, a) - b) for a, b in zip(list(row[9:]) + list(row[6:9]), M + G))
+        err = max(abs(ctx_mpf(c, a) - b) for a, b in zip(list(row[9:]) + list(row[6:9]), M + G))
         # 160 bits: 48 digits; measured 5.6e-48 at t = 1 (a reference of order 30, h = 1/32, was off by 1.4e-50)
         assert err < c.mpf(10) ** -44, (t, err)
 
@@ -106,8 +97,8 @@ def test_lagrange_top_conserves_M3_energy_and_vertical_momentum(precision):
 def test_heavy_top_energy_is_kinetic_plus_potential():
     top = ls.HeavyTop(inertia=(3, 4, 5), com=(1, 2, 3), mass=2, g=10)
     y0 = top.initial_state(omega=(1, 1, 1))
-    c = ctx(50)
-    assert abs(mpf(c, top.invariants(y0)["energy"]) - (Fraction(12, 2) + 2 * 10 * 3)) < c.mpf(10) ** -40
+    c = private_ctx(50)
+    assert abs(ctx_mpf(c, top.invariants(y0)["energy"]) - (Fraction(12, 2) + 2 * 10 * 3)) < c.mpf(10) ** -40
 
 
 def test_bad_heavy_top_input_names_the_argument():

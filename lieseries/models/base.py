@@ -12,7 +12,6 @@ import numpy as np
 
 from ..poisson import PoissonSystem
 from ..solution import ChartRows, Solution, plain_ufunc
-from ..precision import EXACT_STATE_BITS  # noqa: F401 (kept here, where it was defined)
 from ..precision import (BinaryFraction, CarriedBits, PrecisionWarning, binary_inputs, bits_to_dps, carried_bits,
                          export_mpf, precision_of_dtype, resolve_precision, state_bits, to_fraction)
 
