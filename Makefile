@@ -15,11 +15,13 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(BIN)/lieseries run default --out reports/default
 
+# Bytecode is written for the tests even where PYTHONDONTWRITEBYTECODE is set: the suite starts ~60 Python
+# processes (workers, CLI runs, fresh-interpreter checks), and each would otherwise compile the package (~1 s).
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2
+	PYTHONDONTWRITEBYTECODE= $(BIN)/python -m pytest -q -n 2
 
 test-all: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 -m ""
+	PYTHONDONTWRITEBYTECODE= $(BIN)/python -m pytest -q -n 2 -m ""
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py
