@@ -429,10 +429,11 @@ class PoissonSystem:
     @property
     def ode_system(self) -> list:
         """The vector field as heyoka's ``[(variable, rhs), ...]``. heyoka counts an ODE's parameters as one more
-        than the largest index its expressions use and refuses any other number of values; when the field does
+        than the largest index its expressions use and refuses any other number of values. Integer powers
+        ``b**n``, ``|n| >= 3``, are written as products (:func:`powers_as_products`). When the field does
         not read the last declared parameter (one that enters only an event, an invariant, or nothing), the last
         component gets ``+ (par[k] - par[k])``, exactly 0, so the integrator takes every declared value."""
-        pairs = list(zip(self._variables, self.vector_field))
+        pairs = list(zip(self._variables, [powers_as_products(e) for e in self.vector_field]))
         k = len(self._param_values) - 1
         if k >= 0 and pairs and 1 + max((int(str(p)[1:]) for p in hy.get_params([e for _, e in pairs])),
                                          default=-1) <= k:
@@ -654,3 +655,60 @@ def as_poisson_system(system, argname: str = "system") -> PoissonSystem:
         f"`{argname}` must be a lieseries model (EulerPoisson, Sphere, ...) or a PoissonSystem; "
         f"got {type(system).__name__}"
     )
+
+
+def powers_as_products(expr):
+    """``expr`` with every integer power ``b**n``, ``|n| >= 3``, written as a product of ``|n|`` factors ``b``.
+
+    heyoka's Taylor recurrence for ``pow`` divides by the base, so ``q**3`` (the force of a quartic potential) is
+    NaN from the first step wherever ``q`` starts at 0; ``q*q*q`` is not. The rewrite goes through sympy and is kept
+    only when it reads back as the same expression (names, parameters and numbers unchanged); otherwise ``expr``
+    is returned as it is.
+    """
+    import sympy as sp
+
+    s = hy.to_sympy(expr)
+    found = [a for a in sp.preorder_traversal(s)
+             if isinstance(a, sp.Pow) and a.exp.is_Integer and abs(int(a.exp)) >= 3]
+    if not found:
+        return expr
+    symbols = {}
+    for sym in s.free_symbols:
+        name = sym.name
+        if name.startswith("par[") and name.endswith("]") and name[4:-1].isdigit():
+            symbols[sym] = hy.par[int(name[4:-1])]
+        else:
+            symbols[sym] = hy.expression(name)
+    try:
+        out = hy.from_sympy(_expand_powers(s), s_dict=symbols)
+        back = hy.to_sympy(out)
+    except (TypeError, ValueError):  # a node sympy and heyoka do not translate both ways
+        return expr
+    if back.free_symbols != s.free_symbols:
+        return expr
+    # the same function: equal at a point where every symbol is a distinct rational, at 100 digits (a number
+    # rounded on the way, a long double or quad constant read as a double, would differ by 1e-20 or more)
+    point = {sym: sp.Rational(k + 2, k + 3 + len(symbols)) for k, sym in enumerate(sorted(symbols, key=str))}
+    a, b = s.evalf(100, subs=point), back.evalf(100, subs=point)
+    if not (a.is_Number and b.is_Number) or abs(a - b) > sp.Float("1e-60", 100) * (1 + abs(a)):
+        return expr
+    return out
+
+
+def _expand_powers(e):
+    if e.is_Atom:
+        return e
+    import sympy as sp
+
+    args = [_expand_powers(a) for a in e.args]
+    if isinstance(e, sp.Pow):
+        base, ex = args
+        if ex.is_Integer and abs(int(ex)) >= 3:
+            prod = sp.Mul(*([base] * abs(int(ex))), evaluate=False)
+            return prod if int(ex) > 0 else sp.Pow(prod, -1, evaluate=False)
+        return sp.Pow(base, ex, evaluate=False)
+    if isinstance(e, sp.Mul):
+        return sp.Mul(*args, evaluate=False)
+    if isinstance(e, sp.Add):
+        return sp.Add(*args, evaluate=False)
+    return e.func(*args)

@@ -259,3 +259,35 @@ def test_a_declared_casimir_that_is_not_one_is_refused():
     from fractions import Fraction
     from lieseries.precision import to_fraction
     assert abs(to_fraction(ps.invariants(["0.1", "0.2", "0.3"], dps=40)["m2"]) - Fraction(14, 100)) < Fraction(1, 10**35)
+
+
+def test_a_quartic_potential_runs_from_q_equal_zero_in_heyoka():
+    """heyoka's ``pow`` recurrence divides by its base: the force -q**3 was NaN from the first step at q = 0
+    (``non_finite``). Written as q*q*q it runs; the Lie engine at 40 digits is the reference."""
+    q, p = hy.make_vars("q", "p")
+    s = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 + q**4 / 4)
+    from problems import ctx_mpf, private_ctx
+
+    c = private_ctx(50)
+    ref = ls.lie_integrate(s, ["0", "1"], t=1, dps=40)
+    assert ref.status == "success"
+    for precision, tol in (("double", 1e-14), ("quad", 1e-31)):
+        sol = ls.integrate(s, ["0", "1"], t=1, precision=precision)
+        assert sol.status == "success", sol.message
+        err = max(abs(ctx_mpf(c, a) - ctx_mpf(c, b)) for a, b in zip(sol.y[-1], ref.y[-1]))
+        assert err < tol, (precision, err)
+
+
+def test_powers_as_products_keeps_parameters_and_refuses_to_round_a_constant():
+    from lieseries.poisson import powers_as_products
+
+    q = hy.make_vars("q")
+    e = hy.par[0] * q**3 - 0.1 * q**-4
+    out = powers_as_products(e)
+    assert "**" not in str(out) and "p0" in str(out)
+    # evaluated at q = 0.7, par = 3: the same number
+    f_in, f_out = (hy.cfunc([x], [q]) for x in (e, out))
+    assert f_in([0.7], pars=[3.0])[0] == pytest.approx(f_out([0.7], pars=[3.0])[0], rel=1e-15)
+    # a long double constant would be read back as a double: the expression is kept as it is
+    ld = hy.expression(np.longdouble(1) / 3) * q**3
+    assert str(powers_as_products(ld)) == str(ld)
