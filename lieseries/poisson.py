@@ -193,6 +193,7 @@ class PoissonSystem:
         self._extra = extra_field
         self.name = str(name)
         self._field = None
+        self._ode = None
         self._key = None
         self._check_expressions(extra_field)
         self._check_antisymmetry()
@@ -433,13 +434,16 @@ class PoissonSystem:
         ``b**n``, ``|n| >= 3``, are written as products (:func:`powers_as_products`). When the field does
         not read the last declared parameter (one that enters only an event, an invariant, or nothing), the last
         component gets ``+ (par[k] - par[k])``, exactly 0, so the integrator takes every declared value."""
+        if self._ode is not None:
+            return list(self._ode)
         pairs = list(zip(self._variables, [powers_as_products(e) for e in self.vector_field]))
         k = len(self._param_values) - 1
         if k >= 0 and pairs and 1 + max((int(str(p)[1:]) for p in hy.get_params([e for _, e in pairs])),
                                          default=-1) <= k:
             v, e = pairs[-1]
             pairs[-1] = (v, e + (hy.par[k] - hy.par[k]))
-        return pairs
+        self._ode = pairs
+        return list(pairs)
 
     @property
     def key(self) -> str:
