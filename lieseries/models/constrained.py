@@ -465,10 +465,15 @@ class ConstrainedSystem:
             prod = Gp * Fp.T
             for a in range(k):
                 for i in range(d):
-                    e = prod[a, i]
-                    size = sum(abs(_number(Gp[a, b] * Fp[i, b], 30)) for b in range(Fp.shape[1]))
-                    val = _number(e, RESIDUAL_DPS)
-                    if val != 0 and not abs(val) <= mp.mpf(10) ** -45 * (size or 1):
+                    val = _number(prod[a, i], RESIDUAL_DPS)
+                    if isinstance(val, Fraction):
+                        bad = val != 0
+                    else:
+                        with mp.workdps(RESIDUAL_DPS):
+                            size = mp.fsum(abs(_to_mp(_number(Gp[a, b] * Fp[i, b], RESIDUAL_DPS)))
+                                           for b in range(Fp.shape[1]))
+                            bad = abs(val) > mp.mpf(10) ** -45 * (size or 1)
+                    if bad:
                         raise ValueError(
                             f"`frame[{i}]` is not tangent to the constraint surfaces: dG{a + 1}/dq . frame[{i}] = "
                             f"{_show(val)} at q = {[str(pt[s]) for s in self._q]} (it must vanish identically, paper "
@@ -568,6 +573,10 @@ def _number(expr, dps):
         raise ValueError(f"not a real number: {expr}")
     with mp.workdps(dps + 10):
         return mp.mpf(sp.Float(val, dps + 10)._mpf_)
+
+
+def _to_mp(v):
+    return mp.mpf(v.numerator) / v.denominator if isinstance(v, Fraction) else v
 
 
 def _show(v):
@@ -1276,13 +1285,6 @@ class ConstrainedIntermediate(ConstrainedDirac):
         cs = self.system
         at = {s: sp.Rational(f.numerator, f.denominator) for s, f in zip(cs._q, qv)}
         at.update(cs._values())
-        Fq = self.frame.xreplace(at)
-        if any(e.has(sp.zoo, sp.nan, sp.oo) for e in Fq):
-            raise ValueError("`q`: the frame of the intermediate momenta is undefined at this point (a component is "
-                             "infinite); start elsewhere or choose another frame / `dependent`")
-        if _rank(Fq) < Fq.shape[0]:
-            raise ValueError("`q`: the frame of the intermediate momenta is singular at this point (its fields are "
-                             "dependent there); start elsewhere or choose another frame")
         if self.dependent is not None:
             num, den = self._eval(list(self._edge_ratio), qv + [0] * (len(self.variables) - n))
             if not num > den * (mp.mpf(self.edge.numerator) / self.edge.denominator) ** 2:
@@ -1291,6 +1293,13 @@ class ConstrainedIntermediate(ConstrainedDirac):
                     f"{[cs.coordinates[a] for a in self.dependent]} dependent (det D^2 / det G_q G_q^T = "
                     f"{mp.nstr(num / den if den else mp.mpf(0), 4)} <= edge^2 = {float(self.edge) ** 2:.4g}); "
                     "choose other `dependent` coordinates, or use the global form dirac()")
+        Fq = self.frame.xreplace(at)
+        if any(e.has(sp.zoo, sp.nan, sp.oo) for e in Fq):
+            raise ValueError("`q`: the frame of the intermediate momenta is undefined at this point (a component is "
+                             "infinite); start elsewhere or choose another frame / `dependent`")
+        if _rank(Fq) < Fq.shape[0]:
+            raise ValueError("`q`: the frame of the intermediate momenta is singular at this point (its fields are "
+                             "dependent there); start elsewhere or choose another frame")
         P = sp.Matrix([sp.Rational(f.numerator, f.denominator) for f in pv])
         marked = any(isinstance(f, BinaryFraction) for f in pv)
         pis = _exact_numbers(list(Fq * P), marked)
