@@ -290,12 +290,14 @@ def test_rigid_body_field_equals_euler_poisson_on_so3(rigid):
 @pytest.mark.parametrize("precision", ["double", 113])
 def test_rigid_body_run_agrees_with_the_closed_form(rigid, precision):
     """From R = 1 with Omega = (1, 0.1, 0.5): the derived model agrees with ls.exact.euler_poisson to a small multiple
-    of the precision's epsilon at t = 1, 2 (compact mode: the field is large and LLVM slow on it unrolled)."""
+    of the precision's epsilon at t = 1, 2 (the model asks for compact mode: its field is large, LLVM slow on it
+    unrolled)."""
     _cs, _frame, model, _s = rigid
     y0 = model.initial_state(q=[1, 0, 0, 0, 1, 0, 0, 0, 1], qdot=[0, "-0.5", "0.1", "0.5", 0, -1, "-0.1", 1, 0])
     assert list(y0.exact[9:]) == [2, Fraction(3, 10), 2]  # M = I Omega
     ts = [1, 2]
-    sol = ls.integrate(model, y0, t=ts, precision=precision, compact_mode=True)
+    assert model.large_field  # compiled in compact mode by default
+    sol = ls.integrate(model, y0, t=ts, precision=precision)
     assert sol.success
     eps = float(resolve_precision(precision).eps)
     c = private_ctx(50)

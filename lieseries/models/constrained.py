@@ -1225,6 +1225,8 @@ class ConstrainedIntermediate(ConstrainedDirac):
     """A :class:`ConstrainedSystem` in the paper's intermediate formalism: (q^A, pi_i), 2n - k variables (p9-p14.3);
     see :meth:`ConstrainedSystem.intermediate`. ``invariants``: ``energy`` H'_0 and the Casimirs ``G1..``."""
 
+    large_field = False
+
     def __init__(self, system: ConstrainedSystem, dependent, frame, names, edge: Fraction):
         self.system = system
         self.dependent = dependent
@@ -1243,6 +1245,9 @@ class ConstrainedIntermediate(ConstrainedDirac):
             self._velocity_exprs = [conv(e) for e in d["velocity"]]
         else:
             tensor, H, self._velocity_exprs = _assemble_intermediate(d, conv, z, n)
+            # thousands of elementary operations (the rigid body: 3400): LLVM takes minutes on them unrolled, so
+            # the Taylor integrator compiles this model in compact mode
+            self.large_field = True
         casimirs = {f"G{a + 1}": conv(d["G"][a]) for a in range(k)}
         self._gradients = [[conv(sp.diff(g, qa)) for qa in d["q"]] for g in d["G"]]
         self._terms = [[conv(t) for t in sp.Add.make_args(sp.expand(g))] for g in d["G"]]
