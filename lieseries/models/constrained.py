@@ -15,6 +15,14 @@ G_alpha(q) = 0, and derives symbolically (sympy) the Hamiltonian formulations of
     G_alpha and Phi_alpha are Casimirs of {,}_D (``invariants`` reports them), so a motion that starts on the
     surface G = 0 with a tangent velocity (Phi = 0) stays there; H_0 is the energy.
 
+:meth:`ConstrainedSystem.reduced`
+    (q^A, p_i) on the intermediate submanifold Phi = 0, the momenta of k dependent coordinates eliminated (p8.13).
+:meth:`ConstrainedSystem.intermediate`
+    (q^A, pi_i) with pi_i = G_iA(q) p_A for n - k vector fields G_i tangent to the surface, a chart's (p9) or your
+    own (the rigid body's R^-T E_k): {q^A, pi_i} = G_iA, {pi_i, pi_j} = -c_ij^D p_D (p12.1, p20, p24), H'_0 (p14.1).
+:meth:`ConstrainedSystem.local`
+    Canonical (x^i, p_i) in local coordinates of the surface, from a chart solving the constraints.
+
 The Lagrangian must be quadratic in the velocities, L = 1/2 qdot^T M(q) qdot + A(q) . qdot - U(q), with M
 positive definite: that is the class the paper treats (int01.02), for which p = M qdot + A inverts in closed form
 and b = G_q M^-1 G_q^T is invertible when the constraints are independent (paper, appendix). The derivation runs
