@@ -346,22 +346,7 @@ class ConstrainedSystem:
         it holds where the k x k block D = (G_q M^-1)[:, dependent] is invertible: runs stop (status
         ``"chart_edge"``) when det(D)^2 falls to ``edge``^2 det(W W^T), W = G_q M^-1 (for the sphere with x3
         dependent: |x3| = edge |x|). Cached per (dependent, edge)."""
-        k = len(self.constraints)
-        n = len(self.coordinates)
-        if dependent is None:
-            dependent = tuple(range(n - k, n))
-        if isinstance(dependent, (int, np.integer, str)):
-            dependent = (dependent,)
-        dep = []
-        for d in dependent:
-            if isinstance(d, str) and d in self.coordinates:
-                d = self.coordinates.index(d)
-            if isinstance(d, bool) or not isinstance(d, (int, np.integer)) or not 0 <= int(d) < n:
-                raise ValueError(f"`dependent` must name {k} of the coordinates {list(self.coordinates)} (or their "
-                                 f"indices); got {dependent!r}")
-            dep.append(int(d))
-        if len(dep) != k or len(set(dep)) != k:
-            raise ValueError(f"`dependent` must name {k} distinct coordinates (one per constraint); got {dependent!r}")
+        dep = self._dependent_indices(dependent)
         edge_f = to_fraction(edge, "edge")
         if not 0 < edge_f < 1:
             raise ValueError(f"`edge` must lie in (0, 1) (a fraction of the largest possible |det D|); got {edge!r}")
