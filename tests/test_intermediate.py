@@ -423,3 +423,14 @@ def test_intermediate_agrees_with_dirac_with_a_magnetic_term_and_two_constraints
     for name in ("intermediate",):
         err = max(abs(ctx_mpf(c, a) - ctx_mpf(c, b)) for a, b in zip(runs[name].ravel(), runs["dirac"].ravel()))
         assert err < 1e-31, (name, err)  # measured: about 1e-34
+
+
+def test_frame_tangent_only_on_the_surface_is_refused(rigid):
+    """R E_k equals R^-T E_k on SO(3) but is not tangent to the other level sets of R^T R: then {pi, G} != 0 off the
+    surface and the Dirac bracket would change the pi's brackets (p18), so the frame is refused naming it."""
+    cs, _frame, _model, _s = rigid
+    R = [[f"R{i}{j}" for j in range(1, 4)] for i in range(1, 4)]
+    frame = [[" + ".join(f"{-_eps(k, i, b)}*{R[a][i]}" for i in range(3) if _eps(k, i, b)) if b != k else "0"
+              for a in range(3) for b in range(3)] for k in range(3)]
+    with pytest.raises(ValueError, match=r"`frame\[[012]\]` is not tangent to the constraint surfaces"):
+        cs.intermediate(frame=frame)
