@@ -306,7 +306,7 @@ def build_integrator(system, precision="double", tol=None, *, events=True, user_
     n = ps.dimension
     if compact_mode is None:
         # compact mode keeps compilation fast: LLVM is slow on unrolled long-double, quad and real code
-        compact_mode = prec.name != "double" or n > 20
+        compact_mode = prec.name != "double" or n > 20 or bool(getattr(model, "large_field", False))
     user = tuple((str(e[1]), e[2], e[3]) for e in user_events)
     key = (ps.key, prec.name, tolf, tuple(str(e[0]) for e in evs), user, bool(compact_mode), bool(high_accuracy))
     info = [(e[1], e[2]) for e in evs]  # messages from this model, never from the cached one

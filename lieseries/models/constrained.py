@@ -15,6 +15,14 @@ G_alpha(q) = 0, and derives symbolically (sympy) the Hamiltonian formulations of
     G_alpha and Phi_alpha are Casimirs of {,}_D (``invariants`` reports them), so a motion that starts on the
     surface G = 0 with a tangent velocity (Phi = 0) stays there; H_0 is the energy.
 
+:meth:`ConstrainedSystem.reduced`
+    (q^A, p_i) on the intermediate submanifold Phi = 0, the momenta of k dependent coordinates eliminated (p8.13).
+:meth:`ConstrainedSystem.intermediate`
+    (q^A, pi_i) with pi_i = G_iA(q) p_A for n - k vector fields G_i tangent to the surface, a chart's (p9) or your
+    own (the rigid body's R^-T E_k): {q^A, pi_i} = G_iA, {pi_i, pi_j} = -c_ij^D p_D (p12.1, p20, p24), H'_0 (p14.1).
+:meth:`ConstrainedSystem.local`
+    Canonical (x^i, p_i) in local coordinates of the surface, from a chart solving the constraints.
+
 The Lagrangian must be quadratic in the velocities, L = 1/2 qdot^T M(q) qdot + A(q) . qdot - U(q), with M
 positive definite: that is the class the paper treats (int01.02), for which p = M qdot + A inverts in closed form
 and b = G_q M^-1 G_q^T is invertible when the constraints are independent (paper, appendix). The derivation runs
@@ -29,6 +37,7 @@ exact and are rounded once to each working precision; a float is its binary valu
 from __future__ import annotations
 
 import io
+import threading
 import tokenize
 from fractions import Fraction
 
@@ -41,7 +50,8 @@ from ..precision import BinaryFraction, binary_inputs, bits_to_dps, data_bits, s
 from ..precision import thread_mp as mp
 from .base import Model, make_state
 
-__all__ = ["ConstrainedSystem", "ConstrainedDirac", "ConstrainedReduced"]
+__all__ = ["ConstrainedSystem", "ConstrainedDirac", "ConstrainedReduced", "ConstrainedIntermediate",
+           "ConstrainedLocal"]
 
 #: Functions a Lagrangian or constraint string may use (all of them convert to heyoka).
 FUNCTIONS = {
@@ -318,7 +328,7 @@ class ConstrainedSystem:
         (qdot(q, p)), ``chi`` (the 2k constraints G then Phi) and ``tensor`` (the 2n x 2n Dirac tensor
         {z_i, z_j}_D, z = (q, p)), in the parameter symbols."""
         if self._sym_dirac is None:
-            self._sym_dirac = _derive_dirac(self)
+            self._sym_dirac = _memoized(("dirac", self._memo_key()), lambda: _derive_dirac(self))
         return self._sym_dirac
 
     def dirac(self) -> "ConstrainedDirac":
@@ -336,22 +346,7 @@ class ConstrainedSystem:
         it holds where the k x k block D = (G_q M^-1)[:, dependent] is invertible: runs stop (status
         ``"chart_edge"``) when det(D)^2 falls to ``edge``^2 det(W W^T), W = G_q M^-1 (for the sphere with x3
         dependent: |x3| = edge |x|). Cached per (dependent, edge)."""
-        k = len(self.constraints)
-        n = len(self.coordinates)
-        if dependent is None:
-            dependent = tuple(range(n - k, n))
-        if isinstance(dependent, (int, np.integer, str)):
-            dependent = (dependent,)
-        dep = []
-        for d in dependent:
-            if isinstance(d, str) and d in self.coordinates:
-                d = self.coordinates.index(d)
-            if isinstance(d, bool) or not isinstance(d, (int, np.integer)) or not 0 <= int(d) < n:
-                raise ValueError(f"`dependent` must name {k} of the coordinates {list(self.coordinates)} (or their "
-                                 f"indices); got {dependent!r}")
-            dep.append(int(d))
-        if len(dep) != k or len(set(dep)) != k:
-            raise ValueError(f"`dependent` must name {k} distinct coordinates (one per constraint); got {dependent!r}")
+        dep = self._dependent_indices(dependent)
         edge_f = to_fraction(edge, "edge")
         if not 0 < edge_f < 1:
             raise ValueError(f"`edge` must lie in (0, 1) (a fraction of the largest possible |det D|); got {edge!r}")
@@ -359,6 +354,199 @@ class ConstrainedSystem:
         key = (tuple(dep), edge_f)
         if key not in cache:
             cache[key] = ConstrainedReduced(self, tuple(dep), edge_f)
+        return cache[key]
+
+    def _dependent_indices(self, dependent, argname="dependent"):
+        """k distinct coordinate indices from names or indices (default: the last k), or an error naming
+        ``argname``."""
+        k = len(self.constraints)
+        n = len(self.coordinates)
+        if dependent is None:
+            return tuple(range(n - k, n))
+        if isinstance(dependent, (int, np.integer, str)):
+            dependent = (dependent,)
+        dep = []
+        for d in dependent:
+            if isinstance(d, str) and d in self.coordinates:
+                d = self.coordinates.index(d)
+            if isinstance(d, bool) or not isinstance(d, (int, np.integer)) or not 0 <= int(d) < n:
+                raise ValueError(f"`{argname}` must name {k} of the coordinates {list(self.coordinates)} (or their "
+                                 f"indices); got {dependent!r}")
+            dep.append(int(d))
+        if len(dep) != k or len(set(dep)) != k:
+            raise ValueError(f"`{argname}` must name {k} distinct coordinates (one per constraint); got {dependent!r}")
+        return tuple(dep)
+
+    def _memo_key(self):
+        return (sp.srepr(self.lagrangian), self.coordinates, tuple(sp.srepr(g) for g in self.constraints),
+                tuple(sorted(self._par)))
+
+    def intermediate_bracket(self, dependent=None, frame=None, momenta=None):
+        """The symbolic intermediate formalism (paper, p9-p14.1), derived once per system and frame (a module-wide
+        memo: a second system with the same Lagrangian, coordinates and constraints reuses it).
+
+        Returns a ``dict`` with sympy ``q``, ``pi`` (the momentum symbols), ``frame`` (the (n-k) x n matrix of the
+        tangent vector fields G_i, rows), ``K`` = G_i M G_j^T, ``H`` (H'_0 of p14.1), ``velocity`` (qdot(q, pi)),
+        ``p`` (p_A(q, pi) on Phi = 0), ``c`` (the Lie brackets [G_i, G_j], p13/p25) and ``tensor`` (the
+        (2n-k) x (2n-k) bracket of (q, pi), p12.1/p20), in the parameter symbols; see :meth:`intermediate`."""
+        dep, F, names = self._frame(dependent, frame, momenta)
+        return self._intermediate_derivation(dep, F, names)
+
+    def _intermediate_derivation(self, dep, F, names):
+        key = ("intermediate", self._memo_key(), dep, None if F is None else sp.srepr(F), tuple(names))
+        return _memoized(key, lambda: _derive_intermediate(self, dep, F, names))
+
+    def _frame(self, dependent, frame, momenta):
+        """(dependent indices or None, frame matrix or None, momentum names) from the user's arguments."""
+        n = len(self.coordinates)
+        k = len(self.constraints)
+        if frame is None:
+            dep = self._dependent_indices(dependent)
+            free = [i for i in range(n) if i not in dep]
+            default = [f"pi_{self.coordinates[i]}" for i in free]
+            F = None
+        else:
+            if dependent is not None:
+                raise ValueError("give `dependent` (a chart of the paper's p9 frame) or `frame` (your own tangent "
+                                 "vector fields), not both")
+            dep = None
+            if isinstance(frame, (str, bytes)) or not hasattr(frame, "__len__") or len(frame) != n - k:
+                raise ValueError(f"`frame` must be a list of {n - k} vector fields (one per dimension of the "
+                                 f"surface), each a list of {n} expressions in the coordinates; got {frame!r}")
+            rows = []
+            for i, row in enumerate(frame):
+                if isinstance(row, (str, bytes)) or not hasattr(row, "__len__") or len(row) != n:
+                    raise ValueError(f"`frame[{i}]` must be a list of {n} expressions (one component per coordinate "
+                                     f"{list(self.coordinates)}); got {row!r}")
+                rows.append([self._parse(e, f"frame[{i}][{a}]", velocities=False) for a, e in enumerate(row)])
+            F = sp.Matrix(rows)
+            self._check_frame(F)
+            default = [f"pi{i + 1}" for i in range(n - k)]
+        if momenta is None:
+            names = default
+        else:
+            if isinstance(momenta, (str, bytes)) or not hasattr(momenta, "__len__") or len(momenta) != n - k:
+                raise ValueError(f"`momenta` must be {n - k} names, one per tangent vector field; got {momenta!r}")
+            names = [str(m) for m in momenta]
+            taken = set(self.coordinates) | set(self.velocities) | set(self._par)
+            for i, m in enumerate(names):
+                if not _is_name(m) or m in FUNCTIONS or m in CONSTANTS or m in taken:
+                    raise ValueError(f"`momenta[{i}]` = {m!r} must be a new identifier (not a coordinate, velocity, "
+                                     "parameter or function name)")
+            if len(set(names)) != len(names):
+                raise ValueError(f"`momenta` must be distinct; got {names}")
+        return dep, F, names
+
+    def _check_frame(self, F):
+        """A user frame must be tangent to every level set of the constraints (G_alpha,A G_iA = 0, p9) and of full
+        rank: checked exactly at pseudo-random rational points (numerically at 60 digits where irrational)."""
+        import random
+
+        k = len(self.constraints)
+        d = F.shape[0]
+        Gq = sp.Matrix([[sp.diff(g, qa) for qa in self._q] for g in self.constraints])
+        vals = self._values()
+        rng = random.Random(4049 + len(self._q))
+        checked = 0
+        for _ in range(12):
+            pt = {qa: sp.Rational(rng.randint(300, 1300), 1000) for qa in self._q}
+            pt.update(vals)
+            Fp = F.xreplace(pt)
+            if any(e.has(sp.zoo, sp.nan, sp.oo) for e in Fp):
+                continue
+            Gp = Gq.xreplace(pt)
+            prod = Gp * Fp.T
+            for a in range(k):
+                for i in range(d):
+                    val = _number(prod[a, i], RESIDUAL_DPS)
+                    if isinstance(val, Fraction):
+                        bad = val != 0
+                    else:
+                        with mp.workdps(RESIDUAL_DPS):
+                            size = mp.fsum(abs(_to_mp(_number(Gp[a, b] * Fp[i, b], RESIDUAL_DPS)))
+                                           for b in range(Fp.shape[1]))
+                            bad = abs(val) > mp.mpf(10) ** -45 * (size or 1)
+                    if bad:
+                        raise ValueError(
+                            f"`frame[{i}]` is not tangent to the constraint surfaces: dG{a + 1}/dq . frame[{i}] = "
+                            f"{_show(val)} at q = {[str(pt[s]) for s in self._q]} (it must vanish identically, paper "
+                            "p9; e.g. for R^T R = 1 the fields R^-T E_k, E_k antisymmetric)")
+            if _rank(Fp) < d:
+                raise ValueError(f"`frame` has rank {_rank(Fp)} < {d} at q = {[str(pt[s]) for s in self._q]}: its "
+                                 "vector fields must be linearly independent (a basis of the tangent space)")
+            checked += 1
+            if checked == 2:
+                return
+        raise ValueError("`frame` is singular (infinite or undefined) at every sample point; give vector fields "
+                         "defined on an open set")
+
+    def intermediate(self, dependent=None, frame=None, momenta=None, edge="0.05") -> "ConstrainedIntermediate":
+        """The model on the intermediate submanifold in the paper's intermediate formalism (p9-p14.3): the n
+        coordinates q^A and n - k momenta pi_i = G_iA(q) p_A, with G_i vector fields tangent to the surface.
+
+        ``frame=None``: the fields of p9 in the chart whose dependent coordinates are ``dependent`` (k names or
+        indices; default the last k): G_i has 1 in the free coordinate i, 0 in the other free ones, and solves
+        dG_alpha/dq . G_i = 0 in the dependent ones. The chart ends where the block dG/dq_dependent is singular:
+        runs stop (status ``"chart_edge"``) when det(dG/dq_dep)^2 falls to ``edge``^2 det(G_q G_q^T) (the
+        sphere with x3 dependent: |x3| = edge |x|).
+        ``frame``: your own n - k vector fields, each n expressions in the coordinates (and parameters), tangent
+        to every level set of the constraints (checked) and independent; e.g. for the rigid body R^TR = 1 the
+        fields R^-T E_k (paper, 3.7), which give the body angular momentum. No chart edge is watched then: the
+        frame must be defined along the motion (``initial_state`` checks it at the start).
+        ``momenta``: names of the pi_i (default ``pi_<coordinate>`` for a chart, ``pi1, ...`` for a frame).
+
+        Bracket: {q^A, q^B} = 0, {q^A, pi_i} = G_iA, {pi_i, pi_j} = -c_ij^D p_D with c_ij = [G_i, G_j] (p12.1,
+        p20, p24); H'_0 = H_0 at p on Phi = 0 (p14.1). The G_alpha are Casimirs (``invariants``). Cached."""
+        dep, F, names = self._frame(dependent, frame, momenta)
+        edge_f = to_fraction(edge, "edge")
+        if not 0 < edge_f < 1:
+            raise ValueError(f"`edge` must lie in (0, 1) (a fraction of the largest possible |det D|); got {edge!r}")
+        cache = self.__dict__.setdefault("_intermediate", {})
+        key = (dep, None if F is None else sp.srepr(F), tuple(names), edge_f)
+        if key not in cache:
+            cache[key] = ConstrainedIntermediate(self, dep, F, names, edge_f)
+        return cache[key]
+
+    def local(self, chart=None, edge="0.05") -> "ConstrainedLocal":
+        """The canonical model on the surface in local coordinates (x^i, p_i), 2(n - k) variables.
+
+        ``chart``: a mapping {dependent coordinate: expression of the others} that solves the constraints, e.g.
+        ``{"x3": "sqrt(c**2 - x1**2 - x2**2)"}`` for the upper half of the sphere (checked: each G_alpha must
+        vanish identically after the substitution). The free coordinates are the local ones; L restricted to the
+        surface, L(x, xdot) = L(q(x), dq/dx xdot), gives p_i = dL/dxdot^i and the canonical bracket. The chart
+        ends where dG/dq_dependent is singular (the branch point of the square root): runs stop (status
+        ``"chart_edge"``) when det(dG/dq_dep)^2 falls to ``edge``^2 det(G_q G_q^T), as for :meth:`reduced`.
+        Cached per chart and edge."""
+        if chart is None:
+            raise ValueError("`chart` is required: a mapping {dependent coordinate: expression of the other "
+                             "coordinates} solving the constraints, e.g. {'x3': 'sqrt(c**2 - x1**2 - x2**2)'}")
+        if not hasattr(chart, "items"):
+            raise TypeError(f"`chart` must be a mapping {{coordinate: expression}}; got {type(chart).__name__}")
+        dep = self._dependent_indices(list(chart), "chart")
+        sol = {}
+        dep_syms = {self._q[a] for a in dep}
+        for name, e in chart.items():
+            a = name if isinstance(name, (int, np.integer)) else self.coordinates.index(name)
+            expr = self._parse(e, f"chart[{name!r}]", velocities=False)
+            used = sorted(str(s) for s in expr.free_symbols & dep_syms)
+            if used:
+                raise ValueError(f"`chart[{name!r}]` uses the dependent coordinates {used}: write each dependent "
+                                 "coordinate as an expression of the free ones")
+            sol[self._q[a]] = expr
+        vals = self._values()
+        for i, g in enumerate(self.constraints):
+            res = sp.simplify(g.xreplace(sol).xreplace(vals))
+            if res != 0:
+                raise ValueError(f"`chart` does not solve the constraints: G{i + 1} = {self.constraints[i]} becomes "
+                                 f"{res} (not 0) with it; give the dependent coordinates as the solution of "
+                                 "G = 0 (e.g. x3 = sqrt(c**2 - x1**2 - x2**2))")
+        edge_f = to_fraction(edge, "edge")
+        if not 0 < edge_f < 1:
+            raise ValueError(f"`edge` must lie in (0, 1) (a fraction of the largest possible |det D|); got {edge!r}")
+        cache = self.__dict__.setdefault("_local", {})
+        key = (tuple(sorted((str(s), sp.srepr(e)) for s, e in sol.items())), edge_f)
+        if key not in cache:
+            cache[key] = ConstrainedLocal(self, dep, sol, edge_f)
         return cache[key]
 
     def __repr__(self) -> str:
@@ -378,6 +566,10 @@ def _number(expr, dps):
         raise ValueError(f"not a real number: {expr}")
     with mp.workdps(dps + 10):
         return mp.mpf(sp.Float(val, dps + 10)._mpf_)
+
+
+def _to_mp(v):
+    return mp.mpf(v.numerator) / v.denominator if isinstance(v, Fraction) else v
 
 
 def _show(v):
@@ -447,6 +639,177 @@ def _derive_dirac(cs):
             "b": b, "c": c}
 
 
+_MEMO: dict = {}
+_MEMO_LOCK = threading.Lock()
+
+
+def _memoized(key, derive):
+    """The derivation ``derive()`` once per ``key`` in this process (symbolic results are immutable and shared by
+    every system with the same inputs); one derivation at a time."""
+    with _MEMO_LOCK:
+        if key not in _MEMO:
+            _MEMO[key] = derive()
+        return _MEMO[key]
+
+
+def _small(e, limit=400) -> bool:
+    return sp.count_ops(e) <= limit
+
+
+def _lie_bracket(Fi, Fj, q):
+    """[G_i, G_j]^D = G_iE d_E G_jD - G_jE d_E G_iD (paper, p13)."""
+    n = len(q)
+    return [sum(Fi[E] * sp.diff(Fj[D], q[E]) - Fj[E] * sp.diff(Fi[D], q[E]) for E in range(n)) for D in range(n)]
+
+
+def _inverse(K):
+    """Inverse of a small symbolic matrix, entries simplified when that is cheap."""
+    d = K.shape[0]
+    if d == 1:
+        return sp.Matrix([[1 / K[0, 0]]])
+    if all(K[i, j] == 0 for i in range(d) for j in range(d) if i != j):
+        return sp.diag(*[1 / K[i, i] for i in range(d)])
+    # the generic d x d adjugate and determinant, then the entries put in (no expansion of large entries)
+    gen = sp.Matrix(d, d, lambda i, j: sp.Symbol(f"__k{i}_{j}"))
+    sub = {gen[i, j]: K[i, j] for i in range(d) for j in range(d)}
+    det = gen.det(method="berkowitz").xreplace(sub)
+    adj = gen.adjugate(method="berkowitz").xreplace(sub)
+    if _small(det) and all(_small(e) for e in adj):
+        det = sp.cancel(det)
+        return adj.applyfunc(lambda e: sp.cancel(e / det))
+    return adj / det
+
+
+def _derive_intermediate(cs, dependent, F, names):
+    """The intermediate formalism (paper, p9-p14.1) for the frame F (rows G_i; None: the chart of p9).
+
+    With W = G_q M^-1 and the momenta pi_i = G_iA p_A, the point p of the intermediate submanifold Phi = W (p - A)
+    = 0 with given pi is p = A + M G^T K^-1 (pi - G A), K = G M G^T (the velocity v = M^-1 (p - A) is tangent,
+    v = G^T a, and G p = pi fixes a): this is p = G~ pi with pi_alpha = f_alpha(q, pi_i) of p10 and p19.0, written
+    without the n x n inverse G~. H'_0 = 1/2 v^T M v + U at that point (p14.1)."""
+    n = len(cs._q)
+    k = len(cs.constraints)
+    d = n - k
+    q = list(cs._q)
+    Gq = sp.Matrix([[sp.diff(g, qa) for qa in q] for g in cs.constraints])
+    out = {"q": q, "G": list(cs.constraints), "dependent": dependent}
+    if F is None:
+        free = [i for i in range(n) if i not in dependent]
+        D = Gq[:, list(dependent)]
+        detD = sp.cancel(D.det(method="berkowitz"))
+        if detD == 0:
+            raise ValueError(f"`dependent`: the constraints cannot be solved for "
+                             f"{[cs.coordinates[a] for a in dependent]} (the block dG/dq of these coordinates is "
+                             "singular everywhere); choose other coordinates")
+        Dinv = _inverse(D)
+        F = sp.zeros(d, n)
+        for r, i in enumerate(free):
+            F[r, i] = 1
+            col = -(Dinv * Gq[:, i])
+            for a, dep in enumerate(dependent):
+                F[r, dep] = _tidy(col[a])
+        out["detD"] = detD
+        out["gram"] = sp.cancel((Gq * Gq.T).det(method="berkowitz"))
+    pi = [sp.Symbol(nm, real=True) for nm in names]
+    M, A, U = cs._M, cs._A, cs._U
+    simplify = dependent is not None  # a chart's frame is simple; a frame of your own may be large (R^-T)
+    out.update({"pi": pi, "frame": F, "M": M, "A": A, "U": U})
+    if not simplify:
+        # the Lie brackets c_ij, K, its inverse, H'_0 and the bracket of the pi are assembled from these pieces
+        # in heyoka (ConstrainedIntermediate), where common pieces stay shared: expanding them symbolically costs
+        # minutes for the rigid body
+        out.update({"c": None, "K": F * M * F.T, "H": None, "velocity": None, "p": None, "tensor": None})
+        return out
+    c = {}
+    for i in range(d):
+        for j in range(i + 1, d):
+            c[(i, j)] = [sp.cancel(e) for e in _lie_bracket(F.row(i), F.row(j), q)]
+    out["c"] = c
+    K = (F * M * F.T).applyfunc(sp.cancel)
+    Kinv = _inverse(K)
+    w = sp.Matrix(pi) - F * A
+    a = Kinv * w
+    v = (F.T * a).applyfunc(_tidy)
+    p = (A + M * v).applyfunc(_tidy)
+    H = _tidy((w.T * a)[0, 0] / 2 + U)
+    T = sp.zeros(n + d, n + d)
+    for i in range(d):
+        for A_ in range(n):
+            if F[i, A_] != 0:
+                T[A_, n + i] = F[i, A_]
+                T[n + i, A_] = -F[i, A_]
+    for (i, j), cij in c.items():
+        if all(e == 0 for e in cij):
+            continue
+        e = _tidy(-sum(cij[D_] * p[D_] for D_ in range(n) if cij[D_] != 0))
+        T[n + i, n + j] = e
+        T[n + j, n + i] = -e
+    out.update({"K": K, "H": H, "velocity": list(v), "p": list(p), "tensor": T})
+    return out
+
+
+def _assemble_intermediate(d, conv, z, n):
+    """Heyoka tensor, H'_0 and velocity of the intermediate formalism from the pieces of a derivation (p12.1, p24,
+    p14.1), for frames whose symbolic expansion is too large: K^-1 as adj(K)/det(K) of the 3x3 or smaller
+    generic matrix, every piece shared."""
+    F = d["frame"]
+    nf = F.shape[0]
+    Fh = [[conv(F[i, A]) if F[i, A] != 0 else 0 for A in range(n)] for i in range(nf)]
+    M, A, U = d["M"], d["A"], d["U"]
+    Mh = [[conv(M[a, b]) if M[a, b] != 0 else 0 for b in range(n)] for a in range(n)]
+    Ah = [conv(A[a]) if A[a] != 0 else 0 for a in range(n)]
+    Uh = conv(U)
+    pis = z[n:]
+
+    def dot(xs, ys):
+        terms = [x * y for x, y in zip(xs, ys) if not (_zero(x) or _zero(y))]
+        return hy.sum(terms) if terms else hy.expression(0.0)
+
+    MF = [[dot(Mh[a], Fh[l]) for l in range(nf)] for a in range(n)]  # (M F^T)_{a l}
+    K = [[dot([Fh[k][a] for a in range(n)], [MF[a][l] for a in range(n)]) for l in range(nf)] for k in range(nf)]
+    gen = sp.Matrix(nf, nf, lambda i, j: sp.Symbol(f"__k{i}_{j}"))
+    det_s = gen.det(method="berkowitz")
+    adj_s = gen.adjugate(method="berkowitz")
+    ks = {gen[i, j]: hy.expression(f"__k{i}_{j}") for i in range(nf) for j in range(nf)}
+    subs = {f"__k{i}_{j}": K[i][j] for i in range(nf) for j in range(nf)}
+    det = hy.subs(hy.from_sympy(det_s, s_dict=ks), subs)
+    Kinv = [[hy.subs(hy.from_sympy(adj_s[i, j], s_dict=ks), subs) / det for j in range(nf)] for i in range(nf)]
+    w = [pis[i] - dot(Fh[i], Ah) for i in range(nf)]
+    a = [dot(Kinv[i], w) for i in range(nf)]
+    H = 0.5 * dot(w, a) + Uh
+    v = [dot([Fh[i][A_] for i in range(nf)], a) for A_ in range(n)]
+    p = [Ah[A_] + dot(Mh[A_], v) if not _zero(Ah[A_]) else dot(Mh[A_], v) for A_ in range(n)]
+    m = n + nf
+    tensor = [[0] * m for _ in range(m)]
+    for i in range(nf):
+        for A_ in range(n):
+            if not _zero(Fh[i][A_]):
+                tensor[A_][n + i] = Fh[i][A_]
+                tensor[n + i][A_] = -Fh[i][A_]
+    qv = z[:n]
+    for i in range(nf):
+        for j in range(i + 1, nf):
+            # c_ij^D = G_iE d_E G_jD - G_jE d_E G_iD (p13), differentiated in heyoka (shared subexpressions)
+            terms = []
+            for D_ in range(n):
+                parts = [Fh[i][E] * hy.diff(Fh[j][D_], qv[E]) for E in range(n)
+                         if not _zero(Fh[i][E]) and not _zero(Fh[j][D_])]
+                parts += [-(Fh[j][E] * hy.diff(Fh[i][D_], qv[E])) for E in range(n)
+                          if not _zero(Fh[j][E]) and not _zero(Fh[i][D_])]
+                if parts:
+                    terms.append(hy.sum(parts) * p[D_])
+            if not terms:
+                continue
+            e = -hy.sum(terms)
+            tensor[n + i][n + j] = e
+            tensor[n + j][n + i] = -e
+    return tensor, H, v
+
+
+def _zero(x) -> bool:
+    return isinstance(x, (int, float)) and x == 0
+
+
 class _HeyokaConverter:
     """sympy -> heyoka, with the parameters as runtime parameters and every number that is not a short binary
     number (1/3, 981/100) turned into a runtime parameter of its own (heyoka stores constants as doubles)."""
@@ -476,7 +839,26 @@ class _HeyokaConverter:
             repl[r] = sp.Symbol(f"__const_{self.constants[r][1]}")
         if repl:
             expr = _replace_numbers(expr, repl)
-        return hy.from_sympy(expr, s_dict=self.s_dict)
+        return hy.from_sympy(_expand_powers(expr), s_dict=self.s_dict)
+
+
+def _expand_powers(expr):
+    """Integer powers b**n, |n| >= 3, written as products: heyoka's Taylor recurrence for pow divides by the base,
+    so b**3 gives NaN from the first step wherever b = 0 (a coordinate starting at 0), which b*b*b does not."""
+    if expr.is_Atom:
+        return expr
+    args = [_expand_powers(a) for a in expr.args]
+    if isinstance(expr, sp.Pow):
+        base, ex = args
+        if ex.is_Integer and abs(int(ex)) >= 3:
+            prod = sp.Mul(*([base] * abs(int(ex))), evaluate=False)
+            return prod if int(ex) > 0 else sp.Pow(prod, -1, evaluate=False)
+        return sp.Pow(base, ex, evaluate=False)
+    if isinstance(expr, sp.Mul):
+        return sp.Mul(*args, evaluate=False)
+    if isinstance(expr, sp.Add):
+        return sp.Add(*args, evaluate=False)
+    return expr.func(*args)
 
 
 def _dyadic(r) -> bool:
@@ -558,10 +940,16 @@ class ConstrainedDirac(Model):
                              f"{list(self.system.coordinates)}); got shape {arr.shape}")
         return [to_fraction(v, f"{argname}[{i}]") for i, v in enumerate(arr)]
 
-    def _eval(self, exprs, values, dps=RESIDUAL_DPS):
+    @property
+    def _q_variables(self):
+        """The variables the constraint expressions (``_terms``, ``_gradients``) are written in, q first."""
+        return self.variables
+
+    def _eval(self, exprs, values, dps=RESIDUAL_DPS, variables=None):
         from ..expr import compile_expressions
 
-        prog = compile_expressions(self.variables, exprs, len(self.poisson.parameter_values))
+        prog = compile_expressions(self.variables if variables is None else variables, exprs,
+                                   len(self.poisson.parameter_values))
         return prog.evaluate(list(values), list(self.poisson.parameter_values), dps)
 
     def _check_surface(self, q, qdot, bits, qname="q", vname="qdot", loose=False):
@@ -571,10 +959,11 @@ class ConstrainedDirac(Model):
         if loose and bits is not None:
             tol_exact = max(RESIDUAL_EXACT, Fraction(1, 2 ** max(1, (int(bits) - 4) // 2)))
         n = self.n
-        point = list(q) + [0] * (len(self.variables) - n)
+        qvars = self._q_variables
+        point = list(q) + [0] * (len(qvars) - n)
         k = len(self._terms)
         flat = [t for ts in self._terms for t in ts] + [g for row in self._gradients for g in row]
-        vals = self._eval(flat, point)
+        vals = self._eval(flat, point, variables=qvars)
         with mp.workdps(RESIDUAL_DPS):
             tol = mp.mpf(tol_exact.numerator) / tol_exact.denominator
         pos = 0
@@ -788,3 +1177,301 @@ class ConstrainedReduced(ConstrainedDirac):
 
     def __repr__(self) -> str:
         return f"ConstrainedReduced({self.system.name!r}, variables={list(self.names)})"
+
+
+def _model_parameters(system, conv, field_exprs, extra=()):
+    """(parameters, sources, bits) of a derived model: the converter's parameters, ``extra`` (name, value, source)
+    appended, and an exact unit factor when the last parameter is used by nothing in ``field_exprs`` (heyoka
+    counts the parameters of an ODE as 1 + the largest index it uses)."""
+    params = {nm: conv.values[nm] for nm in conv.names}
+    sources = {nm: f"parameters[{nm!r}]" for nm in system.parameter_values}
+    sources.update({nm: "lagrangian" for nm in params if nm not in system.parameter_values})
+    for name, value, source in extra:
+        while name in params:
+            name = "_" + name
+        params[name] = value
+        sources[name] = source
+    used = {int(str(pp)[1:]) for pp in hy.get_params([e for e in field_exprs if isinstance(e, hy.expression)])}
+    unit_index = None
+    if params and (len(params) - 1) not in used:
+        unit = "one"
+        while unit in params:
+            unit = "_" + unit
+        params[unit] = Fraction(1)
+        sources[unit] = "lagrangian"
+        unit_index = len(params) - 1
+    bits = dict(system._parameter_bits)
+    bits.update(system._input_bits)
+    return params, sources, bits, unit_index
+
+
+def _heyoka_tensor(conv, T):
+    m = T.shape[0]
+    tensor = [[0] * m for _ in range(m)]
+    for a in range(m):
+        for b in range(a + 1, m):
+            if T[a, b] != 0:
+                e = conv(T[a, b])
+                tensor[a][b] = e
+                tensor[b][a] = -e
+    return tensor
+
+
+def _exact_numbers(exprs, marked):
+    """Sympy numbers as Fractions; irrational ones (or any, when ``marked`` inputs carried finite bits) stored with
+    IRRATIONAL_BITS bits and marked so."""
+    out = []
+    irrational = False
+    for e in exprs:
+        val = _number(e, bits_to_dps(IRRATIONAL_BITS))
+        if not isinstance(val, Fraction):
+            irrational = True
+            val = to_fraction(val)
+        out.append(val)
+    if irrational or marked:
+        out = [BinaryFraction(v, IRRATIONAL_BITS, ("pi (irrational at q)",)) for v in out]
+    return out
+
+
+class ConstrainedIntermediate(ConstrainedDirac):
+    """A :class:`ConstrainedSystem` in the paper's intermediate formalism: (q^A, pi_i), 2n - k variables (p9-p14.3);
+    see :meth:`ConstrainedSystem.intermediate`. ``invariants``: ``energy`` H'_0 and the Casimirs ``G1..``."""
+
+    large_field = False
+
+    def __init__(self, system: ConstrainedSystem, dependent, frame, names, edge: Fraction):
+        self.system = system
+        self.dependent = dependent
+        self.edge = edge
+        n = len(system.coordinates)
+        k = len(system.constraints)
+        self.n = n
+        d = system._intermediate_derivation(dependent, frame, names)
+        self.derivation = d
+        self.frame = d["frame"]
+        z = hy.make_vars(*(list(system.coordinates) + list(names)))
+        conv = _HeyokaConverter(system, list(zip(d["q"] + d["pi"], z)))
+        if d["H"] is not None:
+            tensor = _heyoka_tensor(conv, d["tensor"])
+            H = conv(d["H"])
+            self._velocity_exprs = [conv(e) for e in d["velocity"]]
+        else:
+            tensor, H, self._velocity_exprs = _assemble_intermediate(d, conv, z, n)
+            # thousands of elementary operations (the rigid body: 3400): LLVM takes minutes on them unrolled, so
+            # the Taylor integrator compiles this model in compact mode
+            self.large_field = True
+        casimirs = {f"G{a + 1}": conv(d["G"][a]) for a in range(k)}
+        self._gradients = [[conv(sp.diff(g, qa)) for qa in d["q"]] for g in d["G"]]
+        self._terms = [[conv(t) for t in sp.Add.make_args(sp.expand(g))] for g in d["G"]]
+        extra = []
+        events = []
+        if dependent is not None:
+            self._edge_ratio = (conv(d["detD"] ** 2), conv(d["gram"]))
+            extra.append(("edge2", edge * edge, "edge"))
+        self.variables = z
+        field = [e for row in tensor for e in row] + [hy.diff(H, v) for v in z]
+        if dependent is not None:
+            events = [self._edge_ratio[0] - self._edge_ratio[1] * hy.par[len(conv.names)]]
+        params, sources, bits, unit = _model_parameters(system, conv, field + events, extra)
+        if unit is not None:
+            H = hy.par[unit] * H
+        if dependent is not None:
+            self._edge_expr = events[0]
+        chart = ("chart " + ", ".join(system.coordinates[a] for a in dependent) + " dependent"
+                 if dependent is not None else "own frame")
+        self.poisson = PoissonSystem(z, tensor, H, parameters=params, casimirs=casimirs,
+                                     name=f"{system.name} (intermediate, {chart})", input_bits=bits,
+                                     parameter_sources=sources)
+
+    def events(self):
+        if self.dependent is None:
+            return []
+        return [(self._edge_expr, "chart_edge",
+                 f"the chart of the intermediate frame with {[self.system.coordinates[a] for a in self.dependent]} "
+                 f"dependent is ending (det dG/dq_dep reached {float(self.edge)} of its largest value)")]
+
+    def initial_state(self, q, qdot, precision=None) -> np.ndarray:
+        """The state (q, pi) with pi_i = G_iA(q) p_A from a point on the surface and a tangent velocity (checks as
+        :meth:`ConstrainedDirac.initial_state`); refused at or beyond the chart's edge, or where the frame is
+        undefined or singular."""
+        given = {"q": q, "qdot": qdot}
+        full = ConstrainedDirac.initial_state(self, q, qdot, precision=None)
+        vals = list(full.exact)
+        n = self.n
+        qv, pv = vals[:n], vals[n:]
+        cs = self.system
+        at = {s: sp.Rational(f.numerator, f.denominator) for s, f in zip(cs._q, qv)}
+        at.update(cs._values())
+        if self.dependent is not None:
+            num, den = self._eval(list(self._edge_ratio), qv + [0] * (len(self.variables) - n))
+            if not num > den * (mp.mpf(self.edge.numerator) / self.edge.denominator) ** 2:
+                raise ValueError(
+                    f"`q` is at or beyond the edge of the chart with "
+                    f"{[cs.coordinates[a] for a in self.dependent]} dependent (det D^2 / det G_q G_q^T = "
+                    f"{mp.nstr(num / den if den else mp.mpf(0), 4)} <= edge^2 = {float(self.edge) ** 2:.4g}); "
+                    "choose other `dependent` coordinates, or use the global form dirac()")
+        Fq = self.frame.xreplace(at)
+        if any(e.has(sp.zoo, sp.nan, sp.oo) for e in Fq):
+            raise ValueError("`q`: the frame of the intermediate momenta is undefined at this point (a component is "
+                             "infinite); start elsewhere or choose another frame / `dependent`")
+        if _rank(Fq) < Fq.shape[0]:
+            raise ValueError("`q`: the frame of the intermediate momenta is singular at this point (its fields are "
+                             "dependent there); start elsewhere or choose another frame")
+        P = sp.Matrix([sp.Rational(f.numerator, f.denominator) for f in pv])
+        marked = any(isinstance(f, BinaryFraction) for f in pv)
+        pis = _exact_numbers(list(Fq * P), marked)
+        return make_state(qv + pis, precision, inputs=given)
+
+    def __repr__(self) -> str:
+        return f"ConstrainedIntermediate({self.system.name!r}, variables={list(self.names)})"
+
+
+class ConstrainedLocal(ConstrainedDirac):
+    """A :class:`ConstrainedSystem` in local coordinates of the surface: canonical (x^i, p_i), 2(n - k) variables;
+    see :meth:`ConstrainedSystem.local`. ``configuration`` and ``velocity`` give q^A(x) and qdot^A as for the
+    other formulations; ``invariants``: ``energy``."""
+
+    def __init__(self, system: ConstrainedSystem, dependent, solution: dict, edge: Fraction):
+        self.system = system
+        self.dependent = dependent
+        self.edge = edge
+        self.chart = dict(solution)
+        n = len(system.coordinates)
+        self.n = n
+        free = [i for i in range(n) if i not in dependent]
+        self.free = tuple(free)
+        q = list(system._q)
+        x = [q[i] for i in free]
+        qx = [solution.get(s, s) for s in q]
+        J = sp.Matrix(n, len(free), lambda A_, i: sp.diff(qx[A_], x[i]))
+        M = system._M.xreplace(solution)
+        A = system._A.xreplace(solution)
+        U = system._U.xreplace(solution)
+        Ml = (J.T * M * J).applyfunc(_tidy)
+        Al = (J.T * A).applyfunc(_tidy)
+        psyms = [sp.Symbol(f"p_{system.coordinates[i]}", real=True) for i in free]
+        Minv = _inverse(Ml)
+        w = sp.Matrix(psyms) - Al
+        xdot = (Minv * w).applyfunc(_tidy)
+        H = _tidy((w.T * Minv * w)[0, 0] / 2 + U)
+        self._sym_hamiltonian = H
+        self._sym_mass = Ml
+        self._sym_linear = Al
+        qdot = [_tidy(e) for e in (J * xdot)]
+        names = [system.coordinates[i] for i in free] + [str(s) for s in psyms]
+        qvars = hy.make_vars(*system.coordinates)
+        qvars = qvars if isinstance(qvars, list) else [qvars]
+        pvars = hy.make_vars(*[str(s) for s in psyms])
+        pvars = pvars if isinstance(pvars, list) else [pvars]
+        z = [qvars[i] for i in free] + pvars
+        conv = _HeyokaConverter(system, list(zip(q, qvars)) + list(zip(psyms, pvars)))
+        d = len(free)
+        T = sp.zeros(2 * d, 2 * d)
+        for i in range(d):
+            T[i, d + i], T[d + i, i] = 1, -1
+        tensor = _heyoka_tensor(conv, T)
+        Hh = conv(H)
+        self._configuration_exprs = [conv(e) for e in qx]
+        self._velocity_exprs = [conv(e) for e in qdot]
+        G = list(system.constraints)
+        self._gradients = [[conv(sp.diff(g, qa)) for qa in q] for g in G]
+        self._terms = [[conv(t) for t in sp.Add.make_args(sp.expand(g))] for g in G]
+        Gq = sp.Matrix([[sp.diff(g, qa) for qa in q] for g in G])
+        detD = sp.cancel(Gq[:, list(dependent)].det(method="berkowitz"))
+        if detD == 0:
+            raise ValueError(f"`chart`: the constraints cannot be solved for "
+                             f"{[system.coordinates[a] for a in dependent]} (dG/dq of these coordinates is singular "
+                             "everywhere); choose other dependent coordinates")
+        gram = sp.cancel((Gq * Gq.T).det(method="berkowitz"))
+        # the measure in the coordinates q (for initial_state) and in the chart (for the run's event)
+        self._edge_ratio = (conv(detD ** 2), conv(gram))
+        self._qvars = qvars
+        num_x, den_x = (_tidy(e.xreplace(solution)) for e in (detD ** 2, gram))
+        self._edge_ratio_x = (conv(num_x), conv(den_x))
+        self._dependent_exprs = [conv(solution[q[a]]) for a in dependent]
+        self.variables = z
+        field = [e for row in tensor for e in row] + [hy.diff(Hh, v) for v in z]
+        self._edge_expr = self._edge_ratio_x[0] - self._edge_ratio_x[1] * hy.par[len(conv.names)]
+        params, sources, bits, unit = _model_parameters(system, conv, field + [self._edge_expr],
+                                                        [("edge2", edge * edge, "edge")])
+        if unit is not None:
+            Hh = hy.par[unit] * Hh
+        shown = ", ".join(f"{k} = {v}" for k, v in solution.items())
+        self.poisson = PoissonSystem(z, tensor, Hh, parameters=params, name=f"{system.name} (local chart {shown})",
+                                     input_bits=bits, parameter_sources=sources)
+
+    @property
+    def _q_variables(self):
+        return self._qvars
+
+    def events(self):
+        return [(self._edge_expr, "chart_edge",
+                 f"the local chart {', '.join(f'{k} = {v}' for k, v in self.chart.items())} is ending "
+                 f"(det dG/dq_dep reached {float(self.edge)} of its largest value)")]
+
+    def _edge_value(self, z, dps=RESIDUAL_DPS):
+        num, den = self._eval(list(self._edge_ratio_x), z, dps)
+        return num, den
+
+    def initial_state(self, q, qdot, precision=None) -> np.ndarray:
+        """The state (x, p) from a point q^A on the surface and a tangent velocity: x the free coordinates, p_i =
+        dL/dxdot^i. Refuses what :meth:`ConstrainedDirac.initial_state` refuses, a point the chart does not hold
+        (another branch: x3 = -0.8 where the chart is x3 = +sqrt(...)), and a point at or beyond its edge."""
+        given = {"q": q, "qdot": qdot}
+        qf = self._vector(q, "q")
+        vf = self._vector(qdot, "qdot")
+        binary = {}
+        for nm, val in given.items():
+            binary.update(binary_inputs(val, nm))
+        bits = min(binary.values()) if binary else None
+        self._check_surface(qf, vf, bits)
+        cs = self.system
+        n = self.n
+        xf = [qf[i] for i in self.free]
+        point = xf + [0] * len(self.free)
+        got = self._eval(self._dependent_exprs, point)
+        tol = _residual_tolerance(bits)
+        for a, g in zip(self.dependent, got):
+            with mp.workdps(RESIDUAL_DPS):
+                want = mp.mpf(qf[a].numerator) / qf[a].denominator
+                off = abs(g - want) > (mp.mpf(tol.numerator) / tol.denominator) * max(abs(want), abs(g))
+            if off:
+                raise ValueError(
+                    f"`q` is not in this chart: {cs.coordinates[a]} = {mp.nstr(want, 8)} but the chart gives "
+                    f"{cs.coordinates[a]} = {self.chart[cs._q[a]]} = {mp.nstr(g, 8)} there (another branch of the "
+                    "solution); use a chart that holds the point")
+        num, den = self._edge_value(point)
+        if not num > den * (mp.mpf(self.edge.numerator) / self.edge.denominator) ** 2:
+            raise ValueError(
+                f"`q` is at or beyond the edge of the local chart (det D^2 / det G_q G_q^T = "
+                f"{mp.nstr(num / den if den else mp.mpf(0), 4)} <= edge^2 = {float(self.edge) ** 2:.4g}); "
+                "choose another chart, or use the global form dirac()")
+        at = {cs._q[i]: sp.Rational(qf[i].numerator, qf[i].denominator) for i in self.free}
+        at.update(cs._values())
+        Ml = self._sym_mass.xreplace(at)
+        Al = self._sym_linear.xreplace(at)
+        xdot = sp.Matrix([sp.Rational(vf[i].numerator, vf[i].denominator) for i in self.free])
+        p = _exact_numbers(list(Ml * xdot + Al), False)
+        return make_state(xf + p, precision, inputs=given)
+
+    def check_state(self, y, argname="y0"):
+        """The state as exact Fractions, refused (naming ``argname``) at or beyond the chart's edge."""
+        z = Model.check_state(self, y, argname)
+        num, den = self._edge_value(z)
+        if not num > den * (mp.mpf(self.edge.numerator) / self.edge.denominator) ** 2 * (1 - mp.mpf(10) ** -12):
+            raise ValueError(f"`{argname}` is at or beyond the edge of the local chart "
+                             f"{', '.join(f'{k} = {v}' for k, v in self.chart.items())}: start inside it")
+        return z
+
+    def configuration(self, y) -> np.ndarray:
+        """q^A(x) (n numbers per state: the free coordinates and the chart's dependent ones), in the state's
+        precision."""
+        y, _ = self._with_charts(y, None)
+        rows, bits, was_1d = self._rows(y)
+        dps = bits_to_dps(bits) + 5
+        out = [self._eval(self._configuration_exprs, r, dps) for r in rows]
+        like = y if isinstance(y, np.ndarray) else np.asarray(y, dtype=object)
+        return self._out_array(out, bits, was_1d, like)
+
+    def __repr__(self) -> str:
+        return f"ConstrainedLocal({self.system.name!r}, variables={list(self.names)})"
