@@ -3,6 +3,7 @@ pendulum against its equations in spherical angles (mpmath odefun at 45 digits),
 closed form in Jacobi elliptic functions, the double spherical pendulum against itself at 200 bits (chaotic: for a
 short time only) and against ConstrainedSystem's own derivation of its bracket."""
 
+import numpy as np
 import pytest
 
 import lieseries as ls
@@ -220,3 +221,16 @@ def test_double_spherical_pendulum_bracket_is_constrained_systems():
     inv = pend.invariants(y0)
     inv_ref = ref.invariants(y1)
     assert abs(ctx_mpf(c, inv["energy"]) - ctx_mpf(c, inv_ref["energy"])) < c.mpf(10) ** -35
+
+
+def test_double_spherical_pendulum_runs_on_from_its_final_state_and_refuses_a_broken_one():
+    pend = ls.DoubleSphericalPendulum(l1=1, l2=1, m1=1, m2="0.5", g=G)
+    y0 = pend.initial_state(q=DQ0, qdot=DV0)
+    sol = ls.integrate(pend, y0, t=[1], precision="double", compact_mode=True)
+    again = ls.integrate(pend, sol.y[-1], t=[1], precision="double", compact_mode=True)
+    assert again.success  # a state a run ended in is on the surface to its own precision
+    broken = np.array(sol.y[-1], dtype=float)
+    broken[3] += 1e-3  # the second rod stretched
+    with pytest.raises(ValueError, match="`y0` is not on the constraint surface: G2"):
+        ls.integrate(pend, broken, t=[1], precision="double", compact_mode=True)
+    assert [float(a) for a in pend.velocity(y0)] == [float(a) for a in DV0]  # p = m qdot, back to qdot
