@@ -163,8 +163,7 @@ def test_double_spherical_pendulum_conserves_energy_constraints_and_L3():
     # exact: energy = 1/2 + 0.5/2 * 2 + 9.81 (-0.8 - 0.5 * 1.6), L3 = 0.6 * 1 + 0.5 * (0.6 * 1 - 0.6 * 1)
     assert float(inv0["energy"]) == pytest.approx(1 - 9.81 * 1.6, rel=1e-15)
     assert float(inv0["L3"]) == pytest.approx(0.6, rel=1e-15)
-    # compact mode: the bracket's 600-node decomposition compiles in seconds rather than minutes
-    sol = ls.integrate(pend, y0, t=[1, 2, 3], precision="double", compact_mode=True)
+    sol = ls.integrate(pend, y0, t=[1, 2, 3], precision="double")
     assert sol.success
     inv = pend.invariants(sol.y)
     eps = 2.0**-52
@@ -183,7 +182,7 @@ def test_double_spherical_pendulum_double_agrees_with_quad_for_a_short_time():
     """Chaotic: errors grow exponentially, so the comparison holds for a short time only (t = 1 here)."""
     pend = ls.DoubleSphericalPendulum(l1=1, l2=1, m1=1, m2="0.5", g=G)
     y0 = pend.initial_state(q=DQ0, qdot=DV0)
-    lo = ls.integrate(pend, y0, t=[1], precision="double", compact_mode=True)
+    lo = ls.integrate(pend, y0, t=[1], precision="double")
     hi = ls.integrate(pend, y0, t=[1], precision="quad")
     c = private_ctx(70)
     err = max(abs(ctx_mpf(c, a) - ctx_mpf(c, b)) for a, b in zip(lo.y[-1], hi.y[-1]))
@@ -226,11 +225,11 @@ def test_double_spherical_pendulum_bracket_is_constrained_systems():
 def test_double_spherical_pendulum_runs_on_from_its_final_state_and_refuses_a_broken_one():
     pend = ls.DoubleSphericalPendulum(l1=1, l2=1, m1=1, m2="0.5", g=G)
     y0 = pend.initial_state(q=DQ0, qdot=DV0)
-    sol = ls.integrate(pend, y0, t=[1], precision="double", compact_mode=True)
-    again = ls.integrate(pend, sol.y[-1], t=[1], precision="double", compact_mode=True)
+    sol = ls.integrate(pend, y0, t=[1], precision="double")
+    again = ls.integrate(pend, sol.y[-1], t=[1], precision="double")
     assert again.success  # a state a run ended in is on the surface to its own precision
     broken = np.array(sol.y[-1], dtype=float)
     broken[3] += 1e-3  # the second rod stretched
     with pytest.raises(ValueError, match="`y0` is not on the constraint surface: G2"):
-        ls.integrate(pend, broken, t=[1], precision="double", compact_mode=True)
+        ls.integrate(pend, broken, t=[1], precision="double")
     assert [float(a) for a in pend.velocity(y0)] == [float(a) for a in DV0]  # p = m qdot, back to qdot
