@@ -233,3 +233,12 @@ def test_double_spherical_pendulum_runs_on_from_its_final_state_and_refuses_a_br
     with pytest.raises(ValueError, match="`y0` is not on the constraint surface: G2"):
         ls.integrate(pend, broken, t=[1], precision="double")
     assert [float(a) for a in pend.velocity(y0)] == [float(a) for a in DV0]  # p = m qdot, back to qdot
+
+
+@pytest.mark.slow
+def test_double_spherical_pendulum_bracket_satisfies_jacobi_and_keeps_its_casimirs():
+    """The Jacobi identity at three pseudo-random states (40 digits; about 80 s) and G1, G2, Phi1, Phi2 as
+    Casimirs (their brackets with every coordinate vanish)."""
+    pend = ls.DoubleSphericalPendulum(l1=1, l2="1.5", m1=1, m2="0.5", g=G)
+    pend.poisson.check_jacobi()
+    pend.poisson.check_casimirs()

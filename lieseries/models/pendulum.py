@@ -323,7 +323,7 @@ class DoubleSphericalPendulum(Model):
         q = sp.symbols("x1 y1 z1 x2 y2 z2", real=True)
         p = sp.symbols("p_x1 p_y1 p_z1 p_x2 p_y2 p_z2", real=True)
         names = list(given)
-        par = {k: sp.Symbol(k, positive=True) for k in names}
+        par = {k: sp.Symbol(k, real=True) for k in names}  # g may be of either sign
         m1, m2, l1, l2, g = (par[k] for k in ("m1", "m2", "l1", "l2", "g"))
         masses = [m1] * 3 + [m2] * 3
         r1, r2 = q[:3], q[3:]
