@@ -242,3 +242,14 @@ def test_double_spherical_pendulum_bracket_satisfies_jacobi_and_keeps_its_casimi
     pend = ls.DoubleSphericalPendulum(l1=1, l2="1.5", m1=1, m2="0.5", g=G)
     pend.poisson.check_jacobi()
     pend.poisson.check_casimirs()
+
+
+def test_ensemble_parameters_of_a_pendulum_are_checked():
+    pend = ls.SphericalPendulum(length=L, mass=MASS, g=G)
+    y0 = pend.initial_state(q=Q0, qdot=V0)
+    names = list(pend.poisson.parameter_names)
+    good = list(pend.poisson.parameter_values)
+    bad = list(good)
+    bad[names.index("mass")] = -1
+    with pytest.raises(ValueError, match=r"`params\[1\]` gives the parameter 'mass' = -1"):
+        ls.integrate(pend, np.stack([y0, y0]), t=1, params=[good, bad])

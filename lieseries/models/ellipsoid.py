@@ -38,6 +38,8 @@ class EllipsoidGeodesic(ConstrainedModel):
     >>> y0 = ell.initial_state(q=("2/7", "6/7", "18/7"), qdot=(1, 0, -1))
     """
 
+    positive_parameters = ("a", "b", "c")
+
     def __init__(self, axes=(1, 2, 3)):
         arr = np.asarray(axes, dtype=object)
         if arr.shape != (3,):

@@ -39,7 +39,7 @@ from .base import Model, make_state
 from .constrained import ConstrainedSystem
 
 __all__ = ["ConstrainedModel", "SphericalPendulum", "PlanarPendulum", "DoubleSphericalPendulum", "positive",
-           "cached_system"]
+           "cached_system", "check_positive_parameters"]
 
 _CACHE: dict = {}
 _CACHE_LOCK = threading.Lock()
@@ -71,10 +71,25 @@ def cached_system(kind: str, values: dict, build):
     return found
 
 
+def check_positive_parameters(model, values, argname, names):
+    """Refuse runtime parameter ``values`` (in the order of ``model.poisson.parameter_names``) whose entries named
+    ``names`` (lengths, masses, semi-axes) are not positive, naming ``argname``."""
+    for nm, v in zip(model.poisson.parameter_names, values):
+        if nm in names and not v > 0:
+            raise ValueError(f"`{argname}` gives the parameter {nm!r} = {float(v):.17g}; it must be positive (a "
+                             f"length, a mass or a semi-axis); the parameters are {list(model.poisson.parameter_names)}")
+
+
 class ConstrainedModel(Model):
     """A built-in model on (q^A, p_A) with the Dirac bracket of a :class:`ConstrainedSystem` (its ``dirac()``
     form): the same state, ``initial_state(q=, qdot=)``, ``configuration``, ``velocity`` and ``invariants``, plus
     the conserved quantities the model knows (:meth:`extra_invariants`)."""
+
+    #: Parameters (by name) that must be positive when an ensemble sets them (``params=``).
+    positive_parameters: tuple = ()
+
+    def check_parameters(self, values, argname: str = "params") -> None:
+        check_positive_parameters(self, values, argname, self.positive_parameters)
 
     def __init__(self, system: ConstrainedSystem):
         self.system = system
@@ -141,6 +156,8 @@ class SphericalPendulum(ConstrainedModel):
     >>> y0 = pend.initial_state(q=("0.6", 0, "-0.8"), qdot=(0, 1, 0))
     """
 
+    positive_parameters = ("length", "mass")
+
     def __init__(self, length=1, mass=1, g=1):
         positive(length, "length")
         positive(mass, "mass")
@@ -171,6 +188,8 @@ class PlanarPendulum(ConstrainedModel):
     >>> pend = ls.PlanarPendulum(length=1, g="9.81")
     >>> y0 = pend.initial_state(q=("0.6", "-0.8"), qdot=(0, 0))
     """
+
+    positive_parameters = ("length", "mass")
 
     def __init__(self, length=1, mass=1, g=1):
         positive(length, "length")
@@ -309,6 +328,9 @@ class DoubleSphericalPendulum(Model):
     """
 
     coordinates = ("x1", "y1", "z1", "x2", "y2", "z2")
+
+    def check_parameters(self, values, argname: str = "params") -> None:
+        check_positive_parameters(self, values, argname, ("l1", "l2", "m1", "m2"))
 
     def __init__(self, l1=1, l2=1, m1=1, m2=1, g=1):
         for name, v in (("l1", l1), ("l2", l2), ("m1", m1), ("m2", m2)):
