@@ -4,6 +4,9 @@ Public API (stable names)::
 
     ls.EulerPoisson, ls.Sphere, ls.SphereDirac     models
     ls.HeavyTop                                    the rigid body with gravity (EulerPoisson's layout)
+    ls.SphericalPendulum, ls.PlanarPendulum,       pendulums in Cartesian coordinates (Dirac bracket)
+    ls.DoubleSphericalPendulum
+    ls.EllipsoidGeodesic                           geodesics on a triaxial ellipsoid (Jacobi's problem)
     ls.PoissonSystem                               write your own from a bracket and a Hamiltonian
     ls.ConstrainedSystem                           a Lagrangian and holonomic constraints -> Dirac-bracket model
     ls.integrate                                   heyoka's adaptive Taylor method, any precision
@@ -24,7 +27,8 @@ hold_while_importing(__name__)  # Ctrl-C now would break a C extension half way:
 
 from . import exact, studies  # noqa: E402
 from .events import Event
-from .models import ConstrainedSystem, DampedEulerPoisson, EulerPoisson, HeavyTop, Model, Sphere, SphereDirac
+from .models import (ConstrainedSystem, DampedEulerPoisson, DoubleSphericalPendulum, EllipsoidGeodesic, EulerPoisson,
+                     HeavyTop, Model, PlanarPendulum, Sphere, SphereDirac, SphericalPendulum)
 from .poisson import PoissonSystem
 from .precision import Precision, PrecisionWarning, resolve_precision
 from .solution import EnsembleSolution, Solution, Stats
@@ -44,6 +48,10 @@ __all__ = [
     "SphereDirac",
     "ConstrainedSystem",
     "HeavyTop",
+    "SphericalPendulum",
+    "PlanarPendulum",
+    "DoubleSphericalPendulum",
+    "EllipsoidGeodesic",
     "PoissonSystem",
     "Event",
     "PrecisionWarning",

@@ -251,3 +251,24 @@ def test_bools_are_not_numbers_of_digits_or_momenta():
         studies.observables(BODY, Y0, True)
     with pytest.raises(TypeError, match="`momentum`"):
         BODY.saddle_rate(True)
+
+
+PENDULUM_CASES = {
+    "SphericalPendulum: negative length": (lambda: ls.SphericalPendulum(length=-1), ValueError, "`length`"),
+    "SphericalPendulum: NaN mass": (lambda: ls.SphericalPendulum(mass=float("nan")), ValueError, "`mass`"),
+    "PlanarPendulum: infinite g": (lambda: ls.PlanarPendulum(g=float("inf")), ValueError, "`g`"),
+    "DoubleSphericalPendulum: zero m2": (lambda: ls.DoubleSphericalPendulum(m2=0), ValueError, "`m2`"),
+    "EllipsoidGeodesic: negative axis": (lambda: ls.EllipsoidGeodesic(axes=(1, 2, "-3")), ValueError,
+                                         r"`axes\[2\]`"),
+    "EllipsoidGeodesic: two axes": (lambda: ls.EllipsoidGeodesic(axes=(1, 2)), ValueError, "`axes`"),
+    "SphericalPendulum: point off the sphere": (
+        lambda: ls.SphericalPendulum(length=2).initial_state(q=("0.6", 0, "-0.8"), qdot=(0, 1, 0)), ValueError,
+        "`q` is not on the constraint surface"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(PENDULUM_CASES))
+def test_bad_pendulum_input_names_the_argument(name):
+    call, exc, match = PENDULUM_CASES[name]
+    with pytest.raises(exc, match=match):
+        call()

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import lieseries as ls
-from lieseries.precision import resolve_precision, to_fraction
+from lieseries.precision import dps_to_bits, resolve_precision, to_fraction
 from problems import ctx_mpf, private_ctx
 
 
@@ -108,3 +108,97 @@ def test_bad_heavy_top_input_names_the_argument():
         ls.HeavyTop(mass=0)
     with pytest.raises(ValueError, match="`inertia`"):
         ls.HeavyTop(inertia=(1, -2, 3))
+
+
+# -- the integrable cases: M3 (Lagrange) and Kovalevskaya's integral among the invariants ----------------------------
+R_TILT = [["0.6", 0, "-0.8"], [0, 1, 0], ["0.8", 0, "0.6"]]
+PRECISIONS = ["double", "quad", dps_to_bits(50)]
+
+
+@pytest.mark.parametrize("precision", PRECISIONS)
+def test_lagrange_top_M3_invariant_is_conserved_to_epsilon(precision):
+    top = ls.HeavyTop(inertia=(2, 2, 1), com=(0, 0, "0.5"), mass=2, g="9.81")
+    assert top.case == "lagrange"
+    y0 = top.initial_state(omega=("0.3", "-0.2", 5), R0=R_TILT)
+    inv0 = top.invariants(y0)
+    assert "M2" not in inv0  # |M|^2 is not conserved under gravity
+    c = private_ctx(70)
+    assert ctx_mpf(c, inv0["M3"]) == 5  # M3 = I3 omega3, exactly
+    sol = ls.integrate(top, y0, t=[1, 2, 3], precision=precision)
+    assert sol.success
+    eps = ctx_mpf(c, resolve_precision(precision).eps)
+    inv = top.invariants(sol.y)
+    for i in range(3):
+        # measured: 0 (dM3/dt = (I1 - I2) Omega1 Omega2 / ... is exactly 0: M3 is never rounded)
+        assert abs(ctx_mpf(c, inv["M3"][i]) - 5) < 20 * eps * 5, (precision, i)
+        assert abs(ctx_mpf(c, inv["energy"][i]) - ctx_mpf(c, inv0["energy"])) < 20 * eps * 20
+    assert max(abs(float(r) - 0.6) for r in np.asarray(sol.y, dtype=float)[:, 8]) > 1e-3  # it nutates
+
+
+KOVALEVSKAYA = dict(inertia=(4, 4, 2), com=("0.3", "-0.4", 0), mass=2, g="9.81")
+
+
+def kovalevskaya_reference(c, M, G):
+    """K = |(O1 + i O2)^2 - (mass g / I3) (com1 + i com2)(G1 + i G2)|^2, O = M / I, written here."""
+    I, com = KOVALEVSKAYA["inertia"], KOVALEVSKAYA["com"]
+    kappa = 2 * ctx_mpf(c, "9.81") / I[2]
+    w = c.mpc(M[0] / I[0], M[1] / I[1]) ** 2 - kappa * c.mpc(ctx_mpf(c, com[0]), ctx_mpf(c, com[1])) * c.mpc(G[0], G[1])
+    return abs(w) ** 2
+
+
+def test_kovalevskaya_integral_is_a_first_integral_of_the_equations():
+    """The K written in the test is conserved by the heavy top's Euler-Poisson equations (sympy), and the model's
+    ``kovalevskaya`` invariant equals it at arbitrary states."""
+    sp = pytest.importorskip("sympy")
+    M = sp.Matrix(sp.symbols("M1:4", real=True))
+    G = sp.Matrix(sp.symbols("G1:4", real=True))
+    c1, c2, mg, s = sp.symbols("c1 c2 mg s", real=True)
+    I = [2 * s, 2 * s, s]
+    Om = sp.Matrix([M[i] / I[i] for i in range(3)])
+    com = sp.Matrix([c1, c2, 0])
+    dM = M.cross(Om) + mg * G.cross(com)
+    dG = G.cross(Om)
+    Z = (Om[0] + sp.I * Om[1]) ** 2 - mg / s * (c1 + sp.I * c2) * (G[0] + sp.I * G[1])
+    K = sp.expand(Z * sp.conjugate(Z))
+    dK = sum(sp.diff(K, M[i]) * dM[i] + sp.diff(K, G[i]) * dG[i] for i in range(3))
+    assert sp.simplify(sp.expand(dK)) == 0
+    top = ls.HeavyTop(**KOVALEVSKAYA)
+    assert top.case == "kovalevskaya"
+    c = private_ctx(60)
+    state = [Fraction(v) for v in ("0.6", "0.8", "0.0", "-0.8", "0.6", "0.0", "0.1", "0.3", "-0.2", "1.5", "-0.7", "2.5")]
+    got = top.invariants(np.array(state, dtype=object))["kovalevskaya"]
+    ref = kovalevskaya_reference(c, [ctx_mpf(c, v) for v in state[9:]], [ctx_mpf(c, v) for v in state[6:9]])
+    assert abs(ctx_mpf(c, got) - ref) < c.mpf(2) ** -48 * ref  # a state of Fractions: evaluated in double
+
+
+@pytest.mark.parametrize("precision", PRECISIONS)
+def test_kovalevskaya_integral_is_conserved_to_epsilon(precision):
+    top = ls.HeavyTop(**KOVALEVSKAYA)
+    y0 = top.initial_state(omega=("0.7", "-0.4", "2.5"), R0=R_TILT)
+    c = private_ctx(70)
+    K0 = ctx_mpf(c, top.invariants(y0)["kovalevskaya"])
+    sol = ls.integrate(top, y0, t=[1, 2, 3], precision=precision)
+    assert sol.success
+    eps = ctx_mpf(c, resolve_precision(precision).eps)
+    inv = top.invariants(sol.y)
+    # the terms of K are of the size of |Omega|^4 and (mass g |com| / I3)^2: the scale of its rounding
+    scale = (ctx_mpf(c, "0.65") + 2 * ctx_mpf(c, "9.81") * ctx_mpf(c, "0.5") / 2) ** 2
+    for i in range(3):
+        drift = abs(ctx_mpf(c, inv["kovalevskaya"][i]) - K0)
+        # measured: at most 0.85 (double), 1.6 (quad), 3.2 (169 bits) eps * scale (scale 30, K0 = 10.75)
+        assert drift < 20 * eps * scale, (precision, i, drift / (eps * scale))
+    # gravity acts: |M|^2 changes
+    M2 = [sum(float(v) ** 2 for v in r[9:]) for r in np.asarray(sol.y, dtype=float)]
+    assert max(abs(m - M2[0]) for m in M2) > 1e-2
+
+
+def test_heavy_top_case_detection():
+    assert ls.HeavyTop(inertia=(3, 4, 5), com=(0, 0, 1)).case is None
+    assert ls.HeavyTop(inertia=(2, 2, 1), com=(0, "0.1", 1)).case is None
+    assert ls.HeavyTop(inertia=(2, 2, 1), com=(1, 0, 0)).case == "kovalevskaya"
+    assert ls.HeavyTop(inertia=(3, 3, 1), com=(1, 0, 0)).case is None
+    free = ls.HeavyTop(inertia=(2, 2, 1), com=(0, 0, 0))
+    assert free.case is None and "M2" in free.invariants(free.initial_state(omega=(1, 2, 3)))
+    generic = ls.HeavyTop(**TOP)
+    inv = generic.invariants(generic.initial_state(omega=OMEGA))
+    assert not {"M2", "M3", "kovalevskaya"} & set(inv)

@@ -3,8 +3,11 @@
 from .base import Model
 from .constrained import ConstrainedDirac, ConstrainedSystem
 from .euler_poisson import DampedEulerPoisson, EulerPoisson
+from .ellipsoid import EllipsoidGeodesic
 from .heavy_top import HeavyTop
+from .pendulum import DoubleSphericalPendulum, PlanarPendulum, SphericalPendulum
 from .sphere import Sphere, SphereDirac
 
 __all__ = ["Model", "EulerPoisson", "DampedEulerPoisson", "HeavyTop", "Sphere", "SphereDirac", "ConstrainedSystem",
-           "ConstrainedDirac"]
+           "ConstrainedDirac", "SphericalPendulum", "PlanarPendulum", "DoubleSphericalPendulum",
+           "EllipsoidGeodesic"]

@@ -11,7 +11,11 @@ is the centre of mass in the body frame, measured from the fixed point. The moti
     dR/dt = R hat(Omega),   dM/dt = M x Omega + mass g Gamma x com,   so  dGamma/dt = Gamma x Omega
 
 (the Euler-Poisson equations of the heavy top). Conserved: H, the vertical angular momentum (R M)_3 = Gamma . M,
-R R^T; for the Lagrange top (I1 = I2, com on the third axis) also M3.
+R R^T; and, in the two integrable cases with a body-frame inertia tensor diagonal:
+
+- the Lagrange top (I1 = I2, com on the third axis): M3;
+- the Kovalevskaya top (I1 = I2 = 2 I3, com in the equatorial plane com_3 = 0): Kovalevskaya's integral
+  K = |(Omega1 + i Omega2)^2 - (mass g / I3) (com1 + i com2) (Gamma1 + i Gamma2)|^2, Omega = I^-1 M.
 """
 
 from __future__ import annotations
@@ -78,21 +82,51 @@ class HeavyTop(EulerPoisson):
         """The centre of mass (body frame) as exact Fractions."""
         return list(self._com)
 
+    @property
+    def case(self) -> str | None:
+        """``"lagrange"`` (I1 = I2, com on the third axis), ``"kovalevskaya"`` (I1 = I2 = 2 I3, com_3 = 0, com not
+        0) or None (no integral beyond H and L3 known), for a diagonal inertia tensor (exact comparisons)."""
+        I = self.inertia_exact
+        if any(I[i][j] != 0 for i in range(3) for j in range(3) if i != j) or all(c == 0 for c in self._com):
+            return None
+        if I[0][0] == I[1][1] and self._com[0] == 0 and self._com[1] == 0:
+            return "lagrange"
+        if I[0][0] == I[1][1] == 2 * I[2][2] and self._com[2] == 0:
+            return "kovalevskaya"
+        return None
+
     def invariants(self, y) -> dict:
         """``energy`` (kinetic + mass g Gamma . com), ``L3`` = (R M)_3 = Gamma . M (the vertical angular momentum),
-        ``M2`` = |M|^2 (conserved only without torque), ``orthogonality``, ``det_R`` (mpf; lists for rows)."""
+        ``orthogonality``, ``det_R``; ``M3`` for a Lagrange top, ``kovalevskaya`` (K, module docstring) for a
+        Kovalevskaya top, ``M2`` = |M|^2 only when com = 0 (no torque) (mpf; lists for rows)."""
         out = super().invariants(y)
         rows, bits, was_1d = self._rows(y)
         energy = out["energy"] if not was_1d else [out["energy"]]
-        total = []
+        total, extra = [], []
+        case = self.case
         with mp.workprec(bits + 16):
             w = [mp.mpf(f.numerator) / f.denominator for f in (self.mass_exact * self.g_exact * c for c in self._com)]
+            Iinv = [mp.mpf(r[i].numerator) / r[i].denominator for i, r in enumerate(self.inverse_inertia_exact)]
             for r, e in zip(rows, energy):
-                gam = [mp.mpf(v.numerator) / v.denominator for v in r[6:9]]
+                z = [mp.mpf(v.numerator) / v.denominator for v in r]
+                gam, M = z[6:9], z[9:]
                 total.append(mp.mpf(e) + mp.fsum(a * b for a, b in zip(w, gam)))
+                if case == "lagrange":
+                    extra.append(M[2])
+                elif case == "kovalevskaya":
+                    # |(O1 + i O2)^2 - kappa (w1 + i w2)(G1 + i G2)|^2, w = mass g com, kappa = 1 / I3
+                    o1, o2 = Iinv[0] * M[0], Iinv[1] * M[1]
+                    re = o1 * o1 - o2 * o2 - Iinv[2] * (w[0] * gam[0] - w[1] * gam[1])
+                    im = 2 * o1 * o2 - Iinv[2] * (w[0] * gam[1] + w[1] * gam[0])
+                    extra.append(re * re + im * im)
         total = export_mpf(total)
         out["energy"] = total[0] if was_1d else total
         del out["L1"], out["L2"]
+        if any(c != 0 for c in self._com):
+            del out["M2"]
+        if case is not None:
+            extra = export_mpf(extra)
+            out["M3" if case == "lagrange" else "kovalevskaya"] = extra[0] if was_1d else extra
         return out
 
     def __repr__(self) -> str:
