@@ -684,7 +684,7 @@ def powers_as_products(expr):
         else:
             symbols[sym] = hy.expression(name)
     try:
-        out = hy.from_sympy(_expand_powers(s), s_dict=symbols)
+        out = hy.from_sympy(expand_integer_powers(s), s_dict=symbols)
         back = hy.to_sympy(out)
     except (TypeError, ValueError):  # a node sympy and heyoka do not translate both ways
         return expr
@@ -699,12 +699,14 @@ def powers_as_products(expr):
     return out
 
 
-def _expand_powers(e):
+def expand_integer_powers(e):
+    """The sympy expression ``e`` with every integer power ``b**n``, ``|n| >= 3``, an unevaluated product of
+    ``|n|`` factors (its reciprocal for ``n < 0``): what heyoka needs to run it from ``b = 0``."""
     if e.is_Atom:
         return e
     import sympy as sp
 
-    args = [_expand_powers(a) for a in e.args]
+    args = [expand_integer_powers(a) for a in e.args]
     if isinstance(e, sp.Pow):
         base, ex = args
         if ex.is_Integer and abs(int(ex)) >= 3:

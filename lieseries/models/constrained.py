@@ -45,7 +45,7 @@ import heyoka as hy
 import numpy as np
 import sympy as sp
 
-from ..poisson import PoissonSystem
+from ..poisson import PoissonSystem, expand_integer_powers
 from ..precision import BinaryFraction, binary_inputs, bits_to_dps, data_bits, state_bits, to_fraction
 from ..precision import thread_mp as mp
 from .base import Model, make_state
@@ -839,26 +839,7 @@ class _HeyokaConverter:
             repl[r] = sp.Symbol(f"__const_{self.constants[r][1]}")
         if repl:
             expr = _replace_numbers(expr, repl)
-        return hy.from_sympy(_expand_powers(expr), s_dict=self.s_dict)
-
-
-def _expand_powers(expr):
-    """Integer powers b**n, |n| >= 3, written as products: heyoka's Taylor recurrence for pow divides by the base,
-    so b**3 gives NaN from the first step wherever b = 0 (a coordinate starting at 0), which b*b*b does not."""
-    if expr.is_Atom:
-        return expr
-    args = [_expand_powers(a) for a in expr.args]
-    if isinstance(expr, sp.Pow):
-        base, ex = args
-        if ex.is_Integer and abs(int(ex)) >= 3:
-            prod = sp.Mul(*([base] * abs(int(ex))), evaluate=False)
-            return prod if int(ex) > 0 else sp.Pow(prod, -1, evaluate=False)
-        return sp.Pow(base, ex, evaluate=False)
-    if isinstance(expr, sp.Mul):
-        return sp.Mul(*args, evaluate=False)
-    if isinstance(expr, sp.Add):
-        return sp.Add(*args, evaluate=False)
-    return expr.func(*args)
+        return hy.from_sympy(expand_integer_powers(expr), s_dict=self.s_dict)
 
 
 def _dyadic(r) -> bool:
