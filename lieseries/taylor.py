@@ -55,7 +55,7 @@ from fractions import Fraction
 import heyoka as hy
 import numpy as np
 
-from .energy import clear_energy_cache, energy_function, energy_verdict
+from .energy import clear_energy_cache, energy_function, energy_quick, energy_verdict
 from .events import resolve_events
 from .models.base import ExactState, Model, state_fractions
 from .poisson import as_poisson_system
@@ -369,6 +369,19 @@ def _release(ta, free) -> None:
 FIRST_CHUNK = {"double": 64, "long double": 32, "quad": 8}
 FIRST_CHUNK_REAL = 2
 CHUNK_SECONDS = 0.1
+#: The first chunk in double of a call repeated after it succeeded (the same system, exact state and options: the
+#: same steps again): a run of up to 1024 steps is then one heyoka call (a few ms for the rigid body). A larger
+#: system gets fewer, about REPEAT_CHUNK_WORK / D steps for a decomposition of D nodes (the rigid body's has 81),
+#: and never fewer than the first chunk of a new call. A new call keeps the short first chunk, so that a run
+#: that collapses or overflows is seen between chunks early (what its status and message say).
+REPEAT_CHUNK = 1024
+REPEAT_CHUNK_WORK = 200_000
+
+
+def _repeat_chunk(prec, template, first: int) -> int:
+    if prec.name != "double":
+        return first
+    return max(first, min(REPEAT_CHUNK, REPEAT_CHUNK_WORK // max(len(template.decomposition), 1)))
 
 
 _PLANS: dict = {}
@@ -522,6 +535,14 @@ def integrate(
     Solution
         ``sol.t``, ``sol.y`` (one row per output time reached), ``sol.stats``, ``sol.status``, ``sol.message``.
     """
+    if progress is None and events is None and atlas is not True and params is None and workers is None and \
+            client is None:
+        # a repeated call (the same system, exact state and options as a memoised one): straight to the run
+        key = _call_key(system, y0, t, t0, tol, precision, dense, max_steps, max_time, min_step, compact_mode,
+                        high_accuracy)
+        call = _CALLS.get(key) if key is not None else None
+        if call is not None and call.system is system:
+            return _execute(call, None)
     progress = check_progress(progress, title="integrate")  # True: show a bar
     check_flag(compact_mode, "compact_mode")
     check_flag(high_accuracy, "high_accuracy", allow_none=False)
@@ -573,6 +594,20 @@ def integrate(
             max_time=max_time, min_step=min_step, dense=dense, dtype=prec.numpy_dtype,
             first_chunk=FIRST_CHUNK.get(prec.name, FIRST_CHUNK_REAL),
         )
+        call.repeat_chunk = _repeat_chunk(prec, plan["build"][0], call.first_chunk)
+        # a plain run (one final time, no events, no dense output): its first chunk takes the short path of
+        # _execute_plain
+        grid = plan["grid"]
+        call.plain = (not dense and not user_events and not plan["build"][3] and plan["direction"] != 0
+                      and len(grid) == 2 and plan["grid_native"][0] == plan["t0_native"] and min_step is None)
+        if call.plain:
+            call.t_out = _time_array(plan["grid_native"], prec)
+            call.t_out.setflags(write=False)
+            call.t_requested = tuple(grid)
+            call.t0_native, call.t_end_native = plan["t0_native"], plan["grid_native"][-1]
+            call.budget = min(call.first_chunk, max_steps)  # the first chunk's steps
+            entry = _FREE.get(id(plan["build"][0]))
+            call.free = entry[1] if entry is not None and entry[0] is plan["build"][0] else []
         if key is not None and not warned:
             with _LOCK:
                 if len(_CALLS) >= _CALLS_MAX:
@@ -586,17 +621,19 @@ class _Call:
     and memoised for repeated calls with the same system, exact state and options (see :func:`_call_key`)."""
 
     __slots__ = ("system", "y0", "ps", "prec", "plan", "user_events", "y0_native", "pars_native", "max_steps",
-                 "stiff_steps", "max_time", "min_step", "dense", "energy", "dtype", "first_chunk")
+                 "stiff_steps", "max_time", "min_step", "dense", "energy", "dtype", "first_chunk", "plain", "t_out",
+                 "t_requested", "t0_native", "t_end_native", "budget", "free", "repeat_chunk")
 
     def __init__(self, **kw):
         self.energy = None  # (compiled H, parameters, H(y0)) once a run needs the energy check
+        self.plain = False
         for k, v in kw.items():
             setattr(self, k, v)
 
 
 _CALLS: dict = {}
 _CALLS_MAX = 256
-_KEY_SCALARS = (type(None), int, float, str, bool)
+_KEY_SCALARS = frozenset((type(None), int, float, str, bool))
 
 
 def _call_key(system, y0, *options):
@@ -617,12 +654,101 @@ def _call_key(system, y0, *options):
 
 def _execute(call, progress):
     """Run a prepared call: one integration and its checks, into a :class:`Solution`."""
+    if call.plain and progress is None:
+        return _execute_plain(call)
+    return _execute_general(call, progress, None)
+
+
+_TIME_LIMIT = _OUTCOME.time_limit
+
+
+def _execute_plain(call):
+    """A plain run (one final time, no events, no dense output, no progress): its first chunk is one heyoka call;
+    a run that ends within it and passes the cheap energy check (:func:`lieseries.energy.energy_quick`) returns a
+    :class:`Solution` whose rows and statistics are made when read. Anything else -- a longer run, a non-finite
+    state, a step budget, a doubtful energy -- goes on through the general path from where the chunk ended, so
+    both give the same steps, states and statuses."""
+    plan = call.plan
+    template, build, cached, _ = plan["build"]
+    if not cached:
+        if plan.get("used"):
+            build, cached = 0.0, True
+        plan["used"] = True  # only the first run of a new integrator reports its build time
+    free = call.free
+    try:
+        ta = free.pop()  # as _checkout: a free copy of the template, or a new one
+    except IndexError:
+        ta = copy.deepcopy(template)
+    try:
+        ta.time = call.t0_native
+        ta.state[:] = call.y0_native
+        if call.pars_native is not None:
+            ta.pars[:] = call.pars_native
+        tic = _time.perf_counter()
+        res = ta.propagate_until(call.t_end_native, call.budget)  # max_steps (as a keyword: 1.5 us more)
+        run_time = _time.perf_counter() - tic
+        t_end = ta.time
+        if res[0] == _TIME_LIMIT and t_end == call.t_end_native:
+            y_end = ta.state.copy()
+        else:
+            return _execute_general(call, None, (ta, res, run_time, (build, cached)))
+    finally:
+        if len(free) < 8:
+            free.append(ta)
+    steps = res[3]
+    energy = call.energy
+    if energy is not False:
+        if energy is None:
+            ps = call.ps
+            energy = call.energy = energy_function(ps, call.prec, call.y0_native) if ps.is_hamiltonian else False
+        if energy is not False and not energy_quick(energy, plan["sqrt_tol"], y_end, steps):
+            status, _ = energy_verdict(energy, plan["sqrt_tol"], y_end, steps, "success", plan["reached"])
+            if status != "success":
+                return _execute_general(call, None, (None, res, run_time, (build, cached), t_end, y_end))
+    if call.budget < call.repeat_chunk:
+        _succeeded(call)
+    return Solution.deferred("success", plan["reached"], plan["grid_exact"][-1], call.t_requested, _plain_fields,
+                             (call, y_end, steps, res[1], res[2], t_end, build, cached, run_time))
+
+
+def _succeeded(call) -> None:
+    """The call succeeded: when it is repeated, its first chunk is the longer one (:data:`REPEAT_CHUNK`)."""
+    call.first_chunk = max(call.first_chunk, call.repeat_chunk)
+    call.budget = min(call.first_chunk, call.max_steps)
+
+
+def _step_range(steps, lo, hi, t_end, t_start):
+    """(smallest, largest) step of a chunk of ``steps`` steps from heyoka's answer (as :meth:`_Run._account`)."""
+    if not steps:
+        return math.inf, 0.0
+    lo, hi = float(lo), float(hi)
+    if not lo <= hi:  # heyoka leaves out a step cut short at the final time: the chunk's mean step
+        lo = hi = abs(float(t_end) - float(t_start)) / steps
+    return lo, hi
+
+
+def _plain_fields(call, y_end, steps, lo, hi, t_end, build, cached, run_time) -> dict:
+    """The fields of a plain run's :class:`Solution` (:func:`_execute_plain`), when first read."""
+    lo, hi = _step_range(steps, lo, hi, t_end, call.t0_native)
+    stats = Stats(method="taylor (heyoka)", precision=call.prec.name, tol=call.plan["tol_float"],
+                  order=call.plan["build"][0].order, build_time=build, cached=cached, run_time=run_time, steps=steps,
+                  min_step=lo, max_step=hi)
+    y = np.empty((2, len(y_end)), dtype=call.dtype)
+    y[0] = call.y0_native
+    y[1] = y_end
+    return {"t": call.t_out, "y": y, "stats": stats, "y_reached": y_end}
+
+
+def _execute_general(call, progress, started):
+    """Run a prepared call in full generality; ``started``: the first chunk :func:`_execute_plain` ran."""
     ps, prec, plan, user_events = call.ps, call.prec, call.plan, call.user_events
     grid, direction = plan["grid"], plan["direction"]
     grid_native, t0_native, y0_native = plan["grid_native"], plan["t0_native"], call.y0_native
     dense, max_steps = call.dense, call.max_steps
     template, build, cached, event_info = plan["build"]
-    if not cached:
+    if started is not None:
+        build, cached = started[3]
+    elif not cached:
         if plan.get("used"):
             build, cached = 0.0, True
         plan["used"] = True  # only the first run of a new integrator reports its build time
@@ -631,6 +757,22 @@ def _execute(call, progress):
         run = _Run(ta=None, direction=0)
         sinks = [[] for ev in user_events if not ev[3]]  # no step: no crossing
         run.t_reached, run.y_reached = t0_native, y0_native
+    elif started is not None:
+        # a plain run's first chunk ran in _execute_plain (which returns the integrator to the pool)
+        sinks = []
+        ta, res, run_time = started[:3]
+        if ta is None:  # it reached the final time: only the energy check is left
+            run = _Run(None, direction)
+            run.outcome, run.t_reached, run.y_reached = res[0], started[4], started[5]
+            run.chunk_start = t0_native
+            run.account_first(res, started[4])
+        else:
+            run = _Run(ta, direction)
+            start = _time.perf_counter()
+            run.go(grid_native, t0_native, y0_native, dense, max_steps, call.max_time, call.min_step,
+                   stiff_steps=call.stiff_steps, first_chunk=call.first_chunk, progress=progress,
+                   first=(res, run_time))
+            run_time += _time.perf_counter() - start
     else:
         ta, free = _checkout(template)
         try:
@@ -703,6 +845,8 @@ def _execute(call, progress):
         if call.energy is None:
             call.energy = energy_function(ps, prec, y0_native)
         status, message = energy_verdict(call.energy, plan["sqrt_tol"], run.y_reached, run.steps, status, message)
+    if status == "success" and call.first_chunk < call.repeat_chunk:
+        _succeeded(call)
     # np.array copies the rows (the run's own arrays, y0's read-only cache)
     y = np.array(rows_y, dtype=call.dtype) if rows_y else np.empty((0, ps.dimension), dtype=call.dtype)
     tarr = _time_array(rows_t, prec) if prec.is_real else np.array(rows_t, dtype=call.dtype)
@@ -767,8 +911,11 @@ class _Run:
         self.guard = guard
         self.c_outs = []  # the other attributes start at the class's values
 
-    def go(self, grid, t0, y0, dense, max_steps, max_time, min_step, *, stiff_steps, first_chunk, progress):
-        """Integrate from ``t0``, ``y0`` (the integrator's current time and state) to the end of ``grid``."""
+    def go(self, grid, t0, y0, dense, max_steps, max_time, min_step, *, stiff_steps, first_chunk, progress,
+           first=None):
+        """Integrate from ``t0``, ``y0`` (the integrator's current time and state) to the end of ``grid``.
+        ``first``: (heyoka's answer, seconds) of a first chunk of ``first_chunk`` steps already run from there
+        (a plain run: one final time, no events, no dense output)."""
         ta = self.ta
         self.t_reached, self.y_reached = t0, y0
         self.stiff_steps = stiff_steps
@@ -781,7 +928,7 @@ class _Run:
                 pending.pop(0)
                 self.rows.append(np.array(ta.state, copy=True))
         chunk = first_chunk
-        start = _time.perf_counter()
+        start = _time.perf_counter() - (first[1] if first is not None else 0.0)
         if self.guard is not None:
             self.guard.start(ta)
         while True:
@@ -793,8 +940,12 @@ class _Run:
                 self.outcome = _OUTCOME.time_limit
                 self.t_reached, self.y_reached = ta.time, np.array(ta.state, copy=True)
                 return
-            res = self._propagate(t_end, pending if use_grid else None, dense, budget, None)
-            elapsed = _time.perf_counter() - tic
+            if first is not None:
+                (res, elapsed), first = first, None
+                self.chunk_start = t0
+            else:
+                res = self._propagate(t_end, pending if use_grid else None, dense, budget, None)
+                elapsed = _time.perf_counter() - tic
             outcome = res[0]
             if outcome == _OUTCOME.err_nf_state:
                 # run the failed chunk again, keeping a copy of every accepted state
@@ -912,6 +1063,11 @@ class _Run:
                                      callback=rows if callback is None else _Both(rows, callback))
             return (res[0], res[1], res[2], res[3], None, rows.rows)
         return ta.propagate_until(t_end, max_steps=budget, c_output=dense, callback=callback)
+
+    def account_first(self, res, t_end):
+        """The steps of a plain run's single chunk from ``self.chunk_start`` to ``t_end`` (:func:`_execute_plain`)."""
+        self.steps = int(res[3])
+        self.min_h, self.max_h = _step_range(self.steps, res[1], res[2], t_end, self.chunk_start)
 
     def _account(self, res, pending, dense):
         self.steps += int(res[3])
