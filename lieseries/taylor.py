@@ -393,9 +393,11 @@ def _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events
     grid (exact and in the working format), the tolerance and the integrator's cache entry."""
     key = None
     scalar = (int, float, str, Fraction)
-    if (not user_events and isinstance(t, scalar) and isinstance(t0, scalar)
+    tkey = t if isinstance(t, scalar) else (
+        ("grid", t.tobytes()) if type(t) is np.ndarray and t.dtype == np.float64 and t.ndim == 1 else None)
+    if (not user_events and tkey is not None and isinstance(t0, scalar)
             and (tol is None or isinstance(tol, scalar))):
-        key = (id(system), prec.name, tol, t, t0, compact_mode, high_accuracy)
+        key = (id(system), prec.name, tol, tkey, t0, compact_mode, high_accuracy)
         hit = _PLANS.get(key)
         if hit is not None and hit[0] is system:
             return hit[1]
@@ -598,9 +600,14 @@ def integrate(
         # a plain run (one final time, no events, no dense output): its first chunk takes the short path of
         # _execute_plain
         grid = plan["grid"]
+        one_time = len(grid) == 2 and plan["grid_native"][0] == plan["t0_native"]
         call.plain = (not dense and not user_events and not plan["build"][3] and plan["direction"] != 0
-                      and len(grid) == 2 and plan["grid_native"][0] == plan["t0_native"] and min_step is None)
+                      and min_step is None and (one_time or prec.name == "double"))
         if call.plain:
+            # output times: one propagate_grid over [t0, grid...] (heyoka's own grid, rows from each step's Taylor
+            # polynomial; _GridRows continues it exactly when the run is longer than the chunk)
+            call.grid = None if one_time else np.array(
+                [plan["t0_native"]] + [g for g in plan["grid_native"] if g != plan["t0_native"]], dtype=np.float64)
             call.t_out = _time_array(plan["grid_native"], prec)
             call.t_out.setflags(write=False)
             call.t_requested = tuple(grid)
@@ -622,7 +629,7 @@ class _Call:
 
     __slots__ = ("system", "y0", "ps", "prec", "plan", "user_events", "y0_native", "pars_native", "max_steps",
                  "stiff_steps", "max_time", "min_step", "dense", "energy", "dtype", "first_chunk", "plain", "t_out",
-                 "t_requested", "t0_native", "t_end_native", "budget", "free", "repeat_chunk")
+                 "t_requested", "t0_native", "t_end_native", "budget", "free", "repeat_chunk", "grid")
 
     def __init__(self, **kw):
         self.energy = None  # (compiled H, parameters, H(y0)) once a run needs the energy check
@@ -639,14 +646,20 @@ _KEY_SCALARS = frozenset((type(None), int, float, str, bool))
 def _call_key(system, y0, *options):
     """The memo key of a call, or None when it cannot be memoised: ``y0`` must be an
     :class:`~lieseries.models.base.ExactState` (immutable; the memo keeps it, so its id cannot be reused) or a 1-d
-    float64 array (keyed by its bytes), and every option a plain scalar."""
+    float64 array (keyed by its bytes), the first option (``t``) a plain scalar or a 1-d float64 array (keyed by
+    its bytes), and every other option a plain scalar."""
     if type(y0) is ExactState:
         ykey = id(y0)
     elif type(y0) is np.ndarray and y0.dtype == np.float64 and y0.ndim == 1:
         ykey = y0.tobytes()
     else:
         return None
-    for v in options:
+    t = options[0]
+    if type(t) is np.ndarray:  # output times as a 1-d float64 array (np.linspace): keyed by their bytes
+        if t.dtype != np.float64 or t.ndim != 1:
+            return None
+        options = (("grid", t.tobytes()),) + options[1:]
+    for v in options[1:] if type(t) is np.ndarray else options:
         if type(v) not in _KEY_SCALARS:
             return None
     return (id(system), ykey, *options)
@@ -684,10 +697,15 @@ def _execute_plain(call):
         ta.state[:] = call.y0_native
         if call.pars_native is not None:
             ta.pars[:] = call.pars_native
+        grid = call.grid
         tic = _time.perf_counter()
-        res = ta.propagate_until(call.t_end_native, call.budget)  # max_steps (as a keyword: 1.5 us more)
+        # max_steps passed by position (as a keyword: 1.5 us more)
+        res = ta.propagate_until(call.t_end_native, call.budget) if grid is None else \
+            ta.propagate_grid(grid, call.budget)
         run_time = _time.perf_counter() - tic
         t_end = ta.time
+        if grid is not None:  # as _Run._propagate answers: the rows last, the first standing for t0
+            res = (res[0], res[1], res[2], res[3], None, res[5])
         if res[0] == _TIME_LIMIT and t_end == call.t_end_native:
             y_end = ta.state.copy()
         else:
@@ -708,7 +726,7 @@ def _execute_plain(call):
     if call.budget < call.repeat_chunk:
         _succeeded(call)
     return Solution.deferred("success", plan["reached"], plan["grid_exact"][-1], call.t_requested, _plain_fields,
-                             (call, y_end, steps, res[1], res[2], t_end, build, cached, run_time))
+                             (call, y_end, steps, res[1], res[2], t_end, build, cached, run_time, res[5]))
 
 
 def _succeeded(call) -> None:
@@ -727,16 +745,32 @@ def _step_range(steps, lo, hi, t_end, t_start):
     return lo, hi
 
 
-def _plain_fields(call, y_end, steps, lo, hi, t_end, build, cached, run_time) -> dict:
+def _plain_rows(call, y_end, rows):
+    """The output rows of a plain run that reached its final time: y0 at t0, heyoka's grid rows (``rows``, the
+    first standing for t0) between, the final state at the final time (as :func:`_execute_general` takes them)."""
+    n = len(y_end)
+    if rows is None:
+        y = np.empty((2, n), dtype=call.dtype)
+        y[0] = call.y0_native
+    else:
+        m = len(call.t_out)
+        y = np.empty((m, n), dtype=call.dtype)
+        if call.grid[0] == call.t_out[0]:  # the first output time is t0
+            y[:-1] = rows[:m - 1]
+            y[0] = call.y0_native
+        else:
+            y[:-1] = rows[1:m]
+    y[-1] = y_end
+    return y
+
+
+def _plain_fields(call, y_end, steps, lo, hi, t_end, build, cached, run_time, rows) -> dict:
     """The fields of a plain run's :class:`Solution` (:func:`_execute_plain`), when first read."""
     lo, hi = _step_range(steps, lo, hi, t_end, call.t0_native)
     stats = Stats(method="taylor (heyoka)", precision=call.prec.name, tol=call.plan["tol_float"],
                   order=call.plan["build"][0].order, build_time=build, cached=cached, run_time=run_time, steps=steps,
                   min_step=lo, max_step=hi)
-    y = np.empty((2, len(y_end)), dtype=call.dtype)
-    y[0] = call.y0_native
-    y[1] = y_end
-    return {"t": call.t_out, "y": y, "stats": stats, "y_reached": y_end}
+    return {"t": call.t_out, "y": _plain_rows(call, y_end, rows), "stats": stats, "y_reached": y_end}
 
 
 def _execute_general(call, progress, started):
@@ -766,6 +800,8 @@ def _execute_general(call, progress, started):
             run.outcome, run.t_reached, run.y_reached = res[0], started[4], started[5]
             run.chunk_start = t0_native
             run.account_first(res, started[4])
+            if call.grid is not None:
+                run.rows = list(_plain_rows(call, started[5], res[5]))
         else:
             run = _Run(ta, direction)
             start = _time.perf_counter()
@@ -926,7 +962,7 @@ class _Run:
             pending = list(grid)
             if pending[0] == t0:
                 pending.pop(0)
-                self.rows.append(np.array(ta.state, copy=True))
+                self.rows.append(np.array(y0, copy=True))
         chunk = first_chunk
         start = _time.perf_counter() - (first[1] if first is not None else 0.0)
         if self.guard is not None:
@@ -1090,7 +1126,11 @@ class _Run:
 
 class _GridRows:
     """Step callback of a run with output times: the state at each output time the step covered, from the step's
-    Taylor polynomial (heyoka's dense output)."""
+    Taylor polynomial (heyoka's dense output).
+
+    A time is taken in the first step whose end reaches it, the end read as heyoka's double-length time (hi, lo):
+    t < hi, or t == hi and lo >= 0 (forward; mirrored backward). This is propagate_grid's own rule, so the rows
+    are the same whether a chunk ran through propagate_grid (a plain run's first chunk) or through this callback."""
 
     def __init__(self, pending, direction):
         self.pending = pending
@@ -1100,11 +1140,13 @@ class _GridRows:
 
     def __call__(self, ta) -> bool:
         pending, k = self.pending, self.next
-        if k < len(pending) and (pending[k] - ta.time) * self.direction <= 0:
-            now = ta.time
-            while k < len(pending) and (pending[k] - now) * self.direction <= 0:
-                ta.update_d_output(pending[k])
-                self.rows.append(np.array(ta.d_output, copy=True))
+        if k < len(pending):
+            now, d = ta.time, self.direction
+            while k < len(pending):
+                p = pending[k]
+                if not ((p - now) * d < 0 or (p == now and ta.dtime[1] * d >= 0)):
+                    break
+                self.rows.append(np.array(ta.update_d_output(p), copy=True))
                 k += 1
             self.next = k
         return True
