@@ -601,8 +601,8 @@ def integrate(
         # _execute_plain
         grid = plan["grid"]
         one_time = len(grid) == 2 and plan["grid_native"][0] == plan["t0_native"]
-        call.plain = (not dense and not user_events and not plan["build"][3] and plan["direction"] != 0
-                      and min_step is None and (one_time or prec.name == "double"))
+        call.plain = (not dense and not user_events and plan["direction"] != 0 and min_step is None
+                      and (one_time or prec.name == "double"))
         if call.plain:
             # output times: one propagate_grid over [t0, grid...] (heyoka's own grid, rows from each step's Taylor
             # polynomial; _GridRows continues it exactly when the run is longer than the chunk)
@@ -676,13 +676,14 @@ _TIME_LIMIT = _OUTCOME.time_limit
 
 
 def _execute_plain(call):
-    """A plain run (one final time, no events, no dense output, no progress): its first chunk is one heyoka call;
+    """A plain run (no events of the user's, no dense output, no progress, no ``min_step``; output times only in
+    double): its first chunk is one heyoka call;
     a run that ends within it and passes the cheap energy check (:func:`lieseries.energy.energy_quick`) returns a
     :class:`Solution` whose rows and statistics are made when read. Anything else -- a longer run, a non-finite
     state, a step budget, a doubtful energy -- goes on through the general path from where the chunk ended, so
     both give the same steps, states and statuses."""
     plan = call.plan
-    template, build, cached, _ = plan["build"]
+    template, build, cached, events = plan["build"]
     if not cached:
         if plan.get("used"):
             build, cached = 0.0, True
@@ -697,6 +698,8 @@ def _execute_plain(call):
         ta.state[:] = call.y0_native
         if call.pars_native is not None:
             ta.pars[:] = call.pars_native
+        if events:  # the model's terminal events (a chart's edge)
+            ta.reset_cooldowns()
         grid = call.grid
         tic = _time.perf_counter()
         # max_steps passed by position (as a keyword: 1.5 us more)
