@@ -63,7 +63,7 @@ def _compiled(ps, prec):
 def _python_function(ps, exprs, npar):
     """(values, check): ``exprs`` (H, then the Casimirs) as plain Python functions of floats, or None when they do
     not translate (a function the ``math`` module lacks). ``values(*state, *parameters)`` is their list;
-    ``check(state, parameters, ref, half)`` (two lists of floats) is True when ``|H - ref[0]| <= half * max(|H|, ref[1])`` and
+    ``check(state, parameters, ref, half)`` (two lists of floats) is True when ``|H - ref[0]| <= half * ref[1]`` and
     ``|C_j - ref[2 + 2j]| <= half * ref[3 + 2j]`` for every Casimir. Calling a compiled ``hy.cfunc`` costs
     several microseconds of argument handling, many times the few float operations of an energy: these give
     :func:`energy_quick` its cheap first opinion on a double run."""
@@ -98,7 +98,7 @@ def _python_function(ps, exprs, npar):
         code = "\n".join(
             [f"def values({head}):"] + body + [f"    return [{', '.join(outs)}]",
              "def check(y, p, ref, half):"] + unpack + body
-            + [f"    h = {outs[0]}", "    if not abs(h - ref[0]) <= half * max(abs(h), ref[1]):", "        return False",
+            + [f"    h = {outs[0]}", "    if not abs(h - ref[0]) <= half * ref[1]:", "        return False",
                f"    return {' and '.join(test) if test else 'True'}"])
         namespace = {"math": math}
         exec(compile(code, "<lieseries energy check>", "exec"), namespace)  # noqa: S102 - code printed by sympy
@@ -123,7 +123,7 @@ def _quick_start(quick, y0, pars, out, n, scale, casimirs):
     for v, r, sz in zip(vals, ref, sizes):
         if not (math.isfinite(v) and math.isfinite(sz) and abs(v - r) <= 2.0**-40 * max(abs(r), sz)):
             return None
-    # |C(y_end) - C(y0)| is measured against the Casimir's scale alone (not also |C(y_end)|): stricter
+    # the changes are measured against the scales at y0 alone (not also |H(y_end)|, |C(y_end)|): stricter
     limits = [vals[0], max(abs(vals[0]), sizes[0])] + [x for pair in zip(vals[1:], sizes[1:]) for x in pair]
     return check, args[len(y0):], tuple(limits)
 

@@ -10,8 +10,8 @@ parameter values are set per run.
 Guards
 ------
 A run never hangs and never returns a silently wrong state, and pays no Python call per step for it: heyoka
-integrates in chunks of steps (sized so that a chunk takes about 0.1 s; a short run is a single chunk), and the
-checks run between chunks:
+integrates in chunks of steps (the first of 64 steps in double; later ones sized so that a chunk takes about 0.1 s;
+a short run is a single chunk), and the checks run between chunks:
 
 - ``time_budget``: the wall-time budget ``max_time`` ran out (it bounds the integration, not the compilation of a
   new integrator, which happens once per structure and precision);
@@ -32,7 +32,19 @@ checks run between chunks:
   (:func:`lieseries.energy.drift_threshold`) means the result is wrong, whatever the error control believed --
   typically a motion much slower or faster than its time span (Taylor coefficients underflow), fixed by
   rescaling time, or components of very different sizes (the tolerance is relative to the largest), fixed by
-  rescaling units.
+  rescaling units. A double run first asks a plain Python function of floats (cheaper than a compiled-function
+  call); only when it is not sure that the change is within half the threshold does the compiled check decide.
+
+Repeated calls
+--------------
+A call with the same system, exact state (or float64 array), times and options as an earlier one reuses its
+validated arguments and plan. A repeated call that succeeded before (the same steps again) runs a first chunk of
+up to 1024 steps in double (:data:`REPEAT_CHUNK`), so that such a run is one heyoka call; a new call keeps the
+short first chunk, so that a collapse or a blow-up is seen early, between chunks. A plain run -- no events of the
+user's, no dense output, no ``progress``, no ``min_step``, output times in double -- runs that chunk directly
+(``propagate_until``, or ``propagate_grid`` from t0 for output times) and, when it reached the final time with a
+sound energy, returns a :class:`Solution` whose rows and statistics are made when first read; anything else
+continues on the general path from where the chunk ended, with the same steps, states and statuses.
 
 Threads
 -------
@@ -40,7 +52,8 @@ Compiled integrators are cached once per key and handed out one per concurrent r
 runs of the same key overlap), so ``integrate`` may be called from many threads at once. A run's result does not
 depend on the integrator that served it nor on where its chunks end (they are sized by wall time): each run sets
 the time, state and parameters, and chunks continue heyoka's double-length time exactly (``propagate_until``; the
-rows at output times come from each step's Taylor polynomial), so a call gives the same bits serially and from
+rows at output times come from each step's Taylor polynomial, each time from the step propagate_grid takes it in:
+a plain run's first chunk may be one propagate_grid from t0), so a call gives the same bits serially and from
 threads.
 """
 
@@ -544,7 +557,7 @@ def integrate(
                         high_accuracy)
         call = _CALLS.get(key) if key is not None else None
         if call is not None and call.system is system:
-            return _execute(call, None)
+            return _execute_plain(call) if call.plain else _execute_general(call, None, None)
     progress = check_progress(progress, title="integrate")  # True: show a bar
     check_flag(compact_mode, "compact_mode")
     check_flag(high_accuracy, "high_accuracy", allow_none=False)
@@ -597,8 +610,8 @@ def integrate(
             first_chunk=FIRST_CHUNK.get(prec.name, FIRST_CHUNK_REAL),
         )
         call.repeat_chunk = _repeat_chunk(prec, plan["build"][0], call.first_chunk)
-        # a plain run (one final time, no events, no dense output): its first chunk takes the short path of
-        # _execute_plain
+        # a plain run (no events of the user's, no dense output, no min_step; output times only in double): its
+        # first chunk takes the short path of _execute_plain
         grid = plan["grid"]
         one_time = len(grid) == 2 and plan["grid_native"][0] == plan["t0_native"]
         call.plain = (not dense and not user_events and plan["direction"] != 0 and min_step is None
@@ -612,6 +625,7 @@ def integrate(
             call.t_out.setflags(write=False)
             call.t_requested = tuple(grid)
             call.t0_native, call.t_end_native = plan["t0_native"], plan["grid_native"][-1]
+            call.sqrt_tol, call.reached, call.t_exact = plan["sqrt_tol"], plan["reached"], plan["grid_exact"][-1]
             call.budget = min(call.first_chunk, max_steps)  # the first chunk's steps
             entry = _FREE.get(id(plan["build"][0]))
             call.free = entry[1] if entry is not None and entry[0] is plan["build"][0] else []
@@ -629,7 +643,8 @@ class _Call:
 
     __slots__ = ("system", "y0", "ps", "prec", "plan", "user_events", "y0_native", "pars_native", "max_steps",
                  "stiff_steps", "max_time", "min_step", "dense", "energy", "dtype", "first_chunk", "plain", "t_out",
-                 "t_requested", "t0_native", "t_end_native", "budget", "free", "repeat_chunk", "grid")
+                 "t_requested", "t0_native", "t_end_native", "budget", "free", "repeat_chunk", "grid", "sqrt_tol",
+                 "reached", "t_exact")
 
     def __init__(self, **kw):
         self.energy = None  # (compiled H, parameters, H(y0)) once a run needs the energy check
@@ -643,26 +658,27 @@ _CALLS_MAX = 256
 _KEY_SCALARS = frozenset((type(None), int, float, str, bool))
 
 
-def _call_key(system, y0, *options):
+def _call_key(system, y0, t, *options):
     """The memo key of a call, or None when it cannot be memoised: ``y0`` must be an
     :class:`~lieseries.models.base.ExactState` (immutable; the memo keeps it, so its id cannot be reused) or a 1-d
     float64 array (keyed by its bytes), the first option (``t``) a plain scalar or a 1-d float64 array (keyed by
     its bytes), and every other option a plain scalar."""
-    if type(y0) is ExactState:
+    ty = type(y0)
+    if ty is ExactState:
         ykey = id(y0)
-    elif type(y0) is np.ndarray and y0.dtype == np.float64 and y0.ndim == 1:
+    elif ty is np.ndarray and y0.dtype == np.float64 and y0.ndim == 1:
         ykey = y0.tobytes()
     else:
         return None
-    t = options[0]
     if type(t) is np.ndarray:  # output times as a 1-d float64 array (np.linspace): keyed by their bytes
         if t.dtype != np.float64 or t.ndim != 1:
             return None
-        options = (("grid", t.tobytes()),) + options[1:]
-    for v in options[1:] if type(t) is np.ndarray else options:
-        if type(v) not in _KEY_SCALARS:
-            return None
-    return (id(system), ykey, *options)
+        t = ("grid", t.tobytes())
+    elif type(t) not in _KEY_SCALARS:
+        return None
+    if not _KEY_SCALARS.issuperset(map(type, options)):
+        return None
+    return (id(system), ykey, t) + options
 
 
 def _execute(call, progress):
@@ -722,13 +738,13 @@ def _execute_plain(call):
         if energy is None:
             ps = call.ps
             energy = call.energy = energy_function(ps, call.prec, call.y0_native) if ps.is_hamiltonian else False
-        if energy is not False and not energy_quick(energy, plan["sqrt_tol"], y_end, steps):
-            status, _ = energy_verdict(energy, plan["sqrt_tol"], y_end, steps, "success", plan["reached"])
+        if energy is not False and not energy_quick(energy, call.sqrt_tol, y_end, steps):
+            status, _ = energy_verdict(energy, call.sqrt_tol, y_end, steps, "success", call.reached)
             if status != "success":
                 return _execute_general(call, None, (None, res, run_time, (build, cached), t_end, y_end))
     if call.budget < call.repeat_chunk:
         _succeeded(call)
-    return Solution.deferred("success", plan["reached"], plan["grid_exact"][-1], call.t_requested, _plain_fields,
+    return Solution.deferred("success", call.reached, call.t_exact, call.t_requested, _plain_fields,
                              (call, y_end, steps, res[1], res[2], t_end, build, cached, run_time, res[5]))
 
 
