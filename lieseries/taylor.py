@@ -552,9 +552,15 @@ def integrate(
     """
     if progress is None and events is None and atlas is not True and params is None and workers is None and \
             client is None:
-        # a repeated call (the same system, exact state and options as a memoised one): straight to the run
-        key = _call_key(system, y0, t, t0, tol, precision, dense, max_steps, max_time, min_step, compact_mode,
-                        high_accuracy)
+        # a repeated call (the same system, exact state and options as a memoised one): straight to the run. The
+        # usual case, an exact state and a scalar time, is keyed here as _call_key does (a function call less)
+        ty = type(y0)
+        if ty is ExactState and type(t) in _KEY_SCALARS:
+            options = (t0, tol, precision, dense, max_steps, max_time, min_step, compact_mode, high_accuracy)
+            key = (id(system), id(y0), t) + options if _KEY_SCALARS.issuperset(map(type, options)) else None
+        else:
+            key = _call_key(system, y0, t, t0, tol, precision, dense, max_steps, max_time, min_step, compact_mode,
+                            high_accuracy)
         call = _CALLS.get(key) if key is not None else None
         if call is not None and call.system is system:
             return _execute_plain(call) if call.plain else _execute_general(call, None, None)
