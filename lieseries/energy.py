@@ -36,6 +36,9 @@ def drift_threshold(tol, steps) -> float:
     return min(math.sqrt(tol), DRIFT_PER_STEP * tol * max(int(steps), 1))
 
 _ENERGY: dict = {}
+#: Energies (H and the Casimirs) printed longer than this get no plain Python check (:func:`energy_quick`): the
+#: compiled function's per-call cost matters little beside their own.
+PYTHON_CHECK_CHARS = 4000
 
 
 def _compiled(ps, prec):
@@ -67,6 +70,8 @@ def _python_function(ps, exprs, npar):
     ``|C_j - ref[2 + 2j]| <= half * ref[3 + 2j]`` for every Casimir. Calling a compiled ``hy.cfunc`` costs
     several microseconds of argument handling, many times the few float operations of an energy: these give
     :func:`energy_quick` its cheap first opinion on a double run."""
+    if sum(len(str(e)) for e in exprs) > PYTHON_CHECK_CHARS:
+        return None  # a large energy: sympy's translation would cost more than the calls it saves
     try:
         import sympy
         from sympy.printing.pycode import PythonCodePrinter

@@ -795,7 +795,8 @@ def _plain_fields(call, y_end, steps, lo, hi, t_end, build, cached, run_time, ro
     stats = Stats(method="taylor (heyoka)", precision=call.prec.name, tol=call.plan["tol_float"],
                   order=call.plan["build"][0].order, build_time=build, cached=cached, run_time=run_time, steps=steps,
                   min_step=lo, max_step=hi)
-    return {"t": call.t_out, "y": _plain_rows(call, y_end, rows), "stats": stats, "y_reached": y_end}
+    # t: the solution's own copy (a read-only array can be made writable again by its owner)
+    return {"t": call.t_out.copy(), "y": _plain_rows(call, y_end, rows), "stats": stats, "y_reached": y_end}
 
 
 def _execute_general(call, progress, started):
