@@ -622,11 +622,15 @@ def integrate(
         one_time = len(grid) == 2 and plan["grid_native"][0] == plan["t0_native"]
         call.plain = (not dense and not user_events and plan["direction"] != 0 and min_step is None
                       and (one_time or prec.name == "double"))
-        if call.plain:
+        if call.plain:  # (may still turn False below)
             # output times: one propagate_grid over [t0, grid...] (heyoka's own grid, rows from each step's Taylor
             # polynomial; _GridRows continues it exactly when the run is longer than the chunk)
-            call.grid = None if one_time else np.array(
-                [plan["t0_native"]] + [g for g in plan["grid_native"] if g != plan["t0_native"]], dtype=np.float64)
+            rest = plan["grid_native"][1:] if plan["grid_native"][0] == plan["t0_native"] else plan["grid_native"]
+            call.grid = None if one_time else np.array([plan["t0_native"]] + list(rest), dtype=np.float64)
+            if call.grid is not None and not np.all(np.diff(call.grid) * plan["direction"] > 0):
+                # exact times that round to one double (0.1 and 0.1 + 1e-20, or two times within a double of t0):
+                # propagate_grid refuses them; the general path gives each its row
+                call.plain = False
             call.t_out = _time_array(plan["grid_native"], prec)
             call.t_out.setflags(write=False)
             call.t_requested = tuple(grid)

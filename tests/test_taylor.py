@@ -487,3 +487,17 @@ def test_memoised_grid_follows_the_array_not_its_identity():
     assert first.t.tolist() == [0.0, 1.0, 2.0] and second.t.tolist() == [0.0, 3.0, 4.0]
     for tk, yk in zip(second.t, second.y):
         assert rigid_error(yk, float(tk)) < 1e-13
+
+
+@pytest.mark.parametrize("t", [[1, "1.1", "1.10000000000000000001", 2], ["1.00000000000000000001", "1.5", 2],
+                               ["1.00000000000000000001", "1.00000000000000000002", 2]])
+def test_output_times_that_round_together_keep_their_rows(t):
+    """Distinct exact times that round to one double (or to t0 = 1) are one point for heyoka's propagate_grid,
+    which refuses a grid that does not move (the plain path raised ValueError); every time keeps its row, right."""
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega=(1, "0.1", "0.5"))
+    for _ in range(2):  # a new call, then a repeated one
+        sol = ls.integrate(body, y0, t=t, t0=1)
+        assert sol.success and len(sol.t) == len(t)
+        for tk, yk in zip(sol.t, sol.y):
+            assert rigid_error(yk, float(tk) - 1) < 1e-14
