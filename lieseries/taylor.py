@@ -654,11 +654,12 @@ class _Call:
     __slots__ = ("system", "y0", "ps", "prec", "plan", "user_events", "y0_native", "pars_native", "max_steps",
                  "stiff_steps", "max_time", "min_step", "dense", "energy", "dtype", "first_chunk", "plain", "t_out",
                  "t_requested", "t0_native", "t_end_native", "budget", "free", "repeat_chunk", "grid", "sqrt_tol",
-                 "reached", "t_exact")
+                 "reached", "t_exact", "views")
 
     def __init__(self, **kw):
         self.energy = None  # (compiled H, parameters, H(y0)) once a run needs the energy check
         self.plain = False
+        self.views = None  # (integrator, its state's view, its parameters' view) of the last plain run
         for k, v in kw.items():
             setattr(self, k, v)
 
@@ -720,10 +721,16 @@ def _execute_plain(call):
     except IndexError:
         ta = copy.deepcopy(template)
     try:
+        views = call.views
+        if views is None or views[0] is not ta:
+            # numpy views of the integrator's state and parameters (its own buffers, never reallocated), kept for
+            # the integrator this call last ran on: each read of ta.state makes a new view (~1-2 us)
+            views = call.views = (ta, ta.state, ta.pars if call.pars_native is not None else None)
         ta.time = call.t0_native
-        ta.state[:] = call.y0_native
+        state = views[1]
+        state[:] = call.y0_native
         if call.pars_native is not None:
-            ta.pars[:] = call.pars_native
+            views[2][:] = call.pars_native
         if events:  # the model's terminal events (a chart's edge)
             ta.reset_cooldowns()
         grid = call.grid
@@ -736,7 +743,7 @@ def _execute_plain(call):
         if grid is not None:  # as _Run._propagate answers: the rows last, the first standing for t0
             res = (res[0], res[1], res[2], res[3], None, res[5])
         if res[0] == _TIME_LIMIT and t_end == call.t_end_native:
-            y_end = ta.state.copy()
+            y_end = state.copy()
         else:
             return _execute_general(call, None, (ta, res, run_time, (build, cached)))
     finally:
