@@ -15,6 +15,7 @@ import lie_vs_odefun  # noqa: E402
 import overhead  # noqa: E402
 import taylor_vs_scipy  # noqa: E402
 import validated_vs_lie  # noqa: E402
+import wrapper_speed  # noqa: E402
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -24,6 +25,8 @@ if __name__ == "__main__":
     taylor_vs_scipy.main()
     print("\n== the wrapper's cost: ls.integrate vs the bare heyoka integrator vs DOP853 ==")
     overhead.main()
+    print("\n== ls.integrate vs bare heyoka at T = 1, 5, 15, 100 and on a grid of output times ==")
+    wrapper_speed.main(["--pairs", "1000"] if args.quick else [])
     print("\n== lie_integrate vs mpmath.odefun vs heyoka, arbitrary precision ==")
     lie_vs_odefun.main(T=2 if args.quick else 10)
     print("\n== certified digits: validated_integrate (Arb balls) vs lie_integrate ==")

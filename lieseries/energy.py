@@ -18,6 +18,7 @@ import mpmath
 import numpy as np
 
 __all__ = ["drift_threshold", "DRIFT_PER_STEP", "energy_check", "energy_drift", "energy_function", "energy_verdict",
+           "energy_quick",
            "drift_message", "clear_energy_cache", "energy_exact", "exact_energy_verdict"]
 
 _LOCK = threading.Lock()
@@ -35,6 +36,9 @@ def drift_threshold(tol, steps) -> float:
     return min(math.sqrt(tol), DRIFT_PER_STEP * tol * max(int(steps), 1))
 
 _ENERGY: dict = {}
+#: Energies (H and the Casimirs) printed longer than this get no plain Python check (:func:`energy_quick`): the
+#: compiled function's per-call cost matters little beside their own.
+PYTHON_CHECK_CHARS = 4000
 
 
 def _compiled(ps, prec):
@@ -53,9 +57,80 @@ def _compiled(ps, prec):
         h_fn = hy.cfunc([ps.hamiltonian] + cas, ps.variables, compact_mode=compact, **kwargs)
         grad = [e for f in [ps.hamiltonian] + cas for e in [f] + [hy.diff(f, v) for v in ps.variables]]
         scale_fn = hy.cfunc(grad, ps.variables, compact_mode=compact, **kwargs)
+        quick = _python_function(ps, [ps.hamiltonian] + cas, npar) if prec.name == "double" else None
         with _LOCK:
-            entry = _ENERGY.setdefault(key, (h_fn, scale_fn, npar))
+            entry = _ENERGY.setdefault(key, (h_fn, scale_fn, npar, quick))
     return entry
+
+
+def _python_function(ps, exprs, npar):
+    """(values, check): ``exprs`` (H, then the Casimirs) as plain Python functions of floats, or None when they do
+    not translate (a function the ``math`` module lacks). ``values(*state, *parameters)`` is their list;
+    ``check(state, parameters, ref, half)`` (two lists of floats) is True when ``|H - ref[0]| <= half * ref[1]`` and
+    ``|C_j - ref[2 + 2j]| <= half * ref[3 + 2j]`` for every Casimir. Calling a compiled ``hy.cfunc`` costs
+    several microseconds of argument handling, many times the few float operations of an energy: these give
+    :func:`energy_quick` its cheap first opinion on a double run."""
+    if sum(len(str(e)) for e in exprs) > PYTHON_CHECK_CHARS:
+        return None  # a large energy: sympy's translation would cost more than the calls it saves
+    try:
+        import sympy
+        from sympy.printing.pycode import PythonCodePrinter
+
+        class Printer(PythonCodePrinter):
+            def _print_Float(self, e):  # heyoka's constants are doubles: every digit of each (sympy prints 15)
+                return repr(float(e))
+
+            def _print_Pow(self, e, rational=False):  # x**2 as x*x: one rounding either way, and no pow call
+                if e.exp == 2:
+                    b = self.parenthesize(e.base, 1000)
+                    return f"({b}*{b})"
+                return super()._print_Pow(e, rational=rational)
+
+        names = [hy.to_sympy(v) for v in ps.variables]
+        pars = [sympy.Symbol(f"par[{i}]", real=True) for i in range(npar)]
+        args = [sympy.Symbol(f"v{i}", real=True) for i in range(len(names))]
+        args += [sympy.Symbol(f"p{i}", real=True) for i in range(npar)]
+        exprs = [hy.to_sympy(e).xreplace(dict(zip(names + pars, args))) for e in exprs]
+        common, reduced = sympy.cse(exprs, symbols=sympy.numbered_symbols("w"))
+        pr = Printer()
+        head = ", ".join(str(a) for a in args)
+        unpack = [f"    {''.join(f'v{i}, ' for i in range(len(names)))}= y"]
+        if npar:
+            unpack.append(f"    {''.join(f'p{i}, ' for i in range(npar))}= p")
+        body = [f"    {w} = {pr.doprint(e)}" for w, e in common]
+        outs = [pr.doprint(e) for e in reduced]
+        test = [f"abs({c} - ref[{2 + 2 * j}]) <= half * ref[{3 + 2 * j}]" for j, c in enumerate(outs[1:])]
+        code = "\n".join(
+            [f"def values({head}):"] + body + [f"    return [{', '.join(outs)}]",
+             "def check(y, p, ref, half):"] + unpack + body
+            + [f"    h = {outs[0]}", "    if not abs(h - ref[0]) <= half * ref[1]:", "        return False",
+               f"    return {' and '.join(test) if test else 'True'}"])
+        namespace = {"math": math}
+        exec(compile(code, "<lieseries energy check>", "exec"), namespace)  # noqa: S102 - code printed by sympy
+        return namespace["values"], namespace["check"]
+    except Exception:  # noqa: BLE001 - no translation: the compiled function alone decides
+        return None
+
+
+def _quick_start(quick, y0, pars, out, n, scale, casimirs):
+    """(check, the parameters as floats, ref) for :func:`energy_quick` when the Python functions agree with the
+    compiled one at y0 to 2^-40 of each value's scale; else None (the compiled function alone decides)."""
+    values, check = quick
+    args = [float(v) for v in y0] + ([float(v) for v in pars] if pars is not None else [])
+    try:
+        vals = [float(v) for v in values(*args)]
+    except Exception:  # noqa: BLE001 - a domain error, overflow, a name math lacks: no cheap opinion
+        return None
+    ref = [float(out[j]) for j in range(0, len(out), n + 1)]
+    sizes = [float(scale)] + [float(sc) for _, sc in casimirs]
+    if len(vals) != len(ref) or len(sizes) != len(ref):
+        return None
+    for v, r, sz in zip(vals, ref, sizes):
+        if not (math.isfinite(v) and math.isfinite(sz) and abs(v - r) <= 2.0**-40 * max(abs(r), sz)):
+            return None
+    # the changes are measured against the scales at y0 alone (not also |H(y_end)|, |C(y_end)|): stricter
+    limits = [vals[0], max(abs(vals[0]), sizes[0])] + [x for pair in zip(vals[1:], sizes[1:]) for x in pair]
+    return check, args[len(y0):], tuple(limits)
 
 
 def energy_function(ps, prec, y0, parameters=None):
@@ -63,7 +138,7 @@ def energy_function(ps, prec, y0, parameters=None):
     check of a call. The scale sum_i |dH/dy_i(y0) y_i0| is the size of H's terms at y0 (2|H| for a kinetic
     energy), so the check is relative to the motion's own energy whatever its units, and does not vanish where H
     does by cancellation."""
-    h_fn, scale_fn, npar = _compiled(ps, prec)
+    h_fn, scale_fn, npar, quick = _compiled(ps, prec)
     if not npar:
         pars = None
     elif parameters is None:
@@ -88,7 +163,11 @@ def energy_function(ps, prec, y0, parameters=None):
         h_exact, _ = energy_exact(ps, y0, 64)
         if h_exact != 0 and abs(h_exact) < tiny:
             beyond = (prec.name, tiny, h_exact)
-    return h_fn, pars, h0, scale, beyond, casimirs
+    if quick is not None and beyond is None:
+        quick = _quick_start(quick, y0, pars, out, n, scale, casimirs)
+    else:
+        quick = None
+    return h_fn, pars, h0, scale, beyond, casimirs, quick
 
 
 def _smallest_normal(prec):
@@ -110,7 +189,7 @@ def energy_drift(ps, tol, Y0, Y1, parameters=None, steps=None) -> dict:
     from .precision import resolve_precision
 
     prec = resolve_precision("double")
-    h_fn, scale_fn, npar = _compiled(ps, prec)
+    h_fn, scale_fn, npar, _ = _compiled(ps, prec)
     k = len(Y0)
     if k == 0:
         return {}, []
@@ -164,7 +243,7 @@ def energy_check(ps, prec, tol, y0, y_end, steps, status, message, parameters=No
 def energy_verdict(energy, sqrt_tol, y_end, steps, status, message):
     """``invariant_drift`` when the Hamiltonian changed beyond :func:`drift_threshold` * max(|H(y0)|, |H(y_end)|,
     the energy scale of y0) over a successful run of ``steps`` steps (:func:`energy_function`)."""
-    fn, pars, h0, scale, beyond, casimirs = energy
+    fn, pars, h0, scale, beyond, casimirs, _ = energy
     if beyond is not None:
         name, tiny, h_exact = beyond
         return "invariant_drift", (
@@ -190,6 +269,23 @@ def energy_verdict(energy, sqrt_tol, y_end, steps, status, message):
                 "control was fooled, usually because the motion is much slower than the time span (its Taylor "
                 "coefficients underflow): rescale time and units so that the motion is of order one.")
     return status, message
+
+
+def energy_quick(energy, sqrt_tol, y_end, steps) -> bool:
+    """True when a successful double run that ended at ``y_end`` (a float64 array) after ``steps`` steps surely
+    passes :func:`energy_verdict`: H and every declared Casimir changed by at most half of the allowed amount,
+    measured with the plain Python function of :func:`energy_function` (a few float operations, several times
+    cheaper than a compiled-function call). False means "ask :func:`energy_verdict`", which alone reports a drift:
+    the half margin dwarfs the rounding differences of the two evaluations (a few ulps against at least 1000 tol),
+    so the cheap opinion never passes a run the compiled check would stop."""
+    quick = energy[6]
+    if quick is None:
+        return False
+    try:  # half of drift_threshold
+        return quick[0](y_end.tolist(), quick[1], quick[2],
+                        0.5 * min(sqrt_tol, DRIFT_PER_STEP * sqrt_tol * sqrt_tol * (steps if steps > 1 else 1)))
+    except Exception:  # noqa: BLE001 - overflow, a domain error: the compiled check decides
+        return False
 
 
 def _finite(x) -> bool:

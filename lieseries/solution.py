@@ -108,6 +108,48 @@ class Solution:
             events=events,
         )
 
+    @classmethod
+    def deferred(cls, status: str, message: str, t_reached, t_requested, make, data):
+        """A Solution whose other fields (``t``, ``y``, ``stats``, ``y_reached``) ``make(*data)`` computes, as a
+        dict, the first time one of them is read (or the solution is pickled or copied): what a run that is called
+        many times in a loop, and whose every field is not read, costs to return. ``make`` must be a module-level
+        function (picklable), ``data`` a tuple the run no longer changes."""
+        if status not in STATUSES:  # pragma: no cover - programming error
+            raise ValueError(f"unknown status {status!r}")
+        self = object.__new__(cls)
+        # charts, chart_reached, events and the dense output are None: the class's own values
+        d = self.__dict__
+        d["status"], d["message"], d["t_reached"], d["t_requested"], d["_make"] = (
+            status, message, t_reached, t_requested, (make, data))
+        return self
+
+    # a deferred solution's fields that no run of its kind has (every other solution sets its own)
+    charts = chart_reached = events = _dense = None
+
+    def __getattr__(self, name):
+        # only reached for a field not yet in __dict__: a deferred solution computes its fields now
+        d = self.__dict__
+        pending = d.get("_make")
+        if pending is None or name.startswith("__"):
+            raise AttributeError(f"'Solution' object has no attribute {name!r}")
+        self._fill()
+        if name in d:
+            return d[name]
+        raise AttributeError(f"'Solution' object has no attribute {name!r}")
+
+    def _fill(self) -> None:
+        d = self.__dict__
+        pending = d.get("_make")
+        if pending is not None:
+            make, data = pending
+            fields = make(*data)
+            d.update(t=_read_only(fields["t"]), y=_read_only(fields["y"]), stats=fields["stats"],
+                     y_reached=_read_only(fields["y_reached"]), _make=None)
+
+    def __getstate__(self):
+        self._fill()
+        return {k: v for k, v in self.__dict__.items() if k != "_make"}
+
     def __setattr__(self, name, value):
         raise AttributeError(f"a Solution is immutable; `{name}` cannot be set")
 

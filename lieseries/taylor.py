@@ -10,8 +10,8 @@ parameter values are set per run.
 Guards
 ------
 A run never hangs and never returns a silently wrong state, and pays no Python call per step for it: heyoka
-integrates in chunks of steps (sized so that a chunk takes about 0.1 s; a short run is a single chunk), and the
-checks run between chunks:
+integrates in chunks of steps (the first of 64 steps in double; later ones sized so that a chunk takes about 0.1 s;
+a short run is a single chunk), and the checks run between chunks:
 
 - ``time_budget``: the wall-time budget ``max_time`` ran out (it bounds the integration, not the compilation of a
   new integrator, which happens once per structure and precision);
@@ -32,7 +32,19 @@ checks run between chunks:
   (:func:`lieseries.energy.drift_threshold`) means the result is wrong, whatever the error control believed --
   typically a motion much slower or faster than its time span (Taylor coefficients underflow), fixed by
   rescaling time, or components of very different sizes (the tolerance is relative to the largest), fixed by
-  rescaling units.
+  rescaling units. A double run first asks a plain Python function of floats (cheaper than a compiled-function
+  call); only when it is not sure that the change is within half the threshold does the compiled check decide.
+
+Repeated calls
+--------------
+A call with the same system, exact state (or float64 array), times and options as an earlier one reuses its
+validated arguments and plan. A repeated call that succeeded before (the same steps again) runs a first chunk of
+up to 1024 steps in double (:data:`REPEAT_CHUNK`), so that such a run is one heyoka call; a new call keeps the
+short first chunk, so that a collapse or a blow-up is seen early, between chunks. A plain run -- no events of the
+user's, no dense output, no ``progress``, no ``min_step``, output times in double -- runs that chunk directly
+(``propagate_until``, or ``propagate_grid`` from t0 for output times) and, when it reached the final time with a
+sound energy, returns a :class:`Solution` whose rows and statistics are made when first read; anything else
+continues on the general path from where the chunk ended, with the same steps, states and statuses.
 
 Threads
 -------
@@ -40,7 +52,8 @@ Compiled integrators are cached once per key and handed out one per concurrent r
 runs of the same key overlap), so ``integrate`` may be called from many threads at once. A run's result does not
 depend on the integrator that served it nor on where its chunks end (they are sized by wall time): each run sets
 the time, state and parameters, and chunks continue heyoka's double-length time exactly (``propagate_until``; the
-rows at output times come from each step's Taylor polynomial), so a call gives the same bits serially and from
+rows at output times come from each step's Taylor polynomial, each time from the step propagate_grid takes it in:
+a plain run's first chunk may be one propagate_grid from t0), so a call gives the same bits serially and from
 threads.
 """
 
@@ -55,7 +68,7 @@ from fractions import Fraction
 import heyoka as hy
 import numpy as np
 
-from .energy import clear_energy_cache, energy_function, energy_verdict
+from .energy import clear_energy_cache, energy_function, energy_quick, energy_verdict
 from .events import resolve_events
 from .models.base import ExactState, Model, state_fractions
 from .poisson import as_poisson_system
@@ -369,6 +382,19 @@ def _release(ta, free) -> None:
 FIRST_CHUNK = {"double": 64, "long double": 32, "quad": 8}
 FIRST_CHUNK_REAL = 2
 CHUNK_SECONDS = 0.1
+#: The first chunk in double of a call repeated after it succeeded (the same system, exact state and options: the
+#: same steps again): a run of up to 1024 steps is then one heyoka call (a few ms for the rigid body). A larger
+#: system gets fewer, about REPEAT_CHUNK_WORK / D steps for a decomposition of D nodes (the rigid body's has 81),
+#: and never fewer than the first chunk of a new call. A new call keeps the short first chunk, so that a run
+#: that collapses or overflows is seen between chunks early (what its status and message say).
+REPEAT_CHUNK = 1024
+REPEAT_CHUNK_WORK = 200_000
+
+
+def _repeat_chunk(prec, template, first: int) -> int:
+    if prec.name != "double":
+        return first
+    return max(first, min(REPEAT_CHUNK, REPEAT_CHUNK_WORK // max(len(template.decomposition), 1)))
 
 
 _PLANS: dict = {}
@@ -380,9 +406,11 @@ def _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events
     grid (exact and in the working format), the tolerance and the integrator's cache entry."""
     key = None
     scalar = (int, float, str, Fraction)
-    if (not user_events and isinstance(t, scalar) and isinstance(t0, scalar)
+    tkey = t if isinstance(t, scalar) else (
+        ("grid", t.tobytes()) if type(t) is np.ndarray and t.dtype == np.float64 and t.ndim == 1 else None)
+    if (not user_events and tkey is not None and isinstance(t0, scalar)
             and (tol is None or isinstance(tol, scalar))):
-        key = (id(system), prec.name, tol, t, t0, compact_mode, high_accuracy)
+        key = (id(system), prec.name, tol, tkey, t0, compact_mode, high_accuracy)
         hit = _PLANS.get(key)
         if hit is not None and hit[0] is system:
             return hit[1]
@@ -522,6 +550,20 @@ def integrate(
     Solution
         ``sol.t``, ``sol.y`` (one row per output time reached), ``sol.stats``, ``sol.status``, ``sol.message``.
     """
+    if progress is None and events is None and atlas is not True and params is None and workers is None and \
+            client is None:
+        # a repeated call (the same system, exact state and options as a memoised one): straight to the run. The
+        # usual case, an exact state and a scalar time, is keyed here as _call_key does (a function call less)
+        ty = type(y0)
+        if ty is ExactState and type(t) in _KEY_SCALARS:
+            options = (t0, tol, precision, dense, max_steps, max_time, min_step, compact_mode, high_accuracy)
+            key = (id(system), id(y0), t) + options if _KEY_SCALARS.issuperset(map(type, options)) else None
+        else:
+            key = _call_key(system, y0, t, t0, tol, precision, dense, max_steps, max_time, min_step, compact_mode,
+                            high_accuracy)
+        call = _CALLS.get(key) if key is not None else None
+        if call is not None and call.system is system:
+            return _execute_plain(call) if call.plain else _execute_general(call, None, None)
     progress = check_progress(progress, title="integrate")  # True: show a bar
     check_flag(compact_mode, "compact_mode")
     check_flag(high_accuracy, "high_accuracy", allow_none=False)
@@ -573,6 +615,30 @@ def integrate(
             max_time=max_time, min_step=min_step, dense=dense, dtype=prec.numpy_dtype,
             first_chunk=FIRST_CHUNK.get(prec.name, FIRST_CHUNK_REAL),
         )
+        call.repeat_chunk = _repeat_chunk(prec, plan["build"][0], call.first_chunk)
+        # a plain run (no events of the user's, no dense output, no min_step; output times only in double): its
+        # first chunk takes the short path of _execute_plain
+        grid = plan["grid"]
+        one_time = len(grid) == 2 and plan["grid_native"][0] == plan["t0_native"]
+        call.plain = (not dense and not user_events and plan["direction"] != 0 and min_step is None
+                      and (one_time or prec.name == "double"))
+        if call.plain:  # (may still turn False below)
+            # output times: one propagate_grid over [t0, grid...] (heyoka's own grid, rows from each step's Taylor
+            # polynomial; _GridRows continues it exactly when the run is longer than the chunk)
+            rest = plan["grid_native"][1:] if plan["grid_native"][0] == plan["t0_native"] else plan["grid_native"]
+            call.grid = None if one_time else np.array([plan["t0_native"]] + list(rest), dtype=np.float64)
+            if call.grid is not None and not np.all(np.diff(call.grid) * plan["direction"] > 0):
+                # exact times that round to one double (0.1 and 0.1 + 1e-20, or two times within a double of t0):
+                # propagate_grid refuses them; the general path gives each its row
+                call.plain = False
+            call.t_out = _time_array(plan["grid_native"], prec)
+            call.t_out.setflags(write=False)
+            call.t_requested = tuple(grid)
+            call.t0_native, call.t_end_native = plan["t0_native"], plan["grid_native"][-1]
+            call.sqrt_tol, call.reached, call.t_exact = plan["sqrt_tol"], plan["reached"], plan["grid_exact"][-1]
+            call.budget = min(call.first_chunk, max_steps)  # the first chunk's steps
+            entry = _FREE.get(id(plan["build"][0]))
+            call.free = entry[1] if entry is not None and entry[0] is plan["build"][0] else []
         if key is not None and not warned:
             with _LOCK:
                 if len(_CALLS) >= _CALLS_MAX:
@@ -586,43 +652,174 @@ class _Call:
     and memoised for repeated calls with the same system, exact state and options (see :func:`_call_key`)."""
 
     __slots__ = ("system", "y0", "ps", "prec", "plan", "user_events", "y0_native", "pars_native", "max_steps",
-                 "stiff_steps", "max_time", "min_step", "dense", "energy", "dtype", "first_chunk")
+                 "stiff_steps", "max_time", "min_step", "dense", "energy", "dtype", "first_chunk", "plain", "t_out",
+                 "t_requested", "t0_native", "t_end_native", "budget", "free", "repeat_chunk", "grid", "sqrt_tol",
+                 "reached", "t_exact", "views")
 
     def __init__(self, **kw):
         self.energy = None  # (compiled H, parameters, H(y0)) once a run needs the energy check
+        self.plain = False
+        self.views = None  # (integrator, its state's view, its parameters' view) of the last plain run
         for k, v in kw.items():
             setattr(self, k, v)
 
 
 _CALLS: dict = {}
 _CALLS_MAX = 256
-_KEY_SCALARS = (type(None), int, float, str, bool)
+_KEY_SCALARS = frozenset((type(None), int, float, str, bool))
 
 
-def _call_key(system, y0, *options):
+def _call_key(system, y0, t, *options):
     """The memo key of a call, or None when it cannot be memoised: ``y0`` must be an
     :class:`~lieseries.models.base.ExactState` (immutable; the memo keeps it, so its id cannot be reused) or a 1-d
-    float64 array (keyed by its bytes), and every option a plain scalar."""
-    if type(y0) is ExactState:
+    float64 array (keyed by its bytes), the first option (``t``) a plain scalar or a 1-d float64 array (keyed by
+    its bytes), and every other option a plain scalar."""
+    ty = type(y0)
+    if ty is ExactState:
         ykey = id(y0)
-    elif type(y0) is np.ndarray and y0.dtype == np.float64 and y0.ndim == 1:
+    elif ty is np.ndarray and y0.dtype == np.float64 and y0.ndim == 1:
         ykey = y0.tobytes()
     else:
         return None
-    for v in options:
-        if type(v) not in _KEY_SCALARS:
+    if type(t) is np.ndarray:  # output times as a 1-d float64 array (np.linspace): keyed by their bytes
+        if t.dtype != np.float64 or t.ndim != 1:
             return None
-    return (id(system), ykey, *options)
+        t = ("grid", t.tobytes())
+    elif type(t) not in _KEY_SCALARS:
+        return None
+    if not _KEY_SCALARS.issuperset(map(type, options)):
+        return None
+    return (id(system), ykey, t) + options
 
 
 def _execute(call, progress):
     """Run a prepared call: one integration and its checks, into a :class:`Solution`."""
+    if call.plain and progress is None:
+        return _execute_plain(call)
+    return _execute_general(call, progress, None)
+
+
+_TIME_LIMIT = _OUTCOME.time_limit
+
+
+def _execute_plain(call):
+    """A plain run (no events of the user's, no dense output, no progress, no ``min_step``; output times only in
+    double): its first chunk is one heyoka call;
+    a run that ends within it and passes the cheap energy check (:func:`lieseries.energy.energy_quick`) returns a
+    :class:`Solution` whose rows and statistics are made when read. Anything else -- a longer run, a non-finite
+    state, a step budget, a doubtful energy -- goes on through the general path from where the chunk ended, so
+    both give the same steps, states and statuses."""
+    plan = call.plan
+    template, build, cached, events = plan["build"]
+    if not cached:
+        if plan.get("used"):
+            build, cached = 0.0, True
+        plan["used"] = True  # only the first run of a new integrator reports its build time
+    free = call.free
+    try:
+        ta = free.pop()  # as _checkout: a free copy of the template, or a new one
+    except IndexError:
+        ta = copy.deepcopy(template)
+    try:
+        views = call.views
+        if views is None or views[0] is not ta:
+            # numpy views of the integrator's state and parameters (its own buffers, never reallocated), kept for
+            # the integrator this call last ran on: each read of ta.state makes a new view (~1-2 us)
+            views = call.views = (ta, ta.state, ta.pars if call.pars_native is not None else None)
+        ta.time = call.t0_native
+        state = views[1]
+        state[:] = call.y0_native
+        if call.pars_native is not None:
+            views[2][:] = call.pars_native
+        if events:  # the model's terminal events (a chart's edge)
+            ta.reset_cooldowns()
+        grid = call.grid
+        tic = _time.perf_counter()
+        # max_steps passed by position (as a keyword: 1.5 us more)
+        res = ta.propagate_until(call.t_end_native, call.budget) if grid is None else \
+            ta.propagate_grid(grid, call.budget)
+        run_time = _time.perf_counter() - tic
+        t_end = ta.time
+        if grid is not None:  # as _Run._propagate answers: the rows last, the first standing for t0
+            res = (res[0], res[1], res[2], res[3], None, res[5])
+        if res[0] == _TIME_LIMIT and t_end == call.t_end_native:
+            y_end = state.copy()
+        else:
+            return _execute_general(call, None, (ta, res, run_time, (build, cached)))
+    finally:
+        if len(free) < 8:
+            free.append(ta)
+    steps = res[3]
+    energy = call.energy
+    if energy is not False:
+        if energy is None:
+            ps = call.ps
+            energy = call.energy = energy_function(ps, call.prec, call.y0_native) if ps.is_hamiltonian else False
+        if energy is not False and not energy_quick(energy, call.sqrt_tol, y_end, steps):
+            status, _ = energy_verdict(energy, call.sqrt_tol, y_end, steps, "success", call.reached)
+            if status != "success":
+                return _execute_general(call, None, (None, res, run_time, (build, cached), t_end, y_end))
+    if call.budget < call.repeat_chunk:
+        _succeeded(call)
+    return Solution.deferred("success", call.reached, call.t_exact, call.t_requested, _plain_fields,
+                             (call, y_end, steps, res[1], res[2], t_end, build, cached, run_time, res[5]))
+
+
+def _succeeded(call) -> None:
+    """The call succeeded: when it is repeated, its first chunk is the longer one (:data:`REPEAT_CHUNK`)."""
+    call.first_chunk = max(call.first_chunk, call.repeat_chunk)
+    call.budget = min(call.first_chunk, call.max_steps)
+
+
+def _step_range(steps, lo, hi, t_end, t_start):
+    """(smallest, largest) step of a chunk of ``steps`` steps from heyoka's answer (as :meth:`_Run._account`)."""
+    if not steps:
+        return math.inf, 0.0
+    lo, hi = float(lo), float(hi)
+    if not lo <= hi:  # heyoka leaves out a step cut short at the final time: the chunk's mean step
+        lo = hi = abs(float(t_end) - float(t_start)) / steps
+    return lo, hi
+
+
+def _plain_rows(call, y_end, rows):
+    """The output rows of a plain run that reached its final time: y0 at t0, heyoka's grid rows (``rows``, the
+    first standing for t0) between, the final state at the final time (as :func:`_execute_general` takes them)."""
+    n = len(y_end)
+    if rows is None:
+        y = np.empty((2, n), dtype=call.dtype)
+        y[0] = call.y0_native
+    else:
+        m = len(call.t_out)
+        y = np.empty((m, n), dtype=call.dtype)
+        if call.grid[0] == call.t_out[0]:  # the first output time is t0
+            y[:-1] = rows[:m - 1]
+            y[0] = call.y0_native
+        else:
+            y[:-1] = rows[1:m]
+    y[-1] = y_end
+    return y
+
+
+def _plain_fields(call, y_end, steps, lo, hi, t_end, build, cached, run_time, rows) -> dict:
+    """The fields of a plain run's :class:`Solution` (:func:`_execute_plain`), when first read."""
+    lo, hi = _step_range(steps, lo, hi, t_end, call.t0_native)
+    stats = Stats(method="taylor (heyoka)", precision=call.prec.name, tol=call.plan["tol_float"],
+                  order=call.plan["build"][0].order, build_time=build, cached=cached, run_time=run_time, steps=steps,
+                  min_step=lo, max_step=hi)
+    # t: the solution's own copy (a read-only array can be made writable again by its owner)
+    return {"t": call.t_out.copy(), "y": _plain_rows(call, y_end, rows), "stats": stats, "y_reached": y_end}
+
+
+def _execute_general(call, progress, started):
+    """Run a prepared call in full generality; ``started``: the first chunk :func:`_execute_plain` ran."""
     ps, prec, plan, user_events = call.ps, call.prec, call.plan, call.user_events
     grid, direction = plan["grid"], plan["direction"]
     grid_native, t0_native, y0_native = plan["grid_native"], plan["t0_native"], call.y0_native
     dense, max_steps = call.dense, call.max_steps
     template, build, cached, event_info = plan["build"]
-    if not cached:
+    if started is not None:
+        build, cached = started[3]
+    elif not cached:
         if plan.get("used"):
             build, cached = 0.0, True
         plan["used"] = True  # only the first run of a new integrator reports its build time
@@ -631,6 +828,24 @@ def _execute(call, progress):
         run = _Run(ta=None, direction=0)
         sinks = [[] for ev in user_events if not ev[3]]  # no step: no crossing
         run.t_reached, run.y_reached = t0_native, y0_native
+    elif started is not None:
+        # a plain run's first chunk ran in _execute_plain (which returns the integrator to the pool)
+        sinks = []
+        ta, res, run_time = started[:3]
+        if ta is None:  # it reached the final time: only the energy check is left
+            run = _Run(None, direction)
+            run.outcome, run.t_reached, run.y_reached = res[0], started[4], started[5]
+            run.chunk_start = t0_native
+            run.account_first(res, started[4])
+            if call.grid is not None:
+                run.rows = list(_plain_rows(call, started[5], res[5]))
+        else:
+            run = _Run(ta, direction)
+            start = _time.perf_counter()
+            run.go(grid_native, t0_native, y0_native, dense, max_steps, call.max_time, call.min_step,
+                   stiff_steps=call.stiff_steps, first_chunk=call.first_chunk, progress=progress,
+                   first=(res, run_time))
+            run_time += _time.perf_counter() - start
     else:
         ta, free = _checkout(template)
         try:
@@ -703,6 +918,8 @@ def _execute(call, progress):
         if call.energy is None:
             call.energy = energy_function(ps, prec, y0_native)
         status, message = energy_verdict(call.energy, plan["sqrt_tol"], run.y_reached, run.steps, status, message)
+    if status == "success" and call.first_chunk < call.repeat_chunk:
+        _succeeded(call)
     # np.array copies the rows (the run's own arrays, y0's read-only cache)
     y = np.array(rows_y, dtype=call.dtype) if rows_y else np.empty((0, ps.dimension), dtype=call.dtype)
     tarr = _time_array(rows_t, prec) if prec.is_real else np.array(rows_t, dtype=call.dtype)
@@ -767,8 +984,11 @@ class _Run:
         self.guard = guard
         self.c_outs = []  # the other attributes start at the class's values
 
-    def go(self, grid, t0, y0, dense, max_steps, max_time, min_step, *, stiff_steps, first_chunk, progress):
-        """Integrate from ``t0``, ``y0`` (the integrator's current time and state) to the end of ``grid``."""
+    def go(self, grid, t0, y0, dense, max_steps, max_time, min_step, *, stiff_steps, first_chunk, progress,
+           first=None):
+        """Integrate from ``t0``, ``y0`` (the integrator's current time and state) to the end of ``grid``.
+        ``first``: (heyoka's answer, seconds) of a first chunk of ``first_chunk`` steps already run from there
+        (a plain run: one final time, no events, no dense output)."""
         ta = self.ta
         self.t_reached, self.y_reached = t0, y0
         self.stiff_steps = stiff_steps
@@ -779,9 +999,9 @@ class _Run:
             pending = list(grid)
             if pending[0] == t0:
                 pending.pop(0)
-                self.rows.append(np.array(ta.state, copy=True))
+                self.rows.append(np.array(y0, copy=True))
         chunk = first_chunk
-        start = _time.perf_counter()
+        start = _time.perf_counter() - (first[1] if first is not None else 0.0)
         if self.guard is not None:
             self.guard.start(ta)
         while True:
@@ -793,8 +1013,12 @@ class _Run:
                 self.outcome = _OUTCOME.time_limit
                 self.t_reached, self.y_reached = ta.time, np.array(ta.state, copy=True)
                 return
-            res = self._propagate(t_end, pending if use_grid else None, dense, budget, None)
-            elapsed = _time.perf_counter() - tic
+            if first is not None:
+                (res, elapsed), first = first, None
+                self.chunk_start = t0
+            else:
+                res = self._propagate(t_end, pending if use_grid else None, dense, budget, None)
+                elapsed = _time.perf_counter() - tic
             outcome = res[0]
             if outcome == _OUTCOME.err_nf_state:
                 # run the failed chunk again, keeping a copy of every accepted state
@@ -913,6 +1137,11 @@ class _Run:
             return (res[0], res[1], res[2], res[3], None, rows.rows)
         return ta.propagate_until(t_end, max_steps=budget, c_output=dense, callback=callback)
 
+    def account_first(self, res, t_end):
+        """The steps of a plain run's single chunk from ``self.chunk_start`` to ``t_end`` (:func:`_execute_plain`)."""
+        self.steps = int(res[3])
+        self.min_h, self.max_h = _step_range(self.steps, res[1], res[2], t_end, self.chunk_start)
+
     def _account(self, res, pending, dense):
         self.steps += int(res[3])
         if int(res[3]):
@@ -934,7 +1163,11 @@ class _Run:
 
 class _GridRows:
     """Step callback of a run with output times: the state at each output time the step covered, from the step's
-    Taylor polynomial (heyoka's dense output)."""
+    Taylor polynomial (heyoka's dense output).
+
+    A time is taken in the first step whose end reaches it, the end read as heyoka's double-length time (hi, lo):
+    t < hi, or t == hi and lo >= 0 (forward; mirrored backward). This is propagate_grid's own rule, so the rows
+    are the same whether a chunk ran through propagate_grid (a plain run's first chunk) or through this callback."""
 
     def __init__(self, pending, direction):
         self.pending = pending
@@ -944,11 +1177,13 @@ class _GridRows:
 
     def __call__(self, ta) -> bool:
         pending, k = self.pending, self.next
-        if k < len(pending) and (pending[k] - ta.time) * self.direction <= 0:
-            now = ta.time
-            while k < len(pending) and (pending[k] - now) * self.direction <= 0:
-                ta.update_d_output(pending[k])
-                self.rows.append(np.array(ta.d_output, copy=True))
+        if k < len(pending):
+            now, d = ta.time, self.direction
+            while k < len(pending):
+                p = pending[k]
+                if not ((p - now) * d < 0 or (p == now and ta.dtime[1] * d >= 0)):
+                    break
+                self.rows.append(np.array(ta.update_d_output(p), copy=True))
                 k += 1
             self.next = k
         return True

@@ -351,3 +351,153 @@ def test_collapse_near_a_blow_up_far_from_t0_reports_itself():
     assert sol.status in ("non_finite", "step_collapse"), sol.message
     assert ": ," not in sol.message and "earlier: ," not in sol.message
     assert abs(float(sol.t_reached - t0) - 1) < 1e-3  # the blow-up of q = 1 / (1 - (t - t0))
+
+
+def _plain_problems():
+    """(name, model, y0, t, options, check): runs of every ending the plain path of a repeated call meets; ``check``
+    compares a solution with an independent reference (closed form, or an invariant the motion must keep)."""
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega=(1, "0.1", "0.5"))
+
+    def rigid(sol):
+        assert sol.status == "success", sol.message
+        for tk, yk in zip(sol.t, sol.y):
+            assert rigid_error(yk, float(tk)) < 1e-14 * max(20.0, abs(float(tk)))  # the error grows with t
+
+    slow = body.initial_state(omega=("1e-16", "1e-17", "5e-17"))
+
+    def drift(sol):
+        # one huge step that fooled heyoka's error control: R is far from a rotation (R^T R - 1 of order 1)
+        assert sol.status == "invariant_drift" and "rescale time" in sol.message
+        assert float(body.invariants(sol.y_final)["orthogonality"]) > 1
+
+    q, p = hy.make_vars("q", "p")
+    sqrt_sys = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], -p - (2.0 / 3.0) * q * hy.sqrt(q), name="sqrt")
+
+    def non_finite(sol):
+        # q = 1 - t, p = 2/3 (1 - (1 - t)^(3/2)) until q < 0 (t = 1), where the state turns NaN
+        assert sol.status == "non_finite", sol.message
+        assert 0.5 < float(sol.t_reached) <= 1.0 + 1e-9
+        for tk, yk in zip(sol.t, sol.y):
+            assert yk[1] == pytest.approx(2 / 3 * (1 - (1 - float(tk)) ** 1.5), rel=1e-13, abs=1e-15)
+        assert np.all(np.isfinite(sol.y_reached))
+
+    sphere = ls.Sphere()
+    s0 = sphere.initial_state((0.6, 0.0, 0.8), (0.0, 1.0, 0.0))
+
+    def edge(sol):
+        # x3(t) = 0.8 cos t reaches the chart's edge (|x3| = 0.05) at cos t = 1/16; every row on the great circle
+        assert sol.status == "chart_edge", sol.message
+        assert float(sol.t_reached) == pytest.approx(np.arccos(0.05 / 0.8), rel=1e-12)
+        for tk, yk in zip(list(sol.t) + [sol.t_reached], list(sol.y) + [sol.y_reached]):
+            exact = [0.6 * np.cos(float(tk)), np.sin(float(tk)), 0.8 * np.cos(float(tk))]
+            assert np.max(np.abs(sphere.position(yk) - exact)) < 1e-13
+
+    return [
+        ("final time", body, y0, 15.0, {}, rigid),
+        ("grid from t0", body, y0, np.linspace(0.0, 20.0, 5), {}, rigid),
+        ("grid after t0", body, y0, np.array([2.5, 7.0, 15.0]), {}, rigid),
+        ("backward grid", body, y0, np.array([-1.0, -6.5]), {}, rigid),
+        ("beyond the first chunk", body, y0, 700.0, {}, rigid),
+        ("invariant drift", body, slow, "1e17", {}, drift),
+        ("non-finite", sqrt_sys, np.array([1.0, 0.0]), np.linspace(0.0, 2.0, 5), {"max_steps": 10**9}, non_finite),
+        ("chart edge", sphere, s0, 5.0, {"atlas": False}, edge),
+        ("chart edge on a grid", sphere, s0, np.linspace(0.0, 5.0, 11), {"atlas": False}, edge),
+    ]
+
+
+@pytest.mark.parametrize("problem", _plain_problems(), ids=lambda p: p[0])
+def test_repeated_plain_calls_match_the_general_path_and_the_reference(problem, monkeypatch):
+    """A repeated call with one final time or a grid of doubles, no events of the user's and no dense output runs
+    its first chunk (up to 1024 steps once it has succeeded) as one heyoka call, checks the energy with plain
+    Python floats and makes its Solution's fields when read; everything else goes on through the general path.
+    Both must give the same statuses, messages, steps and bits, and be right."""
+    import copy
+    import pickle
+
+    import lieseries.taylor as taylor
+
+    name, model, y0, t, options, check = problem
+    ls.integrate(model, y0, t=t, **options)  # a new call: its plan is memoised (the first chunk is the short one)
+    plain = [ls.integrate(model, y0, t=t, **options) for _ in range(2)]  # repeated: the long first chunk
+    general = ls.integrate(model, y0, t=t, progress=lambda f: None, **options)  # progress: the general path
+    for sol in plain + [general]:
+        check(sol)
+        assert (sol.status, sol.message) == (general.status, general.message)
+        assert sol.t.tolist() == general.t.tolist()
+        assert sol.y.tobytes() == general.y.tobytes() and sol.y_reached.tobytes() == general.y_reached.tobytes()
+        assert sol.t_reached == general.t_reached and sol.t_requested == general.t_requested
+        assert (sol.stats.steps, sol.stats.order, sol.stats.precision) == (
+            general.stats.steps, general.stats.order, general.stats.precision)
+        assert (sol.stats.min_step, sol.stats.max_step) == (general.stats.min_step, general.stats.max_step)
+        assert not sol.y.flags.writeable
+        with pytest.raises(AttributeError, match="immutable"):
+            sol.status = "success"
+        for other in (pickle.loads(pickle.dumps(sol)), copy.deepcopy(sol)):
+            assert other.y.tobytes() == sol.y.tobytes() and other.status == sol.status
+            assert other.stats.steps == sol.stats.steps and other.t_reached == sol.t_reached
+    if name in ("final time", "grid from t0", "grid after t0", "backward grid"):
+        # a success within the first chunk: no general path (fields made when read, the cheap energy check)
+        def general_path(*args):
+            raise AssertionError("the repeated call took the general path")
+
+        monkeypatch.setattr(taylor, "_execute_general", general_path)
+        sol = ls.integrate(model, y0, t=t, **options)
+        check(sol)
+        assert sol.y.tobytes() == general.y.tobytes()
+
+
+def test_cheap_energy_check_never_passes_what_the_compiled_check_stops():
+    """The plain path asks a plain Python function of floats first (energy_quick) and the compiled check only when
+    the cheap one is not sure: the cheap one must say yes only to end states the compiled one accepts, and yes to a
+    sound run's end (else it saves nothing)."""
+    from lieseries.energy import energy_function, energy_quick, energy_verdict
+
+    body = ls.EulerPoisson((1, 2, 3))
+    prec = ls.resolve_precision("double")
+    y0 = np.asarray(body.initial_state(omega=(1, "0.1", "0.5")), dtype=np.float64)
+    sol = ls.integrate(body, body.initial_state(omega=(1, "0.1", "0.5")), t=15)
+    assert sol.success and rigid_error(sol.y_final, 15) < 1e-13
+    energy = energy_function(body.poisson, prec, y0)
+    sqrt_tol = float(np.sqrt(prec.eps))
+    assert energy_quick(energy, sqrt_tol, np.asarray(sol.y_final), sol.stats.steps)
+    rng = np.random.default_rng(7)
+    said_yes = said_no = 0
+    for rel in np.geomspace(1e-16, 1e-6, 41):
+        for component in (slice(9, 12), slice(0, 9)):  # M moves H; R moves the Casimirs R R^T
+            for steps in (1, 36, 10**4):
+                y = np.array(sol.y_final, dtype=np.float64)
+                y[component] *= 1 + rel * rng.uniform(-1, 1, size=y[component].shape)
+                quick = energy_quick(energy, sqrt_tol, y, steps)
+                status, _ = energy_verdict(energy, sqrt_tol, y, steps, "success", "Reached t = 15.")
+                assert not quick or status == "success", (rel, component, steps)
+                said_yes += quick
+                said_no += status != "success"
+    assert said_yes > 0 and said_no > 0  # both sides of the threshold were tried
+
+
+def test_memoised_grid_follows_the_array_not_its_identity():
+    """Float64 output grids are memoised by their bytes: the same array changed in place is a new call."""
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega=(1, "0.1", "0.5"))
+    grid = np.array([0.0, 1.0, 2.0])
+    first = ls.integrate(body, y0, t=grid)
+    grid[1:] = [3.0, 4.0]
+    second = ls.integrate(body, y0, t=grid)
+    assert first.t.tolist() == [0.0, 1.0, 2.0] and second.t.tolist() == [0.0, 3.0, 4.0]
+    for tk, yk in zip(second.t, second.y):
+        assert rigid_error(yk, float(tk)) < 1e-13
+
+
+@pytest.mark.parametrize("t", [[1, "1.1", "1.10000000000000000001", 2], ["1.00000000000000000001", "1.5", 2],
+                               ["1.00000000000000000001", "1.00000000000000000002", 2]])
+def test_output_times_that_round_together_keep_their_rows(t):
+    """Distinct exact times that round to one double (or to t0 = 1) are one point for heyoka's propagate_grid,
+    which refuses a grid that does not move (the plain path raised ValueError); every time keeps its row, right."""
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega=(1, "0.1", "0.5"))
+    for _ in range(2):  # a new call, then a repeated one
+        sol = ls.integrate(body, y0, t=t, t0=1)
+        assert sol.success and len(sol.t) == len(t)
+        for tk, yk in zip(sol.t, sol.y):
+            assert rigid_error(yk, float(tk) - 1) < 1e-14
