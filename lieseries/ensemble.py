@@ -448,7 +448,8 @@ def integrate_ensemble(
     # the output: k members x n values per time (hy.real: an object of ~48 bytes plus its limbs)
     members_k = len(Y0) if hasattr(Y0, "__len__") else 1
     grid, direction, t0f = parse_times(t, t0, values_per_time=max(1, members_k) * ps.dimension,
-                                       bytes_per_value=48 + prec.bits // 8 if prec.is_real else np.dtype(prec.numpy_dtype).itemsize)
+                                       bytes_per_value=48 + prec.bits // 8 if prec.is_real else np.dtype(prec.numpy_dtype).itemsize,
+                                       max_time=max_time)
     tolf = check_tolerance(tol, prec)
     workers = _check_count(workers, "workers")
     chunk_size = _check_count(chunk_size, "chunk_size")
