@@ -259,13 +259,15 @@ def _states(model, ps, Y0, prec: Precision):
     if arr.ndim != 2 or arr.shape[1] != n or arr.shape[0] < 1:
         raise ValueError(f"`Y0` must have shape (k, {n}) with k >= 1: one initial state of {n} numbers per row; "
                          f"got shape {arr.shape}")
-    plain_check = model is None or type(model).check_state is Model.check_state
+    plain_check = model is None or type(model).check_state is Model.check_state or hasattr(model, "check_rows")
     if plain_check and arr.dtype in (np.float64, np.longdouble) and prec.name in ("double", "long double"):
         bad = ~np.isfinite(arr)
         if bad.any():
             i, j = map(int, np.argwhere(bad)[0])
             raise ValueError(f"`Y0[{i}][{j}]` must be finite; got {arr[i, j]}: every entry of `Y0` must be a "
                              "finite number")
+        if model is not None and hasattr(model, "check_rows"):
+            model.check_rows(arr, "Y0")  # the model's warnings, at numpy speed
         return arr.astype(prec.numpy_dtype)  # exact (widening) or rounded once (long double -> double)
     rows = []
     for i in range(arr.shape[0]):
