@@ -21,7 +21,7 @@ import os
 import sys
 from pathlib import Path
 
-from .interrupts import held
+from .interrupts import held, ignore_from_now, is_command_line
 
 __all__ = ["main", "build_parser"]
 
@@ -163,6 +163,8 @@ def main(argv=None) -> int:
         print(f"lieseries: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        if is_command_line():
+            ignore_from_now()  # the process ends here: a second Ctrl-C must not cut the message and status 130
         print("lieseries: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # `lieseries scenes | head`: the reader has what it wanted
