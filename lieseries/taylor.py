@@ -386,7 +386,10 @@ def _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events
         hit = _PLANS.get(key)
         if hit is not None and hit[0] is system:
             return hit[1]
-    grid, direction, t0f = parse_times(t, t0, max_time=max_time)  # a scalar t (the cached plans) has no grid
+    # a scalar t (the cached plans) has no grid; a grid's output is sized by its rows (n values per time)
+    grid, direction, t0f = parse_times(t, t0, max_time=max_time, values_per_time=ps.dimension,
+                                       bytes_per_value=48 + prec.bits // 8 if prec.is_real
+                                       else np.dtype(prec.numpy_dtype).itemsize)
     tolf = check_tolerance(tol, prec)
     grid_native = [prec.time(g) for g in grid]
     plan = dict(

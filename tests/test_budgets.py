@@ -83,3 +83,18 @@ def test_a_grid_converted_within_max_time_is_whole_and_exact(as_array):
     bad[CHUNK + 3] = bad[CHUNK + 1]
     with pytest.raises(ValueError, match="strictly increasing"):
         parse_times(bad if as_array else bad.tolist(), max_time=600)
+
+
+@pytest.mark.parametrize("engine", ["integrate", "lie_integrate"])
+def test_the_output_memory_estimate_counts_every_value_of_a_row(engine, monkeypatch):
+    """A grid is sized by its rows (12 values per time for the rigid body), not by one value per time: 200 times
+    of 12 doubles are ~118 kB by the estimate's own rule (2 x 12 x 8 + 400 bytes per time), one value per time
+    would be 83 kB."""
+    from lieseries import timegrid
+
+    monkeypatch.setattr(timegrid, "MAX_OUTPUT_BYTES", 100_000)
+    body, y0 = _body()
+    grid = [Fraction(k, 200) for k in range(1, 201)]
+    run = ls.integrate if engine == "integrate" else lambda *a: lie_integrate(*a, dps=20)
+    with pytest.raises(ValueError, match=r"`t` asks for 200 output times.*\(12 values of"):
+        run(body, y0, grid)
