@@ -189,7 +189,11 @@ def _price_span(clock, model, y0, spec, t, n_out, cache):
         return cache[key]
     if m == "taylor":
         steps_per_time, lower = _steps_per_time(clock, model, y0, abs(t), sign, cache)
+        from .taylor import STIFF_STEPS
+
         step = heyoka_step_seconds(spec["precision"], dim)
+        # a run that would need more steps than the stiffness budget stops early (status step_collapse)
+        steps_per_time = min(steps_per_time, STIFF_STEPS / float(abs(t)))
         per = steps_per_time * float(spacing) * step + OUTPUT_SECONDS * dim
         return (per, lower, "model: steps from a 15-digit Lie run, heyoka's cost per step by precision",
                 OUTPUT_SECONDS * dim > steps_per_time * float(spacing) * step)
@@ -231,8 +235,21 @@ def _price_engine(clock, model, y0, m, spec, t, n_out, times):
     else:
         per_step, per_out, steps, lower, basis = _engine_costs(clock, model, y0, m, spec, t, n_out, times,
                                                                (secs_b, reached_b, steps_b))
+    steps = min(steps, _max_steps(m))  # the run stops at its step budget (status step_budget)
     total = steps * per_step + n_out * per_out
     return total / max(1, n_out), lower, basis, n_out * per_out > steps * per_step
+
+
+def _max_steps(method) -> int:
+    """The default step budget of the engine a scene's method runs (scenes set none)."""
+    import inspect
+
+    from .lie.integrator import lie_integrate
+    from .validated import validated_integrate
+
+    engine = lie_integrate if method == "lie" else validated_integrate
+    default = inspect.signature(engine).parameters["max_steps"].default
+    return int(default) if isinstance(default, int) else 10**9
 
 
 def _engine_costs(clock, model, y0, m, spec, t, n_out, times, run_b=None):
