@@ -431,6 +431,18 @@ def _departure_parts(clock, dm, built, cache):
     return parts
 
 
+def _guarded(field_, call) -> list:
+    """The parts ``call()`` prices; a part that could not be priced (its calibration raised: the run will report
+    the error itself) is kept as unpriced, which makes the estimate a lower bound."""
+    try:
+        return call()
+    except SceneError:
+        raise
+    except Exception as err:
+        return [CostPart(field_, f"`{field_}` not estimated ({type(err).__name__}: {err})", 0, "part", 0.0,
+                         "not estimated", lower_bound=True)]
+
+
 def estimate_scene(scene, quick: bool = False) -> SceneEstimate:
     """Estimate how long :func:`lieseries.run.run_scene` will take on ``scene`` (a Scene, a built-in name or a
     path), by counting its units of work and timing small representative ones (see the module docstring).
@@ -449,10 +461,10 @@ def estimate_scene(scene, quick: bool = False) -> SceneEstimate:
     est = SceneEstimate(scene.name)
     heyoka_builds = 0
     if runp is not None:
-        est.parts += _run_parts(clock, scene, runp, built, cache)
-        est.parts += _measurement_part(clock, scene, runp, built)
+        est.parts += _guarded("run", lambda: _run_parts(clock, scene, runp, built, cache))
+        est.parts += _guarded("run.samples", lambda: _measurement_part(clock, scene, runp, built))
         heyoka_builds += sum(1 for m in runp["methods"] if m.get("method") == "taylor")
-    est.parts += _study_parts(clock, scene, studies, built, quick, cache)
+    est.parts += _guarded("studies", lambda: _study_parts(clock, scene, studies, built, quick, cache))
     heyoka_builds += len(studies.get("departure_map", {}).get("precisions", [])) + ("drift" in studies)
     est.fixed_seconds = HEYOKA_BUILD_SECONDS * heyoka_builds
     est.calibration_seconds = clock.spent

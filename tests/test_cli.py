@@ -409,3 +409,15 @@ def test_a_long_estimate_is_printed_before_computing(tmp_path, capsys, monkeypat
     assert main(["run", str(scene), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
     err = capsys.readouterr().err
     assert err.startswith("lieseries: estimated ") and "6 sample intervals x lie dps 20" in err  # 2 x 3 repeats
+
+
+def test_a_part_that_cannot_be_priced_leaves_a_lower_bound_not_an_error(monkeypatch):
+    from lieseries import cost
+
+    def fails(*args, **kwargs):
+        raise RuntimeError("calibration failed")
+
+    monkeypatch.setattr(cost, "_departure_parts", fails)  # noqa: PLC2701 (same-project test)
+    est = cost.estimate_scene("departure-map", quick=True)
+    assert est.lower_bound and est.summary().startswith("estimated at least ")
+    assert any("not estimated (RuntimeError: calibration failed)" in p.what for p in est.parts)
