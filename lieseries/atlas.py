@@ -53,7 +53,7 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, energy_
     if dense:
         raise ValueError("`dense` output is not available with `atlas=True`; pass the output times as `t` instead")
     z0 = model.check_state(y0, "y0")
-    grid, direction, t0f = parse_times(t, t0)
+    grid, direction, t0f = parse_times(t, t0, max_time=kwargs.get("max_time"))
     switch = model.ATLAS_SWITCH
     # start in the best chart for y0
     chart = model.best_chart(z0)

@@ -1,9 +1,12 @@
-"""Command line: ``lieseries scenes`` and ``lieseries run SCENE [--out DIR] [--overwrite] [--quick] [--no-progress]``.
+"""Command line: ``lieseries scenes`` and ``lieseries run SCENE [--out DIR] [--overwrite] [--quick] [--no-progress]
+[--max-time SECONDS]``.
 
 Exit status: 0 when every run of the scene succeeded, 1 when a run ended without success -- in the ``[run]`` table
 or in a study (work-precision rows, departure-map members) -- or a study failed (listed after the summary, and in
 the report), 2 for bad input (an unknown scene, an invalid scene file, a bad option, a report folder
-holding files lieseries did not write): one line naming the problem, no traceback; 130 when interrupted (Ctrl-C).
+holding files lieseries did not write, a scene whose estimated run time exceeds ``--max-time``): one line naming the
+problem, no traceback; 130 when interrupted (Ctrl-C). Before computing, ``run`` estimates the scene's run time
+(:mod:`lieseries.cost`) and prints the estimate when it exceeds 30 s.
 Also runs as ``python -m lieseries``.
 
 The report folder is never emptied: lieseries replaces or removes only files it wrote itself (listed with the
@@ -21,7 +24,7 @@ import os
 import sys
 from pathlib import Path
 
-from .interrupts import held
+from .interrupts import held, ignore_from_now, is_command_line
 
 __all__ = ["main", "build_parser"]
 
@@ -49,7 +52,20 @@ def build_parser() -> argparse.ArgumentParser:
                         "itself are replaced)")
     r.add_argument("--quick", action="store_true", help="scale the studies down (fewer orders, samples, tolerances)")
     r.add_argument("--no-progress", action="store_true", help="no progress bars on stderr")
+    r.add_argument("--max-time", metavar="SECONDS", type=_seconds,
+                   help="refuse (exit 2), before computing, a scene whose estimated run time exceeds SECONDS "
+                        "(default: no limit; the estimate is printed when it exceeds 30 s)")
     return p
+
+
+def _seconds(text):
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not (v > 0 and v < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds; got {text!r}")
+    return v
 
 
 def _cmd_scenes(out) -> int:
@@ -72,6 +88,7 @@ def _cmd_scenes(out) -> int:
 
 def _cmd_run(args, out) -> int:
     with held():  # Ctrl-C while an extension module initialises would surface as an unrelated ImportError
+        from .cost import PRINT_ABOVE, check_scene_budget, estimate_scene
         from .folder import ReportFolder
         from .report import report_names, summary_text, write_report
         from .run import run_scene
@@ -82,6 +99,10 @@ def _cmd_run(args, out) -> int:
     out_dir = Path(args.out) if args.out else Path("reports") / scene.name
     # lock and check the folder before the work, not after it; the report is moved into place only when whole
     with ReportFolder(out_dir, args.overwrite, names=report_names(scene)) as folder:
+        estimate = estimate_scene(scene, quick=args.quick)  # refused (exit 2) beyond --max-time; said when long
+        check_scene_budget(estimate, args.max_time)
+        if estimate.seconds > PRINT_ABOVE:
+            print(f"lieseries: {estimate.summary()}", file=sys.stderr, flush=True)
         result = run_scene(scene, quick=args.quick, progress=not args.no_progress)
         path = write_report(result, folder)
     failed = result.unsuccessful()
@@ -163,6 +184,8 @@ def main(argv=None) -> int:
         print(f"lieseries: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        if is_command_line():
+            ignore_from_now()  # the process ends here: a second Ctrl-C must not cut the message and status 130
         print("lieseries: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # `lieseries scenes | head`: the reader has what it wanted

@@ -259,13 +259,15 @@ def _states(model, ps, Y0, prec: Precision):
     if arr.ndim != 2 or arr.shape[1] != n or arr.shape[0] < 1:
         raise ValueError(f"`Y0` must have shape (k, {n}) with k >= 1: one initial state of {n} numbers per row; "
                          f"got shape {arr.shape}")
-    plain_check = model is None or type(model).check_state is Model.check_state
+    plain_check = model is None or type(model).check_state is Model.check_state or hasattr(model, "check_rows")
     if plain_check and arr.dtype in (np.float64, np.longdouble) and prec.name in ("double", "long double"):
         bad = ~np.isfinite(arr)
         if bad.any():
             i, j = map(int, np.argwhere(bad)[0])
             raise ValueError(f"`Y0[{i}][{j}]` must be finite; got {arr[i, j]}: every entry of `Y0` must be a "
                              "finite number")
+        if model is not None and hasattr(model, "check_rows"):
+            model.check_rows(arr, "Y0")  # the model's warnings, at numpy speed
         return arr.astype(prec.numpy_dtype)  # exact (widening) or rounded once (long double -> double)
     rows = []
     for i in range(arr.shape[0]):
@@ -448,7 +450,8 @@ def integrate_ensemble(
     # the output: k members x n values per time (hy.real: an object of ~48 bytes plus its limbs)
     members_k = len(Y0) if hasattr(Y0, "__len__") else 1
     grid, direction, t0f = parse_times(t, t0, values_per_time=max(1, members_k) * ps.dimension,
-                                       bytes_per_value=48 + prec.bits // 8 if prec.is_real else np.dtype(prec.numpy_dtype).itemsize)
+                                       bytes_per_value=48 + prec.bits // 8 if prec.is_real else np.dtype(prec.numpy_dtype).itemsize,
+                                       max_time=max_time)
     tolf = check_tolerance(tol, prec)
     workers = _check_count(workers, "workers")
     chunk_size = _check_count(chunk_size, "chunk_size")

@@ -252,16 +252,17 @@ class ReportFolder:
 
     def release(self) -> None:
         """Remove the staging folder (if not committed), unlock, and remove the folder if this run created it
-        and left it empty."""
-        if self._staging is not None:
-            shutil.rmtree(self._staging, ignore_errors=True)
-            self._staging = None
-        if self._fd is not None:
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(self.path / LOCK)
-            os.close(self._fd)
-            self._fd = None
-        self._drop_created()
+        and left it empty; Ctrl-C waits until it is done (a staging folder half removed would be left behind)."""
+        with held():
+            if self._staging is not None:
+                shutil.rmtree(self._staging, ignore_errors=True)
+                self._staging = None
+            if self._fd is not None:
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(self.path / LOCK)
+                os.close(self._fd)
+                self._fd = None
+            self._drop_created()
 
     def _drop_created(self) -> None:
         if self._created:

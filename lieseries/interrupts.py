@@ -18,7 +18,7 @@ import sys
 import threading
 from pathlib import Path
 
-__all__ = ["held", "hold_while_importing", "release_after_import", "is_command_line"]
+__all__ = ["held", "hold_while_importing", "release_after_import", "is_command_line", "ignore_from_now"]
 
 _HOLDING = {}  # package -> (handler, previous handler, list of held signals)
 
@@ -72,7 +72,11 @@ def release_after_import(package: str) -> None:
 
 @contextlib.contextmanager
 def held():
-    """Hold Ctrl-C back while the block runs (main thread only), then raise KeyboardInterrupt if it came."""
+    """Hold Ctrl-C back while the block runs (main thread only), then raise KeyboardInterrupt if it came.
+
+    On the command line (:func:`is_command_line`) the process ends on that interrupt: Ctrl-C then stays ignored
+    (:func:`ignore_from_now`), so that pressing it again cannot cut the way out -- the cleanup, the message and
+    the exit status 130 -- and kill the process by the signal instead."""
     if not _can_hold():
         yield
         return
@@ -81,6 +85,15 @@ def held():
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler if previous is None else previous)
+        if got and is_command_line():
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        else:
+            signal.signal(signal.SIGINT, signal.default_int_handler if previous is None else previous)
     if got:
         raise KeyboardInterrupt
+
+
+def ignore_from_now() -> None:
+    """Ignore Ctrl-C from now on (main thread only): the command line calls it once it is ending on an interrupt."""
+    if _can_hold():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)

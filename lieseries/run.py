@@ -25,7 +25,7 @@ from .methods import (
     run_method,
     setting,
 )
-from .precision import dps_to_bits, resolve_precision, to_fraction
+from .precision import check_seconds, dps_to_bits, resolve_precision, to_fraction
 from .precision import thread_mp as mp
 from .scenes import STUDIES, Scene, SceneError, effective_plan, load_scene, orders_of
 from .studies.drift import invariant_function
@@ -578,7 +578,7 @@ def _study_departure_map(opts, built, scene, bar, notes):
     return out
 
 
-def run_scene(scene, quick: bool = False, progress=True) -> SceneResult:
+def run_scene(scene, quick: bool = False, progress=True, max_time=None) -> SceneResult:
     """Compute what ``scene`` asks for, and nothing else.
 
     Parameters
@@ -589,6 +589,9 @@ def run_scene(scene, quick: bool = False, progress=True) -> SceneResult:
     progress : bool or callable
         True: progress bars on stderr (only when it is a terminal); False: silent; a callable
         ``progress(done, total, label)`` receives the updates.
+    max_time : float, optional
+        Refuse (:class:`lieseries.cost.SceneTooLong`, naming the scene field that drives it), before computing, a
+        scene whose estimated run time (:func:`lieseries.cost.estimate_scene`) exceeds ``max_time`` seconds.
 
     Notes
     -----
@@ -602,6 +605,10 @@ def run_scene(scene, quick: bool = False, progress=True) -> SceneResult:
     from .taylor import clear_cache
 
     scene = load_scene(scene)
+    if max_time is not None:
+        from .cost import check_scene_budget, estimate_scene
+
+        check_scene_budget(estimate_scene(scene, quick), check_seconds(max_time, "max_time"), "`max_time`")
     # build times in the report are this scene's: start without integrators compiled by earlier work in this
     # process (heyoka's own LLVM memory cache is left alone)
     clear_cache()

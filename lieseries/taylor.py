@@ -401,7 +401,7 @@ _PLANS: dict = {}
 _PLANS_MAX = 256
 
 
-def _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events=()):
+def _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events=(), max_time=None):
     """What a run needs that depends only on hashable call arguments, computed once and memoised: the output
     grid (exact and in the working format), the tolerance and the integrator's cache entry."""
     key = None
@@ -414,7 +414,10 @@ def _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events
         hit = _PLANS.get(key)
         if hit is not None and hit[0] is system:
             return hit[1]
-    grid, direction, t0f = parse_times(t, t0)
+    # a scalar t (the cached plans) has no grid; a grid's output is sized by its rows (n values per time)
+    grid, direction, t0f = parse_times(t, t0, max_time=max_time, values_per_time=ps.dimension,
+                                       bytes_per_value=48 + prec.bits // 8 if prec.is_real
+                                       else np.dtype(prec.numpy_dtype).itemsize)
     tolf = check_tolerance(tol, prec)
     grid_native = [prec.time(g) for g in grid]
     plan = dict(
@@ -606,7 +609,7 @@ def integrate(
         z0 = model.check_state(y0, "y0") if model is not None else state_fractions(y0, ps.dimension, "y0")
         warned = warn_coarse_inputs(ps, y0, [t, t0], prec.bits)
         user_events = resolve_events(events, system, ps)
-        plan = _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events)
+        plan = _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events, max_time)
         call = _Call(
             system=system, y0=y0, ps=ps, prec=prec, plan=plan, user_events=user_events,
             y0_native=y0.native(prec) if type(y0) is ExactState else prec.array(z0, "y0"),

@@ -719,7 +719,8 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                          "global chart")
     bits = dps_to_bits(dps) + GUARD_BITS
     # the rows: n balls per time (an arb object, its midpoint's limbs and its radius)
-    grid, direction, t0f = parse_times(t, t0, values_per_time=ps.dimension, bytes_per_value=64 + bits // 8)
+    grid, direction, t0f = parse_times(t, t0, values_per_time=ps.dimension, bytes_per_value=64 + bits // 8,
+                                        max_time=max_time)
     # binary model data (inertia 1.1 as a double) or times (t = 0.1 as a double) in a longer run: the enclosures
     # are proven for those binary values, not for the decimals they round
     for name, b in list(ps.coarse_data().items()) + [("t", data_bits(t)), ("t0", data_bits(t0))]:

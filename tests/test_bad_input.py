@@ -272,3 +272,50 @@ def test_bad_pendulum_input_names_the_argument(name):
     call, exc, match = PENDULUM_CASES[name]
     with pytest.raises(exc, match=match):
         call()
+
+
+# R0 must be a rotation to the precision its data carry: exactly for exact input, ~16 ulps for binary numbers
+_OFF = [["0.6", "0.8", 0], ["-0.8", "0.6000000000001", 0], [0, 0, 1]]  # |R R^T - 1| = 1.2e-13
+R0_CASES = {
+    "R0 exact, 1.2e-13 off": (lambda: BODY.initial_state((1, 0, 0), R0=_OFF), ValueError,
+                              r"`R0` must be a rotation matrix: max \|R0 R0\^T - 1\| = 1.2e-13 and det R0 = 1.0000"),
+    "R0 doubles, 1e-13 off": (lambda: BODY.initial_state((1, 0, 0), R0=np.diag([1, 1, 1 + 1e-13])), ValueError,
+                              r"`R0`.*precision allows 1.8e-15"),
+    "R0 exact, 1.2e-13 off, rounded to 200 bits": (lambda: BODY.initial_state((1, 0, 0), R0=_OFF, precision=200),
+                                                   ValueError, "`R0` must be a rotation"),
+    "HeavyTop R0 exact, 1.2e-13 off": (lambda: ls.HeavyTop((1, 2, 3), (0, 0, 1), 1, 1).initial_state((1, 0, 0),
+                                                                                                       R0=_OFF),
+                                       ValueError, "`R0` must be a rotation"),
+    "R0 a reflection": (lambda: BODY.initial_state((1, 0, 0), R0=[[0, 1, 0], [1, 0, 0], [0, 0, 1]]), ValueError,
+                        r"`R0` must be a proper rotation.*det R0 = -1"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(R0_CASES))
+def test_r0_that_is_not_a_rotation_is_refused(name):
+    call, exc, match = R0_CASES[name]
+    with pytest.raises(exc, match=match):
+        call()
+
+
+def test_r0_rotations_are_accepted_to_their_precision():
+    import math
+
+    c, s = math.cos(0.3), math.sin(0.3)
+    for R0, precision in [([[0, -1, 0], [1, 0, 0], [0, 0, 1]], None),
+                          ([["0.6", "0.8", 0], ["-0.8", "0.6", 0], [0, 0, 1]], None),
+                          ([[c, -s, 0], [s, c, 0], [0, 0, 1]], None),  # doubles: their own 53 bits
+                          (_OFF, 32)]:  # rounded to 32 bits, the 1.2e-13 residual is within the format
+        y = BODY.initial_state((1, 0, 0), R0=R0, precision=precision)
+        assert BODY.rotation(np.asarray(y, dtype=float)).shape == (3, 3)
+
+
+def test_raw_state_whose_r_is_not_a_rotation_warns_naming_y0():
+    raw = [1, 0, 0, 0, 2, 0, 0, 0, 1, 1, "0.1", "0.5"]
+    for run in (lambda: ls.integrate(BODY, raw, t="0.1"), lambda: ls.lie_integrate(BODY, raw, t="0.1", dps=20)):
+        with pytest.warns(UserWarning, match=r"`y0` holds an R that is not a rotation: max \|R R\^T - 1\| = 3, det R = 2"):
+            run()
+    ens = np.tile(np.asarray(Y0, dtype=float), (3, 1))
+    ens[1, 4] = 2
+    with pytest.warns(UserWarning, match=r"`Y0\[1\]` holds an R that is not a rotation"):
+        ls.integrate(BODY, ens, t="0.1")

@@ -43,3 +43,58 @@ def test_lie_integrate_stops_inside_a_long_step_with_the_rows_it_has():
     assert list(sol.t) == [0.0]
     # the t0 row is y0 rounded to the run's digits
     assert all(abs(to_fraction(v) - q) <= Fraction(1, 10**DPS) for v, q in zip(sol.y[0], y0.exact))
+
+
+# --- the exact conversion of output times is inside `max_time` --------------------------------------------------
+
+import numpy as np
+import pytest
+
+from lieseries.timegrid import CHUNK, parse_times
+
+# a grid whose exact conversion takes tenths of a second, against a budget far below it
+GRID_N, TINY_BUDGET = 5 * CHUNK, 1e-4
+
+
+@pytest.mark.parametrize("engine", ["integrate", "lie_integrate", "validated_integrate", "ensemble"])
+def test_a_grid_that_cannot_be_converted_within_max_time_is_refused_naming_t(engine):
+    body, y0 = _body()
+    grid = [Fraction(k, GRID_N) for k in range(GRID_N)]  # a list: the general, per-number path
+    kwargs = dict(max_time=TINY_BUDGET)
+    call = {
+        "integrate": lambda: ls.integrate(body, y0, grid, **kwargs),
+        "lie_integrate": lambda: lie_integrate(body, y0, grid, dps=20, **kwargs),
+        "validated_integrate": lambda: validated_integrate(body, y0, grid, dps=20, **kwargs),
+        "ensemble": lambda: ls.integrate(body, [y0, y0], grid, **kwargs),
+    }[engine]
+    with pytest.raises(ValueError, match=r"`t` asks for %d output times.*`max_time`" % GRID_N):
+        call()
+
+
+@pytest.mark.parametrize("as_array", [False, True])
+def test_a_grid_converted_within_max_time_is_whole_and_exact(as_array):
+    # the conversion goes chunk by chunk: nothing is dropped at the chunk boundaries, every time is exact
+    values = np.linspace(0, 3, 2 * CHUNK + 7)
+    grid, direction, t0 = parse_times(values if as_array else values.tolist(), max_time=600)
+    assert direction == 1 and t0 == 0 and len(grid) == values.size
+    assert all(g == Fraction(*v.as_integer_ratio()) for g, v in zip(grid, values.tolist()))
+    # a grid that turns back inside the second chunk is still refused
+    bad = values.copy()
+    bad[CHUNK + 3] = bad[CHUNK + 1]
+    with pytest.raises(ValueError, match="strictly increasing"):
+        parse_times(bad if as_array else bad.tolist(), max_time=600)
+
+
+@pytest.mark.parametrize("engine", ["integrate", "lie_integrate"])
+def test_the_output_memory_estimate_counts_every_value_of_a_row(engine, monkeypatch):
+    """A grid is sized by its rows (12 values per time for the rigid body), not by one value per time: 200 times
+    of 12 doubles are ~118 kB by the estimate's own rule (2 x 12 x 8 + 400 bytes per time), one value per time
+    would be 83 kB."""
+    from lieseries import timegrid
+
+    monkeypatch.setattr(timegrid, "MAX_OUTPUT_BYTES", 100_000)
+    body, y0 = _body()
+    grid = [Fraction(k, 200) for k in range(1, 201)]
+    run = ls.integrate if engine == "integrate" else lambda *a: lie_integrate(*a, dps=20)
+    with pytest.raises(ValueError, match=r"`t` asks for 200 output times.*\(12 values of"):
+        run(body, y0, grid)

@@ -1,6 +1,7 @@
 """The command line and the progress bar."""
 
 import io
+import math
 import subprocess
 import sys
 
@@ -322,3 +323,101 @@ def test_a_quick_run_does_not_let_a_methods_own_label_claim_digits_it_did_not_us
     md = (tmp_path / "f" / "report.md").read_text()
     row = next(line for line in md.splitlines() if line.startswith("| Arb 50 digits"))
     assert [c.strip() for c in row.strip("|").split("|")][:2] == ["Arb 50 digits", "50 dps"]
+
+
+# -- estimates of long scenes, and --max-time ---------------------------------------------------------------------
+LONG_SCENE = ('name = "long"\ntitle = "many samples at many digits"\n[model]\nkind = "euler_poisson"\n'
+              'inertia = [1, 2, 3]\n[initial]\nomega = [1, "0.1", "0.5"]\n[run]\nt = 20\nsamples = 100000\n'
+              'methods = [{ method = "lie", dps = 100 }]\n')
+
+
+def test_a_scene_estimated_beyond_max_time_is_refused_before_computing(tmp_path, capsys, monkeypatch):
+    """samples = 100000 with a Lie method at 100 digits (tens of minutes of work): refused with exit 2, naming the
+    field that drives it and the estimate, and nothing is computed or written."""
+    from lieseries import run as run_module
+
+    monkeypatch.setattr(run_module, "run_scene", lambda *a, **k: pytest.fail("the scene was computed"))
+    scene = tmp_path / "long.toml"
+    scene.write_text(LONG_SCENE)
+    out = tmp_path / "out"
+    assert main(["run", str(scene), "--out", str(out), "--max-time", "30", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "`run.samples`" in err and "--max-time 30 s" in err and "estimated" in err
+    assert "99999 sample intervals x lie dps 100" in err  # 100000 sample times, t = 0 among them
+    assert not out.exists()  # the folder it created for the report is gone again: nothing was written
+
+
+def test_max_time_must_be_a_positive_number_of_seconds(tmp_path, capsys):
+    for bad in ("0", "-3", "soon", "inf"):
+        assert main(["run", "default", "--out", str(tmp_path / "x"), "--max-time", bad]) == 2
+        assert "--max-time" in capsys.readouterr().err
+
+
+def test_the_estimate_counts_the_scenes_units_exactly():
+    from lieseries.cost import estimate_scene
+    from lieseries.scenes import parse_scene
+
+    text = ('name = "count"\ntitle = "c"\n[model]\nkind = "euler_poisson"\ninertia = [1, 2, 3]\n[initial]\n'
+            'omega = [1, "0.1", "0.5"]\n[run]\nt = 2\nsamples = 21\nrepeat = 1\n'
+            'methods = [{ method = "lie", dps = 20 }, { method = "taylor" }]\n'
+            '[studies.departure_map]\ngrid = [2, 3]\nT = 4\nsamples = 5\nprecisions = ["double", "quad"]\n')
+    est = estimate_scene(parse_scene(text))
+    units = {p.what.split(" at ")[0] if "measured" in p.what else p.what: p.units for p in est.parts}
+    assert units == {"20 sample intervals x lie dps 20": 20, "20 sample intervals x taylor double": 20,
+                     "20 output times measured": 20,
+                     "6 cells x 5 closed-form times at 45 digits": 30,
+                     "6 members to T = 4 in double": 6, "6 members to T = 4 in quad": 6}
+    assert all(math.isfinite(p.seconds_each) and p.seconds_each > 0 for p in est.parts)
+    assert 0 < est.seconds < math.inf and est.calibration_seconds < 10
+    assert est.summary().startswith("estimated ")
+
+
+@pytest.mark.slow  # runs the scene to compare (a few seconds)
+def test_a_small_scenes_estimate_is_within_a_factor_of_five_of_its_run_time():
+    import time
+
+    from lieseries.cost import estimate_scene
+    from lieseries.run import run_scene
+    from lieseries.scenes import parse_scene
+
+    scene = parse_scene('name = "small"\ntitle = "s"\n[model]\nkind = "euler_poisson"\ninertia = [1, 2, 3]\n'
+                        '[initial]\nomega = [1, "0.1", "0.5"]\n[run]\nt = 4\nsamples = 41\nrepeat = 1\n'
+                        'methods = [{ method = "lie", dps = 40 }, { method = "validated", dps = 20 }]\n')
+    est = estimate_scene(scene).seconds
+    start = time.perf_counter()
+    run_scene(scene, progress=False)
+    real = time.perf_counter() - start
+    assert real / 5 < est < real * 5, (est, real)
+
+
+def test_run_scene_refuses_a_scene_beyond_max_time():
+    from lieseries.cost import SceneTooLong
+    from lieseries.run import run_scene
+    from lieseries.scenes import parse_scene
+
+    with pytest.raises(SceneTooLong, match=r"`max_time` 30 s.*`run.samples`"):
+        run_scene(parse_scene(LONG_SCENE), progress=False, max_time=30)
+
+
+def test_a_long_estimate_is_printed_before_computing(tmp_path, capsys, monkeypatch):
+    from lieseries import cost
+
+    monkeypatch.setattr(cost, "PRINT_ABOVE", 0.0)  # every scene counts as long
+    scene = tmp_path / "s.toml"
+    scene.write_text(LONG_SCENE.replace("samples = 100000", "samples = 3").replace("t = 20", "t = '0.1'")
+                     .replace("dps = 100", "dps = 20"))
+    assert main(["run", str(scene), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith("lieseries: estimated ") and "6 sample intervals x lie dps 20" in err  # 2 x 3 repeats
+
+
+def test_a_part_that_cannot_be_priced_leaves_a_lower_bound_not_an_error(monkeypatch):
+    from lieseries import cost
+
+    def fails(*args, **kwargs):
+        raise RuntimeError("calibration failed")
+
+    monkeypatch.setattr(cost, "_departure_parts", fails)  # noqa: PLC2701 (same-project test)
+    est = cost.estimate_scene("departure-map", quick=True)
+    assert est.lower_bound and est.summary().startswith("estimated at least ")
+    assert any("not estimated (RuntimeError: calibration failed)" in p.what for p in est.parts)

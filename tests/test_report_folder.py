@@ -1,6 +1,7 @@
 """The report folder: lieseries replaces only files it can prove it wrote, never follows a symbolic link, holds
 the folder for one run at a time and moves a report into place only when it is whole."""
 
+import contextlib
 import json
 import os
 import signal
@@ -287,6 +288,72 @@ def test_a_sigint_while_writing_exits_130_and_keeps_the_earlier_report(tmp_path)
     _, err = p.communicate(timeout=60)
     assert p.returncode == 130 and "interrupted" in err and "Traceback" not in err
     assert snapshot(out) == before
+
+
+def test_ctrl_c_pressed_again_and_again_during_the_move_cannot_cut_the_way_out(tmp_path, result, plain_result,
+                                                                                  monkeypatch):
+    """On the command line the process ends on the held Ctrl-C: later ones are ignored from then on (the cleanup,
+    the message and the exit status 130), while the move itself finishes."""
+    from lieseries import interrupts
+
+    write_report(result, tmp_path)
+    real = os.replace
+    moved = []
+
+    def replace(src, dst):
+        os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C at every move
+        moved.append(dst)
+        real(src, dst)
+
+    monkeypatch.setattr(fold.os, "replace", replace)
+    monkeypatch.setattr(interrupts, "is_command_line", lambda: True)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            write_report(plain_result, tmp_path)
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+        os.kill(os.getpid(), signal.SIGINT)  # ignored: no KeyboardInterrupt
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    monkeypatch.undo()
+    ours = manifest(tmp_path)
+    assert set(ours) == {"report.md", "data.json", "run.csv", "run_invariants.csv"} and len(moved) > 4
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(list(ours) + [MANIFEST])
+    assert all(fold._sha256(tmp_path / name) == h for name, h in ours.items())
+
+
+@pytest.mark.slow  # ~10 s: a full CLI run in a subprocess
+def test_sigints_during_the_final_move_exit_130_with_the_new_report_whole(tmp_path):
+    """Real Ctrl-Cs, one after another, to the command line while it moves the report into place (each move is
+    slowed down to make room for them): exit status 130, not death by the signal; the new report is whole and the
+    manifest true."""
+    out = tmp_path / "X"
+    scene = tmp_path / "plot.toml"
+    scene.write_text(SCENE)
+    assert main(["run", str(scene), "--out", str(out), "--no-progress"]) == 0  # the earlier report
+    scene.write_text(SCENE.replace("t = 1", "t = 2"))
+    code = ("import os, sys, time, lieseries.cli as c\n"
+            "real = os.replace\n"
+            "def slow(a, b):\n"
+            "    print('moving', flush=True); time.sleep(0.3); real(a, b)\n"
+            "os.replace = slow\n"
+            "sys.argv[0] = 'lieseries'  # the command line, as the console script is\n"
+            "sys.exit(c.main(sys.argv[1:]))\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    p = subprocess.Popen([sys.executable, "-c", code, "run", str(scene), "--out", str(out), "--no-progress"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    assert p.stdout.readline().strip() == "moving"
+    for _ in range(40):  # ~2 s of Ctrl-C: through the move, the cleanup and the exit
+        if p.poll() is not None:
+            break
+        p.send_signal(signal.SIGINT)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            p.wait(timeout=0.05)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 130 and "interrupted" in err and "Traceback" not in err
+    ours = manifest(out)
+    assert sorted(p.name for p in out.iterdir()) == sorted(list(ours) + [MANIFEST])
+    assert all(fold._sha256(out / name) == h for name, h in ours.items())
+    assert json.loads((out / "data.json").read_text())["scene"]["run"]["t"] == 2  # the new report
 
 
 # -- the report's words match the data ---------------------------------------------------------------------------

@@ -149,7 +149,8 @@ def lie_integrate(
         raise ValueError(f"`guard` must be a non-negative number of digits; got {guard!r}")
     wdps = dps + guard
     ps, model, z0, pars = prepare(system, y0)
-    grid, direction, t0f = parse_times(t, t0)
+    grid, direction, t0f = parse_times(t, t0, max_time=max_time, values_per_time=ps.dimension,
+                                       bytes_per_value=64 + dps_to_bits(wdps) // 8)  # rows of mpf
     with mp.workdps(wdps):
         if tol is None:
             tolm = mp.mpf(10) ** (-dps)

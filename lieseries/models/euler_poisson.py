@@ -27,7 +27,8 @@ from ..precision import thread_mp as mp
 import numpy as np
 
 from ..poisson import PoissonSystem
-from ..precision import data_bits, export_mpf, short_decimal, to_fraction
+from ..precision import (binary_inputs, data_bits, export_mpf, resolve_precision, short_decimal, state_bits,
+                         to_fraction)
 from .base import Model, make_state
 
 __all__ = ["EulerPoisson", "DampedEulerPoisson", "levi_civita"]
@@ -94,6 +95,44 @@ def _det3(A):
         - A[0][1] * (A[1][0] * A[2][2] - A[1][2] * A[2][0])
         + A[0][2] * (A[1][0] * A[2][1] - A[1][1] * A[2][0])
     )
+
+
+#: Units of the last place a rotation given in binary numbers (or rounded to a precision) may miss R R^T = 1 by:
+#: each of the 9 entries is rounded once, and each entry of R R^T sums three products of them.
+ROTATION_ULPS = 16
+
+
+def _rotation_tolerance(R0, precision) -> Fraction:
+    """How far from a rotation ``R0`` may honestly be: 0 for exact entries (an exact state must be exactly a
+    rotation), ROTATION_ULPS units of the last place of the least precision among its binary entries and the
+    state's ``precision``."""
+    bits = list(binary_inputs(R0, "R0").values())
+    if precision is not None:
+        bits.append(resolve_precision(precision).bits)
+    return Fraction(ROTATION_ULPS, 2 ** min(bits)) if bits else Fraction(0)
+
+
+def _check_rotation(R, tol, argname):
+    """Refuse (naming ``argname``) a 3x3 matrix of Fractions that is not a rotation to ``tol``: max |R R^T - 1|
+    above ``tol`` (the entries of a rotation are at most 1, so this is also relative), or det R <= 0."""
+    defect = max(abs(sum(R[i][k] * R[j][k] for k in range(3)) - (i == j)) for i in range(3) for j in range(3))
+    det = _det3(R)
+    if defect > tol:
+        how = ("exact entries (ints, Fractions, decimal strings) must form an exact rotation: give rational "
+               "entries (e.g. 3/5, 4/5; rational rotations come arbitrarily close to any rotation), or pass "
+               "`precision=` (bits) to round the state to a precision that the residual fits"
+               if tol == 0 else
+               f"the data's precision allows {float(tol):.2g}; orthonormalise it (e.g. "
+               "scipy.spatial.transform.Rotation.from_matrix(R0).as_matrix()) or give it exactly")
+        raise ValueError(
+            f"`{argname}` must be a rotation matrix: max |{argname} {argname}^T - 1| = {float(defect):.3g} and "
+            f"det {argname} = {float(det):.17g}. R R^T is conserved by the equations, so a non-orthogonal "
+            f"{argname} never becomes a rigid motion; {how}."
+        )
+    if det <= 0:
+        raise ValueError(f"`{argname}` must be a proper rotation (det {argname} = +1); got a reflection "
+                         f"(det {argname} = {float(det):.17g})")
+
 
 
 def _inverse3(A):
@@ -256,7 +295,9 @@ class EulerPoisson(Model):
             binary float such as 0.1 is the double nearest it: the state then carries 53 bits, ``data_bits``, and a
             run of more bits warns naming ``omega[i]``).
         R0 : 3x3, optional
-            Initial orientation; must be a rotation (orthogonal to 1e-12, det = +1).
+            Initial orientation; must be a rotation (R0 R0^T = 1, det R0 = +1) to the precision the state carries:
+            exactly for exact input (ints, Fractions, decimal strings such as "0.6", "0.8"), to ~16 units of the
+            last place for binary numbers (1.8e-15 for doubles) or for a state rounded to ``precision``.
         precision : None, str or int
             None (default): an :class:`~lieseries.models.base.ExactState` that keeps the exact values (M = I omega
             formed exactly), so that a run at any precision starts from them. Otherwise the state rounded once
@@ -273,20 +314,43 @@ class EulerPoisson(Model):
             if Ra.shape != (3, 3):
                 raise ValueError(f"`R0` must be a 3x3 matrix; got shape {Ra.shape}")
             R = [[to_fraction(Ra[i, j], f"R0[{i}][{j}]") for j in range(3)] for i in range(3)]
-            defect = max(
-                abs(sum(R[k][i] * R[k][j] for k in range(3)) - (i == j)) for i in range(3) for j in range(3)
-            )
-            if defect > Fraction(1, 10**12):
-                raise ValueError(
-                    f"`R0` must be a rotation matrix: max |R0^T R0 - 1| = {float(defect):.3g}. R R^T is conserved "
-                    "by the equations, so a non-orthogonal R0 never becomes a rigid motion. Orthonormalise it "
-                    "(e.g. scipy.spatial.transform.Rotation.from_matrix(R0).as_matrix())."
-                )
-            if _det3(R) < 0:
-                raise ValueError("`R0` must be a proper rotation (det R0 = +1); got a reflection (det R0 = -1)")
+            _check_rotation(R, _rotation_tolerance(R0, precision), "R0")
         M = [sum(self._I[i][j] * w[j] for j in range(3)) for i in range(3)]
         return make_state([R[i][j] for i in range(3) for j in range(3)] + M, precision,
                           inputs={"omega": omega, "R0": R0})
+
+    def check_state(self, y, argname: str = "y0") -> list:
+        """The state as exact Fractions. A state given directly (not from :meth:`initial_state`, which refuses an
+        R0 that is not a rotation) whose R is not a rotation warns, naming ``argname``: the equations are those
+        of the Poisson system on all 3x3 R, which keeps R R^T, so the run is of that system, not a rigid motion.
+        The tolerance is loose (the square root of the state's precision; 1e-50 for exact numbers), so that a
+        state a run ended in, drifted by rounding, continues silently."""
+        z = super().check_state(y, argname)
+        if getattr(y, "exact", None) is None:
+            R = [z[3 * i:3 * i + 3] for i in range(3)]
+            defect = max(abs(sum(R[i][k] * R[j][k] for k in range(3)) - (i == j))
+                         for i in range(3) for j in range(3))
+            det = _det3(R)
+            bits = state_bits(y) if isinstance(y, np.ndarray) and y.dtype != object else data_bits(list(y))
+            tol = Fraction(1, 10**50) if bits is None else Fraction(1, 2 ** (int(bits) // 2))
+            if defect > tol or det <= 0:
+                warnings.warn(
+                    f"`{argname}` holds an R that is not a rotation: max |R R^T - 1| = {float(defect):.3g}, det R = "
+                    f"{float(det):.17g}. The run keeps R R^T and det R, so it is not a rigid motion; start from "
+                    "`model.initial_state(omega, R0)`, which checks R0, if you meant one.",
+                    stacklevel=3,
+                )
+        return z
+
+    def check_rows(self, arr, argname: str = "Y0") -> None:
+        """:meth:`check_state`'s warning for a float array of states (an ensemble's rows), at numpy speed: the first
+        row whose R is not a rotation (beyond the square root of the format's precision) is named."""
+        R = np.asarray(arr, dtype=np.float64)[:, :9].reshape(-1, 3, 3)
+        defect = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
+        bad = np.flatnonzero((defect > 2 * np.sqrt(np.finfo(np.asarray(arr).dtype).eps)) | (np.linalg.det(R) <= 0))
+        if bad.size:
+            i = int(bad[0])
+            self.check_state(np.asarray(arr)[i], f"{argname}[{i}]")
 
     def rotation(self, y) -> np.ndarray:
         """R as a 3x3 array (one 3x3 per row for a 2-d array of states)."""
