@@ -1,5 +1,10 @@
 """The one registry of integration methods and their adapters: each method is run from a specification dict and
-gives one :class:`MethodRun` (the one row record of a run, used by studies, scenes and reports).
+gives one :class:`RunRecord` (the one record of a run, used by studies, scenes and reports; ``MethodRun``,
+``RunRow`` and ``WorkPrecisionRow`` are its other names).
+
+Each method is a :class:`Method` (its scene fields, label, precision, setting, digits, run, atlas run and quick-mode
+scaling) registered with :func:`register_method`; scenes, studies and the scene runner read the registry, so a new
+method is one :class:`Method` and one registration.
 
 Methods
 -------
@@ -34,6 +39,9 @@ from fractions import Fraction
 
 import numpy as np
 
+from typing import Callable
+
+from . import fields as F
 from .poisson import as_poisson_system
 from .models.base import state_fractions
 from .precision import (bits_to_dps, data_bits, dps_to_bits, export_mpf, mp_context, resolve_precision,
@@ -42,7 +50,14 @@ from .precision import thread_mp as mp
 
 __all__ = [
     "METHODS",
+    "Method",
     "MethodRun",
+    "RunRecord",
+    "register_method",
+    "unregister_method",
+    "scene_methods",
+    "method_plugin",
+    "methods_registry",
     "best_of",
     "clear_rhs_cache",
     "default_methods",
@@ -55,15 +70,6 @@ __all__ = [
     "setting",
 ]
 
-#: Method name -> accepted keys (besides ``method`` and ``label``) and their defaults.
-METHODS = {
-    "taylor": {"precision": "double", "tol": None},
-    "lie": {"dps": 30, "tol": None, "order": None},
-    "scipy": {"rtol": 1e-10, "atol": None},
-    "mpmath": {"dps": 15, "t_max": 2.0},
-    "validated": {"dps": 30, "order": None},
-}
-
 #: Keys that may be lists in :func:`work_precision` (one run per value).
 LIST_KEYS = ("precision", "tol", "rtol", "dps")
 
@@ -72,12 +78,12 @@ REPEAT_BUDGET = 2.0
 
 
 @dataclass
-class MethodRun:
-    """One run of one method with one setting.
+class RunRecord:
+    """One run of one method with one setting, and what it is measured to be (the one run record).
 
     Attributes
     ----------
-    method : str                 "taylor", "lie", "scipy" or "mpmath"
+    method : str                 "taylor", "lie", "scipy", "mpmath", "validated" (a registered method's name)
     label : str                  e.g. "heyoka double", "scipy DOP853"
     precision : str              "double", "quad", "real256", "30 dps", ...
     setting : str                e.g. "tol=1e-12", "rtol=1e-10", "dps=30"
@@ -93,6 +99,15 @@ class MethodRun:
     status : str                 "success", a heyoka/Lie status, "failed", "skipped" or "error"
     message : str
     extra : dict                 method-specific figures (validated runs: certified digits, widest radius)
+
+    Measured (filled in by :meth:`measured`, which keeps only the final state):
+
+    model : str                  the model's label in a scene ("" elsewhere)
+    error : float or None        max-abs error of the final state against the reference
+    max_error : float or None    the largest over the output times (a scene's trajectory)
+    scaled_error : float or None the final error relative to the natural scale of each quantity
+    drift : dict                 invariant -> max |I(t) - I(0)| over the output times
+    final_state : list or None   the final state as floats
     """
 
     method: str
@@ -113,6 +128,12 @@ class MethodRun:
     status: str = "success"
     message: str = ""
     extra: dict = field(default_factory=dict)
+    model: str = ""
+    error: float | None = None
+    max_error: float | None = None
+    scaled_error: float | None = None
+    drift: dict = field(default_factory=dict)
+    final_state: list | None = None
 
     @property
     def y_final(self):
@@ -121,6 +142,36 @@ class MethodRun:
     @property
     def ok(self) -> bool:
         return bool(self.states)
+
+    @property
+    def max_drift(self) -> float | None:
+        vals = [v for v in self.drift.values() if v is not None]
+        return max(vals) if vals else None
+
+    def measured(self, **figures) -> "RunRecord":
+        """A copy with the measured ``figures`` (error, drift, ...) set, the final state as floats, and only the
+        final state kept of the run's states."""
+        from dataclasses import replace
+
+        final = self.y_final
+        out = replace(self, times=self.times[-1:], states=self.states[-1:], **figures)
+        if "final_state" not in figures:
+            out.final_state = [float(to_fraction(v)) for v in final] if final is not None else None
+        return out
+
+    def to_dict(self) -> dict:
+        return {
+            "model": self.model, "method": self.method, "label": self.label, "precision": self.precision,
+            "setting": self.setting, "t": self.t, "t_requested": self.t_requested, "error": self.error,
+            "max_error": self.max_error, "drift": dict(self.drift), "max_drift": self.max_drift, "steps": self.steps,
+            "nfev": self.nfev, "order": self.order, "build_time": self.build_time, "run_time": self.run_time,
+            "status": self.status, "message": self.message, "scaled_error": self.scaled_error,
+            "extra": dict(self.extra),
+        }
+
+
+#: The earlier names of the run record.
+MethodRun = RunRecord
 
 
 def _fmt_num(v) -> str:
@@ -145,13 +196,14 @@ def normalize_method(spec, where: str = "method") -> dict:
         raise ValueError(f"`{where}` must be a table such as {{method = \"taylor\", precision = \"double\"}}; "
                          f"got {spec!r}")
     name = spec.get("method")
-    if name not in METHODS:
-        raise ValueError(f"`{where}.method` must be one of {sorted(METHODS)}; got {name!r}")
-    known = set(METHODS[name]) | {"method", "label"}
+    if name not in _METHODS:
+        raise ValueError(f"`{where}.method` must be one of {sorted(_METHODS)}; got {name!r}")
+    defaults = _METHODS[name].defaults
+    known = set(defaults) | {"method", "label"}
     for k in spec:
         if k not in known:
             raise ValueError(f"unknown field `{where}.{k}` for method {name!r}; known: {sorted(known)}")
-    out = dict(METHODS[name])
+    out = dict(defaults)
     out.update(spec)
     return out
 
@@ -164,7 +216,7 @@ def expand_methods(methods, where: str = "methods") -> list:
     for i, spec in enumerate(methods):
         s = normalize_method(spec, f"{where}[{i}]")
         runs = [s]
-        for key in LIST_KEYS:
+        for key in _METHODS[s["method"]].list_keys:
             if isinstance(s.get(key), (list, tuple)):
                 runs = [dict(r, **{key: v}) for r in runs for v in s[key]]
         out.extend(runs)
@@ -175,16 +227,7 @@ def method_label(spec: dict) -> str:
     """A short label for a method: "heyoka double", "Lie series 30 dps", "scipy DOP853", "mpmath odefun 15 dps"."""
     if spec.get("label"):
         return str(spec["label"])
-    m = spec["method"]
-    if m == "taylor":
-        return f"heyoka {resolve_precision(spec['precision']).name}"
-    if m == "lie":
-        return f"Lie series {spec['dps']} dps"
-    if m == "scipy":
-        return "scipy DOP853"
-    if m == "validated":
-        return f"validated (Arb) {spec['dps']} dps"
-    return f"mpmath odefun {spec['dps']} dps"
+    return _METHODS[spec["method"]].label(spec)
 
 
 def default_methods(quick: bool = False) -> list:
@@ -287,7 +330,7 @@ def _grid(t, times):
     return tf, grid
 
 
-def run_method(system, y0, t, spec: dict, *, times=None, repeat: int = 1) -> MethodRun:
+def run_method(system, y0, t, spec: dict, *, times=None, repeat: int = 1) -> RunRecord:
     """Run one method (a normalised specification, see :func:`normalize_method`) from ``y0`` to ``t``.
 
     Parameters
@@ -306,7 +349,7 @@ def run_method(system, y0, t, spec: dict, *, times=None, repeat: int = 1) -> Met
 
     Returns
     -------
-    MethodRun
+    RunRecord
         With ``status = "error"`` (and the exception text) when the method raised, ``"skipped"`` when it is not
         available.
     """
@@ -315,49 +358,20 @@ def run_method(system, y0, t, spec: dict, *, times=None, repeat: int = 1) -> Met
     tf, grid = _grid(t, times)
     label = method_label(spec)
     try:
-        if m == "taylor":
-            return _run_taylor(system, y0, tf, grid, spec, label, repeat)
-        if m == "scipy":
-            return _run_scipy(system, y0, tf, grid, spec, label, repeat)
-        if m == "lie":
-            return _run_lie(system, y0, tf, grid, spec, label, repeat)
-        if m == "validated":
-            return _run_validated(system, y0, tf, grid, spec, label, repeat)
-        return _run_mpmath(system, y0, tf, grid, spec, label, repeat)
+        return _METHODS[m].run(system, y0, tf, grid, spec, label, repeat)
     except Exception as err:  # a failing method is a row of the study, not the end of it
-        return MethodRun(m, label, precision_name(spec), setting(spec), float(tf), float(tf), status="error",
+        return RunRecord(m, label, precision_name(spec), setting(spec), float(tf), float(tf), status="error",
                          message=f"{type(err).__name__}: {err}")
 
 
 def precision_name(spec) -> str:
-    m = spec["method"]
-    if m == "taylor":
-        try:
-            return resolve_precision(spec["precision"]).name
-        except (TypeError, ValueError):
-            return str(spec["precision"])
-    if m == "scipy":
-        return "double"
-    return f"{spec['dps']} dps"
+    """The name of a method's working precision ("double", "quad", "30 dps", ...)."""
+    return _METHODS[spec["method"]].precision(spec)
 
 
 def setting(spec) -> str:
-    m = spec["method"]
-    if m == "taylor":
-        if spec["tol"] is None:
-            return f"tol=eps ({resolve_precision(spec['precision']).eps:.3g})"
-        return f"tol={_fmt_num(spec['tol'])}"
-    if m == "scipy":
-        atol = spec["atol"]
-        return f"rtol={_fmt_num(spec['rtol'])}" + ("" if atol is None else f", atol={_fmt_num(atol)}")
-    if m in ("lie", "validated"):
-        parts = [f"dps={spec['dps']}"]
-        if spec.get("tol") is not None:
-            parts.append(f"tol={_fmt_num(spec['tol'])}")
-        if spec.get("order") is not None:
-            parts.append(f"order={spec['order']}")
-        return ", ".join(parts)
-    return f"dps={spec['dps']}"
+    """A method's settings in one line ("tol=1e-12", "dps=30, order=20")."""
+    return _METHODS[spec["method"]].setting(spec)
 
 
 def _rows_with_reached(sol):
@@ -382,7 +396,7 @@ def _run_taylor(system, y0, tf, grid, spec, label, repeat):
     # the first call includes the build (unless the integrator was cached): take it out of the run time
     run_times = [walls[0] - build] + walls[1:]
     times, states = _rows_with_reached(sol)
-    return MethodRun(
+    return RunRecord(
         "taylor", label, prec.name, setting(spec), float(times[-1]), float(tf), t_exact=times[-1],
         times=[float(v) for v in times], states=states, steps=int(sol.stats.steps), nfev=None,
         order=int(sol.stats.order), build_time=float(build), run_time=float(min(run_times)),
@@ -409,7 +423,7 @@ def _run_scipy(system, y0, tf, grid, spec, label, repeat):
     ok = res.status == 0
     states = [res.y[:, k].copy() for k in range(res.y.shape[1])]
     times = [float(v) for v in res.t]
-    return MethodRun(
+    return RunRecord(
         "scipy", label, "double", setting(spec), times[-1] if times else 0.0, float(tf),
         t_exact=tf if ok else (to_fraction(times[-1]) if times else Fraction(0)), times=times,
         states=states, steps=None if t_eval is not None else int(len(res.t) - 1), nfev=int(res.nfev), order=8,
@@ -421,16 +435,12 @@ def _run_scipy(system, y0, tf, grid, spec, label, repeat):
 def _run_lie(system, y0, tf, grid, spec, label, repeat):
     from .lie.integrator import lie_integrate
 
-    kwargs = {"dps": int(spec["dps"])}
-    if spec.get("tol") is not None:
-        kwargs["tol"] = spec["tol"]
-    if spec.get("order") is not None:
-        kwargs["order"] = int(spec["order"])
+    kwargs = _lie_kwargs(spec)
     t_arg = grid if grid is not None else tf
     sol, walls = best_of(lambda: lie_integrate(system, y0, t_arg, **kwargs), repeat)
     st = sol.stats
     times, states = _rows_with_reached(sol)
-    return MethodRun(
+    return RunRecord(
         "lie", label, precision_name(spec), setting(spec), float(times[-1]), float(tf), t_exact=times[-1],
         times=[float(v) for v in times], states=states, steps=int(st.steps), nfev=None,
         order=int(st.order) if st.order else None, build_time=None, run_time=float(min(walls)),
@@ -449,7 +459,7 @@ def _run_validated(system, y0, tf, grid, spec, label, repeat):
     times = [to_fraction(v) for v in sol.t]
     states = [list(row) for row in midpoints(sol, as_mpf=True)]
     digits = [float(d) for d in certified_digits(sol)] if len(sol.y) else []
-    return MethodRun(
+    return RunRecord(
         "validated", label, precision_name(spec), setting(spec), float(times[-1]) if times else 0.0, float(tf),
         t_exact=times[-1] if times else None, times=[float(v) for v in times], states=states,
         steps=int(sol.stats.steps), order=int(sol.stats.order), build_time=None, run_time=float(min(walls)),
@@ -489,7 +499,7 @@ def _run_mpmath(system, y0, tf, grid, spec, label, repeat):
     capped = t_run != tf
     msg = (f"capped at t = {float(t_run):g} (t_max = {float(t_max):g}; mpmath.odefun is slow)" if capped
            else f"Reached t = {float(tf):g}.")
-    return MethodRun(
+    return RunRecord(
         "mpmath", label, f"{dps} dps", setting(spec), float(t_run), float(tf), t_exact=t_run,
         times=[float(v) for v in out_times], states=states, steps=None, nfev=nfev, order=None, build_time=None,
         run_time=float(min(walls)), status="success", message=msg,
@@ -498,15 +508,7 @@ def _run_mpmath(system, y0, tf, grid, spec, label, repeat):
 
 # -- the study ------------------------------------------------------------------------------------------------
 def _digits_needed(spec) -> int:
-    m = spec["method"]
-    if m == "taylor":
-        try:
-            return bits_to_dps(resolve_precision(spec["precision"]).bits)
-        except (TypeError, ValueError):
-            return 16
-    if m in ("lie", "mpmath", "validated"):
-        return int(spec["dps"])
-    return 16
+    return _METHODS[spec["method"]].digits(spec)
 
 
 def reference_dps(specs) -> int:
@@ -514,3 +516,290 @@ def reference_dps(specs) -> int:
     return max([30] + [_digits_needed(s) + 12 for s in specs])
 
 
+
+
+# -- the registry ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Method:
+    """An integration method as a plug-in.
+
+    Attributes
+    ----------
+    name : str                   the ``method`` of a specification
+    fields : dict                its scene fields ``{key: (checker, default)}`` (:mod:`lieseries.fields`); the
+                                 defaults are the specification's
+    docs : dict                  ``{key: (type, meaning)}`` for docs/scenes.md
+    label, precision, setting : spec -> str
+    digits : spec -> int         decimal digits a reference must carry to resolve the method's errors
+    run : (system, y0, tf, grid, spec, label, repeat) -> RunRecord
+    bits : spec -> int or None   bits the run carries (references and conversions stay 64 bits above)
+    state_digits : spec -> int   digits its mpf states are evaluated with (invariants)
+    atlas : (model, y0, grid, spec) -> call, or None: a call running it across a model's charts (None: no atlas)
+    quick_run, quick_study : spec -> None, optional: scale the specification down in quick mode (in a scene's
+                                 [run], in a work-precision study), in place
+    list_keys : tuple            keys that may be lists in work-precision studies (one run per value)
+    """
+
+    name: str
+    fields: dict
+    docs: dict
+    label: Callable
+    precision: Callable
+    setting: Callable
+    digits: Callable
+    run: Callable
+    bits: Callable = lambda spec: None
+    state_digits: Callable = lambda spec: 40
+    atlas: Callable | None = None
+    quick_run: Callable | None = None
+    quick_study: Callable | None = None
+    list_keys: tuple = ()
+
+    @property
+    def defaults(self) -> dict:
+        return {k: d for k, (_check, d) in self.fields.items()}
+
+
+_METHODS: dict = {}
+
+#: Method name -> accepted keys (besides ``method`` and ``label``) and their defaults (kept in step with the registry).
+METHODS: dict = {}
+
+
+def register_method(method: Method) -> Method:
+    """Make ``method`` available to :func:`run_method`, scenes and studies (a later registration of the same name
+    replaces the earlier one)."""
+    if not isinstance(method, Method):
+        raise TypeError(f"`method` must be a Method; got {type(method).__name__}")
+    if set(method.fields) != set(method.docs):
+        raise ValueError(f"method {method.name!r}: `docs` must describe exactly its fields {sorted(method.fields)}")
+    _METHODS[method.name] = method
+    METHODS[method.name] = method.defaults
+    return method
+
+
+def unregister_method(name: str) -> None:
+    """Forget the method ``name`` (a plug-in's tests clean up with it)."""
+    _METHODS.pop(name, None)
+    METHODS.pop(name, None)
+
+
+def method_plugin(name: str) -> Method:
+    """The registered :class:`Method` called ``name``."""
+    return _METHODS[name]
+
+
+def methods_registry() -> dict:
+    """{name: Method} in registration order."""
+    return dict(_METHODS)
+
+
+def scene_methods(lists: bool):
+    """The scene checker of a list of method tables (``lists``: settings may be lists, as in work-precision
+    studies): each table's fields are its method's, with their defaults."""
+
+    def one(data, path):
+        if not isinstance(data, dict):
+            raise F.SceneError(f"`{path}` must be a table such as {{ method = \"taylor\", precision = \"double\" }}; "
+                               f"got {F.show(data)}")
+        if "method" not in data:
+            raise F.SceneError(f"missing required field `{path}.method` (one of {', '.join(_METHODS)})")
+        name = data["method"]
+        if name not in _METHODS:
+            raise F.SceneError(f"`{path}.method`: unknown method {F.show(name)}; known: {', '.join(_METHODS)}")
+        plugin = _METHODS[name]
+        spec = {"method": (None, F.REQUIRED), "label": (F.string, None)}
+        spec.update({k: (F.list_of(c) if lists and k in plugin.list_keys else c, d)
+                     for k, (c, d) in plugin.fields.items()})
+        out = F.table(data, path, spec)
+        if out["label"] is None:
+            del out["label"]
+        return out
+
+    def check(value, path):
+        if not isinstance(value, list) or not value:
+            F.fail(path, "a non-empty list of method tables", value)
+        return [one(m, f"{path}[{i}]") for i, m in enumerate(value)]
+
+    return check
+
+
+def thin(values, keep: int = 3):
+    """At most ``keep`` (3 or 2) values of a list: its ends and (for 3) its middle."""
+    if not isinstance(values, list) or len(values) <= keep:
+        return values
+    idx = sorted({0, len(values) // 2, len(values) - 1}) if keep >= 3 else [0, len(values) - 1]
+    return [values[i] for i in idx]
+
+
+def run_atlas_method(model, y0, t, spec, *, times, repeat: int = 1, bits: int = 256):
+    """One method across a model's charts (its ``runs_on_atlas``): (RunRecord, extra) whose states are those of
+    ``model.atlas_twin()`` at each output row (the rows of an atlas run are written in different charts,
+    converted with ``bits`` bits), with the chart of each row and the number of switches in ``extra``."""
+    spec = normalize_method(spec)
+    m = spec["method"]
+    label = method_label(spec)
+    tf, grid = _grid(t, times)
+    plugin = _METHODS[m]
+    if plugin.atlas is None:
+        return RunRecord(m, label, precision_name(spec), setting(spec), float(tf), float(tf), status="skipped",
+                         message=f"method {m!r} has no atlas runs (use taylor or lie)"), None
+    call = plugin.atlas(model, y0, grid if grid is not None else tf, spec)
+    try:
+        sol, walls = best_of(call, repeat)
+    except Exception as err:  # a failing method is a row, not the end of the run
+        return RunRecord(m, label, precision_name(spec), setting(spec), float(tf), float(tf), status="error",
+                         message=f"{type(err).__name__}: {err}"), None
+    times_ = [to_fraction(v) for v in sol.t]
+    rows = list(sol.y)
+    charts = [int(c) for c in sol.charts]
+    if sol.y_reached is not None and (not times_ or times_[-1] != to_fraction(sol.t_reached)):
+        times_.append(to_fraction(sol.t_reached))
+        rows.append(sol.y_reached)
+        charts.append(int(getattr(sol, "chart_reached", charts[-1] if charts else model.chart)))
+    states = [model.atlas_state(r, c, bits) for r, c in zip(rows, charts)]
+    st = sol.stats
+    build = float(st.build_time or 0.0)
+    run = RunRecord(
+        m, label, precision_name(spec), setting(spec), float(times_[-1]), float(tf), t_exact=times_[-1],
+        times=[float(v) for v in times_], states=states, steps=int(st.steps),
+        order=int(st.order) if st.order else None, build_time=build if m == "taylor" else None,
+        run_time=float(min([walls[0] - build] + walls[1:])), core_time=float(st.run_time), status=sol.status,
+        message=sol.message,
+    )
+    extra = {"chart_switches": int(st.extra.get("chart_switches", 0)), "charts": charts}
+    if "max_step_over_radius" in st.extra:
+        extra["max_step_over_radius"] = float(st.extra["max_step_over_radius"])
+    return run, extra
+
+
+# -- the built-in methods --------------------------------------------------------------------------------------
+def _taylor_precision(spec) -> str:
+    try:
+        return resolve_precision(spec["precision"]).name
+    except (TypeError, ValueError):
+        return str(spec["precision"])
+
+
+def _taylor_setting(spec) -> str:
+    if spec["tol"] is None:
+        return f"tol=eps ({resolve_precision(spec['precision']).eps:.3g})"
+    return f"tol={_fmt_num(spec['tol'])}"
+
+
+def _taylor_digits(spec) -> int:
+    try:
+        return bits_to_dps(resolve_precision(spec["precision"]).bits)
+    except (TypeError, ValueError):
+        return 16
+
+
+def _taylor_atlas(model, y0, t_arg, spec):
+    from .taylor import integrate
+
+    prec = resolve_precision(spec["precision"])
+    return lambda: integrate(model, y0, t=t_arg, tol=spec["tol"], precision=prec, atlas=True)
+
+
+def _lie_kwargs(spec) -> dict:
+    kwargs = {"dps": int(spec["dps"])}
+    if spec.get("tol") is not None:
+        kwargs["tol"] = spec["tol"]
+    if spec.get("order") is not None:
+        kwargs["order"] = int(spec["order"])
+    return kwargs
+
+
+def _lie_atlas(model, y0, t_arg, spec):
+    from .lie.integrator import lie_integrate
+
+    kwargs = _lie_kwargs(spec)
+    return lambda: lie_integrate(model, y0, t_arg, atlas=True, **kwargs)
+
+
+def _dps_setting(spec) -> str:
+    parts = [f"dps={spec['dps']}"]
+    if spec.get("tol") is not None:
+        parts.append(f"tol={_fmt_num(spec['tol'])}")
+    if spec.get("order") is not None:
+        parts.append(f"order={spec['order']}")
+    return ", ".join(parts)
+
+
+def _scipy_setting(spec) -> str:
+    atol = spec["atol"]
+    return f"rtol={_fmt_num(spec['rtol'])}" + ("" if atol is None else f", atol={_fmt_num(atol)}")
+
+
+def _thin_lists(spec) -> None:
+    for k in ("tol", "rtol", "precision"):
+        if isinstance(spec.get(k), list):
+            spec[k] = thin(spec[k])
+
+
+def _mpmath_quick_run(spec) -> None:
+    spec["t_max"] = min(float(to_fraction(spec["t_max"])), 0.5)
+
+
+def _mpmath_quick_study(spec) -> None:
+    _thin_lists(spec)
+    _mpmath_quick_run(spec)
+    if isinstance(spec.get("dps"), list):
+        spec["dps"] = spec["dps"][:1]
+
+
+def _validated_quick_run(spec) -> None:
+    spec["dps"] = min(spec["dps"], 30)
+
+
+def _dps_digits(spec) -> int:
+    return int(spec["dps"])
+
+
+register_method(Method(
+    "taylor",
+    fields={"precision": (F.precision, "double"), "tol": (F.tolerance, None)},
+    docs={"precision": ("'double' | 'long double' | 'quad' | bits", "heyoka's precision (a list in work_precision)"),
+          "tol": ("number in (0, 1)", "the tolerance (default: the precision's epsilon)")},
+    label=lambda spec: f"heyoka {resolve_precision(spec['precision']).name}",
+    precision=_taylor_precision, setting=_taylor_setting, digits=_taylor_digits, run=_run_taylor,
+    bits=lambda spec: resolve_precision(spec["precision"]).bits, atlas=_taylor_atlas, quick_study=_thin_lists,
+    list_keys=("precision", "tol"),
+))
+register_method(Method(
+    "lie",
+    fields={"dps": (F.integer(10, 10_000), 30), "tol": (F.positive, None), "order": (F.integer(1, 10_000), None)},
+    docs={"dps": ("integer", "decimal digits of lie_integrate (a list in work_precision)"),
+          "tol": ("positive number", "the per-step tolerance (default 10^-dps)"),
+          "order": ("integer", "a fixed series order (default: the automatic one)")},
+    label=lambda spec: f"Lie series {spec['dps']} dps", precision=lambda spec: f"{spec['dps']} dps",
+    setting=_dps_setting, digits=_dps_digits, run=_run_lie, bits=lambda spec: dps_to_bits(spec["dps"]),
+    state_digits=_dps_digits, atlas=_lie_atlas, quick_study=_thin_lists, list_keys=("tol", "dps"),
+))
+register_method(Method(
+    "scipy",
+    fields={"rtol": (F.tolerance, 1e-10), "atol": (F.positive, None)},
+    docs={"rtol": ("number in (0, 1)", "DOP853's relative tolerance (a list in work_precision)"),
+          "atol": ("positive number", "its absolute tolerance (default rtol)")},
+    label=lambda spec: "scipy DOP853", precision=lambda spec: "double", setting=_scipy_setting,
+    digits=lambda spec: 16, run=_run_scipy, quick_study=_thin_lists, list_keys=("rtol",),
+))
+register_method(Method(
+    "mpmath",
+    fields={"dps": (F.integer(5, 10_000), 15), "t_max": (F.positive, 2.0)},
+    docs={"dps": ("integer", "digits of mpmath.odefun"),
+          "t_max": ("positive number", "the run is capped at |t| <= t_max (odefun is slow)")},
+    label=lambda spec: f"mpmath odefun {spec['dps']} dps", precision=lambda spec: f"{spec['dps']} dps",
+    setting=lambda spec: f"dps={spec['dps']}", digits=_dps_digits, run=_run_mpmath,
+    bits=lambda spec: dps_to_bits(spec["dps"]), state_digits=_dps_digits, quick_run=_mpmath_quick_run,
+    quick_study=_mpmath_quick_study, list_keys=("dps",),
+))
+register_method(Method(
+    "validated",
+    fields={"dps": (F.integer(5, 10_000), 30), "order": (F.integer(1, 10_000), None)},
+    docs={"dps": ("integer", "digits of validated_integrate's ball arithmetic (certified enclosures)"),
+          "order": ("integer", "a fixed series order (default: the automatic one)")},
+    label=lambda spec: f"validated (Arb) {spec['dps']} dps", precision=lambda spec: f"{spec['dps']} dps",
+    setting=_dps_setting, digits=_dps_digits, run=_run_validated, state_digits=_dps_digits,
+    quick_run=_validated_quick_run, quick_study=_thin_lists, list_keys=("dps",),
+))

@@ -412,7 +412,6 @@ def _analysis_divergence(scene, result, rows, opts):
     from . import exact
     from .lie.integrator import lie_integrate
     from .lie.operator import lie_series
-    from .models import EulerPoisson
     from .precision import to_fraction
     from .studies.convergence import error_vs_order
     from .studies.reference import theoretical_radius
@@ -460,7 +459,7 @@ def _analysis_divergence(scene, result, rows, opts):
     # independent check: the poles of Omega(t) lie at Im t = +-K'/lam (plus the real period shifts), so every
     # point of the real orbit is at least K'/lam from a pole: the smallest radius along the orbit
     min_radius = None
-    if isinstance(model, EulerPoisson):
+    if getattr(model, "closed_form", None) == "free_rigid_body":  # the model says the free body describes it
         I = model.inertia_exact
         Iinv = model.inverse_inertia_exact
         fr = [to_fraction(v) for v in y0]
@@ -576,7 +575,9 @@ def _atlas(scene, result, rows, opts):
 
 def _atlas_analysis(scene, result, rows, opts):
     """Chart switches and errors of the atlas runs, next to the Dirac form's."""
-    atlas_models = [m.label for m in scene.models if m.kind == "sphere" and m.params.get("atlas")]
+    from .models.base import as_model
+
+    atlas_models = [label for label, model in scene.build_models() if as_model(model).runs_on_atlas]
     notes = []
     if not atlas_models:
         notes.append("atlas: no model of the scene has `atlas = true`; nothing switched charts.")
