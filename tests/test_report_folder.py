@@ -227,7 +227,7 @@ def test_an_interrupt_while_writing_leaves_the_earlier_report_untouched(tmp_path
         calls.append(path)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(rep, "_write_csv", interrupted)
+    monkeypatch.setattr(rep.scene_report, "write_csv", interrupted)
     with pytest.raises(KeyboardInterrupt):
         write_report(longer_result, tmp_path)
     assert calls and snapshot(tmp_path) == before
