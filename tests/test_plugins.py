@@ -100,3 +100,25 @@ def test_the_builtin_registry_is_back_after_the_plugins():
     assert "energy_table" not in scenes.STUDIES and "harmonic" not in scenes.MODEL_KINDS
     with pytest.raises(SceneError, match="unknown model kind 'harmonic'"):
         parse_scene(SCENE)
+
+
+def test_registrations_refuse_what_they_cannot_use():
+    from lieseries import fields as F
+    from lieseries.methods import register_method
+    from lieseries.models.kinds import ModelKind, register_model_kind
+    from lieseries.studies import Study, register_study
+
+    class NoDocs(Study):
+        name = "no_docs"
+        fields = {"t": (F.positive, 1)}
+        docs = {}
+
+    with pytest.raises(ValueError, match="`docs` must describe exactly its fields"):
+        register_study(NoDocs())
+    with pytest.raises(TypeError, match="`study` must be a Study"):
+        register_study(object())
+    with pytest.raises(ValueError, match="`docs` must describe exactly its fields"):
+        register_model_kind(ModelKind("odd", {"a": (F.positive, 1)}, {}, lambda p, b: None, "state", "odd"))
+    with pytest.raises(TypeError, match="`method` must be a Method"):
+        register_method({"name": "euler"})
+    assert "no_docs" not in scenes.STUDIES and "odd" not in scenes.MODEL_KINDS
