@@ -2,7 +2,7 @@
 
 Every case is a scene with a ``[stability]`` table (``lieseries/data/scenes/extreme/*.toml``, listed by
 :func:`lieseries.scenes.extreme_scenes`). :func:`stability` runs each scene with
-:func:`lieseries.scenes.run_scene` (its run table: every method against the closed form, or heyoka at 256 bits,
+:func:`lieseries.run.run_scene` (its run table: every method against the closed form, or heyoka at 256 bits,
 with invariant drift, steps, order, run time, status and message) and then reads what the scene's
 ``[stability].analysis`` asks for:
 
@@ -15,7 +15,7 @@ with invariant drift, steps, order, run time, status and message) and then reads
     departure of the least precise one: t_dep + ln(eps_least / eps) / lambda.
 ``"scaled"`` (extreme inertia, spin rates and radii; the mild damping)
     Each run's error relative to the natural scales of the problem (R against 1, M against |M|; x against |x|,
-    v against |v|; see :func:`lieseries.scenes.scaled_error`), and that error in units of the method's epsilon.
+    v against |v|; see :func:`lieseries.run.scaled_error`), and that error in units of the method's epsilon.
 ``"drift"`` (a long run)
     The exponents of the scene's drift study (energy and orthogonality defect against steps, Brouwer's law
     eps sqrt(steps) has exponent 1/2, a biased error 1).
@@ -412,7 +412,6 @@ def _analysis_divergence(scene, result, rows, opts):
     from . import exact
     from .lie.integrator import lie_integrate
     from .lie.operator import lie_series
-    from .models import EulerPoisson
     from .precision import to_fraction
     from .studies.convergence import error_vs_order
     from .studies.reference import theoretical_radius
@@ -448,8 +447,7 @@ def _analysis_divergence(scene, result, rows, opts):
     ev_in = error_vs_order(model, y0, float(t_in), orders, dps=dps)
     ev_out = error_vs_order(model, y0, float(t_out), orders, dps=dps)
     # the adaptive integrator never steps beyond the radius
-    lie_dps = next((int(re.match(r"(\d+)", r.precision).group(1)) for r in rows
-                    if r.method.startswith("Lie") and r.model == mlabel), 30)
+    lie_dps = next((int(m["dps"]) for m in scene.run["methods"] if m["method"] == "lie"), 30)  # the run's own
     t_run = scene.run["t"] if not opts.get("quick") or scene.run.get("quick_t") is None else scene.run["quick_t"]
     sol = lie_integrate(model, y0, t_run, dps=lie_dps)
     ratio = sol.stats.extra.get("max_step_over_radius")
@@ -460,7 +458,7 @@ def _analysis_divergence(scene, result, rows, opts):
     # independent check: the poles of Omega(t) lie at Im t = +-K'/lam (plus the real period shifts), so every
     # point of the real orbit is at least K'/lam from a pole: the smallest radius along the orbit
     min_radius = None
-    if isinstance(model, EulerPoisson):
+    if getattr(model, "closed_form", None) == "free_rigid_body":  # the model says the free body describes it
         I = model.inertia_exact
         Iinv = model.inverse_inertia_exact
         fr = [to_fraction(v) for v in y0]
@@ -526,7 +524,7 @@ def _as_expected(scene, head) -> bool | None:
 
 # -- the study -------------------------------------------------------------------------------------------------
 def run_case(scene, quick: bool = False, progress=None) -> StabilityCase:
-    """Run one case: its scene (:func:`lieseries.scenes.run_scene`) and its analysis.
+    """Run one case: its scene (:func:`lieseries.run.run_scene`) and its analysis.
 
     Parameters
     ----------
@@ -576,7 +574,9 @@ def _atlas(scene, result, rows, opts):
 
 def _atlas_analysis(scene, result, rows, opts):
     """Chart switches and errors of the atlas runs, next to the Dirac form's."""
-    atlas_models = [m.label for m in scene.models if m.kind == "sphere" and m.params.get("atlas")]
+    from .models.base import as_model
+
+    atlas_models = [label for label, model in scene.build_models() if as_model(model).runs_on_atlas]
     notes = []
     if not atlas_models:
         notes.append("atlas: no model of the scene has `atlas = true`; nothing switched charts.")

@@ -228,7 +228,7 @@ def test_an_interrupt_while_writing_leaves_the_earlier_report_untouched(tmp_path
         calls.append(path)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(rep, "_write_csv", interrupted)
+    monkeypatch.setattr(rep.scene_report, "write_csv", interrupted)
     with pytest.raises(KeyboardInterrupt):
         write_report(longer_result, tmp_path)
     assert calls and snapshot(tmp_path) == before
@@ -274,11 +274,11 @@ def test_a_sigint_while_writing_exits_130_and_keeps_the_earlier_report(tmp_path)
     assert main(["run", str(scene), "--out", str(out), "--no-progress"]) == 0  # the earlier report
     before = snapshot(out)
     scene.write_text(SCENE.replace("t = 1", "t = 2") + '[report]\nplots = ["trajectory"]\n')  # a new plot
-    code = ("import sys, time, lieseries.report as r, lieseries.cli as c\n"
-            "w = r._write_csv\n"
+    code = ("import sys, time, lieseries.report.scene_report as r, lieseries.cli as c\n"
+            "w = r.write_csv\n"
             "def slow(*a):\n"
             "    print('writing', flush=True); time.sleep(60); w(*a)\n"
-            "r._write_csv = slow\n"
+            "r.write_csv = slow\n"
             "sys.exit(c.main(sys.argv[1:]))\n")
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     p = subprocess.Popen([sys.executable, "-c", code, "run", str(scene), "--out", str(out), "--no-progress"],

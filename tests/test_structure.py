@@ -59,3 +59,72 @@ def test_layers_point_one_way():
     res = subprocess.run([sys.executable, str(CHECKER), "lieseries"], cwd=ROOT, capture_output=True, text=True,
                          timeout=120)
     assert res.returncode == 0 and "no import cycle, no private name" in res.stdout, res.stdout + res.stderr
+
+
+#: The layers, lowest first: a module imports only from its own layer or the layers below it (lazy imports in
+#: functions included). Every module of the package is in exactly one layer (a new module must be placed here).
+LAYERS = [
+    ("utilities", {"progress", "interrupts", "formatting", "folder"}),
+    ("core", {"precision", "fields", "expr", "poisson", "solution", "events", "timegrid", "balls", "models"}),
+    ("engines", {"energy", "atlas", "ensemble", "taylor", "lie", "exact", "validated"}),
+    ("methods", {"methods"}),
+    ("studies", {"studies"}),
+    ("scenes", {"scenes"}),
+    ("run", {"run", "stability", "cost"}),
+    ("report", {"report"}),
+    ("command line", {"cli", "__main__", "__init__"}),
+]
+
+
+def _component(module: str) -> str:
+    """lieseries.models.sphere -> models; lieseries -> __init__."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "__init__"
+
+
+def _imported_components(path: Path, module: str, is_package: bool) -> set:
+    """The package's top-level components that the file imports (anywhere in it)."""
+    import ast
+
+    pkg = module if is_package else module.rsplit(".", 1)[0]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg.split(".")[: len(pkg.split(".")) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            # `from . import exact` names a module; `from .precision import x` names one too
+            names = [f"{target}.{a.name}" for a in node.names] if target == "lieseries" else [target]
+        else:
+            continue
+        out |= {_component(n) for n in names if n.split(".")[0] == "lieseries"}
+    return out
+
+
+def test_each_layer_imports_only_the_layers_below_it():
+    layer_of = {}
+    for i, (_name, comps) in enumerate(LAYERS):
+        for c in comps:
+            assert c not in layer_of, f"{c} is in two layers"
+            layer_of[c] = i
+    upward, unplaced = [], set()
+    for p in sorted(PACKAGE.rglob("*.py")):
+        parts = list(p.relative_to(ROOT).with_suffix("").parts)
+        is_package = parts[-1] == "__init__"
+        module = ".".join(parts[:-1] if is_package else parts)
+        own = _component(module)
+        if own not in layer_of:
+            unplaced.add(own)
+            continue
+        for other in _imported_components(p, module, is_package):
+            if other not in layer_of:
+                unplaced.add(other)
+            elif layer_of[other] > layer_of[own]:
+                upward.append(f"{module} ({LAYERS[layer_of[own]][0]}) imports {other} "
+                              f"({LAYERS[layer_of[other]][0]})")
+    assert not unplaced, f"modules in no layer of LAYERS (place them): {sorted(unplaced)}"
+    assert not upward, "upward imports:\n" + "\n".join(upward)

@@ -10,12 +10,12 @@ import heyoka as hy
 from ..precision import thread_mp as mp
 import numpy as np
 
-from ..poisson import PoissonSystem
+from ..poisson import PoissonSystem, as_poisson_system
 from ..solution import ChartRows, Solution, plain_ufunc
 from ..precision import (BinaryFraction, CarriedBits, PrecisionWarning, binary_inputs, bits_to_dps, carried_bits,
                          export_mpf, precision_of_dtype, resolve_precision, state_bits, to_fraction)
 
-__all__ = ["Model", "ExactState", "make_state", "state_fractions", "state_bits"]
+__all__ = ["Model", "GenericModel", "as_model", "ExactState", "make_state", "state_fractions", "state_bits"]
 
 
 class ExactState(np.ndarray):
@@ -213,6 +213,39 @@ class Model:
     def invariants(self, y) -> dict:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    # -- how studies, runs and reports treat the model (defaults: the state itself) ------------------------------
+    #: The name of the closed form that describes the model's motion (:mod:`lieseries.studies.reference` holds
+    #: them by name: "free_rigid_body", "great_circle"); None when there is none (a numerical reference is used).
+    closed_form = None
+    #: True when the model's runs switch charts (their rows are measured through :meth:`atlas_twin`).
+    runs_on_atlas = False
+
+    @property
+    def compared_names(self) -> tuple:
+        """Names of the quantities runs are compared in (:meth:`compared`)."""
+        return tuple(self.names)
+
+    def compared(self, fractions, bits: int, chart=None) -> list:
+        """The quantities runs are compared in, from a state's exact values (written in ``chart`` for a model with
+        charts): exact Fractions, or mpf computed with ``bits`` bits. The state itself (exactly) by default."""
+        return list(fractions)
+
+    def plot_quantity(self) -> tuple:
+        """(what the trajectory plot shows, the names of its three curves)."""
+        return "state", tuple(self.names[:3])
+
+    def plot_values(self, compared_row) -> list:
+        """The three plotted floats from one row of :meth:`compared` values."""
+        return [float(v) for v in compared_row[:3]]
+
+    def error_groups(self, n: int) -> list:
+        """[(indices, "unit" | "norm")] of the compared quantities: errors relative to 1 or to the group's norm."""
+        return [(range(n), "norm")]
+
+    def perturbable(self) -> set:
+        """Indices of the state that perturbed ensemble members may change (every entry by default)."""
+        return set(range(self.dimension))
+
     # -- helpers -----------------------------------------------------------------------------------------------
     def _with_charts(self, y, chart):
         """(states, chart) for a helper: a Solution gives its rows (and their charts); atlas rows give theirs."""
@@ -257,6 +290,24 @@ class Model:
             prec = resolve_precision("double")
         rows = [prec.array([_exact(v) for v in r]) for r in values_rows]
         return rows[0] if was_1d else np.stack(rows)
+
+
+class GenericModel(Model):
+    """A bare PoissonSystem seen as a model with the defaults (the state compared and plotted, H and the declared
+    Casimirs as invariants, no closed form)."""
+
+    def __init__(self, system: PoissonSystem):
+        self.poisson = system
+
+    def invariants(self, y, dps: int = 40) -> dict:
+        return self.poisson.invariants(y, dps)
+
+
+def as_model(system) -> Model:
+    """``system`` itself when it is a model, else a :class:`GenericModel` around its PoissonSystem."""
+    if isinstance(system, Model):
+        return system
+    return GenericModel(as_poisson_system(system))
 
 
 def _to_mpf(v):

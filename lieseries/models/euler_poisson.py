@@ -29,7 +29,9 @@ import numpy as np
 from ..poisson import PoissonSystem
 from ..precision import (binary_inputs, data_bits, export_mpf, resolve_precision, short_decimal, state_bits,
                          to_fraction)
+from .. import fields as F
 from .base import Model, make_state
+from .kinds import InitialFamily, ModelKind, register_initial_family, register_model_kind
 
 __all__ = ["EulerPoisson", "DampedEulerPoisson", "levi_civita"]
 
@@ -414,6 +416,24 @@ class EulerPoisson(Model):
                 res["det_R"].append(_det3(R))
         return export_mpf({k: v[0] for k, v in res.items()} if was_1d else res)
 
+    # -- how studies, runs and reports treat it ----------------------------------------------------------------
+    closed_form = "free_rigid_body"
+
+    def plot_quantity(self) -> tuple:
+        return "angular velocity Omega", ("Omega1", "Omega2", "Omega3")
+
+    def plot_values(self, compared_row) -> list:
+        Iinv = np.linalg.inv(self.inertia)
+        return [float(c) for c in Iinv @ np.array([float(v) for v in compared_row[9:12]])]
+
+    def error_groups(self, n: int) -> list:
+        return [(range(0, 9), "unit"), (range(9, 12), "norm")]  # R (a rotation), M (scale |M|)
+
+    def perturbable(self) -> set:
+        """The momentum M only: a perturbed R would no longer be a rotation, and R^T R is conserved only on the
+        rotation group."""
+        return {9, 10, 11}
+
     def __repr__(self) -> str:
         if self.diagonal:
             return f"EulerPoisson(inertia={tuple(float(self._I[i][i]) for i in range(3))}, bracket={self.bracket!r})"
@@ -430,6 +450,8 @@ class DampedEulerPoisson(EulerPoisson):
     relaxation time scale ~ 1 / (damping |M|^2 (1/I_min - 1/I_max)). A large ``damping`` makes the problem stiff:
     an explicit (Taylor) method needs steps of that size for the whole run, which the engine detects and reports.
     """
+
+    closed_form = None  # its motion is not the free body's
 
     def __init__(self, inertia=(1, 2, 3), damping=1, bracket: str = "chetaev"):
         d = to_fraction(damping, "damping")
@@ -469,3 +491,52 @@ class DampedEulerPoisson(EulerPoisson):
     def __repr__(self) -> str:
         return super().__repr__().replace("EulerPoisson(", "DampedEulerPoisson(", 1)[:-1] + \
             f", damping={float(self.damping)})"
+
+
+# -- scenes: [model] kind = "euler_poisson" | "damped_euler_poisson", [initial] omega, R0 ---------------------------
+def _inertia_field(value, path):
+    what = "a list of 3 numbers or a 3x3 list"
+    if not isinstance(value, list) or len(value) != 3:
+        F.fail(path, what, value)
+    if all(isinstance(r, list) for r in value):
+        if not all(len(r) == 3 for r in value):
+            F.fail(path, what, value)
+        for i, r in enumerate(value):
+            for j, v in enumerate(r):
+                F.number(v, f"{path}[{i}][{j}]")
+    else:
+        for i, v in enumerate(value):
+            if isinstance(v, list):
+                F.fail(path, what, value)
+            F.number(v, f"{path}[{i}]")
+    return value
+
+
+_BRACKET = (F.choice("chetaev", "intermediate"), "chetaev")
+
+register_initial_family(InitialFamily(
+    "rigid_body",
+    fields={"omega": (F.vector3, F.REQUIRED), "R0": (F.matrix3, None)},
+    docs={"omega": ("3 numbers", "the body angular velocity Omega(0); R(0) = 1"),
+          "R0": ("3x3 numbers", "an initial rotation instead of the identity")},
+    state=lambda model, ini, precision: model.initial_state(ini["omega"], R0=ini.get("R0"), precision=precision),
+))
+
+register_model_kind(ModelKind(
+    "euler_poisson",
+    fields={"inertia": (_inertia_field, F.REQUIRED), "bracket": _BRACKET},
+    docs={"inertia": ("3 numbers or 3x3 numbers", "principal moments, or a symmetric positive-definite tensor"),
+          "bracket": ("'chetaev' | 'intermediate'", "the Poisson structure (paper 11.20.2 or 11.20)")},
+    build=lambda p, base: EulerPoisson(p["inertia"], bracket=p["bracket"]),
+    family="rigid_body", label="rigid body", data_fields=("inertia",),
+))
+
+register_model_kind(ModelKind(
+    "damped_euler_poisson",
+    fields={"inertia": (_inertia_field, F.REQUIRED), "damping": (F.nonnegative, F.REQUIRED), "bracket": _BRACKET},
+    docs={"inertia": ("3 numbers or 3x3 numbers", "as for euler_poisson"),
+          "damping": ("number >= 0", "the internal damping: the torque damping * M x (M x Omega)"),
+          "bracket": ("'chetaev' | 'intermediate'", "as for euler_poisson")},
+    build=lambda p, base: DampedEulerPoisson(p["inertia"], damping=p["damping"], bracket=p["bracket"]),
+    family="rigid_body", label="damped rigid body", data_fields=("inertia", "damping"),
+))

@@ -49,6 +49,8 @@ class HeavyTop(EulerPoisson):
     parameters rounded once to each working precision. ``initial_state(omega, R0=None)`` as for EulerPoisson.
     """
 
+    closed_form = None  # gravity: the free body's closed form does not describe it
+
     def __init__(self, inertia=(1, 2, 3), com=(0, 0, 1), mass=1, g=1, bracket: str = "chetaev"):
         arr = np.asarray(com, dtype=object)
         if arr.shape != (3,):

@@ -24,8 +24,10 @@ from ..precision import thread_mp as mp
 import numpy as np
 
 from ..poisson import PoissonSystem
-from ..precision import data_bits, export_mpf, to_fraction
-from .base import Model, make_state
+from .. import fields as F
+from ..precision import data_bits, export_mpf, resolve_precision, to_fraction
+from .base import Model, make_state, state_fractions
+from .kinds import InitialFamily, ModelKind, register_initial_family, register_model_kind
 
 __all__ = ["Sphere", "SphereDirac"]
 
@@ -159,6 +161,30 @@ class _SphereBase(Model):
                 res["L2"].append(x[2] * p[0] - x[0] * p[2])
                 res["L3"].append(x[0] * p[1] - x[1] * p[0])
         return export_mpf({k: v[0] for k, v in res.items()} if was_1d else res)
+
+
+    # -- how studies, runs and reports treat it ----------------------------------------------------------------
+    closed_form = "great_circle"
+
+    @property
+    def compared_names(self) -> tuple:
+        return ("x1", "x2", "x3", "v1", "v2", "v3")
+
+    def compared(self, fractions, bits: int, chart=None) -> list:
+        """Position and velocity (x, v) through the model's own conversion: the 5-dimensional and the Dirac form
+        compare directly, and no chart is needed at the final time."""
+        with mp.workprec(bits):
+            arr = np.array([mp.mpf(q.numerator) / q.denominator for q in fractions], dtype=object)
+        x = self.position(arr, chart=chart) if chart is not None else self.position(arr)
+        v = self.velocity(arr, chart=chart) if chart is not None else self.velocity(arr)
+        with mp.workprec(bits):
+            return [mp.mpf(to_fraction(c).numerator) / to_fraction(c).denominator for c in list(x) + list(v)]
+
+    def plot_quantity(self) -> tuple:
+        return "position x", ("x1", "x2", "x3")
+
+    def error_groups(self, n: int) -> list:
+        return [(range(0, 3), "norm"), (range(3, 6), "norm")]  # x (scale |x|), v (scale |v|)
 
 
 class Sphere(_SphereBase):
@@ -353,6 +379,24 @@ class Sphere(_SphereBase):
         p[self.chart] = -x[self.chart] * s / x2
         return x, p
 
+    @property
+    def runs_on_atlas(self) -> bool:
+        return bool(self.atlas)
+
+    def atlas_twin(self) -> "SphereDirac":
+        """The Dirac form of the same sphere: rows of an atlas run (in several charts) are compared and measured as
+        (x, p) states of it."""
+        return SphereDirac(mass=self.mass_exact, radius=self.radius_exact, rtol=self.rtol)
+
+    def atlas_state(self, row, chart: int, bits: int):
+        """A state written in ``chart``, as the (x, p) state of :meth:`atlas_twin` (``bits`` bits)."""
+        prec = resolve_precision(bits)
+        arr = prec.array(state_fractions(row, self.dimension, "y"))
+        x = self.position(arr, chart=int(chart))
+        v = self.velocity(arr, chart=int(chart))
+        m = self.mass_exact
+        return prec.array([to_fraction(c) for c in x] + [m * to_fraction(c) for c in v])
+
     def __repr__(self):
         return f"Sphere(mass={self.mass}, radius={self.radius}, chart={self.chart})"
 
@@ -408,3 +452,47 @@ class SphereDirac(_SphereBase):
 
     def __repr__(self):
         return f"SphereDirac(mass={self.mass}, radius={self.radius})"
+
+
+# -- scenes: [model] kind = "sphere" | "sphere_dirac", [initial] x, v ----------------------------------------------
+def _edge_field(value, path):
+    """A chart's edge: in (0, 1/sqrt(3)) (every point has a coordinate with |x_k| >= |x|/sqrt(3), so below that
+    every point lies inside the chart of its largest coordinate)."""
+    F.number(value, path, below_one=True, what="a number in (0, 0.577) (below 1/sqrt(3))")
+    if to_fraction(value, path) ** 2 >= Fraction(1, 3):
+        F.fail(path, "a number in (0, 0.577): below 1/sqrt(3), since every point has a coordinate with "
+                     "|x_k| >= |x|/sqrt(3) and so lies inside the chart of its largest coordinate", value)
+    return value
+
+
+_MASS_DOCS = {"mass": ("positive number", "the particle's mass"),
+              "radius": ("positive number", "the sphere's radius")}
+
+register_initial_family(InitialFamily(
+    "sphere",
+    fields={"x": (F.vector3, F.REQUIRED), "v": (F.vector3, F.REQUIRED)},
+    docs={"x": ("3 numbers", "the position, on the sphere"), "v": ("3 numbers", "the velocity, tangent to it")},
+    state=lambda model, ini, precision: model.initial_state(ini["x"], ini["v"], precision=precision),
+))
+
+register_model_kind(ModelKind(
+    "sphere",
+    fields={"mass": (F.positive, 1), "radius": (F.positive, 1), "chart": (F.integer(0, 2), 2),
+            "edge": (_edge_field, 0.05), "atlas": (F.boolean, True)},
+    docs={**_MASS_DOCS,
+          "chart": ("0 | 1 | 2", "the dependent coordinate of the chart the state is written in"),
+          "edge": ("number in (0, 0.577)", "a chart ends where abs(x_chart) <= edge * abs(x); below 1/sqrt(3), "
+                   "since every point has a coordinate with abs(x_k) >= abs(x)/sqrt(3)"),
+          "atlas": ("boolean", "runs and studies switch charts (true) or stay in one and stop at its edge")},
+    build=lambda p, base: Sphere(mass=p["mass"], radius=p["radius"], chart=p["chart"],
+                                 edge=float(to_fraction(p["edge"])), atlas=p["atlas"]),
+    family="sphere", label="sphere (5-d chart)", data_fields=("mass", "radius"),
+))
+
+register_model_kind(ModelKind(
+    "sphere_dirac",
+    fields={"mass": (F.positive, 1), "radius": (F.positive, 1)},
+    docs=dict(_MASS_DOCS),
+    build=lambda p, base: SphereDirac(mass=p["mass"], radius=p["radius"]),
+    family="sphere", label="sphere (Dirac)", data_fields=("mass", "radius"),
+))

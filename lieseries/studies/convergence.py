@@ -16,13 +16,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fractions import Fraction
+
+from .. import fields as F
+from ..formatting import MARKERS, fmt_num, fmt_sci, markdown_table, positive_or_nan, pyplot, save_figure
 from ..poisson import as_poisson_system
 from ..precision import thread_mp as mp
 from ..precision import to_fraction
+from .plugin import Study, register_study
 from .reference import (finite_or_none, max_difference, observable_names, observables, reference_solution,
                         theoretical_radius)
 
-__all__ = ["ErrorVsOrder", "error_vs_order", "fit_geometric_rate"]
+__all__ = ["ErrorVsOrder", "error_vs_order", "fit_geometric_rate", "orders_of", "ErrorVsOrderStudy"]
 
 #: Errors below FLOOR_FACTOR * 10^-dps are round-off and are left out of the fit.
 FLOOR_FACTOR = 100
@@ -224,3 +229,165 @@ def error_vs_order(system, y0, t, orders, dps: int = 60, reference=None, *, fit_
         system=getattr(ps, "name", ""),
         quantities=list(observable_names(system)),
     )
+
+
+# -- the study in scenes and reports ---------------------------------------------------------------------------
+def orders_of(ev) -> list:
+    """The orders of an ``error_vs_order`` table: ``orders``, or ``min_order .. max_order`` by ``step``."""
+    if ev.get("orders") is not None:
+        return sorted(set(int(o) for o in ev["orders"]))
+    top = ev.get("max_order") or 40
+    return list(range(ev.get("min_order", 1), top + 1, ev.get("step", 1)))
+
+
+class ErrorVsOrderStudy(Study):
+    """``[studies.error_vs_order]``: the truncated series against its order, at one time, per model."""
+
+    name = "error_vs_order"
+    title = "Error vs order"
+    quick_doc = "error vs order up to half the largest order (at least 12) and at most 40 digits"
+    fields = {
+        "t": (F.nonzero, None),
+        "t_fraction": (F.fraction01, None),
+        "orders": (F.orders, None),
+        "max_order": (F.integer(1, 10_000), None),
+        "min_order": (F.integer(0, 10_000), 1),
+        "step": (F.integer(1, 1000), 1),
+        "dps": (F.integer(15, 10_000), 60),
+        "fit_min_order": (F.integer(0, 10_000), None),
+    }
+    docs = {
+        "t": ("number", "the time at which the truncated series is compared"),
+        "t_fraction": ("number in (0, 1)", "or t as this fraction of the theoretical radius of convergence"),
+        "orders": ("list of integers", "the orders (or max_order, min_order, step)"),
+        "max_order": ("integer", "the largest order"),
+        "min_order": ("integer", "the smallest order"),
+        "step": ("integer", "the step between orders"),
+        "dps": ("integer", "digits of the series and of the reference"),
+        "fit_min_order": ("integer", "the smallest order in the rate fit (default: the upper half)"),
+    }
+
+    def check(self, ev, run, models, where):
+        if (ev["t"] is None) == (ev["t_fraction"] is None):
+            raise F.SceneError("`studies.error_vs_order` needs exactly one of `t` (a time) or `t_fraction` (a "
+                               "fraction of the theoretical radius of convergence)" + (
+                                   "; got both" if ev["t"] is not None else "; missing required field "
+                                   "`studies.error_vs_order.t`"))
+        if ev["orders"] is not None and ev["max_order"] is not None:
+            raise F.SceneError("`studies.error_vs_order` takes `orders` or `max_order`, not both")
+        if ev["t_fraction"] is not None and all(theoretical_radius(model, y0) is None
+                                                for _path, _spec, model, y0 in models):
+            raise F.SceneError("`studies.error_vs_order.t_fraction` needs a theoretical radius of convergence, "
+                               "which no model of this scene has (the Dirac form of the sphere, a damped body and "
+                               "a model without a closed form have none); give `t` instead")
+
+    def quick(self, ev):
+        orders = orders_of(ev)
+        top = max(12, max(orders) // 2)
+        ev["orders"] = [o for o in orders if o <= top]
+        ev["max_order"] = None
+        ev["dps"] = min(ev["dps"], 40)
+
+    def run(self, opts, ctx):
+        orders = orders_of(opts)
+        states = [(lab, model, ctx.initial_state(model)) for lab, model in ctx.built]
+        if opts["t"] is not None:
+            t = to_fraction(opts["t"])
+        else:
+            radii = [theoretical_radius(model, y0) for _, model, y0 in states]
+            radii = [r for r in radii if r is not None]
+            if not radii:
+                raise F.SceneError("`studies.error_vs_order.t_fraction`: no model of this scene has a known radius "
+                                   "of convergence; give `t`")
+            t = to_fraction(opts["t_fraction"]) * to_fraction(min(radii))
+            t = Fraction(t).limit_denominator(10**12)
+        out = []
+        for i, (lab, model, y0) in enumerate(states):
+            try:
+                res = error_vs_order(model, y0, t, orders, dps=opts["dps"], fit_min_order=opts["fit_min_order"],
+                                     progress=ctx.model_progress(i, lab))
+            except Exception as err:  # one failing model must not take the rest of the report with it
+                ctx.notes.append(f"error vs order ({lab}): failed: {type(err).__name__}: {err}")
+                ctx.failed.append(f"error vs order ({lab}): {type(err).__name__}: {err}")
+                continue
+            out.append((lab, res))
+        return out
+
+    def section(self, items, ctx):
+        lines, csvs = [], []
+        if not items:
+            return ["Not computed (see the notes).", ""], csvs
+        lines.append("Error of the Lie series truncated at order N, at a fixed time t. Inside the disc of "
+                     "convergence error_N ~ C (|t| / rho)^N: the least-squares slope of log10(error) against N (over "
+                     "the orders listed, above the precision floor 100 x 10^-dps; by default the upper half of them, "
+                     "since low orders can be pre-asymptotic) gives rho = |t| 10^(-slope), compared with the distance "
+                     "to the nearest singularity of the exact solution.")
+        lines.append("")
+        h = ["model", "t", "dps", "fitted slope [log10/order]", "rho measured", "rho theory", "measured / theory",
+             "orders fitted"]
+        rows = []
+        for mlabel, ev in items:
+            fit = f"{min(ev.fit_orders)}-{max(ev.fit_orders)}" if ev.fit_orders else ""
+            rows.append([mlabel, fmt_num(ev.t), str(ev.dps), fmt_sci(ev.rate, 4), fmt_sci(ev.radius_measured, 4),
+                         fmt_sci(ev.radius_theory, 4) if ev.radius_theory else "none",
+                         f"{ev.radius_ratio:.4f}" if ev.radius_ratio else "", fit])
+        lines += [markdown_table(h, rows), ""]
+        csvs.append(("error_vs_order_fit.csv", h, rows))
+        orders = sorted({o for _, ev in items for o in ev.orders})
+        h2 = ["order"] + [f"error ({m})" if len(items) > 1 else "error" for m, _ in items]
+        maps = [dict(zip(ev.orders, ev.errors)) for _, ev in items]
+        rows2 = [[str(o)] + [fmt_sci(em.get(o)) for em in maps] for o in orders]
+        csvs.append(("error_vs_order.csv", h2, rows2))
+        for mlabel, ev in items:
+            if ev.radius_theory is None:
+                lines.append(f"- {mlabel}: no finite theoretical radius (no singularity at finite complex time), so "
+                             "the fitted 'radius' only describes the orders shown; an entire series falls faster "
+                             "than any geometric rate.")
+        lines.append(f"- Reference: {items[0][1].reference}. Full error table: `error_vs_order.csv`.")
+        lines.append("")
+        lines += ["<details><summary>Error against order</summary>", "", markdown_table(h2, rows2), "", "</details>",
+                  ""]
+        if ctx.plotted:
+            lines += ["![error vs order](error_vs_order.png)", ""]
+        return lines, csvs
+
+    def plot(self, items, path, scene):
+        import math
+
+        plt = pyplot()
+        fig, ax = plt.subplots(figsize=(7.5, 5.5))
+        for k, (mlabel, ev) in enumerate(items):
+            color = f"C{k}"
+            ax.semilogy(ev.orders, positive_or_nan(ev.errors), marker=MARKERS[k % len(MARKERS)], linestyle="none",
+                        color=color, markersize=4, label=f"{mlabel}: truncation error at t = {ev.t:.4g}")
+            if ev.rate is not None and ev.fit_orders:
+                xs = [min(ev.fit_orders), max(ev.fit_orders)]
+                ax.semilogy(xs, [10 ** (ev.intercept + ev.rate * x) for x in xs], "-", color=color, linewidth=1,
+                            label=f"fit: rho = {ev.radius_measured:.4g}")
+                if ev.radius_theory:
+                    slope = math.log10(abs(ev.t) / ev.radius_theory)
+                    mid = 0.5 * (xs[0] + xs[1])
+                    anchor = ev.intercept + ev.rate * mid
+                    ax.semilogy(xs, [10 ** (anchor + slope * (x - mid)) for x in xs], ":", color="k",
+                                linewidth=1.2, label=f"theory: (t / rho)^N, rho = {ev.radius_theory:.4g}")
+        floor = min(ev.floor for _, ev in items)
+        smallest = min((e for _, ev in items for e in ev.errors if e and e > 0), default=floor)
+        if floor > smallest * 1e-4:  # drawn when the data come near it (it would only stretch the axis otherwise)
+            ax.axhline(floor, color="grey", linestyle="--", linewidth=0.8, label=f"precision floor {floor:.0e}")
+        ax.set_xlabel("truncation order N")
+        ax.set_ylabel("max-abs error of the truncated Lie series")
+        ax.set_title("Lie series: error against order (slope gives the radius of convergence)", fontsize=10)
+        ax.legend(loc="best", fontsize=8)
+        ax.grid(alpha=0.3, which="both")
+        save_figure(plt, fig, path)
+
+    def summary(self, items):
+        out = []
+        for mlabel, ev in items:
+            th = f", theory {ev.radius_theory:.4g}" if ev.radius_theory else ""
+            rm = "n/a" if ev.radius_measured is None else f"{ev.radius_measured:.4g}"
+            out.append(f"error vs order ({mlabel}): radius measured {rm}{th}")
+        return out
+
+
+register_study(ErrorVsOrderStudy())

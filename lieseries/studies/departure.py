@@ -22,12 +22,16 @@ from fractions import Fraction
 import numpy as np
 
 from .. import exact
+from .. import fields as F
+from ..formatting import file_tag, fmt_sci, markdown_table, pyplot, save_figure
 from ..models.euler_poisson import EulerPoisson
 from ..precision import check_count, resolve_precision, to_fraction
 from ..precision import thread_mp as mp
 from ..taylor import integrate
+from .plugin import Study, register_study
 
-__all__ = ["DepartureMap", "departure_map"]
+__all__ = ["DepartureMap", "departure_map", "plot_departure_map", "departure_map_table", "departure_map_reading",
+           "DepartureMapStudy"]
 
 
 @dataclass
@@ -214,3 +218,205 @@ def _first_departure(sol, ref, times, thr: Fraction, dps: int):
             if err > limit and first == math.inf:
                 first = float(tk)
     return first, worst
+
+
+# -- the study in scenes and reports ---------------------------------------------------------------------------
+def _grid_field(value, path):
+    """[n_theta, n_phi] of the departure map: at most 64 x 128 directions."""
+    if not isinstance(value, list) or len(value) != 2:
+        F.fail(path, "a list [n_theta, n_phi] of two integers", value)
+    F.integer(1, 64)(value[0], f"{path}[0]")
+    F.integer(1, 128)(value[1], f"{path}[1]")
+    return value
+
+
+def plot_departure_map(result, path) -> None:
+    """Departure time and digits kept over the (azimuth, polar angle) grid of M0, one column per precision, the
+    separatrix drawn. ``result``: a SceneResult with a departure_map study (its first model) or a DepartureMap."""
+    m = result.studies["departure_map"][0][1] if hasattr(result, "studies") else result
+    plt = pyplot()
+    names = list(m.departure)
+    fig, axes = plt.subplots(2, len(names), figsize=(5.2 * len(names), 8.2), squeeze=False)
+    ph, th = np.degrees(m.phi), np.degrees(m.theta)
+    contour = min(m.energy_ratio.shape) >= 2 and m.energy_ratio.min() < 1 < m.energy_ratio.max()
+    for ax, name in zip(axes[1], names):
+        digits = -np.log10(np.maximum(m.max_error[name], 1e-300))
+        im = ax.pcolormesh(ph, th, digits, shading="nearest", cmap="magma")
+        if contour:
+            ax.contour(ph, th, m.energy_ratio, levels=[1.0], colors="c", linewidths=1.2)
+        ax.set_title(f"{name}: digits kept, -log10 max |y - exact| on [0, {m.T:g}]")
+        ax.set_xlabel("azimuth of M0 (deg)")
+        ax.set_ylabel("polar angle of M0 from axis 3 (deg)")
+        fig.colorbar(im, ax=ax, label="digits")
+    for ax, name in zip(axes[0], names):
+        im = ax.pcolormesh(ph, th, m.departure[name], shading="nearest", cmap="viridis", vmin=0, vmax=m.T)
+        if contour:
+            ax.contour(ph, th, m.energy_ratio, levels=[1.0], colors="w", linewidths=1.2)
+        ys, xs = np.nonzero(m.stayed[name])
+        ax.scatter(ph[xs], th[ys], s=4, c="k", marker=".", label=f"stayed within to T = {m.T:g}")
+        ax.set_title(f"{name}: time before |y - exact| > {m.threshold:g}")
+        ax.set_xlabel("azimuth of M0 (deg)")
+        ax.set_ylabel("polar angle of M0 from axis 3 (deg)")
+        fig.colorbar(im, ax=ax, label="departure time")
+    axes[0][0].legend(loc="lower left", fontsize=7)
+    fig.suptitle(f"Rigid body I = {tuple(m.inertia)}, |M| = 1, R(0) = 1 (white: the separatrix)")
+    save_figure(plt, fig, path)
+
+
+def departure_map_table(m):
+    """(headers, rows): one row per precision of a DepartureMap."""
+    h = ["precision", "members that departed before T", "earliest departure", "median departure (departed)",
+         "fewest digits kept (where)", "most digits kept", "statuses other than success", "integration time"]
+    rows = []
+    for name, dep in m.departure.items():
+        gone = ~m.stayed[name]
+        bad = [s for s in m.statuses[name] if s != "success"]
+        med = f"{np.median(dep[gone]):.1f}" if gone.any() else "-"
+        err = m.max_error[name]
+        i, j = np.unravel_index(np.argmax(err), err.shape)
+        rows.append([name, f"{int(gone.sum())} / {dep.size}", f"{dep.min():.1f}", med,
+                     f"{-np.log10(err.max()):.1f} (2 H I2 / abs(M)^2 = {m.energy_ratio[i, j]:.3f})",
+                     f"{-np.log10(err.min()):.1f}" if err.min() > 0 else "all (no difference)", str(len(bad)),
+                     f"{m.run_time[name]:.2f} s"])
+    return h, rows
+
+
+def departure_map_reading(m) -> str:
+    """How to read the DepartureMap ``m`` (a paragraph for reports), with what its data show: per precision the
+    departures measured, and on the separatrix the shift between precisions beside ln(eps ratio) / lambda."""
+    growth = ", ".join(f"{name} {t:.0f}" for name, t in m.predicted.items())
+    text = ("How to read it: the white curve is the separatrix (2 H I2 = |M|^2) through the unstable rotation about "
+            "the intermediate axis. A motion on it creeps towards that rotation, where its errors grow like "
+            f"exp(lambda t), lambda = {m.saddle_rate:.4f}: it departs once it is near that rotation plus "
+            f"ln(threshold / eps) / lambda ({growth}), so a wider format buys a time shift of ln(eps ratio) / "
+            "lambda, not a factor. Off the separatrix errors grow about linearly (a phase drift), the faster the "
+            "closer the motion passes the saddle; the digits-kept panels show where digits were lost.")
+    gap = np.abs(m.energy_ratio - 1)
+    on = gap < 1e-9
+    if on.any():
+        text += f" {int(on.sum())} grid directions lie on the separatrix (energy ratio 1 within 1e-9)."
+    else:
+        text += (f" No grid direction lies on the separatrix (the closest has energy ratio "
+                 f"{m.energy_ratio.flat[int(np.argmin(gap))]:.4f})"
+                 + (": n_theta an odd multiple of 3 and n_phi even put some on it for I = (1, 2, 3)."
+                    if tuple(m.inertia) == (1.0, 2.0, 3.0) else "."))
+    first = None  # (precision, median departure on the separatrix) of the first precision that departed there
+    for name, dep in m.departure.items():
+        gone = ~m.stayed[name]
+        if not gone.any():
+            worst = float(m.max_error[name].max())
+            text += (f" {name}: no direction departed by T = {m.T:g} ("
+                     + (f"at least {-np.log10(worst):.1f} digits kept everywhere)." if worst > 0 else
+                        "no difference from the closed form at all)."))
+            continue
+        text += f" {name}: {int(gone.sum())} of {dep.size} departed, the earliest at {dep[gone].min():.1f}"
+        if (gone & on).any():
+            med = float(np.median(dep[gone & on]))
+            text += f"; on the separatrix at {med:.1f} (median)"
+            if first is None:
+                first = (name, med)
+            elif name in m.predicted and first[0] in m.predicted:
+                text += (f", {med - first[1]:.1f} after {first[0]} (ln(eps ratio) / lambda: "
+                         f"{m.predicted[name] - m.predicted[first[0]]:.1f})")
+        off = gone & ~on
+        text += (f"; {int(off.sum())} off it." if off.any() else "; none off it.")
+    return text
+
+
+class DepartureMapStudy(Study):
+    """``[studies.departure_map]``: how long each precision stays on the closed form over |M0| = 1 (the scene's
+    free rigid bodies with principal inertia, Chetaev bracket; [initial] is not used)."""
+
+    name = "departure_map"
+    title = "Departure map"
+    quick_doc = "the departure map on at most a 3 x 6 grid, over a tenth of the time with at most 20 output times"
+    fields = {
+        "grid": (_grid_field, [8, 16]),
+        "T": (F.positive, 100),
+        "samples": (F.integer(2, 100_000), 100),
+        "precisions": (F.list_of(F.precision, allow_scalar=False), ["double", "quad"]),
+        "threshold": (F.positive, "1e-6"),
+        "dps": (F.integer(15, 1000), 30),
+    }
+    docs = {
+        "grid": ("[integer 1..64, integer 1..128]", "n_theta x n_phi directions of M0 on abs(M) = 1 (polar angle "
+                 "from axis 3, azimuth)"),
+        "T": ("positive number", "the final time"),
+        "samples": ("integer 2..100000", "equally spaced output times where the state is compared"),
+        "precisions": ("list of precisions", "'double', 'long double', 'quad' or bits: one ensemble run each"),
+        "threshold": ("positive number", "departure: the first output time with max abs(y - y_exact) > threshold"),
+        "dps": ("integer 15..1000", "digits of the closed-form reference and of the exact initial data"),
+    }
+
+    def check(self, opts, run, models, where):
+        """The map integrates the free rigid body with principal inertia, Chetaev form, against its closed form."""
+        for path, spec, model, _y0 in models:
+            if getattr(model, "closed_form", None) != "free_rigid_body":
+                raise F.SceneError(f"`studies.departure_map` needs a free rigid body: `{path}.kind` must be "
+                                   f"'euler_poisson'; got {F.show(spec.kind)}")
+            if model.bracket != "chetaev":
+                raise F.SceneError(f"`studies.departure_map` integrates the Chetaev form: `{path}.bracket` must be "
+                                   f"'chetaev'; got {F.show(model.bracket)}")
+            if not model.diagonal:
+                raise F.SceneError(f"`studies.departure_map` needs principal moments: `{path}.inertia` must be 3 "
+                                   "numbers or a diagonal 3x3 tensor; got one with off-diagonal entries")
+
+    def quick(self, dm):
+        dm["grid"] = [min(dm["grid"][0], 3), min(dm["grid"][1], 6)]
+        dm["T"] = float(to_fraction(dm["T"])) / 10
+        dm["samples"] = min(dm["samples"], 20)
+
+    def run(self, opts, ctx):
+        out = []
+        for i, (lab, model) in enumerate(ctx.built):
+            inertia = tuple(model.inertia_exact[j][j] for j in range(3))
+            out.append((lab, departure_map(inertia, grid=tuple(opts["grid"]), T=opts["T"], samples=opts["samples"],
+                                           precisions=opts["precisions"], threshold=opts["threshold"],
+                                           dps=opts["dps"], progress=ctx.model_progress(i, lab))))
+        return out
+
+    def unsuccessful(self, items):
+        out = []
+        for lab, dm in items:
+            for prec, statuses in dm.statuses.items():
+                bad = [s for s in statuses if s != "success"]
+                if bad:
+                    kinds = ", ".join(f"{k} x{bad.count(k)}" for k in sorted(set(bad)))
+                    out.append(f"departure map ({lab}): {len(bad)} of {len(statuses)} {prec} members: {kinds}")
+        return out
+
+    def section(self, items, ctx):
+        lines, csvs = [], []
+        for mlabel, m in items:
+            n_theta, n_phi = m.energy_ratio.shape
+            lines.append(f"**{mlabel}**: I = {tuple(m.inertia)}, R(0) = 1, initial angular momentum M0 on |M| = 1 "
+                         f"over a {n_theta} x {n_phi} grid of directions (both sides of the separatrix), one ensemble "
+                         "run of `ls.integrate` at tol = eps per precision, compared up to "
+                         f"T = {m.T:g} with the closed form (`ls.exact.euler_poisson_many`, at least 10 digits beyond "
+                         "the finest precision). Departure: the first output time where the 12-number "
+                         f"state differs from it by more than {m.threshold:g} (max norm).")
+            lines.append("")
+            h, rows = departure_map_table(m)
+            lines += [markdown_table(h, rows), ""]
+            csvs.append((f"departure_map{file_tag(mlabel, len(items) > 1)}.csv", h, rows))
+            lines += [departure_map_reading(m), ""]
+        if ctx.plotted:
+            lines += ["![departure map](departure_map.png)", ""]
+        return lines, csvs
+
+    def plot(self, items, path, scene):
+        plot_departure_map(items[0][1], path)
+
+    def summary(self, items):
+        out = []
+        for mlabel, m in items:
+            for name, dep in m.departure.items():
+                gone = int((~m.stayed[name]).sum())
+                bad = sum(1 for st in m.statuses[name] if st != "success")
+                out.append(f"departure map ({mlabel}, {name}): {gone} / {dep.size} departed before T = {m.T:g}, "
+                           f"earliest {dep.min():.4g}, worst error {fmt_sci(float(m.max_error[name].max()))}"
+                           + (f", {bad} runs not successful" if bad else ""))
+        return out
+
+
+register_study(DepartureMapStudy())

@@ -23,13 +23,16 @@ from fractions import Fraction
 
 import numpy as np
 
-from ..models.base import state_fractions
+from .. import fields as F
+from ..formatting import file_tag, fmt_num, fmt_p, fmt_sci, markdown_table, positive_or_nan, pyplot, save_figure
+from ..models.base import as_model, state_fractions
 from ..poisson import as_poisson_system
 from ..precision import check_count, resolve_precision, to_fraction
+from .plugin import Study, register_study
 from .reference import loglog_slope
 
 __all__ = [
-    "Drift", "drift", "growth_exponent", "invariant_function"]
+    "Drift", "drift", "growth_exponent", "invariant_function", "growth_verdict", "DriftStudy"]
 
 
 @dataclass
@@ -128,13 +131,9 @@ def invariant_function(system, dps: int):
 
 
 def _perturbable(system, n: int) -> set:
-    """Indices of the state that ensemble members perturb: the momentum M of a rigid body (a perturbed R would
-    no longer be a rotation, and R^T R is conserved only on the rotation group); every entry otherwise."""
-    from ..models.euler_poisson import EulerPoisson
-
-    if isinstance(system, EulerPoisson):
-        return {9, 10, 11}
-    return set(range(n))
+    """Indices of the state that ensemble members perturb (the model's ``perturbable``: the momentum M of a rigid
+    body; every entry otherwise)."""
+    return set(as_model(system).perturbable()) & set(range(n))
 
 
 def drift(system, y0, t, precision="double", samples: int = 200, tol=None, *, ensemble: int = 1,
@@ -244,3 +243,134 @@ def drift(system, y0, t, precision="double", samples: int = 200, tol=None, *, en
         precision=prec.name, eps=eps, tol=tol_used, total_steps=total_steps, order=order, run_time=run_time,
         ensemble=int(ensemble), status=status, message=message, system=ps.name, scales=scales,
     )
+
+
+# -- the study in scenes and reports ---------------------------------------------------------------------------
+def growth_verdict(p) -> str:
+    """How a fitted drift exponent reads: flat, Brouwer's sqrt(steps) or linear."""
+    if p is None:
+        return "too few points"
+    if p < 0.75:
+        return "~ steps^0.5 (Brouwer)" if p > 0.25 else "flat (bounded)"
+    return "~ steps^1 (linear)"
+
+
+class DriftStudy(Study):
+    """``[studies.drift]``: the invariants' drift over a long heyoka run, per model."""
+
+    name = "drift"
+    title = "Invariant drift"
+    quick_doc = "drift over a tenth of the time, at most 60 samples and 4 ensemble members"
+    fields = {
+        "t": (F.positive, F.REQUIRED),
+        "precision": (F.precision, "double"),
+        "samples": (F.integer(6, 100_000), 200),
+        "tol": (F.tolerance, None),
+        "ensemble": (F.integer(1, 1000), 1),
+        "perturbation": (F.positive, 1e-9),
+        "seed": (F.integer(0), 0),
+        "first": (F.positive, None),
+    }
+    docs = {
+        "t": ("positive number", "the final time (long: 10^4 steps and more)"),
+        "precision": ("'double' | 'long double' | 'quad' | bits", "heyoka's precision"),
+        "samples": ("integer 6..100000", "log-spaced sample times"),
+        "tol": ("number in (0, 1)", "heyoka's tolerance (default: epsilon)"),
+        "ensemble": ("integer 1..1000", "runs from perturbed copies of the initial state"),
+        "perturbation": ("positive number", "their size, relative to max |y0|"),
+        "seed": ("integer >= 0", "the seed of the perturbations"),
+        "first": ("positive number", "the first sample time (default t / 1000)"),
+    }
+
+    def quick(self, dr):
+        dr["t"] = float(to_fraction(dr["t"])) / 10
+        dr["samples"] = min(dr["samples"], 60)
+        dr["ensemble"] = min(dr["ensemble"], 4)
+        if dr["first"] is not None:
+            dr["first"] = min(float(to_fraction(dr["first"])), dr["t"] / 100)
+
+    def run(self, opts, ctx):
+        return [(lab, drift(model, ctx.initial_state(model), opts["t"], precision=opts["precision"],
+                            samples=opts["samples"], tol=opts["tol"], ensemble=opts["ensemble"],
+                            perturbation=float(to_fraction(opts["perturbation"])), seed=opts["seed"],
+                            first=opts["first"], progress=ctx.model_progress(i, lab)))
+                for i, (lab, model) in enumerate(ctx.built)]
+
+    def unsuccessful(self, items):
+        return [f"drift ({lab}): {dr.status}" for lab, dr in items if dr.status != "success"]
+
+    def section(self, items, ctx):
+        lines = ["Drift |I(t) - I(0)| of each invariant over a long heyoka run at tolerance eps (truncation error "
+                 "below round-off), at log-spaced sample times. Round-off that behaves like a random walk grows "
+                 "like eps sqrt(steps) (Brouwer's law); a biased error grows like eps steps. *p* is the fitted "
+                 "exponent of drift ~ steps^p (log-log slope of the running maximum over the second half of the "
+                 "samples).", ""]
+        csvs = []
+        for mlabel, dr in items:
+            ens = f", RMS over an ensemble of {dr.ensemble} runs" if dr.ensemble > 1 else ""
+            t_end = fmt_num(dr.times[-1]) if dr.times else ""
+            lines.append(f"**{mlabel}**: heyoka {dr.precision}, tol {fmt_sci(dr.tol)}, t = {t_end}, "
+                         f"{dr.total_steps} steps, order {dr.order}, run time {fmt_sci(dr.run_time)} s{ens}; "
+                         f"status {dr.status}.")
+            if dr.status != "success":
+                reach = f"up to t = {fmt_num(dr.times[-1])}" if dr.times else "at no sample time"
+                lines.append(f"The run stopped early ({dr.message}); the drift below is measured {reach}, and empty "
+                             "cells mean no sample was reached.")
+            lines.append("")
+            h = ["invariant", "I(0)", "final drift", "max drift", "Brouwer eps sqrt(N) |I(0)|", "exponent p",
+                 "growth"]
+            rows = []
+            for name, errs in dr.errors.items():
+                p = dr.exponents.get(name)
+                rows.append([name, fmt_sci(dr.initial.get(name), 6), fmt_sci(errs[-1] if errs else None),
+                             fmt_sci(max(errs) if errs else None),
+                             fmt_sci(dr.brouwer[name][-1] if dr.brouwer[name] else None), fmt_p(p),
+                             growth_verdict(p)])
+            lines += [markdown_table(h, rows), ""]
+            tag = file_tag(mlabel, len(items) > 1)
+            csvs.append((f"drift_summary{tag}.csv", h, rows))
+            h2 = ["t", "steps"] + [f"drift {k}" for k in dr.errors]
+            rows2 = [[repr(t), f"{s:.6g}"] + [repr(dr.errors[k][i]) for k in dr.errors]
+                     for i, (t, s) in enumerate(zip(dr.times, dr.steps))]
+            csvs.append((f"drift{tag}.csv", h2, rows2))
+        if ctx.plotted:
+            lines += ["![invariant drift](drift.png)", ""]
+        return lines, csvs
+
+    def plot(self, items, path, scene):
+        plt = pyplot()
+        n = len(items)
+        fig, axes = plt.subplots(1, n, figsize=(7.5 * n, 5.5), squeeze=False)
+        for j, (mlabel, dr) in enumerate(items):
+            ax = axes[0][j]
+            for k, name in enumerate(dr.errors):
+                ax.loglog(dr.times, positive_or_nan(dr.errors[name]), linewidth=1, color=f"C{k}",
+                          label=f"{name} (p = {fmt_p(dr.exponents.get(name))})")
+            ref = "energy" if "energy" in dr.errors else next(iter(dr.errors), None)
+            if ref is not None:
+                scale = dr.scales.get(ref, 1.0)
+                ax.loglog(dr.times, [dr.eps * math.sqrt(max(s, 1e-300)) * scale for s in dr.steps], "k--",
+                          linewidth=1.5, label=f"Brouwer: eps sqrt(steps) |{ref}(0)|")
+                ax.loglog(dr.times, [dr.eps * s * scale for s in dr.steps], color="grey", linestyle=":",
+                          linewidth=1.5, label=f"linear: eps steps |{ref}(0)|")
+            ax.set_xlabel(f"time t ({dr.total_steps} steps in all, ~{dr.total_steps / dr.times[-1]:.3g} per unit)"
+                          if dr.times else "time t")
+            ylab = "|I(t) - I(0)|" + (f", RMS over {dr.ensemble} runs" if dr.ensemble > 1 else "")
+            ax.set_ylabel(ylab)
+            ax.set_title(f"{mlabel}: invariant drift, heyoka {dr.precision}", fontsize=10)
+            ax.legend(loc="best", fontsize=7)
+            ax.grid(alpha=0.3, which="both")
+        save_figure(plt, fig, path)
+
+    def summary(self, items):
+        out = []
+        for mlabel, dr in items:
+            p = dr.exponents.get("energy")
+            energy = dr.errors.get("energy") or []
+            final = fmt_sci(energy[-1]) if energy else "n/a"
+            out.append(f"drift ({mlabel}): {dr.total_steps} steps, energy drift {final}, "
+                       f"exponent {fmt_p(p)} ({growth_verdict(p)})")
+        return out
+
+
+register_study(DriftStudy())

@@ -23,10 +23,10 @@ from fractions import Fraction
 
 import numpy as np
 
+from typing import Callable
+
 from .. import exact
-from ..models.base import state_fractions
-from ..models.euler_poisson import DampedEulerPoisson, EulerPoisson
-from ..models.sphere import Sphere, SphereDirac
+from ..models.base import as_model, state_fractions
 from ..poisson import as_poisson_system
 from ..precision import MAX_DPS, check_count, dps_to_bits, export_mpf, to_fraction
 from ..precision import thread_mp as mp
@@ -44,6 +44,9 @@ __all__ = [
     "max_difference",
     "theoretical_radius",
     "loglog_slope",
+    "ClosedForm",
+    "register_closed_form",
+    "unregister_closed_form",
 ]
 
 #: Precision (bits) and tolerance of the numerical reference used when a system has no closed form.
@@ -66,21 +69,8 @@ def to_float(x) -> float:
 
 # -- what is compared ------------------------------------------------------------------------------------------
 def observable_names(system) -> tuple:
-    """Names of the quantities :func:`observables` returns for ``system``."""
-    if isinstance(system, (Sphere, SphereDirac)):
-        return ("x1", "x2", "x3", "v1", "v2", "v3")
-    return tuple(as_poisson_system(system).names)
-
-
-def _sphere_xv(model, fracs, bits: int, chart=None):
-    """(x, v) as mpf at ``bits`` from an exact state (written in ``chart``), through the model's own conversion."""
-
-    with mp.workprec(bits):
-        arr = np.array([_mpf(q) for q in fracs], dtype=object)
-    x = model.position(arr, chart=chart) if chart is not None else model.position(arr)
-    v = model.velocity(arr, chart=chart) if chart is not None else model.velocity(arr)
-    with mp.workprec(bits):
-        return [_mpf(to_fraction(c)) for c in x], [_mpf(to_fraction(c)) for c in v]
+    """Names of the quantities :func:`observables` returns for ``system`` (the model's ``compared_names``)."""
+    return as_model(system).compared_names
 
 
 def observables(system, y, dps: int = 40) -> list:
@@ -97,19 +87,16 @@ def observables(system, y, dps: int = 40) -> list:
     Returns
     -------
     list of mpf
-        The state itself; for the sphere models position and velocity (see the module docstring).
+        The model's ``compared`` quantities: the state itself by default; for the sphere models position and
+        velocity (see the module docstring).
     """
     dps = check_count(dps, "dps", low=5, high=MAX_DPS)
-    n = as_poisson_system(system).dimension
-    fr = state_fractions(y, n, "y")
-    if isinstance(system, (Sphere, SphereDirac)):
-        bits = dps_to_bits(dps) + 16
-        chart = getattr(y, "charts", None)  # a row of an atlas run knows its chart
-        x, v = _sphere_xv(system, fr, bits, chart if isinstance(chart, int) else None)
-        with mp.workdps(dps):
-            return export_mpf([+c for c in x + v])
+    model = as_model(system)
+    fr = state_fractions(y, model.dimension, "y")
+    chart = getattr(y, "charts", None)  # a row of an atlas run knows its chart
+    vals = model.compared(fr, dps_to_bits(dps) + 16, chart if isinstance(chart, int) else None)
     with mp.workdps(dps):
-        return export_mpf([_mpf(q) for q in fr])
+        return export_mpf([_mpf(c) if isinstance(c, Fraction) else +c for c in vals])
 
 
 @dataclass
@@ -144,12 +131,50 @@ class Reference:
                 "values": [mp.nstr(v, min(self.dps, 30)) for v in self.values]}
 
 
+# -- closed forms, by the name a model gives in its ``closed_form`` --------------------------------------------------
+@dataclass(frozen=True)
+class ClosedForm:
+    """A closed-form solution of the models that name it (``model.closed_form == name``).
+
+    ``at(model, fractions, t, dps)``: the model's compared quantities at ``t`` from the exact initial state (mpf,
+    ``dps`` digits); ``many(model, fractions, times, dps)``: the same at several times (default: ``at`` per time);
+    ``radius(model, fractions, dps)``: the radius of convergence of the Lie series at the initial state (mpf,
+    None when unknown or infinite); ``label``: how reports name it.
+    """
+
+    name: str
+    label: str
+    at: Callable
+    many: Callable | None = None
+    radius: Callable | None = None
+
+
+_CLOSED_FORMS: dict = {}
+
+
+def register_closed_form(form: ClosedForm) -> ClosedForm:
+    """Make ``form`` the reference of every model whose ``closed_form`` is ``form.name``."""
+    if not isinstance(form, ClosedForm):
+        raise TypeError(f"`form` must be a ClosedForm; got {type(form).__name__}")
+    _CLOSED_FORMS[form.name] = form
+    return form
+
+
+def unregister_closed_form(name: str) -> None:
+    """Forget the closed form ``name`` (a plug-in's tests clean up with it)."""
+    _CLOSED_FORMS.pop(name, None)
+
+
+def _closed_form(system):
+    return _CLOSED_FORMS.get(getattr(as_model(system), "closed_form", None))
+
+
 def has_exact_solution(system) -> bool:
     """True when :func:`reference_solution` uses a closed form for ``system``."""
-    return _free_body(system) or isinstance(system, (Sphere, SphereDirac))
+    return _closed_form(system) is not None
 
 
-def _body_data(body: EulerPoisson, fr):
+def _body_data(body, fr):
     """(inertia as exact.euler_poisson takes it, Omega0 = I^-1 M0), exactly."""
     I = body.inertia_exact
     inertia = [I[i][i] for i in range(3)] if body.diagonal else I
@@ -158,7 +183,7 @@ def _body_data(body: EulerPoisson, fr):
     return inertia, omega
 
 
-def _rigid_exact(body: EulerPoisson, fr, t, dps):
+def _rigid_exact(body, fr, t, dps):
     inertia, omega = _body_data(body, fr)
     st = exact.euler_poisson(inertia, omega, to_fraction(t, "t"), dps=dps)
     with mp.workdps(dps + 10):
@@ -169,15 +194,54 @@ def _rigid_exact(body: EulerPoisson, fr, t, dps):
         return export_mpf([+v for v in R] + [mp.mpf(v) for v in st[9:]])
 
 
+def _rigid_many(body, fr, times, dps):
+    inertia, omega = _body_data(body, fr)
+    states = exact.euler_poisson_many(inertia, omega, times, dps=dps)
+    out = []
+    with mp.workdps(dps + 10):
+        R0 = [[_mpf(fr[3 * i + j]) for j in range(3)] for i in range(3)]
+        for st in states:
+            R = [mp.fsum(R0[i][k] * st[3 * k + j] for k in range(3)) for i in range(3) for j in range(3)]
+            out.append(R + list(st[9:]))
+    with mp.workdps(dps):
+        return export_mpf([[mp.mpf(v) for v in row] for row in out])
+
+
+def _rigid_radius(body, fr, dps):
+    inertia, omega = _body_data(body, fr)
+    return exact.rigid_body_constants(inertia, omega, dps=dps).pole_distance
+
+
 def _sphere_leaf(model, fr, dps):
     """Radius |x0|, x0 and the tangent part of v0 (mpf, at dps + 10) from an exact state."""
     bits = dps_to_bits(dps + 10) + 16
-    x, v = _sphere_xv(model, fr, bits)
+    xv0 = model.compared(fr, bits)
+    x, v = xv0[:3], xv0[3:]
     with mp.workdps(dps + 10):
         r2 = mp.fsum(c * c for c in x)
         xv = mp.fsum(a * b for a, b in zip(x, v))
         v = [v[i] - x[i] * xv / r2 for i in range(3)]  # x.v = 0 up to the state's own rounding
         return mp.sqrt(r2), x, v
+
+
+def _great_circle(model, fr, t, dps):
+    r, x, v = _sphere_leaf(model, fr, dps)
+    xt, vt = exact.sphere(r, x, v, t, dps=dps)
+    return list(xt) + list(vt)
+
+
+def _great_circle_radius(model, fr, dps):
+    chart = getattr(model, "chart", None)  # the pole of the dependent coordinate; the Dirac form has none
+    if chart is None:
+        return None
+    r, x, v = _sphere_leaf(model, fr, dps)
+    return exact.sphere_pole_distance(r, x, v, axis=chart, dps=dps)
+
+
+register_closed_form(ClosedForm("free_rigid_body", "closed form (Jacobi elliptic functions)", _rigid_exact,
+                                many=_rigid_many, radius=_rigid_radius))
+register_closed_form(ClosedForm("great_circle", "closed form (great circle)", _great_circle,
+                                radius=_great_circle_radius))
 
 
 def reference_solution(system, y0, t, dps: int = 40, reference=None) -> Reference:
@@ -208,13 +272,10 @@ def reference_solution(system, y0, t, dps: int = 40, reference=None) -> Referenc
     if reference is not None:
         vals = observables(system, reference, dps)
         return Reference(float(tf), vals, names, "given", "reference state given by the caller", dps)
-    if _free_body(system):
-        vals = _rigid_exact(system, fr, tf, dps)
-        return Reference(float(tf), vals, names, "exact", "closed form (Jacobi elliptic functions)", dps)
-    if isinstance(system, (Sphere, SphereDirac)):
-        r, x, v = _sphere_leaf(system, fr, dps)
-        xt, vt = exact.sphere(r, x, v, tf, dps=dps)
-        return Reference(float(tf), list(xt) + list(vt), names, "exact", "closed form (great circle)", dps)
+    form = _closed_form(system)
+    if form is not None:
+        vals = form.at(as_model(system), fr, tf, dps)
+        return Reference(float(tf), vals, names, "exact", form.label, dps)
     from ..taylor import integrate
 
     bits = max(NUMERICAL_REFERENCE_BITS, dps_to_bits(dps) + 16)
@@ -234,25 +295,12 @@ def reference_solutions(system, y0, ts, dps: int = 30) -> list:
     ps = as_poisson_system(system)
     fr = state_fractions(y0, ps.dimension, "y0")
     times = [to_fraction(v, "ts") for v in ts]
-    if _free_body(system):
-        inertia, omega = _body_data(system, fr)
-        states = exact.euler_poisson_many(inertia, omega, times, dps=dps)
-        out = []
-        with mp.workdps(dps + 10):
-            R0 = [[_mpf(fr[3 * i + j]) for j in range(3)] for i in range(3)]
-            for st in states:
-                R = [mp.fsum(R0[i][k] * st[3 * k + j] for k in range(3)) for i in range(3) for j in range(3)]
-                out.append(R + list(st[9:]))
-        with mp.workdps(dps):
-            return export_mpf([[mp.mpf(v) for v in row] for row in out])
-    if isinstance(system, (Sphere, SphereDirac)):
-        r, x, v = _sphere_leaf(system, fr, dps)
-        out = []
-        for tk in times:
-            xt, vt = exact.sphere(r, x, v, tk, dps=dps)
-            out.append(list(xt) + list(vt))
-        return out
-    return None
+    form = _closed_form(system)
+    if form is None:
+        return None
+    if form.many is not None:
+        return form.many(as_model(system), fr, times, dps)
+    return [form.at(as_model(system), fr, tk, dps) for tk in times]
 
 
 def max_difference(values, reference, dps: int) -> float:
@@ -278,13 +326,11 @@ def theoretical_radius(system, y0, dps: int = 30):
     """
     ps = as_poisson_system(system)
     fr = state_fractions(y0, ps.dimension, "y0")
-    if _free_body(system):
-        inertia, omega = _body_data(system, fr)
-        rho = exact.rigid_body_constants(inertia, omega, dps=dps).pole_distance
-    elif isinstance(system, Sphere):
-        r, x, v = _sphere_leaf(system, fr, dps)
-        rho = exact.sphere_pole_distance(r, x, v, axis=system.chart, dps=dps)
-    else:
+    form = _closed_form(system)
+    if form is None or form.radius is None:
+        return None
+    rho = form.radius(as_model(system), fr, dps)
+    if rho is None:
         return None
     if not mp.isfinite(rho):
         return None
@@ -299,11 +345,6 @@ def loglog_slope(x, y):
     if m.sum() < 3:
         return None
     return float(np.polyfit(np.log(x[m]), np.log(y[m]), 1)[0])
-
-
-def _free_body(system) -> bool:
-    """The free rigid body, which has a closed form (a damped body has none)."""
-    return isinstance(system, EulerPoisson) and not isinstance(system, DampedEulerPoisson)
 
 
 def finite_or_none(v):

@@ -11,38 +11,24 @@ measured in this one run on a shared machine: compare them with each other, not 
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from fractions import Fraction
 
-from ..methods import default_methods, expand_methods, method_label, reference_dps, run_method, setting
+from .. import fields as F
+from ..formatting import MARKERS, fmt_int, fmt_num, fmt_sci, markdown_table, pyplot, save_figure
+from ..methods import (RunRecord, default_methods, expand_methods, method_label, method_plugin, reference_dps,
+                       run_method, scene_methods, setting)
 from ..poisson import as_poisson_system
 from ..precision import check_count, to_fraction
+from .plugin import Study, register_study
 from .reference import reference_solution, state_error
 
-__all__ = ["WorkPrecisionRow", "WorkPrecision", "work_precision"]
+__all__ = ["WorkPrecisionRow", "WorkPrecision", "work_precision", "WorkPrecisionStudy"]
 
 
-@dataclass
-class WorkPrecisionRow:
-    """One row of a work-precision study (see :class:`MethodRun` for the fields); ``error`` is the max-abs
-    error of the final state against the reference at time ``t``."""
-
-    method: str
-    label: str
-    precision: str
-    setting: str
-    t: float
-    error: float | None
-    run_time: float | None
-    build_time: float | None
-    steps: int | None
-    nfev: int | None
-    order: int | None
-    status: str
-    message: str = ""
-
-    def to_dict(self) -> dict:
-        return asdict(self)
+#: A row of a work-precision study: the one run record (``error`` is the max-abs error of the final state against
+#: the reference at time ``t``).
+WorkPrecisionRow = RunRecord
 
 
 @dataclass
@@ -125,14 +111,134 @@ def work_precision(system, y0, t, methods=None, reference=None, repeat: int = 3,
         if run.ok:
             t_reached = run.t_exact if run.t_exact is not None else to_fraction(run.t)
             err = state_error(system, run.y_final, ref_at(t_reached))
-        rows.append(WorkPrecisionRow(
-            method=run.method, label=run.label, precision=run.precision, setting=run.setting, t=run.t,
-            error=err, run_time=run.run_time, build_time=run.build_time, steps=run.steps, nfev=run.nfev,
-            order=run.order, status=run.status, message=run.message,
-        ))
+        rows.append(run.measured(error=err))
     if progress:
         progress(total, total, "done")
     ref = ref_at(tf)
     ps = as_poisson_system(system)
     return WorkPrecision(t=float(tf), rows=rows, reference=f"{ref.label}, {ref.dps} digits", notes=notes,
                          system=ps.name)
+
+
+# -- the study in scenes and reports ---------------------------------------------------------------------------
+class WorkPrecisionStudy(Study):
+    """``[studies.work_precision]``: error against run time, one row per method and setting."""
+
+    name = "work_precision"
+    title = "Work-precision"
+    quick_doc = "work-precision with at most three values per setting, one repeat and mpmath capped at t = 0.5"
+    fields = {
+        "t": (F.nonzero, None),
+        "methods": (scene_methods(lists=True), None),
+        "repeat": (F.integer(1, 100), 3),
+    }
+    docs = {
+        "t": ("number", "the final time (default run.t)"),
+        "methods": ("array of method tables", "settings may be lists: one row per value"),
+        "repeat": ("integer 1..100", "best-of repeats of each timing"),
+    }
+
+    def check(self, wp, run, models, where):
+        if wp["t"] is None:
+            if run is None:
+                raise F.SceneError("missing required field `studies.work_precision.t` (there is no [run] to take it "
+                                   "from)")
+            wp["t"] = run["t"]
+
+    def quick(self, wp):
+        wp["repeat"] = 1
+        for m in wp["methods"] or []:
+            hook = method_plugin(m["method"]).quick_study
+            if hook is not None:
+                hook(m)
+
+    def run(self, opts, ctx):
+        methods = opts["methods"] if opts["methods"] is not None else default_methods(ctx.quick)
+        out = []
+        for i, (lab, model) in enumerate(ctx.built):
+            res = work_precision(model, ctx.initial_state(model), opts["t"], methods=methods, repeat=opts["repeat"],
+                                 progress=ctx.model_progress(i, lab))
+            for note in res.notes:
+                ctx.note(f"work-precision: {note}")
+            out.append((lab, res))
+        return out
+
+    def unsuccessful(self, items):
+        return [f"work-precision ({lab}): {r.label} {r.setting}: {r.status}" for lab, wp in items for r in wp.rows
+                if r.status != "success"]
+
+    def section(self, items, ctx):
+        lines = ["Error of the final state against run time (wall time of the call, best of the repeats, measured "
+                 "in this run on this machine: compare rows with each other). heyoka's compile time is shown apart "
+                 "as *build time* (0 when the integrator came from the cache); for scipy it is the compile time "
+                 "of the right-hand side (heyoka cfunc). mpmath's odefun is capped to short spans: see *t*.", ""]
+        multi = len(items) > 1
+        h = (["model"] if multi else []) + ["method", "precision", "setting", "t", "error", "run time [s]",
+                                            "build time [s]", "steps", "rhs evals", "order", "status"]
+        rows = []
+        for mlabel, wp in items:
+            for r in wp.rows:
+                rows.append(([mlabel] if multi else []) + [
+                    r.label, r.precision, r.setting, fmt_num(r.t), fmt_sci(r.error), fmt_sci(r.run_time),
+                    fmt_sci(r.build_time), fmt_int(r.steps), fmt_int(r.nfev), fmt_int(r.order), r.status])
+        lines += [markdown_table(h, rows), ""]
+        csvs = [("work_precision.csv", h, rows)]
+        for mlabel, wp in items:
+            lines.append(f"- Reference ({mlabel}): {wp.reference}.")
+            for note in wp.notes:
+                lines.append(f"- {note}")
+            for r in wp.rows:
+                if r.status not in ("success",):
+                    lines.append(f"- {r.label} {r.setting}: {r.status}: {r.message}")
+        lines.append("")
+        if ctx.plotted:
+            lines += ["![work-precision diagram](work_precision.png)", ""]
+        return lines, csvs
+
+    def plot(self, items, path, scene):
+        plt = pyplot()
+        fig, ax = plt.subplots(figsize=(8.5, 6))
+        series = {}
+        for mlabel, wp in items:
+            for r in wp.rows:
+                if r.error is None or r.run_time is None:
+                    continue
+                key = r.label if len(items) == 1 else f"{mlabel}: {r.label}"
+                series.setdefault(key, []).append(r)
+        shown_build = False
+        for k, (key, rows) in enumerate(series.items()):
+            color = f"C{k % 10}"
+            marker = MARKERS[k % len(MARKERS)]
+            xs = [r.run_time for r in rows]
+            ys = [max(r.error, 1e-300) for r in rows]
+            t_study = items[0][1].t
+            span = {r.t for r in rows}
+            if span and all(abs(ts - t_study) > 1e-12 * max(1.0, abs(t_study)) for ts in span):
+                key = f"{key} (to t = {max(span):.3g} only)"  # a capped method (odefun) must say so on the plot
+            ax.loglog(xs, ys, marker=marker, color=color, linewidth=1, markersize=6, label=key)
+            if rows[0].method == "taylor":
+                bx = [r.run_time + (r.build_time or 0.0) for r in rows if r.build_time]
+                by = [max(r.error, 1e-300) for r in rows if r.build_time]
+                if bx:
+                    ax.loglog(bx, by, marker=marker, color=color, markerfacecolor="none", linestyle="none",
+                              markersize=6, label=None if shown_build else "hollow: run + build time (heyoka)")
+                    shown_build = True
+        ax.set_xlabel("run time [s] (best of repeats; build time apart)")
+        ax.set_ylabel("max-abs error at the final time")
+        t = items[0][1].t if items else 0
+        ax.set_title(f"Work-precision diagram, t = {t:.4g}", fontsize=10)
+        ax.legend(loc="best", fontsize=7)
+        ax.grid(alpha=0.3, which="both")
+        save_figure(plt, fig, path)
+
+    def summary(self, items):
+        out = []
+        for mlabel, wp in items:
+            ok = [r for r in wp.rows if r.error is not None]
+            best = min(ok, key=lambda r: r.error) if ok else None
+            out.append(f"work-precision ({mlabel}): {len(wp.rows)} runs" + (
+                f", smallest error {fmt_sci(best.error)} ({best.label} {best.setting})" if best else ""))
+        return out
+
+
+register_study(WorkPrecisionStudy())

@@ -1,0 +1,124 @@
+"""Numbers and tables as text, and the figure helpers the report's plots share (matplotlib is imported only when a
+plot is drawn). Used by the report and by the studies' report sections."""
+
+from __future__ import annotations
+
+import math
+import textwrap
+
+__all__ = ["fmt_sci", "fmt_int", "fmt_num", "fmt_p", "markdown_table", "plain_table", "pyplot", "save_figure",
+           "positive_or_nan", "wrap", "MARKERS", "file_tag"]
+
+
+def fmt_sci(x, digits: int = 3) -> str:
+    """Scientific notation with ``digits`` significant digits ("" for None, "0" for zero)."""
+    if x is None:
+        return ""
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return str(x)
+    if math.isnan(x):
+        return "nan"
+    if math.isinf(x):
+        return "inf" if x > 0 else "-inf"
+    if x == 0:
+        return "0"
+    return f"{x:.{digits - 1}e}"
+
+
+def fmt_int(x) -> str:
+    return "" if x is None else f"{int(x):d}"
+
+
+def fmt_num(x) -> str:
+    """A plain number for parameters (times, fractions): up to 6 significant digits."""
+    if x is None:
+        return ""
+    try:
+        return f"{float(x):.6g}"
+    except (TypeError, ValueError):
+        return str(x)
+
+
+def fmt_p(p) -> str:
+    """A fitted exponent with two decimals ("n/a" for None)."""
+    return "n/a" if p is None else f"{p:.2f}"
+
+
+def _is_numeric(cell: str) -> bool:
+    s = cell.strip()
+    if not s:
+        return False
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return s in ("nan", "inf", "-inf")
+
+
+def markdown_table(headers, rows) -> str:
+    """A Markdown table with padded columns; columns of numbers are right-aligned."""
+    headers = [str(h) for h in headers]
+    rows = [[("" if c is None else str(c)).replace("|", "\\|") for c in r] for r in rows]
+    ncol = len(headers)
+    widths = [max([len(headers[j])] + [len(r[j]) for r in rows] + [3]) for j in range(ncol)]
+    blank = ("", "none", "n/a")
+    numeric = [bool(rows) and all(_is_numeric(r[j]) or r[j].strip() in blank for r in rows)
+               and any(_is_numeric(r[j]) for r in rows) for j in range(ncol)]
+
+    def line(cells):
+        out = []
+        for j, c in enumerate(cells):
+            out.append(c.rjust(widths[j]) if numeric[j] else c.ljust(widths[j]))
+        return "| " + " | ".join(out) + " |"
+
+    sep = "| " + " | ".join(("-" * (widths[j] - 1) + ":") if numeric[j] else "-" * widths[j]
+                            for j in range(ncol)) + " |"
+    return "\n".join([line(headers), sep] + [line(r) for r in rows])
+
+
+def plain_table(headers, rows) -> str:
+    """A plain-text table for the terminal."""
+    widths = [max([len(str(h))] + [len(str(r[j])) for r in rows]) for j, h in enumerate(headers)]
+    out = ["  ".join(str(h).ljust(widths[j]) for j, h in enumerate(headers))]
+    out.append("  ".join("-" * w for w in widths))
+    for r in rows:
+        out.append("  ".join(str(c).ljust(widths[j]) for j, c in enumerate(r)))
+    return "\n".join(out)
+
+
+def file_tag(label: str, several: bool) -> str:
+    """"" for a scene's only model, else "_" and the label with non-alphanumerics as "_" (CSV file names)."""
+    return "" if not several else "_" + "".join(c if c.isalnum() else "_" for c in label)
+
+
+def wrap(text: str, width: int) -> str:
+    return "\n".join(textwrap.wrap(text, width))
+
+
+# -- figures ---------------------------------------------------------------------------------------------------
+#: Markers of successive series in a plot.
+MARKERS = ["o", "s", "^", "D", "v", "P", "X", "*", "<", ">"]
+
+
+def pyplot():
+    """matplotlib.pyplot with the Agg backend (no display needed)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save_figure(plt, fig, path) -> None:
+    """Lay out, write (PNG, 110 dpi) and close a figure."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def positive_or_nan(values):
+    """The values with None, non-positive and non-finite ones as NaN (for log axes)."""
+    return [v if (v is not None and v > 0 and math.isfinite(v)) else float("nan") for v in values]
