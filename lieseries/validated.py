@@ -6,8 +6,8 @@ contains the exact solution of the exact problem (initial data and parameters ta
 user gives uncertainties). The argument is in ``docs/theory.md`` ("Certified enclosures"); in short, the set of
 states is carried in Lohner's form m + A r (a centre point, an orthogonal matrix, a box around 0), and each step
 
-1. computes the Taylor polynomial p of order N of the flow from m (the mpmath jets, as exact binary numbers:
-   nothing about them needs proving), and the coefficients up to order 12 from the whole box Z = m + A r as balls,
+1. computes the Taylor polynomial p of order N of the flow from m (the Lie engine's fixed-point jets, as exact
+   binary numbers: nothing about them needs proving), and the coefficients up to order 12 from the whole box Z = m + A r as balls,
    by Picard iteration on Arb power series (``arb_series``);
 2. finds an a priori enclosure by the high-order enclosure theorem: a box B around the polynomials from Z over
    [0, h] such that sum_{j<=12} c_j(Z) [0, h]^j + c_13(B) [0, h]^13 lies inside B -- then every solution from Z
@@ -57,8 +57,8 @@ from .lie.jets import DeadlineExceeded
 from .solution import ChartRows, Solution, Stats
 from .timegrid import parse_times
 
-__all__ = ["validated_integrate", "ball_taylor_coefficients", "SUPPORTED_OPS", "midpoints", "radii",
-           "certified_digits"]
+__all__ = ["validated_integrate", "ball_taylor_coefficients", "centre_coefficients", "SUPPORTED_OPS", "midpoints",
+           "radii", "certified_digits"]
 
 #: Operations of a vector field that the validated engine evaluates in ball arithmetic.
 SUPPORTED_OPS = ("add", "sub", "neg", "mul", "div", "powi", "pow", "sqrt", "exp", "log", "sin", "cos", "tan",
@@ -257,28 +257,23 @@ def _taylor(prog, z0, pars, consts, order, flint, *, bits=None, deadline=None):
     return coeffs
 
 
-def _centre_polynomial(prog, m, pars, pars_exact, consts, order, flint, deadline=None):
+def _centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadline=None):
     """The Taylor polynomial of order ``order`` of the flow from the point m, as exact binary balls (radius 0).
 
     Nothing about these coefficients needs proving: the remainder bound (:func:`_defect`) holds for any
-    polynomial p with p(0) = m, and only its size depends on p being close to the flow. They come from the mpmath
-    jets (:mod:`lieseries.lie.jets`, the Lie engine's Taylor-mode recurrence, several times faster than Picard
-    iteration on Arb series), or from that Picard iteration when the jets fail. Past ``deadline`` (a perf_counter
-    value) both stop with :class:`~lieseries.lie.jets.DeadlineExceeded`."""
-    from mpmath.libmp import from_man_exp, from_rational, round_nearest
-
-    from .lie.jets import taylor_coefficients_raw
-
+    polynomial p with p(0) = m, and only its size depends on p being close to the flow. They come from the Lie
+    engine's fixed-point jets (``stepper``, a :class:`~lieseries.lie.fixed.FixedStepper` of the chart's field:
+    integers ``M`` with c_k = M * 2^(u - s k), taken into Arb exactly), or from Picard iteration on Arb series when
+    the jets fail. ``span``: the time left (the stepper's time scale covers it when the solution is a polynomial).
+    Past ``deadline`` (a perf_counter value) both stop with :class:`~lieseries.lie.jets.DeadlineExceeded`."""
     arb = flint.arb
-    wp = flint.ctx.prec + 10
     try:
-        jets = taylor_coefficients_raw(prog, [from_man_exp(*(int(q) for q in v.mid().man_exp())) for v in m],
-                                       [from_rational(q.numerator, q.denominator, wp, round_nearest)
-                                        for q in pars_exact], order, wp, deadline)
-        rows = [[arb(mpmath.make_mpf(c)) for c in row] for row in jets]
+        jets = stepper.expand([mpmath.make_mpf(mpmath.libmp.from_man_exp(*(int(q) for q in v.mid().man_exp())))
+                               for v in m], span, deadline)
+        s = jets.s
+        rows = [[arb((int(c), u - s * k)) if c else arb(0) for k, c in enumerate(Mi)]
+                for Mi, u in zip(jets.M, jets.U)]
     except (ZeroDivisionError, ValueError, ArithmeticError):
-        rows = None
-    if rows is None or not all(c.is_finite() for row in rows for c in row):
         rows = [[arb(c.mid()) for c in row] for row in _taylor(prog, m, pars, consts, order, flint,
                                                                 deadline=deadline)]
     return [[mi] + row[1:] for mi, row in zip(m, rows)]
@@ -515,6 +510,14 @@ def _chart_context(model, flint):
     return ps, prog, pars, consts, events, ev_consts, jprog, jconsts
 
 
+def _jet_stepper(ps, order, dps):
+    """The fixed-point jets of a chart's field for the centre polynomials (:func:`_centre_polynomial`), at the
+    run's precision (``dps`` + 10 digits: the ball arithmetic's 32 guard bits)."""
+    from .lie.fixed import FixedStepper
+
+    return FixedStepper(ps.program, list(ps.parameter_values), order, dps + 10)
+
+
 def _lohner_set(z, flint):
     """The box z as a Lohner set m + A r: its centre, the identity, the box around 0."""
     m = [flint.arb(zi.mid()) for zi in z]
@@ -667,6 +670,31 @@ def ball_taylor_coefficients(system, y0, order: int, dps: int = 30) -> list:
         return _taylor(prog, z, pars, consts, order, flint)
 
 
+def centre_coefficients(system, y0, order: int, dps: int = 30, step=None) -> list:
+    """The centre polynomial a validated step from ``y0`` takes (from the midpoints of its balls: exact values are
+    rounded to the run's precision), as the run computes it: ``out[i][k]``,
+    exact binary Arb balls (radius 0), close to the Taylor coefficients c_k of the flow (nothing about them is
+    proved: each step bounds the distance of the solution from this polynomial). ``step``: the length of the run's
+    previous step (the fixed-point jets then hold c_k to ``dps`` digits of the state relative to
+    ``2^(ceil(log2 step) + 1)^-k``, what a step of about that length needs); none: a first step."""
+    dps = check_dps(dps)
+    order = check_order(order)
+    ps = as_poisson_system(system)
+    prog = ps.program
+    _check_ops(prog)
+    with _working_precision(dps_to_bits(dps) + GUARD_BITS, cap=order + 4) as flint:
+        z = [flint.arb(v.mid()) for v in _initial_balls(system, y0, ps.dimension, flint)]
+        pars = [flint.arb(flint.fmpq(p.numerator, p.denominator)) for p in ps.parameter_values]
+        consts = [(slot, _constant(c, flint)) for slot, c in prog.constants]
+        stepper = _jet_stepper(ps, order, dps)
+        if step is not None:
+            stepper.h_last = float(to_fraction(step, "step"))
+            if not stepper.h_last > 0:
+                raise ValueError(f"`step` must be a positive step length; got {step!r}")
+            stepper.s = 0  # not a first expansion: the time scale follows the step
+        return _centre_polynomial(stepper, prog, z, pars, consts, order, flint, mpmath.mpf(1))
+
+
 def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = None, t0=0, max_steps: int = 100_000,
                         max_time: float | None = None, max_width=None, atlas: bool | None = None) -> Solution:
     """Enclose the solution of ``dz/dt = X_H(z)`` in Arb balls that provably contain it (module docstring).
@@ -754,6 +782,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
             if best != system.chart:
                 z, current = _switch_chart(system, current, best, z, flint), system.for_chart(best, edge=system.ATLAS_SWITCH)
         ps, prog, pars, consts, events, ev_consts, jprog, jconsts = _chart_context(current, flint)
+        stepper = _jet_stepper(ps, N, dps)
         ev_pars = pars
         _check_regular(prog, z, pars, consts, flint)
         # the set of states is m + A r: a centre point, a matrix (the identity to start) and a box around 0
@@ -788,7 +817,8 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
             wide = any(zi.rad() > unit * scale for zi in z)  # wider than 10^-dps of the state's size
             pieces = 2 * JACOBIAN_PIECES if wide else JACOBIAN_PIECES
             try:
-                C = _centre_polynomial(prog, m, pars, ps.parameter_values, consts, N, flint, deadline)  # centre
+                C = _centre_polynomial(stepper, prog, m, pars, consts, N, flint,
+                                       mpmath.mpf(float(abs(t_end - tcur))), deadline)  # centre
                 g = _defect_coefficients(prog, C, pars, consts, flint)
                 CZ = _taylor(prog, z, pars, consts, BOX_ORDER, flint, bits=64)  # from the whole enclosure
             except DeadlineExceeded:
@@ -850,6 +880,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                     z = _switch_chart(system, current, best, z, flint)
                     current = system.for_chart(best, edge=system.ATLAS_SWITCH)
                     ps, prog, pars, consts, events, ev_consts, jprog, jconsts = _chart_context(current, flint)
+                    stepper = _jet_stepper(ps, N, dps)
                     ev_pars = pars
                     m, A, r = _lohner_set(z, flint)
                     switches += 1
@@ -867,6 +898,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                            f"{max(float(zi.rad()) for zi in z):.3g}).")
                 break
             h, hs, tail, D, J = proved
+            stepper.h_last = float(h)  # the next centre's jets hold what a step of about this length needs
             tnew = tcur + hs
 
             def point(tau: Fraction):

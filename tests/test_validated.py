@@ -373,3 +373,35 @@ def test_a_badly_scaled_oscillator_is_enclosed_with_more_jacobian_pieces():
         wt = 100 * ctx.mpf(tk.numerator) / tk.denominator
         assert inside(row[0], ctx.sin(wt) / 100) and inside(row[1], ctx.cos(wt))
     assert max(radii(sol)[-1]) < 1e-15
+
+
+@pytest.mark.parametrize("step", [None, "1/2", "1/4", "1/64"])
+def test_centre_coefficients_match_a_jet_at_three_times_the_precision(step):
+    # the centre polynomial of a step comes from the fixed-point jets (integers M with c_k = M 2^(u - s k)): every
+    # coefficient, scaled by the time scale the jets hold it for (sigma^k, sigma >= the step), must agree with the
+    # Taylor coefficients of an independent mpmath jet at three times the digits to the run's digits
+    from lieseries.validated import centre_coefficients
+
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    y0 = body.initial_state(omega=RIGID_OMEGA)
+    dps, order = 30, 36
+    C = centre_coefficients(body, y0, order, dps, step=step)
+    ctx = mp.MPContext()
+    ctx.dps = 3 * dps
+    ps = body.poisson
+    ref = ls.lie.taylor_coefficients(ps.program, list(y0.exact), list(ps.parameter_values), order, 3 * dps, ctx=ctx)
+    # the jets' time scale: 2^(ceil(log2 step) + 1) after a step, a quarter of the radius of convergence (about 1
+    # here, so at most 1) at a first step
+    sigma = Fraction(1)
+    if step is not None:
+        q = Fraction(step)
+        e = 0
+        while Fraction(2) ** e < q:
+            e += 1
+        while Fraction(2) ** (e - 1) >= q:
+            e -= 1
+        sigma = Fraction(2) ** (e + 1)
+    assert all(c.rad().is_zero() for row in C for c in row)
+    worst = max(abs(to_fraction(C[i][k].mid()) - to_fraction(ref[k][i])) * sigma ** k
+                for i in range(ps.dimension) for k in range(order + 1))
+    assert worst < Fraction(1, 10 ** (dps + 5))
