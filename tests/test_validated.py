@@ -405,3 +405,39 @@ def test_centre_coefficients_match_a_jet_at_three_times_the_precision(step):
     worst = max(abs(to_fraction(C[i][k].mid()) - to_fraction(ref[k][i])) * sigma ** k
                 for i in range(ps.dimension) for k in range(order + 1))
     assert worst < Fraction(1, 10 ** (dps + 5))
+
+
+def test_lagrange_majorant_bounds_the_shifted_coefficient_at_every_point_of_the_step():
+    # the Lagrange term of a step's defect bound needs |[f(p(xi + tau))]_L| for every xi in [0, h]: the float
+    # majorant must bound it at sample points (computed exactly enough in 300-bit balls), and stay within a small
+    # factor of the ball evaluation over the whole step (not vacuous)
+    from lieseries import validated as V
+
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    ps = body.poisson
+    prog = ps.program
+    dps, order = 30, 36
+    with V._working_precision(V.dps_to_bits(dps) + V.GUARD_BITS, cap=order + 20) as fl:
+        z = V._initial_balls(body, body.initial_state(omega=RIGID_OMEGA), ps.dimension, fl)
+        _, prog, pars, consts, *_ = V._chart_context(body, fl)
+        stepper = V._jet_stepper(ps, order, dps)
+        C, jets = V._centre_polynomial(stepper, prog, [fl.arb(v.mid()) for v in z], pars, consts, order, fl, 10)
+        L = order + V.DEFECT_EXTRA
+        for h in (Fraction(3, 8), Fraction(-7, 8), Fraction(1, 1000)):
+            bound = V._lagrange_majorant(prog, C, jets, h, ps.parameter_values, L, fl)
+            assert bound is not None
+            hb = fl.arb(fl.fmpq(h.numerator, h.denominator))
+            span = hb / 2 + fl.arb(0, abs(hb) / 2)
+            fl.ctx.prec = 300
+            for xi in (0, h / 3, h / 2, h):
+                point = fl.arb(fl.fmpq(xi.numerator, xi.denominator))
+                true = [row[-1] for row in V._field_series(prog, C, pars, consts, L + 1, fl, base=point)]
+                assert all(abs(t).upper() <= b for t, b in zip(true, bound))
+            fl.ctx.prec = 64
+            balls = [row[-1] for row in V._field_series(prog, C, pars, consts, L + 1, fl, base=span)]
+            assert all(b <= 100 * abs(x).upper() for b, x in zip(bound, balls))
+            fl.ctx.prec = V.dps_to_bits(dps) + V.GUARD_BITS
+        # a field that is not a polynomial (the sphere's charts divide) is left to the ball evaluation
+        s = ls.Sphere(atlas=False)
+        sprog = s.poisson.program
+        assert V._lagrange_majorant(sprog, C, jets, Fraction(1, 4), s.poisson.parameter_values, L, fl) is None
