@@ -18,6 +18,18 @@ from lieseries.validated import certified_digits, radii, validated_integrate
 from problems import RIGID_INERTIA, RIGID_OMEGA
 
 
+@pytest.fixture(params=["gmpy", "int"])
+def bigint(request):
+    """Run the test with each big-integer backend of the fixed-point jets (gmpy2's mpz, and Python ints: what an
+    installation without gmpy2 uses, forced by LIESERIES_BIGINT=int)."""
+    from lieseries.lie import fixed
+
+    before = fixed.backend()
+    fixed.set_backend(request.param)
+    yield fixed.backend()
+    fixed.set_backend(before)
+
+
 def inside(ball, value) -> bool:
     """The real number ``value`` (any exact or mpf number) lies in ``ball``, decided exactly."""
     q = to_fraction(value)
@@ -30,7 +42,7 @@ def inside(ball, value) -> bool:
         flint.ctx.prec = old
 
 
-def test_rigid_body_enclosures_contain_the_closed_form():
+def test_rigid_body_enclosures_contain_the_closed_form(bigint):
     body = ls.EulerPoisson(RIGID_INERTIA)
     times = [Fraction(k, 4) for k in range(1, 9)]
     sol = validated_integrate(body, body.initial_state(omega=RIGID_OMEGA), t=times, dps=30)
@@ -145,7 +157,7 @@ def test_sphere_across_the_atlas_encloses_the_great_circle():
     ((1, 2, 3), ("0.001", 1, "0.001")),  # near the separatrix: close to the unstable rotation about axis 2
     ([[2, "1/2", 0], ["1/2", 3, "1/4"], [0, "1/4", 4]], (1, "0.1", "0.5")),  # a full inertia tensor
 ])
-def test_hard_rigid_bodies_are_enclosed(inertia, omega):
+def test_hard_rigid_bodies_are_enclosed(bigint, inertia, omega):
     body = ls.EulerPoisson(inertia)
     times = [Fraction(1), Fraction(2)]
     sol = validated_integrate(body, body.initial_state(omega=omega), t=times, dps=20)
@@ -376,7 +388,7 @@ def test_a_badly_scaled_oscillator_is_enclosed_with_more_jacobian_pieces():
 
 
 @pytest.mark.parametrize("step", [None, "1/2", "1/4", "1/64"])
-def test_centre_coefficients_match_a_jet_at_three_times_the_precision(step):
+def test_centre_coefficients_match_a_jet_at_three_times_the_precision(bigint, step):
     # the centre polynomial of a step comes from the fixed-point jets (integers M with c_k = M 2^(u - s k)): every
     # coefficient, scaled by the time scale the jets hold it for (sigma^k, sigma >= the step), must agree with the
     # Taylor coefficients of an independent mpmath jet at three times the digits to the run's digits
@@ -407,7 +419,7 @@ def test_centre_coefficients_match_a_jet_at_three_times_the_precision(step):
     assert worst < Fraction(1, 10 ** (dps + 5))
 
 
-def test_lagrange_majorant_bounds_the_shifted_coefficient_at_every_point_of_the_step():
+def test_lagrange_majorant_bounds_the_shifted_coefficient_at_every_point_of_the_step(bigint):
     # the Lagrange term of a step's defect bound needs |[f(p(xi + tau))]_L| for every xi in [0, h]: the float
     # majorant must bound it at sample points (computed exactly enough in 300-bit balls), and stay within a small
     # factor of the ball evaluation over the whole step (not vacuous)
