@@ -320,3 +320,11 @@ def test_a_lie_series_estimate_never_claims_digits_below_its_working_precision()
         truth = max(abs(mp.mpf(a) - mp.mpf(b)) for a, b in zip(series("0.01"), ref))
     est = series.error_estimate("0.01")
     assert est >= truth and est >= mp.mpf(2) ** -53
+
+
+def test_lie_integrate_beyond_a_float_mantissa_matches_the_closed_form(bigint, body):
+    # at 350 digits every mantissa has more bits than a float's range: the step's k-th roots must still be taken
+    y0 = body.initial_state(OMEGA)
+    sol = ls.lie_integrate(body, y0, t=Fraction(1, 1000), dps=350, order=120)
+    assert sol.status == "success", sol.message
+    assert rigid_error(sol.y[-1], Fraction(1, 1000), dps=380) < mp.mpf(10) ** -345

@@ -332,8 +332,9 @@ _LN2 = math.log(2)
 def _kth_root(x, k):
     """x^(1/k) for a positive mpf x of any size, to about 15 digits (a step length: the step taken is exactly
     the number returned), from the logarithm of x's mantissa and exponent in floating point."""
-    _, man, exp, _ = x._mpf_
-    r = (math.log(man) + exp * _LN2) / (k * _LN2)  # log2 of the root
+    _, man, exp, bc = x._mpf_
+    shift = max(bc - 64, 0)  # the leading 64 bits of a mantissa of any length (a float holds ~1024 bits at most)
+    r = (math.log(int(man >> shift)) + (exp + shift) * _LN2) / (k * _LN2)  # log2 of the root
     n = math.floor(r)
     return mp.ldexp(mp.mpf(2.0 ** (r - n)), n)
 
