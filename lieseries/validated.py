@@ -6,8 +6,8 @@ contains the exact solution of the exact problem (initial data and parameters ta
 user gives uncertainties). The argument is in ``docs/theory.md`` ("Certified enclosures"); in short, the set of
 states is carried in Lohner's form m + A r (a centre point, an orthogonal matrix, a box around 0), and each step
 
-1. computes the Taylor polynomial p of order N of the flow from m (the mpmath jets, as exact binary numbers:
-   nothing about them needs proving), and the coefficients up to order 12 from the whole box Z = m + A r as balls,
+1. computes the Taylor polynomial p of order N of the flow from m (the Lie engine's fixed-point jets, as exact
+   binary numbers: nothing about them needs proving), and the coefficients up to order 12 from the whole box Z = m + A r as balls,
    by Picard iteration on Arb power series (``arb_series``);
 2. finds an a priori enclosure by the high-order enclosure theorem: a box B around the polynomials from Z over
    [0, h] such that sum_{j<=12} c_j(Z) [0, h]^j + c_13(B) [0, h]^13 lies inside B -- then every solution from Z
@@ -57,8 +57,8 @@ from .lie.jets import DeadlineExceeded
 from .solution import ChartRows, Solution, Stats
 from .timegrid import parse_times
 
-__all__ = ["validated_integrate", "ball_taylor_coefficients", "SUPPORTED_OPS", "midpoints", "radii",
-           "certified_digits"]
+__all__ = ["validated_integrate", "ball_taylor_coefficients", "centre_coefficients", "SUPPORTED_OPS", "midpoints",
+           "radii", "certified_digits"]
 
 #: Operations of a vector field that the validated engine evaluates in ball arithmetic.
 SUPPORTED_OPS = ("add", "sub", "neg", "mul", "div", "powi", "pow", "sqrt", "exp", "log", "sin", "cos", "tan",
@@ -257,31 +257,42 @@ def _taylor(prog, z0, pars, consts, order, flint, *, bits=None, deadline=None):
     return coeffs
 
 
-def _centre_polynomial(prog, m, pars, pars_exact, consts, order, flint, deadline=None):
+def _centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadline=None):
     """The Taylor polynomial of order ``order`` of the flow from the point m, as exact binary balls (radius 0).
 
     Nothing about these coefficients needs proving: the remainder bound (:func:`_defect`) holds for any
-    polynomial p with p(0) = m, and only its size depends on p being close to the flow. They come from the mpmath
-    jets (:mod:`lieseries.lie.jets`, the Lie engine's Taylor-mode recurrence, several times faster than Picard
-    iteration on Arb series), or from that Picard iteration when the jets fail. Past ``deadline`` (a perf_counter
-    value) both stop with :class:`~lieseries.lie.jets.DeadlineExceeded`."""
-    from mpmath.libmp import from_man_exp, from_rational, round_nearest
-
-    from .lie.jets import taylor_coefficients_raw
-
+    polynomial p with p(0) = m, and only its size depends on p being close to the flow. They come from the Lie
+    engine's fixed-point jets (``stepper``, a :class:`~lieseries.lie.fixed.FixedStepper` of the chart's field:
+    integers ``M`` with c_k = M * 2^(u - s k), taken into Arb exactly), or from Picard iteration on Arb series when
+    the jets fail. ``span``: the time left (the stepper's time scale covers it when the solution is a polynomial).
+    Past ``deadline`` (a perf_counter value) both stop with :class:`~lieseries.lie.jets.DeadlineExceeded`."""
     arb = flint.arb
-    wp = flint.ctx.prec + 10
     try:
-        jets = taylor_coefficients_raw(prog, [from_man_exp(*(int(q) for q in v.mid().man_exp())) for v in m],
-                                       [from_rational(q.numerator, q.denominator, wp, round_nearest)
-                                        for q in pars_exact], order, wp, deadline)
-        rows = [[arb(mpmath.make_mpf(c)) for c in row] for row in jets]
+        jets = stepper.expand([mpmath.make_mpf(mpmath.libmp.from_man_exp(*(int(q) for q in v.mid().man_exp())))
+                               for v in m], span, deadline)
+        rows = _exact_rows(jets.M, jets.U, jets.s, order, flint)
     except (ZeroDivisionError, ValueError, ArithmeticError):
-        rows = None
-    if rows is None or not all(c.is_finite() for row in rows for c in row):
+        jets = None
         rows = [[arb(c.mid()) for c in row] for row in _taylor(prog, m, pars, consts, order, flint,
                                                                 deadline=deadline)]
-    return [[mi] + row[1:] for mi, row in zip(m, rows)]
+    return [[mi] + row[1:] for mi, row in zip(m, rows)], jets
+
+
+def _exact_rows(M, U, s, order, flint):
+    """The polynomials sum_k M[i][k] 2^(U[i] - s k) tau^k as rows of exact arbs (integers into series, scaled by
+    2^U[i] and composed with 2^-s tau in C: exact, at a precision above every mantissa)."""
+    arb, arb_series = flint.arb, flint.arb_series
+    saved = flint.ctx.prec
+    flint.ctx.prec = max(64, max(c.bit_length() for Mi in M for c in Mi) + 64)
+    try:
+        x = arb_series([0, arb(2) ** -s], prec=order + 1)
+        rows = []
+        for Mi, u in zip(M, U):
+            row = (arb_series([int(c) for c in Mi], prec=order + 1) * arb(2) ** u)(x).coeffs()
+            rows.append(row + [arb(0)] * (order + 1 - len(row)))
+    finally:
+        flint.ctx.prec = saved
+    return rows
 
 
 def _field_series(prog, polys, pars, consts, length, flint, base=None):
@@ -345,13 +356,100 @@ def _horner(C, tau):
     return out
 
 
+#: The majorant is computed in floating point when the run's working precision is at most this many bits (its
+#: integers convert to floats, and its floor, below, stays far under 10^-dps).
+MAJORANT_MAX_BITS = 700
+#: Every value of the majorant series is raised to at least this (a majorant stays one; no float underflows).
+MAJORANT_FLOOR = 1e-280
+_PASCAL: dict = {}
+
+
+def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
+    """Per component, an upper bound (an arb) of |[f(p(xi + tau))]_L| (the L-th Taylor coefficient in tau) over
+    every xi between 0 and h, for the centre polynomial p (``P``, from the integer ``jets``: c_k = M 2^(u - s k)) and a
+    polynomial field f; None when the field is not a polynomial or the numbers leave the float range.
+
+    In the time u = tau / |h|, the shifted polynomial's coefficients are bounded by those of a(1 + u) with
+    a_k = |c_k| |h|^k (binomial expansion, |xi| <= |h|), and a polynomial field's Taylor coefficients of order L by
+    those of its majorant (constants and parameters by their absolute values, subtractions as additions) on these
+    nonnegative series. Everything is nonnegative, so floating point errs by a relative 2^-52 per operation and
+    term (a few parts in 10^12 here; the result is raised by 1%), underflow is kept off by a floor that only
+    raises values, and overflow gives None. The bound of order L in tau is the one in u divided by |h|^L."""
+    if jets is None or max(c.bit_length() for Mi in jets.M for c in Mi) > MAJORANT_MAX_BITS:
+        return None
+    hq = abs(Fraction(h))
+    if hq == 0:
+        return None
+    ops = {"add", "sub", "neg", "mul", "powi"}
+    if any(node.op not in ops or (node.op == "powi" and int(node.data) < 0) for node in prog.nodes):
+        return None
+    N = len(jets.M[0]) - 1
+    up = 1 + 2.0**-50
+    try:
+        hs = float(hq) * 2.0 ** -jets.s * up
+        hpow = np.cumprod(np.concatenate(([1.0], np.full(N, hs))))
+        T = _PASCAL.get(N)
+        if T is None:
+            T = _PASCAL[N] = np.array([[math.comb(k, j) for k in range(N + 1)] for j in range(N + 1)], dtype=float)
+        vals = [None] * prog.nslots
+
+        def series(v):
+            out = np.zeros(L + 1)
+            out[: min(len(v), L + 1)] = v[: L + 1]
+            return np.maximum(out, MAJORANT_FLOOR)
+
+        def scalar(x):
+            out = np.full(L + 1, MAJORANT_FLOOR)
+            out[0] = max(abs(x) * up, MAJORANT_FLOOR)
+            return out
+
+        for i, (Mi, u) in enumerate(zip(jets.M, jets.U)):
+            a = np.array([math.ldexp(float(abs(c)), u) for c in Mi]) * hpow * up
+            a[0] = abs(float(P[i][0].mid())) * up  # the centre itself (the jets hold it rounded)
+            vals[i] = series(T @ a * up)
+        for j, q in enumerate(par_values):
+            vals[prog.nvars + j] = scalar(float(abs(Fraction(q))))
+        for slot, (kind, value) in prog.constants:
+            if kind == "rational":
+                x = abs(Fraction(*value))
+            elif kind == "binary":
+                x = abs(math.ldexp(float(value[1]), value[2]))
+            else:
+                x = 3.2 if kind == "pi" else 2.8
+            vals[slot] = scalar(float(x))
+        for node in prog.nodes:
+            a = [vals[x] for x in node.args]
+            if node.op in ("add", "sub"):
+                v = a[0]
+                for x in a[1:]:
+                    v = v + x
+            elif node.op == "neg":
+                v = a[0]
+            else:
+                factors = a if node.op == "mul" else [a[0]] * int(node.data)
+                v = scalar(1.0)
+                for x in factors:
+                    v = np.convolve(v, x)[: L + 1]
+            if not np.all(np.isfinite(v)):
+                return None
+            vals[node.out] = np.maximum(v * up, MAJORANT_FLOOR)
+        tops = [float(vals[o][L]) * 1.01 for o in prog.outputs]
+    except (OverflowError, ValueError):
+        return None
+    if not all(math.isfinite(t) for t in tops):
+        return None
+    arb = flint.arb
+    hL = arb(flint.fmpq(hq.numerator, hq.denominator)) ** L
+    return [(arb(t) / hL).upper() for t in tops]
+
+
 def _enclosure_box(P, flint):
     """A box around the polynomial range P over a step, a little wider, for the a priori check."""
     arb = flint.arb
     return [arb(p.mid(), p.rad() * 1.25 + (abs(p.mid()) + p.rad() + 1) * arb(2) ** -30) for p in P]
 
 
-def _prove_step(prog, jprog, CZ, P, g, pars, consts, jconsts, span, flint):
+def _prove_step(prog, jprog, CZ, P, g, pars, consts, jconsts, span, flint, majorant=None):
     """(``tail``, the box B that holds every solution over the step, the coefficients from B through c_{K+1}) for
     a step over ``span`` (the ball [0, h]), or None when the step is not proved. ``tail(tau)``: per component, an
     upper bound of |phi_tau(m) - p(tau)| for the centre's solution, |tau| <= h.
@@ -366,7 +464,9 @@ def _prove_step(prog, jprog, CZ, P, g, pars, consts, jconsts, span, flint):
     e' = g + A(s) e, g = f(p) - p' the defect (coefficients ``g`` at the step's start) and A(s) a mean of Df
     over the segment from p(s) to x(s), inside the box R = B united with the range of p over the step. So
     |e(tau)| <= exp(|tau| L) G(tau) componentwise, L = |Df(R)| entrywise and G the integral of |g| over the step
-    bounded by :func:`_defect` with the Lagrange term taken over the whole step."""
+    bounded by :func:`_defect` with the Lagrange term taken over the whole step (from a majorant series in
+    floating point, :func:`_lagrange_majorant`, when ``majorant`` = (the centre's integer jets, |h|, the
+    parameters) is given and the field is a polynomial; else by ball series at 64 bits)."""
     arb, arb_mat = flint.arb, flint.arb_mat
     K = len(CZ[0]) - 1
     n = len(P)
@@ -380,7 +480,9 @@ def _prove_step(prog, jprog, CZ, P, g, pars, consts, jconsts, span, flint):
             return None
         if not all(b.contains(p + d[K + 1] * span ** (K + 1)) for b, p, d in zip(B, Pz, D)):
             return None
-        top = [row[-1] for row in _field_series(prog, P, pars, consts, len(g[0]) + 1, flint, base=span)]
+        top = None if majorant is None else _lagrange_majorant(prog, P, *majorant, len(g[0]), flint)
+        if top is None:
+            top = [row[-1] for row in _field_series(prog, P, pars, consts, len(g[0]) + 1, flint, base=span)]
         R = [b.union(p) for b, p in zip(B, _horner(P, span))]
         vals = _evaluate(jprog, R, pars, jconsts, arb(1))
         L = arb_mat([[abs(v if isinstance(v, arb) else arb(v)).upper() for v in vals[i * n:(i + 1) * n]]
@@ -411,6 +513,9 @@ _JACOBIANS: dict = {}
 #: data, where the Jacobian's own width multiplies the set's spread: measured on the rigid body from data known to
 #: a double's width, the final ball narrows from 1.2e-14 to 9.4e-15 for 17% more time).
 JACOBIAN_TERMS = 10
+#: Fewer terms when their tail bound is below this (relative to the identity: the Jacobian multiplies the set's
+#: spread only: a width of 2^-40 in it widens the rigid body's balls at 50 digits by a part in 10^9).
+JACOBIAN_EPS = 2.0**-40
 JACOBIAN_PIECES = 8
 #: More pieces, up to MAX_JACOBIAN_PIECES, when |Df| |tau| over the step exceeds JACOBIAN_MU per piece.
 JACOBIAN_MU = 1.0
@@ -442,16 +547,14 @@ def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECE
     cut into ``pieces`` pieces; over piece i every solution lies in B_i = sum_j c_j(Z) T_i^j +
     c_{K+1}(B) T_i^(K+1) (T_i the piece's time interval; Taylor's theorem), much narrower than B.
     d phi / dy solves V' = Df(z(t)) V, so over piece i it is multiplied by a matrix of the Peano-Baker series
-    sum_j (dt Df(B_i))^j / j!, truncated after JACOBIAN_TERMS terms with the tail bounded entrywise by
+    sum_j (dt Df(B_i))^j / j!, truncated after K terms (the fewest whose tail bound is below JACOBIAN_EPS, at most
+    JACOBIAN_TERMS) with the tail bounded entrywise by
     mu^(K+1) / (K+1)! / (1 - mu / (K+2)), mu an upper bound of |dt| ||Df(B_i)||_inf (docs/theory.md). Computed at
     64 bits: the Jacobian multiplies the enclosure's tiny spread only."""
     arb, arb_mat = flint.arb, flint.arb_mat
     n = len(CZ)
     K = len(CZ[0]) - 1
     eye = arb_mat([[1 if i == j else 0 for j in range(n)] for i in range(n)])
-    fact = arb(1)
-    for j in range(2, JACOBIAN_TERMS + 2):
-        fact *= j
     saved = flint.ctx.prec
     flint.ctx.prec = 64
     try:
@@ -485,11 +588,22 @@ def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECE
             mu = max(sum((abs(M[i, j]).upper() for j in range(n)), arb(0)) for i in range(n)).upper()
             if not mu < JACOBIAN_TERMS + 2:
                 return None
+            # the fewest terms whose tail bound is below JACOBIAN_EPS (at most JACOBIAN_TERMS)
+            mu_f = float(mu.upper())
+            terms, term = JACOBIAN_TERMS, mu_f  # term: mu^(j+1) / (j+1)!
+            for j in range(1, JACOBIAN_TERMS):
+                term *= mu_f / (j + 1)
+                if term / (1 - mu_f / (j + 2)) < JACOBIAN_EPS:
+                    terms = j
+                    break
             S, T = eye, eye
-            for j in range(1, JACOBIAN_TERMS + 1):
+            for j in range(1, terms + 1):
                 T = T * M / j
                 S = S + T
-            eps = (mu ** (JACOBIAN_TERMS + 1) / fact / (1 - mu / (JACOBIAN_TERMS + 2))).upper()
+            fact = arb(1)
+            for j in range(2, terms + 2):
+                fact *= j
+            eps = (mu ** (terms + 1) / fact / (1 - mu / (terms + 2))).upper()
             J = (S + arb_mat([[arb(0, eps)] * n for _ in range(n)])) * J
         return J
     finally:
@@ -513,6 +627,14 @@ def _chart_context(model, flint):
     jprog = _jacobian_program(ps)
     jconsts = [(slot, _constant(c, flint)) for slot, c in jprog.constants]
     return ps, prog, pars, consts, events, ev_consts, jprog, jconsts
+
+
+def _jet_stepper(ps, order, dps):
+    """The fixed-point jets of a chart's field for the centre polynomials (:func:`_centre_polynomial`), at the
+    run's precision (``dps`` + 10 digits: the ball arithmetic's 32 guard bits)."""
+    from .lie.fixed import FixedStepper
+
+    return FixedStepper(ps.program, list(ps.parameter_values), order, dps + 10)
 
 
 def _lohner_set(z, flint):
@@ -667,6 +789,31 @@ def ball_taylor_coefficients(system, y0, order: int, dps: int = 30) -> list:
         return _taylor(prog, z, pars, consts, order, flint)
 
 
+def centre_coefficients(system, y0, order: int, dps: int = 30, step=None) -> list:
+    """The centre polynomial a validated step from ``y0`` takes (from the midpoints of its balls: exact values are
+    rounded to the run's precision), as the run computes it: ``out[i][k]``,
+    exact binary Arb balls (radius 0), close to the Taylor coefficients c_k of the flow (nothing about them is
+    proved: each step bounds the distance of the solution from this polynomial). ``step``: the length of the run's
+    previous step (the fixed-point jets then hold c_k to ``dps`` digits of the state relative to
+    ``2^(ceil(log2 step) + 1)^-k``, what a step of about that length needs); none: a first step."""
+    dps = check_dps(dps)
+    order = check_order(order)
+    ps = as_poisson_system(system)
+    prog = ps.program
+    _check_ops(prog)
+    with _working_precision(dps_to_bits(dps) + GUARD_BITS, cap=order + 4) as flint:
+        z = [flint.arb(v.mid()) for v in _initial_balls(system, y0, ps.dimension, flint)]
+        pars = [flint.arb(flint.fmpq(p.numerator, p.denominator)) for p in ps.parameter_values]
+        consts = [(slot, _constant(c, flint)) for slot, c in prog.constants]
+        stepper = _jet_stepper(ps, order, dps)
+        if step is not None:
+            stepper.h_last = float(to_fraction(step, "step"))
+            if not stepper.h_last > 0:
+                raise ValueError(f"`step` must be a positive step length; got {step!r}")
+            stepper.s = 0  # not a first expansion: the time scale follows the step
+        return _centre_polynomial(stepper, prog, z, pars, consts, order, flint, mpmath.mpf(1))[0]
+
+
 def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = None, t0=0, max_steps: int = 100_000,
                         max_time: float | None = None, max_width=None, atlas: bool | None = None) -> Solution:
     """Enclose the solution of ``dz/dt = X_H(z)`` in Arb balls that provably contain it (module docstring).
@@ -755,6 +902,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
             if best != system.chart:
                 z, current = _switch_chart(system, current, best, z, flint), system.for_chart(best, edge=system.ATLAS_SWITCH)
         ps, prog, pars, consts, events, ev_consts, jprog, jconsts = _chart_context(current, flint)
+        stepper = _jet_stepper(ps, N, dps)
         ev_pars = pars
         _check_regular(prog, z, pars, consts, flint)
         # the set of states is m + A r: a centre point, a matrix (the identity to start) and a box around 0
@@ -789,7 +937,8 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
             wide = any(zi.rad() > unit * scale for zi in z)  # wider than 10^-dps of the state's size
             pieces = 2 * JACOBIAN_PIECES if wide else JACOBIAN_PIECES
             try:
-                C = _centre_polynomial(prog, m, pars, ps.parameter_values, consts, N, flint, deadline)  # centre
+                C, jets = _centre_polynomial(stepper, prog, m, pars, consts, N, flint,
+                                       mpmath.mpf(float(abs(t_end - tcur))), deadline)  # centre
                 g = _defect_coefficients(prog, C, pars, consts, flint)
                 CZ = _taylor(prog, z, pars, consts, BOX_ORDER, flint, bits=64)  # from the whole enclosure
             except DeadlineExceeded:
@@ -821,7 +970,8 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 hs = h * direction
                 hb = arb(flint.fmpq(hs.numerator, hs.denominator))
                 span = hb / 2 + arb(0, abs(hb) / 2)  # the ball [0, h] (or [h, 0])
-                got = _prove_step(prog, jprog, CZ, C, g, pars, consts, jconsts, span, flint)
+                got = _prove_step(prog, jprog, CZ, C, g, pars, consts, jconsts, span, flint,
+                                  majorant=(jets, h, ps.parameter_values) if jets is not None else None)
                 tail, B, D = got if got is not None else (None, None, None)
                 hit = _event_in(events, B, ev_pars, ev_consts, arb(1)) if events and got is not None else None
                 if hit is not None:
@@ -833,9 +983,10 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                     h_f = float(h) / 2
                     continue
                 J = _flow_jacobian(jprog, CZ, D, pars, jconsts, hb, flint, pieces) if got is not None else None
-                worst = max(tail(hb), key=float) if J is not None else None
+                bounds_h = tail(hb) if J is not None else None
+                worst = max(bounds_h, key=float) if J is not None else None
                 if J is not None and worst <= tol:
-                    proved = (h, hs, tail, D, J)
+                    proved = (h, hs, tail, D, J, bounds_h)
                     break
                 # the remainder scales like h^(N+1): aim just below the tolerance (halve when unproved)
                 shrink = 0.5 if worst is None or not worst.is_finite() else min(0.9 * _root(tol / worst, N + 1), 0.9)
@@ -851,6 +1002,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                     z = _switch_chart(system, current, best, z, flint)
                     current = system.for_chart(best, edge=system.ATLAS_SWITCH)
                     ps, prog, pars, consts, events, ev_consts, jprog, jconsts = _chart_context(current, flint)
+                    stepper = _jet_stepper(ps, N, dps)
                     ev_pars = pars
                     m, A, r = _lohner_set(z, flint)
                     switches += 1
@@ -867,14 +1019,15 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                            f"the enclosure, or the enclosure is too wide: widest ball "
                            f"{max(float(zi.rad()) for zi in z):.3g}).")
                 break
-            h, hs, tail, D, J = proved
+            h, hs, tail, D, J, bounds_h = proved
+            stepper.h_last = float(h)  # the next centre's jets hold what a step of about this length needs
             tnew = tcur + hs
 
             def point(tau: Fraction):
                 """Enclosure at tcur + tau of the solution from the centre m: its polynomial plus the bound of
                 their difference."""
                 ta = arb(flint.fmpq(tau.numerator, tau.denominator))
-                bounds = tail(ta)
+                bounds = bounds_h if tau == hs else tail(ta)  # the step's own end: bounded when it was proved
                 out = [p + arb(0, e) for p, e in zip(_horner(C, ta), bounds)]
                 return out, max(float(e) for e in bounds), ta
 
@@ -885,7 +1038,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
 
             while pending and (pending[0] - tnew) * direction <= 0:
                 phi_k, _, ta = point(pending[0] - tcur)
-                Jk = _flow_jacobian(jprog, CZ, D, pars, jconsts, ta, flint, pieces)
+                Jk = J if pending[0] == tnew else _flow_jacobian(jprog, CZ, D, pars, jconsts, ta, flint, pieces)
                 if Jk is None:  # the field's Jacobian cannot be bounded over the shorter span: stop here
                     status = "validation_failed"
                     message = (f"Validation failed at t = {float(tcur):.17g}: the flow's Jacobian up to the output "

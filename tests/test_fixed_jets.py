@@ -114,8 +114,9 @@ def every_op():
     return list(v), rhs
 
 
-@pytest.mark.parametrize("dps", [30, 60])
+@pytest.mark.parametrize("dps", [30, 60, 100])
 def test_every_instruction(bigint, dps):
+    # from fixed.PAIR_BITS (100 digits) on, Cauchy products pair their terms (half the multiplications)
     check(compile_system(*every_op()), ["0.25", "0.5", "0.75"], [Fraction(2, 7)], 30, dps, -2, 1)
     check(compile_system(*nonlinear()), ["0.5", "0.25", "0.75"], [Fraction(2, 7)], 30, dps, -2, 1)
 

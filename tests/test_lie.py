@@ -13,6 +13,18 @@ from problems import mpf, rigid_error
 OMEGA = (1, "0.1", "0.5")
 
 
+@pytest.fixture(params=["gmpy", "int"])
+def bigint(request):
+    """Run the test with each big-integer backend of the fixed-point jets (gmpy2's mpz, and Python ints: what an
+    installation without gmpy2 uses, forced by LIESERIES_BIGINT=int)."""
+    from lieseries.lie import fixed
+
+    before = fixed.backend()
+    fixed.set_backend(request.param)
+    yield fixed.backend()
+    fixed.set_backend(before)
+
+
 @pytest.fixture(scope="module")
 def body():
     return ls.EulerPoisson((1, 2, 3))
@@ -38,7 +50,7 @@ def test_lie_integrate_50_digits_matches_closed_form_and_heyoka(body, y0):
     assert max(sol.stats.error_estimates) <= 1e-50 * 10
 
 
-def test_lie_integrate_sphere_follows_great_circle():
+def test_lie_integrate_sphere_follows_great_circle(bigint):
     s = ls.Sphere(mass=2, radius="1.5")
     x0, v0 = ("0.9", "0", "1.2"), ("0", "0.75", "0")
     y0 = s.initial_state(x0, v0, precision=300)
@@ -52,7 +64,7 @@ def test_lie_integrate_sphere_follows_great_circle():
             assert max(abs(a - b) for a, b in zip(v, ve)) < 1e-36
 
 
-def test_lie_integrate_backward_and_dense(body, y0):
+def test_lie_integrate_backward_and_dense(bigint, body, y0):
     sol = ls.lie_integrate(body, y0, t=-2, dps=30, dense=True)
     ref = exact.euler_poisson((1, 2, 3), OMEGA, -2, dps=40)
     ref1 = exact.euler_poisson((1, 2, 3), OMEGA, "-0.7", dps=40)
@@ -63,7 +75,7 @@ def test_lie_integrate_backward_and_dense(body, y0):
         sol(1.0)
 
 
-def test_linear_field_reproduces_matrix_exponential():
+def test_linear_field_reproduces_matrix_exponential(bigint):
     """A harmonic oscillator written as a Poisson system: z(t) = expm(t A) z0 at 40 digits."""
     q, p = hy.make_vars("q", "p")
     osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], 0.5 * hy.par[0] * p**2 + 0.5 * hy.par[1] * q**2,
@@ -308,3 +320,11 @@ def test_a_lie_series_estimate_never_claims_digits_below_its_working_precision()
         truth = max(abs(mp.mpf(a) - mp.mpf(b)) for a, b in zip(series("0.01"), ref))
     est = series.error_estimate("0.01")
     assert est >= truth and est >= mp.mpf(2) ** -53
+
+
+def test_lie_integrate_beyond_a_float_mantissa_matches_the_closed_form(bigint, body):
+    # at 350 digits every mantissa has more bits than a float's range: the step's k-th roots must still be taken
+    y0 = body.initial_state(OMEGA)
+    sol = ls.lie_integrate(body, y0, t=Fraction(1, 1000), dps=350, order=120)
+    assert sol.status == "success", sol.message
+    assert rigid_error(sol.y[-1], Fraction(1, 1000), dps=380) < mp.mpf(10) ** -345

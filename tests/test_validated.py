@@ -18,6 +18,18 @@ from lieseries.validated import certified_digits, radii, validated_integrate
 from problems import RIGID_INERTIA, RIGID_OMEGA
 
 
+@pytest.fixture(params=["gmpy", "int"])
+def bigint(request):
+    """Run the test with each big-integer backend of the fixed-point jets (gmpy2's mpz, and Python ints: what an
+    installation without gmpy2 uses, forced by LIESERIES_BIGINT=int)."""
+    from lieseries.lie import fixed
+
+    before = fixed.backend()
+    fixed.set_backend(request.param)
+    yield fixed.backend()
+    fixed.set_backend(before)
+
+
 def inside(ball, value) -> bool:
     """The real number ``value`` (any exact or mpf number) lies in ``ball``, decided exactly."""
     q = to_fraction(value)
@@ -30,7 +42,7 @@ def inside(ball, value) -> bool:
         flint.ctx.prec = old
 
 
-def test_rigid_body_enclosures_contain_the_closed_form():
+def test_rigid_body_enclosures_contain_the_closed_form(bigint):
     body = ls.EulerPoisson(RIGID_INERTIA)
     times = [Fraction(k, 4) for k in range(1, 9)]
     sol = validated_integrate(body, body.initial_state(omega=RIGID_OMEGA), t=times, dps=30)
@@ -145,7 +157,7 @@ def test_sphere_across_the_atlas_encloses_the_great_circle():
     ((1, 2, 3), ("0.001", 1, "0.001")),  # near the separatrix: close to the unstable rotation about axis 2
     ([[2, "1/2", 0], ["1/2", 3, "1/4"], [0, "1/4", 4]], (1, "0.1", "0.5")),  # a full inertia tensor
 ])
-def test_hard_rigid_bodies_are_enclosed(inertia, omega):
+def test_hard_rigid_bodies_are_enclosed(bigint, inertia, omega):
     body = ls.EulerPoisson(inertia)
     times = [Fraction(1), Fraction(2)]
     sol = validated_integrate(body, body.initial_state(omega=omega), t=times, dps=20)
@@ -373,3 +385,71 @@ def test_a_badly_scaled_oscillator_is_enclosed_with_more_jacobian_pieces():
         wt = 100 * ctx.mpf(tk.numerator) / tk.denominator
         assert inside(row[0], ctx.sin(wt) / 100) and inside(row[1], ctx.cos(wt))
     assert max(radii(sol)[-1]) < 1e-15
+
+
+@pytest.mark.parametrize("step", [None, "1/2", "1/4", "1/64"])
+def test_centre_coefficients_match_a_jet_at_three_times_the_precision(bigint, step):
+    # the centre polynomial of a step comes from the fixed-point jets (integers M with c_k = M 2^(u - s k)): every
+    # coefficient, scaled by the time scale the jets hold it for (sigma^k, sigma >= the step), must agree with the
+    # Taylor coefficients of an independent mpmath jet at three times the digits to the run's digits
+    from lieseries.validated import centre_coefficients
+
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    y0 = body.initial_state(omega=RIGID_OMEGA)
+    dps, order = 30, 36
+    C = centre_coefficients(body, y0, order, dps, step=step)
+    ctx = mp.MPContext()
+    ctx.dps = 3 * dps
+    ps = body.poisson
+    ref = ls.lie.taylor_coefficients(ps.program, list(y0.exact), list(ps.parameter_values), order, 3 * dps, ctx=ctx)
+    # the jets' time scale: 2^(ceil(log2 step) + 1) after a step, a quarter of the radius of convergence (about 1
+    # here, so at most 1) at a first step
+    sigma = Fraction(1)
+    if step is not None:
+        q = Fraction(step)
+        e = 0
+        while Fraction(2) ** e < q:
+            e += 1
+        while Fraction(2) ** (e - 1) >= q:
+            e -= 1
+        sigma = Fraction(2) ** (e + 1)
+    assert all(c.rad().is_zero() for row in C for c in row)
+    worst = max(abs(to_fraction(C[i][k].mid()) - to_fraction(ref[k][i])) * sigma ** k
+                for i in range(ps.dimension) for k in range(order + 1))
+    assert worst < Fraction(1, 10 ** (dps + 5))
+
+
+def test_lagrange_majorant_bounds_the_shifted_coefficient_at_every_point_of_the_step(bigint):
+    # the Lagrange term of a step's defect bound needs |[f(p(xi + tau))]_L| for every xi in [0, h]: the float
+    # majorant must bound it at sample points (computed exactly enough in 300-bit balls), and stay within a small
+    # factor of the ball evaluation over the whole step (not vacuous)
+    from lieseries import validated as V
+
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    ps = body.poisson
+    prog = ps.program
+    dps, order = 30, 36
+    with V._working_precision(V.dps_to_bits(dps) + V.GUARD_BITS, cap=order + 20) as fl:
+        z = V._initial_balls(body, body.initial_state(omega=RIGID_OMEGA), ps.dimension, fl)
+        _, prog, pars, consts, *_ = V._chart_context(body, fl)
+        stepper = V._jet_stepper(ps, order, dps)
+        C, jets = V._centre_polynomial(stepper, prog, [fl.arb(v.mid()) for v in z], pars, consts, order, fl, 10)
+        L = order + V.DEFECT_EXTRA
+        for h in (Fraction(3, 8), Fraction(-7, 8), Fraction(1, 1000)):
+            bound = V._lagrange_majorant(prog, C, jets, h, ps.parameter_values, L, fl)
+            assert bound is not None
+            hb = fl.arb(fl.fmpq(h.numerator, h.denominator))
+            span = hb / 2 + fl.arb(0, abs(hb) / 2)
+            fl.ctx.prec = 300
+            for xi in (0, h / 3, h / 2, h):
+                point = fl.arb(fl.fmpq(xi.numerator, xi.denominator))
+                true = [row[-1] for row in V._field_series(prog, C, pars, consts, L + 1, fl, base=point)]
+                assert all(abs(t).upper() <= b for t, b in zip(true, bound))
+            fl.ctx.prec = 64
+            balls = [row[-1] for row in V._field_series(prog, C, pars, consts, L + 1, fl, base=span)]
+            assert all(b <= 100 * abs(x).upper() for b, x in zip(bound, balls))
+            fl.ctx.prec = V.dps_to_bits(dps) + V.GUARD_BITS
+        # a field that is not a polynomial (the sphere's charts divide) is left to the ball evaluation
+        s = ls.Sphere(atlas=False)
+        sprog = s.poisson.program
+        assert V._lagrange_majorant(sprog, C, jets, Fraction(1, 4), s.poisson.parameter_values, L, fl) is None

@@ -244,7 +244,7 @@ def lie_integrate(
             h = mp.inf
             for k in (N - 1, N):
                 if k >= 1 and nrm[k] > 0:
-                    h = min(h, (tol_abs / nrm[k]) ** (mp.mpf(1) / k))
+                    h = min(h, _kth_root(tol_abs / nrm[k], k))
             h = min(h, rho / 2)
             if h == mp.inf:  # polynomial solution of degree < N - 1: one step reaches the end
                 h = abs(tend - tcur)
@@ -257,7 +257,7 @@ def lie_integrate(
             for k, col in last.items():
                 for c, sc in zip(col, scales):
                     if c != 0:
-                        h = min(h, (tolm * sc / c) ** (mp.mpf(1) / k))
+                        h = min(h, _kth_root(tolm * sc / c, k))
             if h <= abs(tcur) * mp.mpf(10) ** (-wdps + 2) or h == 0:
                 status = "step_collapse"
                 message = (
@@ -325,6 +325,19 @@ def lie_integrate(
     dense_fn = _Dense(segments, dps, sgn) if segments is not None else None
     return Solution(tarr, y, stats, status, message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
                     y_reached=y_reached, events=user.records(dps, ps.dimension) if user is not None else None)
+
+
+_LN2 = math.log(2)
+
+
+def _kth_root(x, k):
+    """x^(1/k) for a positive mpf x of any size, to about 15 digits (a step length: the step taken is exactly
+    the number returned), from the logarithm of x's mantissa and exponent in floating point."""
+    _, man, exp, bc = x._mpf_
+    shift = max(bc - 64, 0)  # the leading 64 bits of a mantissa of any length (a float holds ~1024 bits at most)
+    r = (math.log(int(man >> shift)) + (exp + shift) * _LN2) / (k * _LN2)  # log2 of the root
+    n = math.floor(r)
+    return mp.ldexp(mp.mpf(2.0 ** (r - n)), n)
 
 
 def _largest_auto_dps() -> int:
