@@ -373,7 +373,9 @@ def test_models_systems_and_solutions_pickle():
 @pytest.fixture(scope="module")
 def client():
     distributed = pytest.importorskip("distributed")
-    cluster = distributed.LocalCluster(processes=True, n_workers=2, threads_per_worker=1, host="127.0.0.1",
+    # one worker process with two threads: the chunks cross a process boundary and finish out of order, and the
+    # worker starts Python and compiles each integrator once, not once per process
+    cluster = distributed.LocalCluster(processes=True, n_workers=1, threads_per_worker=2, host="127.0.0.1",
                                        dashboard_address=None)
     cl = distributed.Client(cluster)
     yield cl

@@ -13,18 +13,23 @@ from problems import RIGID_OMEGA as OMEGA
 T = 16
 
 
+def closed_form_crossings(omega, axis, level, ts, dps):
+    """Where M_axis(t) = level between the points of `ts`, from the closed form alone, with each crossing's
+    direction (+1 up, -1 down): a scan at 20 digits, then a root solve at `dps` digits. M_i = I_i Omega_i, and
+    the closed form's Omega(t) needs no attitude (no elliptic integral of the third kind), so it is cheap."""
+    def g(t, digits):
+        return INERTIA[axis] * exact.angular_velocity(INERTIA, omega, t, dps=digits)[axis] - level
+
+    vals = [g(t, 20) for t in ts]
+    with mp.workdps(dps):
+        return [(mp.findroot(lambda t: g(t, dps), (a, b), solver="anderson"), 1 if fb > fa else -1)
+                for a, b, fa, fb in zip(ts, ts[1:], vals, vals[1:]) if fa * fb < 0]
+
+
 @pytest.fixture(scope="module")
 def m2_zeros():
     """Zeros of M2(t) on (0, T] from the closed form alone: a scan, then a root solve at 80 digits."""
-    ts = [mp.mpf(k) / 4 for k in range(0, 4 * T + 1)]
-    with mp.workdps(80):
-        vals = [s[10] for s in exact.euler_poisson_many(INERTIA, OMEGA, ts, dps=20)]
-        roots = []
-        for a, b, fa, fb in zip(ts, ts[1:], vals, vals[1:]):
-            if fa * fb < 0:
-                roots.append((mp.findroot(lambda t: exact.euler_poisson(INERTIA, OMEGA, t, dps=80)[10], (a, b),
-                                          solver="anderson"), 1 if fb > fa else -1))
-    return roots
+    return closed_form_crossings(OMEGA, 1, 0, [mp.mpf(k) / 4 for k in range(0, 4 * T + 1)], dps=80)
 
 
 def m2(body):
@@ -119,10 +124,7 @@ def test_ensemble_members_record_their_own_crossings():
         sol.events["m2"]  # a natural slip: the events of an ensemble are per member
     firsts = []
     for i, w in enumerate(omegas):
-        ts = [mp.mpf(k) / 8 for k in range(0, 8 * Tm + 1)]
-        vals = [s[10] for s in exact.euler_poisson_many(INERTIA, w, ts, dps=20)]
-        refs = [mp.findroot(lambda t: exact.euler_poisson(INERTIA, w, t, dps=40)[10], (a, b), solver="anderson")
-                for a, b, fa, fb in zip(ts, ts[1:], vals, vals[1:]) if fa * fb < 0]
+        refs = [t for t, _ in closed_form_crossings(w, 1, 0, [mp.mpf(k) / 8 for k in range(0, 8 * Tm + 1)], dps=40)]
         firsts.append(refs[0] if refs else None)
         got = sol.events[i]["m2"]["t"]
         assert len(got) == len(refs), (i, got, refs)
@@ -152,11 +154,9 @@ def test_a_run_starting_on_the_surface_counts_crossings_after_its_start(engine):
     body = ls.EulerPoisson(INERTIA)
     y0 = body.initial_state(omega=OMEGA)
     g = body.poisson.variables[11] - 1.5
-    ts = [mp.mpf(k) / 4 for k in range(1, 4 * T + 1)]
-    vals = [s[11] - mp.mpf(3) / 2 for s in exact.euler_poisson_many(INERTIA, OMEGA, ts, dps=20)]
-    refs = [mp.findroot(lambda t: exact.euler_poisson(INERTIA, OMEGA, t, dps=40)[11] - mp.mpf(3) / 2, (a, b),
-                        solver="anderson") for a, b, fa, fb in zip(ts, ts[1:], vals, vals[1:]) if fa * fb < 0]
-    assert vals[0] != 0 and len(refs) >= 2
+    refs = [t for t, _ in closed_form_crossings(OMEGA, 2, mp.mpf(3) / 2,
+                                                [mp.mpf(k) / 4 for k in range(1, 4 * T + 1)], dps=40)]
+    assert len(refs) >= 2
 
     def run(t, **kw):
         if engine == "lie":
@@ -220,33 +220,23 @@ def test_crossings_of_a_run_starting_on_the_section(engine, bits):
 
 
 @pytest.mark.parametrize("engine", ["double", 200, "lie"])
-def test_a_tangency_is_not_a_crossing_in_either_engine(engine, m2_zeros):
+def test_a_tangency_is_not_a_crossing_and_does_not_stop_a_run(engine, m2_zeros):
     """M2**2 touches zero where M2 crosses (t = 7.25..., 14.69...) but never changes sign: both engines report
-    crossings (sign changes) only, so none. heyoka alone reported 14.69 twice (9e-10 off) and missed 7.25."""
+    crossings (sign changes) only, so none, and a terminal M2**2 does not stop the run. heyoka alone reported 14.69
+    twice (9e-10 off) and missed 7.25; as a terminal event it stopped at 14.69 in double and at 7.25 at 200 bits
+    (lie_integrate ran to the end). The non-terminal and terminal events are checked in one run: a stop at a
+    tangency would also cut the M2 crossings short."""
     body = ls.EulerPoisson(INERTIA)
     y0 = body.initial_state(omega=OMEGA)
-    events = [ls.Event(lambda b: m2(b) ** 2, name="touch"), ls.Event(m2, name="m2")]
+    events = [ls.Event(lambda b: m2(b) ** 2, name="touch"), ls.Event(m2, name="m2"),
+              ls.Event(lambda b: m2(b) ** 2, terminal=True, name="stop")]
     if engine == "lie":
         sol = ls.lie_integrate(body, y0, t=T, dps=20, events=events)
     else:
         sol = ls.integrate(body, y0, t=T, precision=engine, events=events)
     assert sol.success, sol.message
-    assert len(sol.events["touch"]["t"]) == 0
+    assert to_fraction(sol.t_reached) == T
+    assert len(sol.events["touch"]["t"]) == 0 and len(sol.events["stop"]["t"]) == 0
     assert len(sol.events["m2"]["t"]) == len(m2_zeros) >= 2  # the crossings of M2 itself stay
     for (t_ref, _), t_got in zip(m2_zeros, sol.events["m2"]["t"]):
         assert abs(to_fraction(t_got) - to_fraction(t_ref)) < 1e-12
-
-
-@pytest.mark.parametrize("engine", ["double", 200, "lie"])
-def test_a_terminal_event_does_not_stop_at_a_tangency(engine):
-    """A terminal M2**2 never changes sign: neither engine stops (heyoka stopped at 14.69 in double and at 7.25 at
-    200 bits; lie_integrate ran to the end)."""
-    body = ls.EulerPoisson(INERTIA)
-    y0 = body.initial_state(omega=OMEGA)
-    events = [ls.Event(lambda b: m2(b) ** 2, terminal=True, name="touch")]
-    if engine == "lie":
-        sol = ls.lie_integrate(body, y0, t=T, dps=20, events=events)
-    else:
-        sol = ls.integrate(body, y0, t=T, precision=engine, events=events)
-    assert sol.success, sol.message
-    assert to_fraction(sol.t_reached) == T and len(sol.events["touch"]["t"]) == 0
