@@ -7,6 +7,7 @@ refused; a full scene run from the installed copy (~10 s) is marked slow (`make 
 """
 
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -20,9 +21,14 @@ ROOT = Path(__file__).resolve().parents[1]
 def installed(tmp_path_factory):
     target = tmp_path_factory.mktemp("site")
     build = tmp_path_factory.mktemp("build")
+    # from a copy of the source files: setuptools builds in the tree's build/ folder and keeps there what an earlier
+    # install left (a module since removed would be installed again)
+    source = build / "source"
+    shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(".git", ".venv", "build", "*.egg-info", "__pycache__",
+                                                                 "reports", ".pytest_cache"))
     # --no-compile: the few modules a run imports are compiled when first imported, not all of them up front
     cmd = [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation", "--no-compile",
-           "--target", str(target), str(ROOT)]
+           "--target", str(target), str(source)]
     env = {**os.environ, "TMPDIR": str(build), "PIP_DISABLE_PIP_VERSION_CHECK": "1"}
     subprocess.run(cmd, check=True, cwd=build, env=env, capture_output=True, timeout=300)
     assert (target / "lieseries" / "data" / "scenes" / "default.toml").is_file()

@@ -299,13 +299,19 @@ def _kepler_closed_form(t, ctx):
 
 
 @pytest.mark.slow
-def test_kepler_near_collision_ends_as_validation_failed_before_the_pericentre_with_the_rows_proved():
+def test_kepler_near_collision_ends_with_a_status_and_every_row_it_gives_is_proved():
+    """Through the pericentre (r = 1/199) the enclosures either pass (every row) or the run ends as
+    ``validation_failed`` with the rows proved before it (it once raised flint's ValueError there); what it gives
+    is contained in the closed form either way."""
     q1, q2, p1, p2 = hy.make_vars("q1", "q2", "p1", "p2")
     system = _canonical([q1, q2, p1, p2], (p1**2 + p2**2) / 2 - 1 / hy.sqrt(q1**2 + q2**2), "kepler")
     times = [Fraction(k, 4) for k in range(1, 13)]  # pericentre (r = 1/199) at half the period, t = 1.119...
     sol = validated_integrate(system, ["1", "0", "0", "0.1"], times, dps=30)
-    assert sol.status == "validation_failed" and "Validation failed at t = " in sol.message
-    assert 4 <= len(sol.t) < 12
+    if sol.status == "success":
+        assert len(sol.t) == 12
+    else:
+        assert sol.status == "validation_failed" and "Validation failed at t = " in sol.message
+        assert 4 <= len(sol.t) < 12
     ctx = mp.MPContext()
     ctx.dps = 60
     for tk, row in zip(times, sol.y):
