@@ -288,3 +288,19 @@ def test_ensemble_member_state_on_its_own_constraint_surface_runs():
     assert list(ens.status) == ["success", "success"]
     ref = np.asarray(ls.integrate(pend3, y3, t=1, precision="quad").y_final, dtype=float)
     assert np.max(np.abs(np.asarray(ens.y_reached[1], dtype=float) - ref)) < 1e-13
+
+
+def test_exact_state_with_a_non_dyadic_tangent_velocity_runs():
+    """initial_state accepted q = (0.6, 0, -0.8), qdot = (0.8, 0, 0.6), but the run refused it as not tangent: its
+    check multiplied at 53 bits (mpf(8)/5) and compared with 1e-50. The motion stays in the x-z plane: against
+    theta'' = -g sin(theta) (theta from the downward vertical, theta(0) = asin(0.6), theta'(0) = 1), mpmath at 30
+    digits, and run by heyoka and the Lie engine."""
+    pend = ls.SphericalPendulum(length=1, mass=1, g=G)
+    y0 = pend.initial_state(q=("0.6", 0, "-0.8"), qdot=("0.8", 0, "0.6"))
+    c = private_ctx(30)
+    g = ctx_mpf(c, G)
+    theta = c.odefun(lambda t, u: [u[1], -g * c.sin(u[0])], 0, [c.asin(ctx_mpf(c, "0.6")), c.mpf(1)])(ctx_mpf(c, "0.5"))[0]
+    ref = np.array([float(c.sin(theta)), 0.0, float(-c.cos(theta))])
+    for sol in (ls.integrate(pend, y0, t="0.5"), ls.lie_integrate(pend, y0, t="0.5", dps=20)):
+        assert sol.status == "success"
+        assert np.max(np.abs(np.asarray(pend.configuration(sol.y_final), dtype=float) - ref)) < 1e-14
