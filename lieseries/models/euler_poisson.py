@@ -138,9 +138,12 @@ def _check_rotation(R, tol, argname):
 def _show(x: Fraction, digits: int) -> str:
     """A Fraction in ``digits`` significant digits, also beyond the range of a float (entries of 1e200 made the
     message itself fail with OverflowError)."""
-    with localcontext() as ctx:
-        ctx.prec = digits + 5
-        return format(Decimal(x.numerator) / Decimal(x.denominator), f".{digits}g")
+    try:
+        return format(float(x), f".{digits}g")
+    except OverflowError:
+        with localcontext() as ctx:
+            ctx.prec = digits + 5
+            return format(Decimal(x.numerator) / Decimal(x.denominator), f".{digits}g")
 
 
 
