@@ -110,9 +110,9 @@ def _duration(s: float) -> str:
     if not math.isfinite(s):
         return "forever"
     if s < 1e-3:
-        return f"{s * 1e6:.2g} us"
+        return f"{_digits(s * 1e6)} us"
     if s < 1:
-        return f"{s * 1e3:.2g} ms"
+        return f"{_digits(s * 1e3)} ms"
     if s < 120:
         return f"{s:.3g} s"
     if s < 7200:
@@ -120,6 +120,12 @@ def _duration(s: float) -> str:
     if s < 3 * 86400:
         return f"{s / 3600:.3g} h"
     return f"{s / 86400:.3g} days"
+
+
+def _digits(x: float) -> str:
+    """Two or three significant digits without an exponent (150, 2.5, 0.012; '1.5e+02' read as a typo)."""
+    text = f"{x:.2g}"
+    return f"{x:.0f}" if "e" in text else text
 
 
 def heyoka_step_seconds(precision, dimension: int) -> float:

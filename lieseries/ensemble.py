@@ -56,6 +56,7 @@ from __future__ import annotations
 import copy
 import numbers
 import os
+import re
 import threading
 import time as _time
 from concurrent.futures import ThreadPoolExecutor
@@ -232,8 +233,9 @@ def _structure(system):
     return system, None
 
 
-def _states(model, ps, Y0, prec: Precision):
-    """Y0 checked and rounded once to the working precision: a native array (k, n)."""
+def _states(model, ps, Y0, prec: Precision, foreign=frozenset()):
+    """Y0 checked and rounded once to the working precision: a native array (k, n). Rows in ``foreign`` (members
+    with parameters of their own) get the plain check here and their constraints in _check_member_constraints."""
     n = ps.dimension
     if isinstance(Y0, np.ndarray) and Y0.dtype != object:
         arr = Y0
@@ -271,7 +273,7 @@ def _states(model, ps, Y0, prec: Precision):
         return arr.astype(prec.numpy_dtype)  # exact (widening) or rounded once (long double -> double)
     rows = []
     for i in range(arr.shape[0]):
-        if model is not None:
+        if model is not None and i not in foreign:
             rows.append(model.check_state(arr[i], f"Y0[{i}]"))
         else:
             rows.append(state_fractions(arr[i], n, f"Y0[{i}]"))
@@ -349,6 +351,39 @@ def _parameters(model, ps, params, members, k):
         for i, row in enumerate(rows):
             model.check_parameters(row, f"params[{i}]")
     return rows
+
+
+def _check_member_constraints(ps, Y0, Ynat, pars, prec, from_models):
+    """Refuse a row that is off the constraint surface of its own member: a pendulum's state given for one length
+    and run with another (``params``, or a list of models) keeps G = |x|^2 - l^2 != 0 as a Casimir, and its run
+    would succeed on a motion that is no pendulum's. The constraint Casimirs (``G1..``, ``Phi1..``) are evaluated
+    with the member's parameters, relative to 1 + |y|^2, and refused above the square root of the precision."""
+    if pars is None or not _constrained(ps):
+        return
+    exact = isinstance(Y0, list) and all(isinstance(r, list) for r in Y0)
+    tol = 2.0 ** -max(1, (prec.bits - 4) // 2)
+    for i, values in enumerate(pars):
+        if tuple(values) == tuple(ps.parameter_values):
+            continue
+        row = Y0[i] if exact else Ynat[i]
+        inv = ps.with_parameters(values).invariants(row)
+        scale = 1 + sum(float(v) ** 2 for v in (row if exact else np.asarray(row, dtype=float)))
+        for name, value in inv.items():
+            if _CONSTRAINT_NAME.match(name) and abs(float(value)) > tol * scale:
+                source = f"the model `system[{i}]`" if from_models else f"`params[{i}]`"
+                raise ValueError(
+                    f"`Y0[{i}]` is off the constraint surface of its member: with the parameters of {source} "
+                    f"({dict(zip(ps.parameter_names, (float(v) for v in values)))}), {name} = {float(value):.3g} "
+                    "at it instead of 0 (the state was made for other parameters). Build each member's state with "
+                    "its own parameters (a model with those parameters, then `initial_state`)")
+
+
+_CONSTRAINT_NAME = re.compile(r"^(G|Phi)\d+$")
+
+
+def _constrained(ps) -> bool:
+    """Whether the system's Casimirs include constraints G1.., Phi1.. (a model derived from constraints)."""
+    return any(_CONSTRAINT_NAME.match(name) for name in ps.casimirs)
 
 
 def _member_system(system, ps, values):
@@ -478,9 +513,16 @@ def integrate_ensemble(
     if min_step is not None and not (isinstance(min_step, numbers.Real) and min_step > 0):
         raise ValueError(f"`min_step` must be positive; got {min_step!r}")
     progress = None if progress is None else _Monotone(progress)
-    Ynat = _states(model, ps, Y0, prec)
+    # rows of members with parameters of their own are checked against their own constraint surface, not the
+    # model's (a pendulum's state for another length is no state of this one)
+    foreign = set()
+    if (params is not None or members is not None) and hasattr(Y0, "__len__") and len(Y0) and _constrained(ps):
+        own = tuple(ps.parameter_values)
+        foreign = {i for i, v in enumerate(_parameters(model, ps, params, members, len(Y0))) if tuple(v) != own}
+    Ynat = _states(model, ps, Y0, prec, foreign)
     k = Ynat.shape[0]
     pars = _parameters(model, ps, params, members, k)
+    _check_member_constraints(ps, Y0, Ynat, pars, prec, members is not None)
     _warn_coarse(prec, [("Y0", Y0), ("params", params), ("t", t), ("t0", t0)], members or [structure])
 
     if client is not None:

@@ -633,7 +633,7 @@ def binary_inputs(values, argname: str) -> dict:
 
     def walk(v, name):
         if isinstance(v, np.ndarray) and v.ndim > 0:
-            v = v.tolist() if v.dtype != object else list(v)
+            v = list(v)  # numpy scalars keep their format: tolist() made float32 entries Python floats, read exact
         if isinstance(v, (list, tuple)):
             for i, x in enumerate(v):
                 walk(x, f"{name}[{i}]")

@@ -319,3 +319,23 @@ def test_raw_state_whose_r_is_not_a_rotation_warns_naming_y0():
     ens[1, 4] = 2
     with pytest.warns(UserWarning, match=r"`Y0\[1\]` holds an R that is not a rotation"):
         ls.integrate(BODY, ens, t="0.1")
+
+
+def test_r0_with_huge_entries_is_refused_naming_it():
+    """An entry of 1e200 made the refusal's own message fail (OverflowError from float of R0 R0^T - 1 = 1e400)."""
+    with pytest.raises(ValueError, match=r"`R0` must be a rotation matrix: max \|R0 R0\^T - 1\| = 1\.00e\+400"):
+        BODY.initial_state((1, 0, 0), R0=[[1e200, 0, 0], [0, 1, 0], [0, 0, 1]])
+
+
+def test_float32_rotation_is_binary_data_of_24_bits():
+    """A float32 rotation carries 24 bits: accepted within 16 units of its last place (it was read as exact and
+    refused, its 5e-8 residual compared with 0), and reported as 24-bit data when a run works with more."""
+    import math
+
+    c, s = math.cos(0.3), math.sin(0.3)
+    R32 = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]], dtype=np.float32)
+    rr = R32.astype(float) @ R32.astype(float).T - np.eye(3)
+    assert 1e-9 < np.max(np.abs(rr)) < 16 * 2.0 ** -24  # not a rotation in binary, one to float32's precision
+    y = BODY.initial_state((1, 0, 0), R0=R32)
+    with pytest.warns(ls.PrecisionWarning, match=r"carries only 24 bits"):
+        ls.integrate(BODY, y, t="0.1")

@@ -253,3 +253,54 @@ def test_ensemble_parameters_of_a_pendulum_are_checked():
     bad[names.index("mass")] = -1
     with pytest.raises(ValueError, match=r"`params\[1\]` gives the parameter 'mass' = -1"):
         ls.integrate(pend, np.stack([y0, y0]), t=1, params=[good, bad])
+
+
+def test_ensemble_member_state_must_lie_on_its_own_constraint_surface():
+    """A state made for length 1.5 run as a member of length 3 keeps G = |x|^2 - 9 = -6.75 as a Casimir: its run
+    succeeded on a motion that is no pendulum's. Refused, naming the row; a state made for the member's own length
+    runs and agrees with a quad run of that pendulum."""
+    pend = ls.SphericalPendulum(length=L, mass=MASS, g=G)
+    y0 = pend.initial_state(q=Q0, qdot=V0)
+    names = list(pend.poisson.parameter_names)
+    own = list(pend.poisson.parameter_values)
+    longer = list(own)
+    longer[names.index("length")] = 3
+    with pytest.raises(ValueError, match=r"`Y0\[1\]` is off the constraint surface of its member.*`params\[1\]`"
+                                         r".*G1 = -6\.75"):
+        ls.integrate(pend, np.stack([y0, y0]), t=1, params=[own, longer])
+    with pytest.raises(ValueError, match=r"`Y0\[1\]` is off the constraint surface.*G1 = -6\.75"):
+        ls.integrate(pend, [y0, y0], t=1, params=[own, longer])  # exact rows
+
+
+@pytest.mark.slow
+def test_ensemble_member_state_on_its_own_constraint_surface_runs():
+    """A member with a length of its own and a state made for that length runs (it was refused, checked against
+    the model's length), and agrees with a quad run of a pendulum of that length (its own derivation)."""
+    pend = ls.SphericalPendulum(length=L, mass=MASS, g=G)
+    y0 = pend.initial_state(q=Q0, qdot=V0)
+    names = list(pend.poisson.parameter_names)
+    own = list(pend.poisson.parameter_values)
+    longer = list(own)
+    longer[names.index("length")] = 3
+    pend3 = ls.SphericalPendulum(length=3, mass=MASS, g=G)
+    y3 = pend3.initial_state(q=("1.8", 0, "-2.4"), qdot=V0)
+    ens = ls.integrate(pend, np.stack([np.asarray(y0, float), np.asarray(y3, float)]), t=1, params=[own, longer])
+    assert list(ens.status) == ["success", "success"]
+    ref = np.asarray(ls.integrate(pend3, y3, t=1, precision="quad").y_final, dtype=float)
+    assert np.max(np.abs(np.asarray(ens.y_reached[1], dtype=float) - ref)) < 1e-13
+
+
+def test_exact_state_with_a_non_dyadic_tangent_velocity_runs():
+    """initial_state accepted q = (0.6, 0, -0.8), qdot = (0.8, 0, 0.6), but the run refused it as not tangent: its
+    check multiplied at 53 bits (mpf(8)/5) and compared with 1e-50. The motion stays in the x-z plane: against
+    theta'' = -g sin(theta) (theta from the downward vertical, theta(0) = asin(0.6), theta'(0) = 1), mpmath at 30
+    digits, and run by heyoka and the Lie engine."""
+    pend = ls.SphericalPendulum(length=1, mass=1, g=G)
+    y0 = pend.initial_state(q=("0.6", 0, "-0.8"), qdot=("0.8", 0, "0.6"))
+    c = private_ctx(30)
+    g = ctx_mpf(c, G)
+    theta = c.odefun(lambda t, u: [u[1], -g * c.sin(u[0])], 0, [c.asin(ctx_mpf(c, "0.6")), c.mpf(1)])(ctx_mpf(c, "0.5"))[0]
+    ref = np.array([float(c.sin(theta)), 0.0, float(-c.cos(theta))])
+    for sol in (ls.integrate(pend, y0, t="0.5"), ls.lie_integrate(pend, y0, t="0.5", dps=20)):
+        assert sol.status == "success"
+        assert np.max(np.abs(np.asarray(pend.configuration(sol.y_final), dtype=float) - ref)) < 1e-14

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from decimal import Decimal, localcontext
 from fractions import Fraction
 
 import heyoka as hy
@@ -127,13 +128,24 @@ def _check_rotation(R, tol, argname):
                f"the data's precision allows {float(tol):.2g}; orthonormalise it (e.g. "
                "scipy.spatial.transform.Rotation.from_matrix(R0).as_matrix()) or give it exactly")
         raise ValueError(
-            f"`{argname}` must be a rotation matrix: max |{argname} {argname}^T - 1| = {float(defect):.3g} and "
-            f"det {argname} = {float(det):.17g}. R R^T is conserved by the equations, so a non-orthogonal "
+            f"`{argname}` must be a rotation matrix: max |{argname} {argname}^T - 1| = {_show(defect, 3)} and "
+            f"det {argname} = {_show(det, 17)}. R R^T is conserved by the equations, so a non-orthogonal "
             f"{argname} never becomes a rigid motion; {how}."
         )
     if det <= 0:
         raise ValueError(f"`{argname}` must be a proper rotation (det {argname} = +1); got a reflection "
-                         f"(det {argname} = {float(det):.17g})")
+                         f"(det {argname} = {_show(det, 17)})")
+
+
+def _show(x: Fraction, digits: int) -> str:
+    """A Fraction in ``digits`` significant digits, also beyond the range of a float (entries of 1e200 made the
+    message itself fail with OverflowError)."""
+    try:
+        return format(float(x), f".{digits}g")
+    except OverflowError:
+        with localcontext() as ctx:
+            ctx.prec = digits + 5
+            return format(Decimal(x.numerator) / Decimal(x.denominator), f".{digits}g")
 
 
 
