@@ -211,3 +211,75 @@ def test_builtin_spherical_pendulum_scene_against_odefun_and_its_invariants():
     for r in rows:
         y = [float(c) for c in r.final_state]
         assert max(abs(a - b) for a, b in zip(y[:3], ref[:3])) < 1e-13, (r.method, y, ref)
+
+
+# -- the formulations study ------------------------------------------------------------------------------------------
+def _great_circle(t):
+    """x(t), v(t) on the unit sphere from x0 = (0.6, 0, 0.8), v0 = (0, 1, 0): a great circle."""
+    c, s = mpmath.cos(t), mpmath.sin(t)
+    return [0.6 * c, s, 0.8 * c], [-0.6 * s, c, -0.8 * s]
+
+
+@pytest.mark.slow  # the two derivations take ~5 s
+def test_formulations_dirac_and_local_chart_follow_the_great_circle_and_the_chart_ends_where_z_is_small():
+    """The Dirac form runs to t = 2; the local chart z = sqrt(1 - x^2 - y^2) stops at its edge (|z| = 0.05 |x|, so
+    0.8 cos t = 0.05: t = acos(1/16) = 1.508...). Both agree with the great circle where they ran."""
+    from lieseries.studies.formulations import compare_formulations
+
+    sphere = ls.ConstrainedSystem("(x_dot**2 + y_dot**2 + z_dot**2)/2", ["x", "y", "z"], ["x**2 + y**2 + z**2 - 1"])
+    res = compare_formulations(sphere, ("0.6", 0, "0.8"), (0, 1, 0), 2, [{"method": "taylor", "precision": "double"}],
+                               formulations=("dirac", "local"), chart={"z": "sqrt(1 - x**2 - y**2)"}, samples=5)
+    dirac, local = res.rows
+    assert (dirac.status, dirac.t) == ("success", 2.0)
+    assert local.status == "chart_edge" and abs(local.t - float(mpmath.acos(mpmath.mpf(1) / 16))) < 1e-6
+    for r in res.rows:
+        x, v = _great_circle(r.t)
+        assert max(abs(a - float(b)) for a, b in zip(r.q + r.qdot, x + v)) < 1e-13, r
+        assert r.error < 1e-13 and r.G < 1e-14 and r.Phi < 1e-14 and r.energy < 1e-14
+
+
+@pytest.mark.slow
+def test_formulations_study_in_a_scene_all_four_on_the_great_circle(tmp_path):
+    """[studies.formulations] in a scene with kind = "constrained": the four formulations by heyoka (double, quad)
+    and the Lie series (30 digits), each against the great circle to its precision; the report has its table."""
+    from lieseries.report import write_report
+
+    text = HEAD + """
+[model]
+kind = "constrained"
+lagrangian = "(x_dot**2 + y_dot**2 + z_dot**2)/2"
+coordinates = ["x", "y", "z"]
+constraints = ["x**2 + y**2 + z**2 - 1"]
+[initial]
+q = ["0.6", 0, "0.8"]
+qdot = [0, 1, 0]
+[studies.formulations]
+t = "1.2"
+chart = { z = "sqrt(1 - x**2 - y**2)" }
+"""
+    res = run_scene(parse_scene(text), progress=False)
+    (_lab, comp), = res.studies["formulations"]
+    assert {r.formulation for r in comp.rows} == {"dirac", "reduced", "intermediate", "local"}
+    assert len(comp.rows) == 12
+    tol = {"heyoka double": 1e-14, "heyoka quad": 1e-31, "Lie series 30 dps": 1e-28}
+    with mpmath.workdps(40):
+        x, v = _great_circle(mpmath.mpf(6) / 5)
+    for r in comp.rows:
+        assert r.status == "success" and r.t == 1.2
+        assert max(abs(a - float(b)) for a, b in zip(r.q + r.qdot, x + v)) < max(tol[r.method], 1e-15), r
+        assert r.error < tol[r.method] and r.G < tol[r.method] and r.Phi < tol[r.method], r
+    assert res.unsuccessful() == []
+    write_report(res, tmp_path / "rep")
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "## Formulations compared" in md and "| intermediate |" in md
+
+
+def test_formulations_study_refuses_a_model_without_constraints_and_local_without_chart():
+    top = HEAD + ('[model]\nkind = "heavy_top"\ninertia = [2, 2, 1]\ncom = [0, 0, "0.5"]\n[initial]\n'
+                  'omega = [1, 0, 5]\n[studies.formulations]\nt = 1\n')
+    with pytest.raises(SceneError, match="`studies.formulations.chart` is required"):
+        parse_scene(top)
+    with pytest.raises(SceneError, match="`model` is not one"):
+        parse_scene(top + 'formulations = ["dirac", "reduced"]\n')
+    with pytest.raises(SceneError, match=r"`studies.formulations.formulations\[1\]` must be one of"):
+        parse_scene(top + 'formulations = ["dirac", "chart"]\n')
