@@ -126,6 +126,11 @@ BAD = [
      "does not solve"),
     ('[initial]', 'chart = { z = "-sqrt(l**2 - x**2 - y**2)" }\n[initial]', "model.chart", "'local' only"),
     ('[initial]', 'formulation = "lagrange"\n[initial]', "model.formulation", "one of"),
+    ('lagrangian = "m/2*(x_dot**2 + y_dot**2 + z_dot**2) - m*g*z"',
+     'lagrangian = "m/2*(x_dot**4 + y_dot**2 + z_dot**2) - m*g*z"', "model.lagrangian", "quadratic"),
+    ('constraints = ["x**2 + y**2 + z**2 - l**2"]', 'constraints = "x**2 + y**2 + z**2 - l**2"', "model.constraints",
+     "list"),
+    ('[initial]', 'formulation = "reduced"\ndependent = ["w"]\n[initial]', "model.dependent", "coordinates"),
 ]
 
 
