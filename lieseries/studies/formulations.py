@@ -231,7 +231,8 @@ class FormulationsStudy(Study):
                 raise F.SceneError(f"`studies.formulations`: {err}") from None
 
     def quick(self, opts):
-        opts["t"] = float(to_fraction(opts["t"])) / 5
+        t = to_fraction(opts["t"]) / 5  # kept exact: 1.2 becomes 6/25, not the double 0.24
+        opts["t"] = str(t) if t.denominator > 1 else t.numerator
         opts["samples"] = min(opts["samples"], 5)
 
     def run(self, opts, ctx):
