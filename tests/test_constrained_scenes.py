@@ -288,3 +288,18 @@ def test_formulations_study_refuses_a_model_without_constraints_and_local_withou
         parse_scene(top + 'formulations = ["dirac", "reduced"]\n')
     with pytest.raises(SceneError, match=r"`studies.formulations.formulations\[1\]` must be one of"):
         parse_scene(top + 'formulations = ["dirac", "chart"]\n')
+
+
+def test_formulations_measures_quad_constraint_residuals_at_quad_precision():
+    """A rod of length 0.3 (not a binary number): |G| and |Phi| of a quad run are measured to quad's level, not
+    to the 15 digits of mpmath's default context (independent: G from the final q in exact arithmetic here)."""
+    from lieseries.studies.formulations import compare_formulations
+
+    pend = ls.ConstrainedSystem("m/2*(x_dot**2 + y_dot**2 + z_dot**2) - m*g*z", ["x", "y", "z"],
+                                ["x**2 + y**2 + z**2 - l**2"], parameters={"m": 1, "g": "9.81", "l": "0.3"})
+    res = compare_formulations(pend, ("0.18", 0, "-0.24"), (0, 1, 0), "0.5", [{"method": "taylor", "precision": "quad"}],
+                               formulations=("dirac",), samples=3)
+    row, = res.rows
+    assert row.status == "success" and row.G < 1e-31 and row.Phi < 1e-31 and row.error < 1e-31
+    # the final point, as floats, is on the sphere of radius 0.3 to double rounding
+    assert abs(sum(c * c for c in row.q) - 0.09) < 1e-15

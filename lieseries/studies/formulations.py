@@ -92,20 +92,30 @@ def _formulation(system, name, chart, dependent):
 
 
 class _Constraints:
-    """G_alpha(q) and Phi_alpha = dG_alpha/dq . qdot at the system's exact parameter values, in mpmath."""
+    """G_alpha(q) and Phi_alpha = dG_alpha/dq . qdot at the system's exact parameter values: evaluated exactly (the
+    states' numbers are binary rationals) where the constraints are rational functions, else by sympy at ``dps``
+    digits (no mpmath global context, whose 15 digits would hide a quad run's residuals)."""
 
-    def __init__(self, system):
-        q = [sp.Symbol(c, real=True) for c in system.coordinates]
+    def __init__(self, system, dps: int):
+        self.q = [sp.Symbol(c, real=True) for c in system.coordinates]
         vals = {sp.Symbol(k, real=True): sp.Rational(v.numerator, v.denominator)
                 for k, v in system.parameter_values.items()}
-        G = [g.xreplace(vals) for g in system.constraints]
-        self.G = [sp.lambdify(q, g, modules="mpmath") for g in G]
-        self.grad = [[sp.lambdify(q, sp.diff(g, qa), modules="mpmath") for qa in q] for g in G]
+        self.G = [g.xreplace(vals) for g in system.constraints]
+        self.grad = [[sp.diff(g, qa) for qa in self.q] for g in self.G]
+        self.dps = dps
+
+    def _value(self, e, subs):
+        v = e.xreplace(subs)
+        if not v.is_Rational:
+            v = sp.Rational(v.evalf(self.dps + 10))
+        return mp.mpf(int(v.p)) / int(v.q)
 
     def residuals(self, q, v):
-        """(max |G_alpha|, max |Phi_alpha|) at one configuration and velocity (mpf lists)."""
-        g = max(abs(f(*q)) for f in self.G)
-        phi = max(abs(mp.fsum(d(*q) * vk for d, vk in zip(row, v))) for row in self.grad)
+        """(max |G_alpha|, max |Phi_alpha|) at one configuration and velocity (lists of exact Fractions)."""
+        subs = {s: sp.Rational(c.numerator, c.denominator) for s, c in zip(self.q, q)}
+        vel = [sp.Rational(c.numerator, c.denominator) for c in v]
+        g = max(abs(self._value(f, subs)) for f in self.G)
+        phi = max(abs(self._value(sum(d * vk for d, vk in zip(row, vel)), subs)) for row in self.grad)
         return g, phi
 
 
@@ -115,7 +125,8 @@ def _mpf(v):
 
 
 def _qv(model, state):
-    return [_mpf(c) for c in model.configuration(state)], [_mpf(c) for c in model.velocity(state)]
+    """q and qdot of a state as exact Fractions (the state's own binary values)."""
+    return [to_fraction(c) for c in model.configuration(state)], [to_fraction(c) for c in model.velocity(state)]
 
 
 def compare_formulations(system, q, qdot, t, methods, *, formulations=FORMULATIONS, chart=None, dependent=None,
@@ -123,7 +134,7 @@ def compare_formulations(system, q, qdot, t, methods, *, formulations=FORMULATIO
     """Run each formulation of ``system`` with each method from (``q``, ``qdot``) to ``t`` (module docstring)."""
     tf = to_fraction(t, "t")
     grid = [tf * Fraction(i, samples - 1) for i in range(1, samples)]
-    cons = _Constraints(system)
+    cons = _Constraints(system, reference_dps(methods))
     ref_dps = reference_dps(methods)
     bits = max(256, dps_to_bits(ref_dps) + 16)
     dirac = system.dirac()
@@ -169,7 +180,7 @@ def compare_formulations(system, q, qdot, t, methods, *, formulations=FORMULATIO
                 t_end = to_fraction(rec.t_exact if rec.t_exact is not None else rec.t)
                 qr, vr = reference(t_end)
                 qs, vs = _qv(model, rec.states[-1])
-                err = max(abs(a - b) for a, b in zip(qs + vs, qr + vr))
+                err = max(abs(_mpf(a - b)) for a, b in zip(qs + vs, qr + vr))
                 rows.append(FormulationRow(name, model.poisson.dimension, rec.label, rec.status, float(t_end),
                                            float(err), float(g), float(phi), float(en), rec.steps, rec.run_time,
                                            rec.message, [float(c) for c in qs], [float(c) for c in vs]))
