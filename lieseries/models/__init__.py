@@ -2,6 +2,7 @@
 
 from .base import Model
 from .constrained import ConstrainedDirac, ConstrainedSystem
+from . import constrained_kind  # noqa: F401  (registers the scene kind `constrained`)
 from .euler_poisson import DampedEulerPoisson, EulerPoisson
 from .ellipsoid import EllipsoidGeodesic
 from .heavy_top import HeavyTop

@@ -18,8 +18,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import fields as F
 from ..precision import thread_mp as mp
 from .constrained import ConstrainedSystem
+from .kinds import ModelKind, register_model_kind
 from .pendulum import ConstrainedModel, cached_system, positive
 
 __all__ = ["EllipsoidGeodesic"]
@@ -61,3 +63,20 @@ class EllipsoidGeodesic(ConstrainedModel):
 
     def __repr__(self) -> str:
         return f"EllipsoidGeodesic(axes={tuple(float(a) for a in self.axes_exact)})"
+
+
+# -- scenes: [model] kind = "ellipsoid_geodesic", [initial] q, qdot ------------------------------------------------
+def _axes_field(value, path):
+    F.vector3(value, path)
+    for i, v in enumerate(value):
+        F.positive(v, f"{path}[{i}]")
+    return value
+
+
+register_model_kind(ModelKind(
+    "ellipsoid_geodesic",
+    fields={"axes": (_axes_field, [1, 2, 3])},
+    docs={"axes": ("3 positive numbers", "the semi-axes (a, b, c) along x, y, z")},
+    build=lambda p, base: EllipsoidGeodesic(axes=p["axes"]),
+    family="configuration", label="ellipsoid geodesic", data_fields=("axes",),
+))

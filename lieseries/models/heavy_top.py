@@ -23,10 +23,12 @@ from __future__ import annotations
 import heyoka as hy
 import numpy as np
 
+from .. import fields as F
 from ..poisson import PoissonSystem
 from ..precision import data_bits, export_mpf, to_fraction
 from ..precision import thread_mp as mp
 from .euler_poisson import EulerPoisson
+from .kinds import ModelKind, register_model_kind
 
 __all__ = ["HeavyTop"]
 
@@ -135,3 +137,27 @@ class HeavyTop(EulerPoisson):
         base = super().__repr__()[len("EulerPoisson("):-1]
         return (f"HeavyTop({base}, com={tuple(float(c) for c in self._com)}, mass={float(self.mass_exact)}, "
                 f"g={float(self.g_exact)})")
+
+
+# -- scenes: [model] kind = "heavy_top", [initial] omega, R0 (the rigid body's) ------------------------------------
+def _inertia_field(value, path):
+    """3 principal moments or a 3x3 tensor (the model checks symmetry and positivity)."""
+    if isinstance(value, list) and value and all(isinstance(r, list) for r in value):
+        return F.matrix3(value, path)
+    return F.vector3(value, path)
+
+
+register_model_kind(ModelKind(
+    "heavy_top",
+    fields={"inertia": (_inertia_field, F.REQUIRED), "com": (F.vector3, F.REQUIRED), "mass": (F.positive, 1),
+            "g": (F.number, 1), "bracket": (F.choice("chetaev", "intermediate"), "chetaev")},
+    docs={"inertia": ("3 numbers or 3x3 numbers", "the inertia tensor about the fixed point (body frame): principal "
+                      "moments, or a symmetric positive-definite tensor"),
+          "com": ("3 numbers", "the centre of mass in the body frame, from the fixed point"),
+          "mass": ("positive number", "the mass"),
+          "g": ("number", "the gravitational acceleration (the potential is mass g times the height of the centre "
+                "of mass)"),
+          "bracket": ("'chetaev' | 'intermediate'", "the Poisson structure (paper 11.20.2 or 11.20)")},
+    build=lambda p, base: HeavyTop(p["inertia"], com=p["com"], mass=p["mass"], g=p["g"], bracket=p["bracket"]),
+    family="rigid_body", label="heavy top", data_fields=("inertia", "com", "mass", "g"),
+))

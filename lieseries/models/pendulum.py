@@ -32,11 +32,13 @@ import heyoka as hy
 import numpy as np
 import sympy as sp
 
+from .. import fields as F
 from ..poisson import PoissonSystem
 from ..precision import binary_inputs, data_bits, export_mpf, state_bits, to_fraction
 from ..precision import thread_mp as mp
 from .base import Model, make_state
 from .constrained import ConstrainedSystem
+from .kinds import InitialFamily, ModelKind, register_initial_family, register_model_kind
 
 __all__ = ["ConstrainedModel", "SphericalPendulum", "PlanarPendulum", "DoubleSphericalPendulum", "positive",
            "cached_system", "check_positive_parameters"]
@@ -466,3 +468,46 @@ class DoubleSphericalPendulum(Model):
     def __repr__(self) -> str:
         pv = self.parameter_values
         return "DoubleSphericalPendulum(" + ", ".join(f"{k}={float(pv[k])}" for k in ("l1", "l2", "m1", "m2", "g")) + ")"
+
+
+# -- scenes: [model] kind = "spherical_pendulum" | "planar_pendulum" | "double_spherical_pendulum",
+#    [initial] q, qdot (shared by every model on (q^A, p_A) with constraints) ------------------------------------
+register_initial_family(InitialFamily(
+    "configuration",
+    fields={"q": (F.list_of(F.number, allow_scalar=False), F.REQUIRED),
+            "qdot": (F.list_of(F.number, allow_scalar=False), F.REQUIRED)},
+    docs={"q": ("list of numbers", "the configuration q^A, one number per coordinate, on the constraint surface"),
+          "qdot": ("list of numbers", "the velocity dq^A/dt, tangent to the constraint surface")},
+    state=lambda model, ini, precision: model.initial_state(ini["q"], ini["qdot"], precision=precision),
+))
+
+_PENDULUM_DOCS = {"length": ("positive number", "the rod's length"), "mass": ("positive number", "the mass"),
+                  "g": ("number", "the gravitational acceleration (along -z, or -y in the plane)")}
+
+register_model_kind(ModelKind(
+    "spherical_pendulum",
+    fields={"length": (F.positive, 1), "mass": (F.positive, 1), "g": (F.number, 1)},
+    docs=dict(_PENDULUM_DOCS),
+    build=lambda p, base: SphericalPendulum(length=p["length"], mass=p["mass"], g=p["g"]),
+    family="configuration", label="spherical pendulum", data_fields=("length", "mass", "g"),
+))
+
+register_model_kind(ModelKind(
+    "planar_pendulum",
+    fields={"length": (F.positive, 1), "mass": (F.positive, 1), "g": (F.number, 1)},
+    docs=dict(_PENDULUM_DOCS),
+    build=lambda p, base: PlanarPendulum(length=p["length"], mass=p["mass"], g=p["g"]),
+    family="configuration", label="planar pendulum", data_fields=("length", "mass", "g"),
+))
+
+register_model_kind(ModelKind(
+    "double_spherical_pendulum",
+    fields={"l1": (F.positive, 1), "l2": (F.positive, 1), "m1": (F.positive, 1), "m2": (F.positive, 1),
+            "g": (F.number, 1)},
+    docs={"l1": ("positive number", "the first rod's length (from the fixed point)"),
+          "l2": ("positive number", "the second rod's length (from the first mass)"),
+          "m1": ("positive number", "the first mass"), "m2": ("positive number", "the second mass"),
+          "g": ("number", "the gravitational acceleration (along -z)")},
+    build=lambda p, base: DoubleSphericalPendulum(l1=p["l1"], l2=p["l2"], m1=p["m1"], m2=p["m2"], g=p["g"]),
+    family="configuration", label="double spherical pendulum", data_fields=("l1", "l2", "m1", "m2", "g"),
+))

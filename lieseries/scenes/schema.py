@@ -427,8 +427,8 @@ def _build(scene: Scene, where: str) -> list:
         try:
             model = spec.build()
         except (TypeError, ValueError) as err:
-            if isinstance(err, SceneError):
-                raise
+            if isinstance(err, SceneError):  # a kind names its fields `model.<field>`: this model's table here
+                raise SceneError(str(err).replace("`model.", f"`{path}.")) from None
             raise SceneError(f"`{path}`: {err}") from None
         try:
             scene.initial_state(model, precision="double")
