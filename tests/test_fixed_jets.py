@@ -18,15 +18,6 @@ from lieseries.lie import compile_system, fixed, taylor_coefficients
 from problems import RB_PARS, RB_Y0, mpf, nonlinear, rigid_body, rigid_error
 
 
-@pytest.fixture(params=["gmpy", "int"])
-def bigint(request):
-    """Run the test with each big-integer backend (gmpy falls back to int where gmpy2 is missing)."""
-    before = fixed.backend()
-    fixed.set_backend(request.param)
-    yield fixed.backend()
-    fixed.set_backend(before)
-
-
 def scaled_error(got, ref, s, scale):
     """max_k,i |got - ref| 2**(s k) / scale."""
     with mp.workdps(300):

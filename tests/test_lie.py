@@ -13,17 +13,6 @@ from problems import mpf, rigid_error
 OMEGA = (1, "0.1", "0.5")
 
 
-@pytest.fixture(params=["gmpy", "int"])
-def bigint(request):
-    """Run the test with each big-integer backend of the fixed-point jets (gmpy2's mpz, and Python ints: what an
-    installation without gmpy2 uses, forced by LIESERIES_BIGINT=int)."""
-    from lieseries.lie import fixed
-
-    before = fixed.backend()
-    fixed.set_backend(request.param)
-    yield fixed.backend()
-    fixed.set_backend(before)
-
 
 @pytest.fixture(scope="module")
 def body():

@@ -18,17 +18,6 @@ from lieseries.validated import certified_digits, radii, validated_integrate
 from problems import RIGID_INERTIA, RIGID_OMEGA
 
 
-@pytest.fixture(params=["gmpy", "int"])
-def bigint(request):
-    """Run the test with each big-integer backend of the fixed-point jets (gmpy2's mpz, and Python ints: what an
-    installation without gmpy2 uses, forced by LIESERIES_BIGINT=int)."""
-    from lieseries.lie import fixed
-
-    before = fixed.backend()
-    fixed.set_backend(request.param)
-    yield fixed.backend()
-    fixed.set_backend(before)
-
 
 def inside(ball, value) -> bool:
     """The real number ``value`` (any exact or mpf number) lies in ``ball``, decided exactly."""

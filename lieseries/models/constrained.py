@@ -976,6 +976,18 @@ class ConstrainedDirac(Model):
                         "part (the motion keeps dG/dt = 0)"
                         + ("" if bits is None else f"; binary floats carry {int(bits)} bits only"))
 
+    def _surface_inputs(self, q, qdot):
+        """(q, qdot as exact vectors, the bits their binary floats carry or None), refused unless q lies on the
+        constraints and qdot is tangent to them."""
+        qf = self._vector(q, "q")
+        vf = self._vector(qdot, "qdot")
+        binary = {}
+        for nm, val in (("q", q), ("qdot", qdot)):
+            binary.update(binary_inputs(val, nm))
+        bits = min(binary.values()) if binary else None
+        self._check_surface(qf, vf, bits)
+        return qf, vf, bits
+
     def initial_state(self, q, qdot, precision=None) -> np.ndarray:
         """The state (q, p) with p = M(q) qdot + A(q) from a point on the surface and a tangent velocity.
 
@@ -985,14 +997,7 @@ class ConstrainedDirac(Model):
         naming ``q`` or ``qdot`` with the residual; a velocity Hessian that is not positive definite or
         constraints that are dependent at ``q``.
         """
-        given = {"q": q, "qdot": qdot}
-        qf = self._vector(q, "q")
-        vf = self._vector(qdot, "qdot")
-        binary = {}
-        for nm, val in given.items():
-            binary.update(binary_inputs(val, nm))
-        bits = min(binary.values()) if binary else None
-        self._check_surface(qf, vf, bits)
+        qf, vf, bits = self._surface_inputs(q, qdot)
         cs = self.system
         at = {s: sp.Rational(f.numerator, f.denominator) for s, f in zip(cs._q, qf)}
         at.update(cs._values())
@@ -1016,7 +1021,7 @@ class ConstrainedDirac(Model):
         if irrational and precision is None:
             # stored with IRRATIONAL_BITS bits, and marked so: no estimate claims more
             p = [BinaryFraction(v, IRRATIONAL_BITS, ("p (irrational at q)",)) for v in p]
-        return make_state(list(qf) + p, precision, inputs=given)
+        return make_state(list(qf) + p, precision, inputs={"q": q, "qdot": qdot})
 
     def check_state(self, y, argname="y0"):
         """The state as exact Fractions, refused (naming ``argname``) when it is off the constraint surface or its
@@ -1400,14 +1405,7 @@ class ConstrainedLocal(ConstrainedDirac):
         """The state (x, p) from a point q^A on the surface and a tangent velocity: x the free coordinates, p_i =
         dL/dxdot^i. Refuses what :meth:`ConstrainedDirac.initial_state` refuses, a point the chart does not hold
         (another branch: x3 = -0.8 where the chart is x3 = +sqrt(...)), and a point at or beyond its edge."""
-        given = {"q": q, "qdot": qdot}
-        qf = self._vector(q, "q")
-        vf = self._vector(qdot, "qdot")
-        binary = {}
-        for nm, val in given.items():
-            binary.update(binary_inputs(val, nm))
-        bits = min(binary.values()) if binary else None
-        self._check_surface(qf, vf, bits)
+        qf, vf, bits = self._surface_inputs(q, qdot)
         cs = self.system
         n = self.n
         xf = [qf[i] for i in self.free]
@@ -1435,7 +1433,7 @@ class ConstrainedLocal(ConstrainedDirac):
         Al = self._sym_linear.xreplace(at)
         xdot = sp.Matrix([sp.Rational(vf[i].numerator, vf[i].denominator) for i in self.free])
         p = _exact_numbers(list(Ml * xdot + Al), False)
-        return make_state(xf + p, precision, inputs=given)
+        return make_state(xf + p, precision, inputs={"q": q, "qdot": qdot})
 
     def check_state(self, y, argname="y0"):
         """The state as exact Fractions, refused (naming ``argname``) at or beyond the chart's edge."""
