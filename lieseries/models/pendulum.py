@@ -484,21 +484,14 @@ register_initial_family(InitialFamily(
 _PENDULUM_DOCS = {"length": ("positive number", "the rod's length"), "mass": ("positive number", "the mass"),
                   "g": ("number", "the gravitational acceleration (along -z, or -y in the plane)")}
 
-register_model_kind(ModelKind(
-    "spherical_pendulum",
-    fields={"length": (F.positive, 1), "mass": (F.positive, 1), "g": (F.number, 1)},
-    docs=dict(_PENDULUM_DOCS),
-    build=lambda p, base: SphericalPendulum(length=p["length"], mass=p["mass"], g=p["g"]),
-    family="configuration", label="spherical pendulum", data_fields=("length", "mass", "g"),
-))
-
-register_model_kind(ModelKind(
-    "planar_pendulum",
-    fields={"length": (F.positive, 1), "mass": (F.positive, 1), "g": (F.number, 1)},
-    docs=dict(_PENDULUM_DOCS),
-    build=lambda p, base: PlanarPendulum(length=p["length"], mass=p["mass"], g=p["g"]),
-    family="configuration", label="planar pendulum", data_fields=("length", "mass", "g"),
-))
+for _kind, _cls in (("spherical_pendulum", SphericalPendulum), ("planar_pendulum", PlanarPendulum)):
+    register_model_kind(ModelKind(
+        _kind,
+        fields={"length": (F.positive, 1), "mass": (F.positive, 1), "g": (F.number, 1)},
+        docs=dict(_PENDULUM_DOCS),
+        build=lambda p, base, _cls=_cls: _cls(length=p["length"], mass=p["mass"], g=p["g"]),
+        family="configuration", label=_kind.replace("_", " "), data_fields=("length", "mass", "g"),
+    ))
 
 register_model_kind(ModelKind(
     "double_spherical_pendulum",
