@@ -31,9 +31,10 @@ __all__ = ["MESSAGES", "Stop", "StepResult", "Outcome", "drive", "run_message", 
 #: precise reason of one). ``{where}`` is "t = <time>" (with the engine's note), ``{detail}`` the engine's own
 #: account of the cause, ``{kept}`` what the rows up to the stop are worth.
 MESSAGES = {
-    "success": "Reached t = {t}.",
-    "step_budget": "The step budget `max_steps` = {max_steps} ran out at {where}; raise `max_steps` to go on.",
-    "time_budget": "The wall-time budget `max_time` = {max_time:g} s ran out at {where}; raise `max_time` to go on.",
+    "success": "Reached t = {t}{detail}.",
+    "step_budget": "The step budget `max_steps` = {max_steps} ran out at {where}; raise `max_steps` to go on. {kept}",
+    "time_budget": ("The wall-time budget `max_time` = {max_time:g} s ran out at {where}; raise `max_time` to go on. "
+                    "{kept}"),
     "event": "Stopped at {where}: {detail}.",
     "chart_edge": "Stopped at {where}: {detail}.",
     "non_finite": "The step after {where} cannot be taken: {detail}. {kept}",
@@ -95,6 +96,8 @@ class Outcome:
     steps: int
     rows_t: list = field(default_factory=list)
     rows_y: list = field(default_factory=list)
+    rows_chart: list = field(default_factory=list)
+    switches: int = 0
     estimates: list = field(default_factory=list)
     hmin: Any = None
     hmax: Any = None
@@ -102,7 +105,8 @@ class Outcome:
 
 
 def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float | None = None, start=None,
-          progress=None, kept: str = "") -> Outcome:
+          progress=None, kept: str = "", reached: str = "", atlas: bool = False,
+          max_switches: int = 0) -> Outcome:
     """Run ``engine`` from ``(t0, z0)`` to the last of ``pending``, the output times as ``(time, label)`` pairs
     in time order (``time`` in the engine's numbers, ``label`` what the row is reported at).
 
@@ -121,20 +125,34 @@ def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float
             tk, label = pending.pop(0)
             out.rows_y.append(z if row is None else row(tk))  # may raise Stop: the rows before it stay
             out.rows_t.append(label)
+            out.rows_chart.append(getattr(engine, "chart", None))
+
+    def switch(t, z):
+        """The state in a better chart, or None (no atlas, no better chart, or too many switches)."""
+        if not atlas or out.switches >= max_switches:
+            return None
+        znew = engine.switch_chart(t, z)
+        if znew is not None:
+            out.switches += 1
+        return znew
 
     emit(t, None)
     span = t_end - t0
     while direction and (t_end - t) * sgn > 0:
         if out.steps >= max_steps:
-            out.status, out.message = "step_budget", run_message("step_budget", t=t, max_steps=max_steps)
+            out.status, out.message = "step_budget", run_message("step_budget", t=t, max_steps=max_steps, kept=kept)
             break
         if max_time is not None and _time.perf_counter() - start > max_time:
-            out.status, out.message = "time_budget", run_message("time_budget", t=t, max_time=max_time)
+            out.status, out.message = "time_budget", run_message("time_budget", t=t, max_time=max_time, kept=kept)
             break
         try:
             res = engine.step(t, z, t_end)
             emit(res.t, res.row)
         except Stop as stop:
+            znew = switch(t, z) if stop.status == "chart_edge" else None
+            if znew is not None:  # the chart was ending before the step: go on in the new one
+                z = znew
+                continue
             out.status = stop.status
             out.message = stop.message or run_message(stop.status, t=t, note=stop.note, detail=stop.detail,
                                                       kept=kept, max_time=max_time or 0, max_steps=max_steps)
@@ -150,10 +168,16 @@ def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float
             progress(float((t - t0) / span))
         if res.stop is not None:
             status, detail, note = res.stop
+            znew = switch(t, z) if status == "chart_edge" else None
+            if znew is not None:  # the step crossed into the chart's edge: go on in the new chart
+                z = znew
+                continue
             out.status, out.message = status, run_message(status, t=t, note=note, detail=detail, kept=kept)
             break
     if out.status == "success":
-        out.message = run_message("success", t=t_end)
+        out.message = run_message("success", t=t_end, detail=reached)
+    if atlas:
+        out.message = f"{out.message} ({out.switches} chart switches)"
     out.t, out.z = t, z
     out.run_time = _time.perf_counter() - start
     return out
