@@ -7,12 +7,21 @@ An engine plugs in through a small step protocol: an object with
     step's length, its error estimate, a dense evaluator ``row(t)`` for the output times inside the step, and
     ``stop``: a terminal condition met in the step (an event, a chart's edge), which ends the run after it.
     A step that cannot be taken raises :class:`Stop` with its status and the cause (the run keeps what it had).
+    A step may instead give its rows already evaluated (``rows``) and count for many steps (``steps``): an atlas
+    run's step is a whole run in one chart (:mod:`lieseries.atlas`).
+
+``switch_chart(t, z)`` (with ``atlas=True``) and ``chart``
+    The state rewritten in a better chart when the current one is ending (status ``chart_edge``), and the chart
+    the engine works in (each row records it).
 
 The driver owns the rest, the same for every engine: the step budget ``max_steps`` and the wall-time budget
 ``max_time`` (read between steps; an engine that can stop inside a step raises ``Stop("time_budget")``), the rows
-at the requested times (in time order, from each step's dense evaluator), progress reports, the energy guard of
-a run that reached its final time (:func:`energy_guard`), and every message a run ends with, from one table
-(:data:`MESSAGES`) so that the same stop reads the same whatever the engine.
+at the requested times (in time order, from each step's dense evaluator), progress reports, chart switches, the
+energy guard of a run that reached its final time (:func:`energy_guard`), and every message a run ends with, from
+one table (:data:`MESSAGES`) so that the same stop reads the same whatever the engine.
+
+heyoka's runs (:mod:`lieseries.taylor`, :mod:`lieseries.ensemble`) keep their own chunked loops (a chunk of steps
+runs inside heyoka); across an atlas they run as the driver's steps.
 """
 
 from __future__ import annotations
@@ -82,7 +91,9 @@ class StepResult:
     h: Any = None  # the step's length (for the statistics), in the engine's numbers
     row: Callable | None = None  # the state at an output time inside the step (None: only the step's end)
     error: float | None = None  # the step's error estimate
-    stop: tuple | None = None  # (status, detail, note): a terminal condition met in the step
+    stop: tuple | Stop | None = None  # (status, detail, note) or a Stop: a terminal condition met in the step
+    rows: list | None = None  # instead of ``row``: the step's rows, already evaluated, at the next output times
+    steps: int = 1  # how many steps it counts for (a whole chart segment of another run: its steps)
 
 
 @dataclass
@@ -105,8 +116,8 @@ class Outcome:
 
 
 def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float | None = None, start=None,
-          progress=None, kept: str = "", reached: str = "", atlas: bool = False,
-          max_switches: int = 0) -> Outcome:
+          progress=None, kept: str = "", reached: str = "", atlas: bool = False, max_switches: int = 0,
+          guard=None) -> Outcome:
     """Run ``engine`` from ``(t0, z0)`` to the last of ``pending``, the output times as ``(time, label)`` pairs
     in time order (``time`` in the engine's numbers, ``label`` what the row is reported at).
 
@@ -136,7 +147,9 @@ def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float
             out.switches += 1
         return znew
 
-    emit(t, None)
+    if not getattr(engine, "emits_rows", False):
+        emit(t, None)
+    fields = {"kept": kept, "max_time": max_time or 0, "max_steps": max_steps}
     span = t_end - t0
     while direction and (t_end - t) * sgn > 0:
         if out.steps >= max_steps:
@@ -147,7 +160,13 @@ def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float
             break
         try:
             res = engine.step(t, z, t_end)
-            emit(res.t, res.row)
+            if res.rows is not None:
+                for _tk, y in res.rows:
+                    out.rows_t.append(pending.pop(0)[1])
+                    out.rows_y.append(y)
+                    out.rows_chart.append(getattr(engine, "chart", None))
+            else:
+                emit(res.t, res.row)
         except Stop as stop:
             znew = switch(t, z) if stop.status == "chart_edge" else None
             if znew is not None:  # the chart was ending before the step: go on in the new one
@@ -155,9 +174,9 @@ def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float
                 continue
             out.status = stop.status
             out.message = stop.message or run_message(stop.status, t=t, note=stop.note, detail=stop.detail,
-                                                      kept=kept, max_time=max_time or 0, max_steps=max_steps)
+                                                      **fields)
             break
-        out.steps += 1
+        out.steps += res.steps
         if res.error is not None:
             out.estimates.append(res.error)
         if res.h is not None:
@@ -167,18 +186,22 @@ def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float
         if progress is not None:
             progress(float((t - t0) / span))
         if res.stop is not None:
-            status, detail, note = res.stop
+            stop = res.stop if isinstance(res.stop, Stop) else Stop(res.stop[0], res.stop[1], note=res.stop[2])
+            status = stop.status
             znew = switch(t, z) if status == "chart_edge" else None
             if znew is not None:  # the step crossed into the chart's edge: go on in the new chart
                 z = znew
                 continue
-            out.status, out.message = status, run_message(status, t=t, note=note, detail=detail, kept=kept)
+            out.status = status
+            out.message = stop.message or run_message(status, t=t, note=stop.note, detail=stop.detail, **fields)
             break
+    out.t, out.z = t, z
     if out.status == "success":
         out.message = run_message("success", t=t_end, detail=reached)
+        if guard is not None and direction:
+            guard(out)
     if atlas:
         out.message = f"{out.message} ({out.switches} chart switches)"
-    out.t, out.z = t, z
     out.run_time = _time.perf_counter() - start
     return out
 

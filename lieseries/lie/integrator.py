@@ -190,10 +190,9 @@ def lie_integrate(
         _check_events(engine.events, z)  # records the signs at the start
         out = drive(engine, tstart, z, [(to_mpf(tk, ctx=mp_context()), tk) for tk in grid], direction=direction,
                     max_steps=max_steps, max_time=max_time, start=start, progress=progress,
-                    kept="The rows up to this time are kept.")
-        if direction != 0:
-            # the energy guard of every run: H at the end against H(y0) (lieseries.energy.drift_threshold)
-            energy_guard(out, ps, z0, export_mpf(list(out.z)), dps_to_bits(wdps), tolm)
+                    kept="The rows up to this time are kept.",
+                    # the energy guard of every run: H at the end against H(y0) (lieseries.energy.drift_threshold)
+                    guard=lambda out: energy_guard(out, ps, z0, export_mpf(list(out.z)), dps_to_bits(wdps), tolm))
         # y_reached keeps the guard digits: a run continued from it (an atlas chart change) loses nothing
         y_reached = export_mpf(np.array(list(out.z), dtype=object))
         t_reached = to_fraction(out.t)
