@@ -151,13 +151,17 @@ def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float
         emit(t, None)
     fields = {"kept": kept, "max_time": max_time or 0, "max_steps": max_steps}
     span = t_end - t0
+    # an engine that emits its rows gives the row at t0 in its first step, which runs whatever the budgets (it
+    # bounds itself: an atlas segment gets the budgets as given)
+    budgets = not getattr(engine, "emits_rows", False)
     while direction and (t_end - t) * sgn > 0:
-        if out.steps >= max_steps:
+        if budgets and out.steps >= max_steps:
             out.status, out.message = "step_budget", run_message("step_budget", t=t, max_steps=max_steps, kept=kept)
             break
-        if max_time is not None and _time.perf_counter() - start > max_time:
+        if budgets and max_time is not None and _time.perf_counter() - start > max_time:
             out.status, out.message = "time_budget", run_message("time_budget", t=t, max_time=max_time, kept=kept)
             break
+        budgets = True
         try:
             res = engine.step(t, z, t_end)
             if res.rows is not None:

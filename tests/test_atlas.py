@@ -164,3 +164,18 @@ def test_atlas_budget_bounds_the_whole_run_not_each_chart(engine):
     with mp.workdps(40):
         xe, _ = exact.sphere(1, X0, V0, to_fraction(sol.t_reached), dps=40)
         assert max(abs(mpf(a) - b) for a, b in zip(x, xe)) < bound
+
+
+def test_atlas_time_budget_bounds_the_whole_run():
+    """``max_time`` is the whole run's (each chart segment once got it afresh, so a run of many switches went on
+    far beyond it): a budget far below one segment's work stops after the first segment, with its rows on the
+    exact great circle."""
+    s = ls.Sphere()
+    sol = ls.integrate(s, s.initial_state(X0, V0), t=[0, 1, 50], atlas=True, max_time=1e-6)
+    assert sol.status == "time_budget" and "`max_time`" in sol.message, sol.message
+    assert sol.stats.extra["chart_switches"] == 1 and float(sol.t_reached) < 1
+    assert list(sol.t) == [0.0]
+    x = s.position(sol.y_reached)
+    with mp.workdps(40):
+        xe, _ = exact.sphere(1, X0, V0, to_fraction(sol.t_reached), dps=40)
+        assert max(abs(mpf(a) - b) for a, b in zip(x, xe)) < 1e-12

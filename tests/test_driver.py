@@ -118,3 +118,31 @@ def test_lie_integrate_stop_messages_match_across_engines():
     strip = lambda m: m.split(" at t = ")[0]  # noqa: E731 - the times differ, the wording must not
     assert strip(lie.message) == strip(val.message) == "The step budget `max_steps` = 2 ran out"
 
+
+
+class Segments(Exponential):
+    """Steps that give their rows evaluated (an atlas run's segments): the rows at t0 come from the first."""
+
+    emits_rows = True
+
+    def step(self, t, z, t_end):
+        res = super().step(t, z, t_end)
+        times = [tk for tk in (0.0, 0.1, 0.2, 0.3) if t <= tk <= res.t and (tk > t or t == 0.0)]
+        return StepResult(res.t, res.z, rows=[(tk, z * math.exp(tk - t)) for tk in times], steps=7)
+
+
+def test_evaluated_rows_and_a_first_step_whatever_the_budget():
+    guarded = []
+    out = drive(Segments(h=0.15), 0.0, 1.0, _grid([0.0, 0.1, 0.2, 0.3]), direction=1, max_steps=10, max_time=0.5,
+                start=-1e9, guard=guarded.append)
+    # the first step runs (it gives the row at t0), the budget stops the second
+    assert out.status == "time_budget" and out.steps == 7 and out.t == 0.15 and not guarded
+    assert out.rows_t == [0.0, 0.1] and abs(out.rows_y[1] - math.exp(0.1)) < 1e-15
+    out = drive(Segments(h=0.1), 0.0, 1.0, _grid([0.0, 0.1, 0.2, 0.3]), direction=1, max_steps=10,
+                guard=guarded.append)
+    assert out.status == "step_budget" and out.steps == 14 and out.t == 0.2  # a step counts for its steps
+    assert "`max_steps` = 10" in out.message and out.rows_t == [0.0, 0.1, 0.2]
+    out = drive(Segments(h=0.5), 0.0, 1.0, _grid([0.0, 0.1, 0.2, 0.3]), direction=1, max_steps=10,
+                guard=guarded.append)
+    assert out.status == "success" and guarded == [out] and len(out.rows_t) == 4
+    assert all(abs(y - math.exp(tk)) < 1e-15 for tk, y in zip(out.rows_t, out.rows_y))
