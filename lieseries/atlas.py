@@ -138,6 +138,8 @@ class _Segments:
             stop = Stop(sol.status)  # the run's budget ran out: the table's message, with the budget as given
         elif sol.status != "success":
             stop = Stop(sol.status, message=sol.message)
+        else:  # the run is done (heyoka reaches the final time as rounded in its format: t_reached may differ)
+            stop = Stop("success")
         return StepResult(sol.t_reached, sol.y_reached, rows=rows, steps=sol.stats.steps, stop=stop)
 
     def switch_chart(self, t, z):

@@ -91,7 +91,9 @@ class StepResult:
     h: Any = None  # the step's length (for the statistics), in the engine's numbers
     row: Callable | None = None  # the state at an output time inside the step (None: only the step's end)
     error: float | None = None  # the step's error estimate
-    stop: tuple | Stop | None = None  # (status, detail, note) or a Stop: a terminal condition met in the step
+    # (status, detail, note) or a Stop: a terminal condition met in the step; Stop("success"): the run is done
+    # (an engine whose final time, rounded in its format, is not exactly the driver's)
+    stop: tuple | Stop | None = None
     rows: list | None = None  # instead of ``row``: the step's rows, already evaluated, at the next output times
     steps: int = 1  # how many steps it counts for (a whole chart segment of another run: its steps)
 

@@ -179,3 +179,13 @@ def test_atlas_time_budget_bounds_the_whole_run():
     with mp.workdps(40):
         xe, _ = exact.sphere(1, X0, V0, to_fraction(sol.t_reached), dps=40)
         assert max(abs(mpf(a) - b) for a, b in zip(x, xe)) < 1e-12
+
+
+def test_atlas_run_to_a_final_time_that_is_not_a_double_ends_there():
+    """t = 2.001 is reached as heyoka rounds it (its t_reached is the double next to 2.001): the run ends there,
+    on the exact great circle, instead of asking for a segment of zero length."""
+    s = ls.Sphere()
+    sol = ls.integrate(s, s.initial_state(X0, V0), t="2.001", atlas=True)
+    assert sol.success and sol.stats.extra["chart_switches"] == 1, sol.message
+    assert len(sol.t) == 2 and sol.t[-1] == 2.001
+    assert position_errors(s, sol, [0, Fraction(2001, 1000)], 40)[-1] < 1e-14
