@@ -23,7 +23,7 @@ from fractions import Fraction
 
 from ..lie.integrator import lie_integrate
 from ..precision import resolve_precision, to_fraction
-from ..taylor import STIFF_STEPS
+from ..taylor import STIFF_STEPS, integrate
 from ..validated import validated_integrate
 from .registry import REPEAT_BUDGET
 
@@ -178,8 +178,12 @@ class Pricer:
         if m == "taylor":
             steps_per_time, lower = self.steps_per_time(model, y0, abs(t), sign)
             step = heyoka_step_seconds(spec["precision"], dim)
-            # a run that would need more steps than the stiffness budget stops early (status step_collapse)
-            steps_per_time = min(steps_per_time, STIFF_STEPS / float(abs(t)))
+            if steps_per_time * float(abs(t)) > STIFF_STEPS:
+                # a stiff run stops early (status step_collapse, after a few chunks of steps); a run that is
+                # merely long does not: which one, a short run in double says
+                steps = self._collapse_steps(model, y0, t)
+                if steps is not None:
+                    steps_per_time = steps / float(abs(t))
             per = steps_per_time * float(spacing) * step + OUTPUT_SECONDS * dim
             return (per, lower, "model: steps from a 15-digit Lie run, heyoka's cost per step by precision",
                     OUTPUT_SECONDS * dim > steps_per_time * float(spacing) * step)
@@ -189,6 +193,20 @@ class Pricer:
         per, lower, _, by_samples = self.span(model, y0, {"method": "lie", "dps": max(15, int(spec["dps"]))},
                                               t, n_out)
         return per, lower, "model: like a Lie run at its digits", by_samples
+
+    def _collapse_steps(self, model, y0, t):
+        """The steps after which a heyoka run to ``t`` stops as stiff (``step_collapse``), from a run in double
+        bounded by CALIBRATION_BUDGET (its compilation is not: once per structure, and the scene's own run reuses
+        it); None when the run is not stopped as stiff within the budget (it then takes all its steps)."""
+        key = ("collapse", id(model), t)
+        if key not in self._cache:
+            try:
+                sol, _ = self.timed(lambda: integrate(model, y0, t=t, precision="double",
+                                                      max_time=CALIBRATION_BUDGET))
+                self._cache[key] = int(sol.stats.steps) if sol.status == "step_collapse" else None
+            except Exception:  # the run itself will report its error
+                self._cache[key] = None
+        return self._cache[key]
 
     def _engine(self, model, y0, method, dps, order, times):
         """(seconds, time reached, steps) of a Lie / validated run over ``times`` bounded by CALIBRATION_BUDGET."""
