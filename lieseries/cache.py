@@ -43,7 +43,8 @@ _FREE: dict = {}  # id(template) -> (template, list of free copies)
 
 class Region:
     """A named part of the cache, bounded by ``max_entries``. ``get(key)`` is the dict's own lookup (None on a
-    miss); ``put`` adds (and evicts); ``touch`` marks a hit as a use; ``clear`` empties the region."""
+    miss); ``put`` (or ``region[key] = value``, ``setdefault``) adds (and evicts); ``touch`` marks a hit as a use;
+    ``clear`` empties the region."""
 
     __slots__ = ("name", "max_entries", "data", "get", "on_evict")
 
@@ -73,6 +74,9 @@ class Region:
                     break
                 _evict(*costly)
             return value
+
+    __setitem__ = put  # region[key] = value, as for a dict (keeps a value already cached)
+    setdefault = put
 
     def touch(self, key) -> None:
         """Count a hit as a use (moves the entry to the recent end of the eviction order)."""
