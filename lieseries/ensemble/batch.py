@@ -13,7 +13,7 @@ from .. import cache
 from ..precision import to_fraction
 from .result import TIME_LIMIT, outcome_kind
 
-__all__ = ["run_batches", "BATCH_STEPS", "CHUNK_STEPS"]
+__all__ = ["run_batches", "over_threads", "BATCH_STEPS", "CHUNK_STEPS"]
 
 #: Steps a lane may take inside a batch (with the default ``max_steps``) before it is handed to a single run, which
 #: decides whether the run is healthy and long, stiff, or collapsing (see the package docstring).
@@ -173,33 +173,10 @@ def run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, 
             outcomes = [prs[lane][0] for lane in range(nl)]
             mine = []
             if all(o == TIME_LIMIT for o in outcomes):  # the common case, in bulk
-                state = ta.state
-                res.y_reached[lo:hi] = state.T[:nl]
-                if simple:
-                    res.y[lo:hi, 0] = Ynat[lo:hi]
-                    res.y[lo:hi, 1] = state.T[:nl]
-                else:
-                    res.y[lo:hi] = np.transpose(out[:, :, :nl], (2, 0, 1))
-                    res.y[lo:hi, -1] = state.T[:nl]
-                    if tgrid[0] == t0n:
-                        res.y[lo:hi, 0] = Ynat[lo:hi]
-                res.rows[lo:hi] = len(tgrid)
-                res.status[lo:hi] = "success"
-                res.message[lo:hi] = [success_msg] * nl
-                res.t_reached[lo:hi] = [tgrid[-1]] * nl
-                res.steps[lo:hi] = [prs[lane][3] for lane in range(nl)]
+                _record_batch(res, lo, hi, ta, out, prs, Ynat, tgrid, t0n, simple, success_msg)
             elif not simple:
-                # a grid run that one lane stopped: the lanes it interrupted run again as single runs
-                for lane in range(nl):
-                    i = lo + lane
-                    kind = outcome_kind(outcomes[lane], len(event_info))
-                    if kind == "interrupted" and ta.time[lane] == t_end:
-                        kind = "done"  # finished while the batch ran out of steps
-                    if kind in ("interrupted", "non_finite"):
-                        mine.append(i)
-                        continue
-                    _record_lane(res, i, lane, kind, ta, out, Ynat, tgrid, t0n, direction, simple, event_info,
-                                 prs[lane][3], success_msg)
+                mine = _record_grid_lanes(res, lo, nl, ta, out, outcomes, prs, Ynat, tgrid, t0n, direction,
+                                          event_info, t_end, success_msg)
             else:
                 mine = _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, event_info, cap,
                                        t_end, success_msg)
@@ -209,9 +186,52 @@ def run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, 
                 if progress is not None:
                     progress(done[0], k)
 
+    over_threads(work, n_threads)
+    return sorted(handed)
+
+
+def over_threads(work, n_threads) -> None:
+    """``work(j)`` for j < ``n_threads``: in this thread when there is one, else over a pool of threads."""
     if n_threads <= 1:
         work(0)
     else:
         with ThreadPoolExecutor(max_workers=n_threads) as pool:
             list(pool.map(work, range(n_threads)))
-    return sorted(handed)
+
+
+def _record_batch(res, lo, hi, ta, out, prs, Ynat, tgrid, t0n, simple, success_msg) -> None:
+    """Record members lo..hi-1, every lane of which reached the final time."""
+    nl = hi - lo
+    state = ta.state
+    res.y_reached[lo:hi] = state.T[:nl]
+    if simple:
+        res.y[lo:hi, 0] = Ynat[lo:hi]
+        res.y[lo:hi, 1] = state.T[:nl]
+    else:
+        res.y[lo:hi] = np.transpose(out[:, :, :nl], (2, 0, 1))
+        res.y[lo:hi, -1] = state.T[:nl]
+        if tgrid[0] == t0n:
+            res.y[lo:hi, 0] = Ynat[lo:hi]
+    res.rows[lo:hi] = len(tgrid)
+    res.status[lo:hi] = "success"
+    res.message[lo:hi] = [success_msg] * nl
+    res.t_reached[lo:hi] = [tgrid[-1]] * nl
+    res.steps[lo:hi] = [prs[lane][3] for lane in range(nl)]
+
+
+def _record_grid_lanes(res, lo, nl, ta, out, outcomes, prs, Ynat, tgrid, t0n, direction, event_info, t_end,
+                       success_msg) -> list:
+    """A grid run that one lane stopped: record the lanes that finished or met a terminal event; return the
+    members it interrupted (or that became non-finite), to run again as single runs."""
+    mine = []
+    for lane in range(nl):
+        i = lo + lane
+        kind = outcome_kind(outcomes[lane], len(event_info))
+        if kind == "interrupted" and ta.time[lane] == t_end:
+            kind = "done"  # finished while the batch ran out of steps
+        if kind in ("interrupted", "non_finite"):
+            mine.append(i)
+            continue
+        _record_lane(res, i, lane, kind, ta, out, Ynat, tgrid, t0n, direction, False, event_info, prs[lane][3],
+                     success_msg)
+    return mine

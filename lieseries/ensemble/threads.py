@@ -11,7 +11,7 @@ import numpy as np
 
 from .. import cache
 from ..precision import to_fraction
-from .batch import CHUNK_STEPS
+from .batch import CHUNK_STEPS, over_threads
 from .result import outcome_kind
 
 __all__ = ["run_scalar", "run_singles"]
@@ -107,11 +107,7 @@ def run_scalar(ta0, event_info, Ynat, pars, ps, prec, tgrid, t0n, direction, cap
         finally:
             cache.release(ta, free)
 
-    if n_threads <= 1:
-        work(0)
-    else:
-        with ThreadPoolExecutor(max_workers=n_threads) as pool:
-            list(pool.map(work, range(n_threads)))
+    over_threads(work, n_threads)
     return sorted(handed)
 
 
