@@ -53,7 +53,7 @@ class Region:
         self.max_entries = int(max_entries)
         self.data: dict = {}
         self.get = self.data.get  # the hit path: one dict lookup
-        self.on_evict = on_evict  # called with the value of an evicted entry (outside no lock: keep it cheap)
+        self.on_evict = on_evict  # called with an evicted value, under the cache's lock: keep it cheap
 
     def put(self, key, value, cost: float = 0.0):
         """Cache ``value`` under ``key`` (or return the value another thread cached first); ``cost`` is its build
