@@ -382,10 +382,6 @@ def run_scene(scene, quick: bool = False, progress=True, max_time=None) -> Scene
         from .cost import check_scene_budget, estimate_scene
 
         check_scene_budget(estimate_scene(scene, quick), check_seconds(max_time, "max_time"), "`max_time`")
-    if max_time is not None:
-        from .cost import check_scene_budget, estimate_scene
-
-        check_scene_budget(estimate_scene(scene, quick), check_seconds(max_time, "max_time"), "`max_time`")
     # build times in the report are this scene's: start with the whole cache empty (integrators, ensemble
     # integrators, memoised calls, compiled programs and right-hand sides; heyoka's own LLVM memory cache is left
     # alone)
