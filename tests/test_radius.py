@@ -123,3 +123,13 @@ def test_radius_fields_are_checked():
         parse_scene(SCENE.replace("radius_max_order = 24", "radius_max_order = 2"))
     with pytest.raises(SceneError, match="`studies.formulations.radius_t`"):
         parse_scene(SCENE.replace("radius_t = 1", "radius_t = -1"))
+
+
+def test_quick_mode_halves_the_radius_orders_but_never_raises_them():
+    from lieseries.scenes import effective_plan
+
+    for given, quick in ((40, 20), (20, 12), (8, 8)):
+        sc = parse_scene(SCENE.replace("radius_max_order = 24", f"radius_max_order = {given}"))
+        _run, studies = effective_plan(sc, quick=True)
+        assert studies["formulations"]["radius_max_order"] == quick
+        assert studies["formulations"]["radius_dps"] == 30

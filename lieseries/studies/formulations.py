@@ -360,7 +360,7 @@ class FormulationsStudy(Study):
         t = to_fraction(opts["t"]) / 5  # kept exact: 1.2 becomes 6/25, not the double 0.24
         opts["t"] = str(t) if t.denominator > 1 else t.numerator
         opts["samples"] = min(opts["samples"], 5)
-        opts["radius_max_order"] = max(12, opts["radius_max_order"] // 2)
+        opts["radius_max_order"] = min(opts["radius_max_order"], max(12, opts["radius_max_order"] // 2))
         opts["radius_dps"] = min(opts["radius_dps"], 40)
 
     def run(self, opts, ctx):
