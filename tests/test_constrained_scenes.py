@@ -262,6 +262,11 @@ qdot = [0, 1, 0]
 t = "1.2"
 chart = { z = "sqrt(1 - x**2 - y**2)" }
 """
+    from lieseries.cost import estimate_scene
+
+    est = estimate_scene(parse_scene(text))  # the study prices each formulation by each method
+    priced = [p.what for p in est.parts if p.field == "studies.formulations.t" and " by " in p.what]
+    assert not est.lower_bound and len(priced) == 12, [p.what for p in est.parts]
     res = run_scene(parse_scene(text), progress=False)
     (_lab, comp), = res.studies["formulations"]
     assert {r.formulation for r in comp.rows} == {"dirac", "reduced", "intermediate", "local"}
@@ -338,3 +343,33 @@ def test_builtin_ellipsoid_geodesic_scene_against_odefun_in_each_formulation():
     for r in comp.rows:
         assert max(abs(a - b) for a, b in zip(r.q + r.qdot, ref)) < 1e-14, r
     assert [r.formulation for r in comp.radii] == ["dirac", "reduced", "intermediate", "local"]
+
+
+def test_the_formulations_study_prices_each_formulation_by_each_method_for_the_scene_estimate():
+    from lieseries.cost import estimate_scene
+
+    text = HEAD + """
+[model]
+kind = "constrained"
+lagrangian = "(x_dot**2 + y_dot**2)/2"
+coordinates = ["x", "y"]
+constraints = ["x**2 + y**2 - 1"]
+[initial]
+q = ["0.6", "0.8"]
+qdot = ["-0.8", "0.6"]
+[studies.formulations]
+t = "0.5"
+formulations = ["dirac", "local"]
+chart = { y = "sqrt(1 - x**2)" }
+methods = [{ method = "taylor", precision = "double" }, { method = "lie", dps = 20 }]
+radius_t = "0.1"
+radius_max_order = 8
+"""
+    est = estimate_scene(parse_scene(text))
+    parts = {p.what: p for p in est.parts if p.field.startswith("studies.formulations")}
+    assert not est.lower_bound, parts
+    for name in ("dirac", "local"):
+        for label in ("heyoka double", "Lie series 20 dps"):
+            assert parts[f"10 sample intervals of {name} by {label}"].seconds > 0
+        assert parts[f"{name}: a Lie series to order 8 at 40 digits"].seconds > 0
+    assert "the reference (Dirac, heyoka 256 bits)" in parts

@@ -38,7 +38,8 @@ import sympy as sp
 
 from .. import fields as F
 from ..formatting import fmt_int, fmt_num, fmt_sci, markdown_table
-from ..methods import reference_dps, run_method, scene_methods
+from ..methods import method_label, normalize_method, reference_dps, run_method, scene_methods
+from ..methods.pricing import CostPart
 from ..models.constrained import ConstrainedSystem
 from ..precision import dps_to_bits, to_fraction
 from ..precision import thread_mp as mp
@@ -363,9 +364,46 @@ class FormulationsStudy(Study):
         opts["radius_max_order"] = min(opts["radius_max_order"], max(12, opts["radius_max_order"] // 2))
         opts["radius_dps"] = min(opts["radius_dps"], 40)
 
+    @staticmethod
+    def _methods(opts):
+        return opts["methods"] or [{"method": "taylor", "precision": "double"},
+                                   {"method": "taylor", "precision": "quad"}, {"method": "lie", "dps": 30}]
+
+    def cost(self, opts, ctx, pricer):
+        from ..lie.operator import lie_series
+
+        specs = [normalize_method(m, f"studies.formulations.methods[{i}]") for i, m in enumerate(self._methods(opts))]
+        ini = ctx.scene.initial
+        n_int = opts["samples"] - 1
+        bits = max(256, dps_to_bits(reference_dps(specs)) + 16)
+        parts = []
+        for _lab, model in ctx.built:
+            system = _system_of(model)
+            pricer.heyoka_builds += 1  # the reference
+            for name in opts["formulations"]:
+                form = _formulation(system, name, opts["chart"], opts["dependent"])  # derived once, cached
+                y0 = form.initial_state(ini["q"], ini["qdot"])
+                if name == "dirac":
+                    secs, lower, basis = pricer.heyoka_run(form, y0, opts["t"], bits, n_int)
+                    parts.append(CostPart("studies.formulations.t", f"the reference (Dirac, heyoka {bits} bits)", 1,
+                                          "run", secs, basis, lower))
+                for spec in specs:
+                    pricer.heyoka_builds += spec["method"] == "taylor"
+                    per, lower, basis, _ = pricer.span(form, y0, spec, opts["t"], n_int)
+                    parts.append(CostPart("studies.formulations.t", f"{n_int} sample intervals of {name} by "
+                                          f"{method_label(spec)}", n_int, "sample interval", per, basis, lower))
+                if opts["radius_t"] is not None:
+                    pricer.heyoka_builds += 1  # its reference
+                    top, dps = int(opts["radius_max_order"]), int(opts["radius_dps"])
+                    o_c = min(top, 12)
+                    _, secs = pricer.timed(lambda: lie_series(form, y0, order=o_c, dps=dps))
+                    parts.append(CostPart("studies.formulations.radius_max_order", f"{name}: a Lie series to order "
+                                          f"{top} at {dps} digits", 1, "series", secs * (top / o_c) ** 2,
+                                          f"timed to order {o_c}, scaled by order^2"))
+        return parts
+
     def run(self, opts, ctx):
-        methods = opts["methods"] or [{"method": "taylor", "precision": "double"},
-                                      {"method": "taylor", "precision": "quad"}, {"method": "lie", "dps": 30}]
+        methods = self._methods(opts)
         out = []
         for i, (lab, model) in enumerate(ctx.built):
             ini = ctx.scene.initial
