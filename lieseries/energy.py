@@ -17,6 +17,8 @@ import heyoka as hy
 import mpmath
 import numpy as np
 
+from . import cache
+
 __all__ = ["drift_threshold", "DRIFT_PER_STEP", "energy_check", "energy_drift", "energy_function", "energy_verdict",
            "energy_quick",
            "drift_message", "clear_energy_cache", "energy_exact", "exact_energy_verdict"]
@@ -35,7 +37,7 @@ def drift_threshold(tol, steps) -> float:
     tol = float(tol)
     return min(math.sqrt(tol), DRIFT_PER_STEP * tol * max(int(steps), 1))
 
-_ENERGY: dict = {}
+_ENERGY = cache.region("energy.functions", 64)  # compiled energy checks, in the one cache
 #: Energies (H and the Casimirs) printed longer than this get no plain Python check (:func:`energy_quick`): the
 #: compiled function's per-call cost matters little beside their own.
 PYTHON_CHECK_CHARS = 4000

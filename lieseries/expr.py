@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import numbers
 import re
+import time
 from collections import OrderedDict, namedtuple
 from fractions import Fraction
 
@@ -77,6 +78,7 @@ from mpmath.libmp import (
     mpf_tanh,
 )
 
+from . import cache
 from .precision import check_dps, to_fraction
 
 __all__ = [
@@ -725,8 +727,8 @@ class _Builder:
         return self.node("div", (n, self.product(den)))
 
 
-_CACHE = OrderedDict()
-_CACHE_SIZE = 32
+#: Compiled programs by (variables, expressions, npars, cse), in the shared cache (:mod:`lieseries.cache`).
+_PROGRAMS = cache.region("expr.programs", 32)
 
 
 def compile_expressions(variables, exprs, npars=None, cse=True):
@@ -776,15 +778,13 @@ def compile_expressions(variables, exprs, npars=None, cse=True):
     ):
         raise ValueError(f"`npars` must be None or an integer >= 0; got {npars!r}")
     key = (tuple(names), tuple(exprs), npars, bool(cse))
-    prog = _CACHE.get(key)
+    prog = _PROGRAMS.get(key)
     if prog is not None:
-        _CACHE.move_to_end(key)
+        _PROGRAMS.touch(key)
         return prog
+    start = time.perf_counter()
     prog = _compile(names, exprs, npars, bool(cse))
-    _CACHE[key] = prog
-    if len(_CACHE) > _CACHE_SIZE:
-        _CACHE.popitem(last=False)
-    return prog
+    return _PROGRAMS.put(key, prog, cost=time.perf_counter() - start)
 
 
 def _compile(names, exprs, npars, use_cse):

@@ -37,6 +37,7 @@ import mpmath as mp
 
 import numpy as np
 
+from . import cache
 from .precision import NamedValues, bits_to_dps, carried_bits, check_dps, state_bits, to_fraction
 
 __all__ = ["PoissonSystem", "as_poisson_system"]
@@ -45,7 +46,7 @@ __all__ = ["PoissonSystem", "as_poisson_system"]
 JACOBI_AUTO_DIMENSION = 6
 
 #: Compiled mpmath programs of vector fields, by structural key (shared by equal structures).
-_PROGRAMS: dict = {}
+_PROGRAMS = cache.region("poisson.programs", 64)
 
 
 def _is_zero(e) -> bool:

@@ -15,7 +15,6 @@ import numpy as np
 
 from .methods import (
     RunRecord,
-    clear_rhs_cache,
     method_label,
     method_plugin,
     normalize_method,
@@ -369,8 +368,8 @@ def run_scene(scene, quick: bool = False, progress=True, max_time=None) -> Scene
 
     Notes
     -----
-    The integrator cache of :mod:`lieseries.taylor` is cleared first, so that the build times reported are
-    those of this scene.
+    The whole cache (:mod:`lieseries.cache`: compiled integrators, memoised calls, compiled programs) is cleared
+    first, so that the build times reported are those of this scene.
 
     Returns
     -------
@@ -383,14 +382,10 @@ def run_scene(scene, quick: bool = False, progress=True, max_time=None) -> Scene
         from .cost import check_scene_budget, estimate_scene
 
         check_scene_budget(estimate_scene(scene, quick), check_seconds(max_time, "max_time"), "`max_time`")
-    if max_time is not None:
-        from .cost import check_scene_budget, estimate_scene
-
-        check_scene_budget(estimate_scene(scene, quick), check_seconds(max_time, "max_time"), "`max_time`")
-    # build times in the report are this scene's: start without integrators compiled by earlier work in this
-    # process (heyoka's own LLVM memory cache is left alone)
+    # build times in the report are this scene's: start with the whole cache empty (integrators, ensemble
+    # integrators, memoised calls, compiled programs and right-hand sides; heyoka's own LLVM memory cache is left
+    # alone)
     clear_cache()
-    clear_rhs_cache()
     start = _time.perf_counter()
     runp, studies = effective_plan(scene, quick)
     built = scene.build_models()

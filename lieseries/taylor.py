@@ -61,13 +61,13 @@ from __future__ import annotations
 
 import copy
 import math
-import threading
 import time as _time
 from fractions import Fraction
 
 import heyoka as hy
 import numpy as np
 
+from . import cache
 from .energy import clear_energy_cache, energy_function, energy_quick, energy_verdict
 from .events import resolve_events
 from .models.base import ExactState, Model, state_fractions
@@ -92,10 +92,9 @@ from .timegrid import parse_times
 
 __all__ = ["integrate", "build_integrator", "clear_cache", "cache_info"]
 
-_CACHE: dict = {}  # key -> [template integrator, list of free copies]
-_CACHE_MAX = 64
-_FREE: dict = {}  # id(template) -> its cache entry
-_LOCK = threading.Lock()
+#: Compiled integrators (the templates runs copy, see :func:`_checkout`) by structure, precision, tolerance, events
+#: and options, in the shared cache (:mod:`lieseries.cache`); an evicted template takes its pooled copies with it.
+_INTEGRATORS = cache.region("taylor.integrators", 64, on_evict=cache.drop_template)
 _OUTCOME = hy.taylor_outcome
 #: The outcomes that are not a terminal event (the others are an event's index i, or -i - 1).
 _NOT_EVENTS = frozenset(_OUTCOME.__members__.values())
@@ -108,17 +107,17 @@ STIFF_CHANGE = 1e-2
 
 
 def clear_cache() -> None:
-    """Forget every cached integrator."""
-    with _LOCK:
-        _CACHE.clear()
-        _FREE.clear()
-        _PLANS.clear()
+    """Forget every cached integrator, plan, memoised call and compiled function: the whole shared cache
+    (:func:`lieseries.cache.clear`, ensemble integrators and compiled programs included) and the energy
+    functions."""
+    cache.clear()
     clear_energy_cache()
 
 
 def cache_info() -> dict:
-    """Number of cached integrators."""
-    return {"size": len(_CACHE)}
+    """Number of cached integrators (``"size"``), and the entries of every region of the shared cache
+    (:func:`lieseries.cache.info`)."""
+    return {"size": len(_INTEGRATORS), **cache.info()}
 
 
 class _Recorder:
@@ -138,7 +137,7 @@ class _Recorder:
         self.sink.append((t, np.array(ta.d_output, copy=True)))
 
 
-_EVENT_FUNCTIONS: dict = {}
+_EVENT_FUNCTIONS = cache.region("taylor.event_functions", 64)
 
 
 def _event_function(ps, prec, exprs):
@@ -151,9 +150,9 @@ def _event_function(ps, prec, exprs):
         if prec.is_real:
             kwargs["prec"] = prec.bits
         uses_pars = any(hy.get_params(e) for e in exprs)
+        start = _time.perf_counter()
         fn = hy.cfunc(list(exprs), ps.variables, compact_mode=prec.name != "double", **kwargs)
-        with _LOCK:
-            hit = _EVENT_FUNCTIONS.setdefault(key, (fn, uses_pars))
+        hit = _EVENT_FUNCTIONS.put(key, (fn, uses_pars), cost=_time.perf_counter() - start)
     return hit
 
 
@@ -324,9 +323,10 @@ def build_integrator(system, precision="double", tol=None, *, events=True, user_
     key = (ps.key, prec.name, tolf, tuple(str(e[0]) for e in evs), user, bool(compact_mode), bool(high_accuracy))
     info = [(e[1], e[2]) for e in evs]  # messages from this model, never from the cached one
     info += [("event", f"the event {e[0]!r} fired") for e in user_events if e[3]]
-    hit = _CACHE.get(key)
+    hit = _INTEGRATORS.get(key)
     if hit is not None:
-        return hit[0], 0.0, True, info
+        _INTEGRATORS.touch(key)
+        return hit, 0.0, True, info
     state = prec.array([0] * n)
     pars = prec.array(ps.parameter_values) if ps.parameter_values else None
     kwargs = dict(tol=prec.to_native(tolf), compact_mode=compact_mode, high_accuracy=high_accuracy)
@@ -348,33 +348,19 @@ def build_integrator(system, precision="double", tol=None, *, events=True, user_
     t0 = _time.perf_counter()
     ta = hy.taylor_adaptive(ps.ode_system, state, **kwargs)
     build = _time.perf_counter() - t0
-    with _LOCK:
-        if len(_CACHE) >= _CACHE_MAX:
-            old = _CACHE.pop(next(iter(_CACHE)))
-            _FREE.pop(id(old[0]), None)
-        entry = _CACHE.setdefault(key, [ta, [copy.deepcopy(ta)]])
-        _FREE[id(entry[0])] = entry
-    return ta, build, False, info
+    cache.add_template(ta, copies=1)
+    cached = _INTEGRATORS.put(key, ta, cost=build)
+    if cached is not ta:  # another thread built it at the same time: use the cached one
+        cache.drop_template(ta)
+    return cached, build, False, info
 
 
-def _checkout(template):
-    """An integrator of the same key as ``template`` that no other run is using, and the list to return it to.
-
-    The template itself (what :func:`build_integrator` returns) is never run here, so a caller holding it cannot
-    disturb a run; a copy is made only when more runs of one key overlap than there are free copies. (``list.pop``
-    and ``list.append`` are atomic: no lock is needed on this path.)
-    """
-    entry = _FREE.get(id(template))
-    free = entry[1] if entry is not None and entry[0] is template else []
-    try:
-        return free.pop(), free
-    except IndexError:
-        return copy.deepcopy(template), free
-
-
-def _release(ta, free) -> None:
-    if len(free) < 8:
-        free.append(ta)
+#: An integrator of the same key as ``template`` that no other run is using, and the list to return it to (the
+#: shared pool, :func:`lieseries.cache.checkout`). The template itself (what :func:`build_integrator` returns) is
+#: never run, so a caller holding it cannot disturb a run; a copy is made only when more runs of one key overlap
+#: than there are free copies.
+_checkout = cache.checkout
+_release = cache.release
 
 
 #: Steps in the first chunk of a run, by precision (later chunks grow fourfold, up to about CHUNK_SECONDS of work
@@ -397,8 +383,7 @@ def _repeat_chunk(prec, template, first: int) -> int:
     return max(first, min(REPEAT_CHUNK, REPEAT_CHUNK_WORK // max(len(template.decomposition), 1)))
 
 
-_PLANS: dict = {}
-_PLANS_MAX = 256
+_PLANS = cache.region("taylor.plans", 256)
 
 
 def _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events=(), max_time=None):
@@ -428,10 +413,7 @@ def _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events
                                high_accuracy=high_accuracy),
     )
     if key is not None:
-        with _LOCK:
-            if len(_PLANS) >= _PLANS_MAX:
-                _PLANS.pop(next(iter(_PLANS)))
-            _PLANS[key] = (system, plan)
+        _PLANS.put(key, (system, plan))
     return plan
 
 
@@ -640,13 +622,9 @@ def integrate(
             call.t0_native, call.t_end_native = plan["t0_native"], plan["grid_native"][-1]
             call.sqrt_tol, call.reached, call.t_exact = plan["sqrt_tol"], plan["reached"], plan["grid_exact"][-1]
             call.budget = min(call.first_chunk, max_steps)  # the first chunk's steps
-            entry = _FREE.get(id(plan["build"][0]))
-            call.free = entry[1] if entry is not None and entry[0] is plan["build"][0] else []
+            call.free = cache.free_copies(plan["build"][0])
         if key is not None and not warned:
-            with _LOCK:
-                if len(_CALLS) >= _CALLS_MAX:
-                    _CALLS.pop(next(iter(_CALLS)))
-                _CALLS[key] = call
+            _CALLS.put(key, call)
     return _execute(call, progress)
 
 
@@ -667,8 +645,8 @@ class _Call:
             setattr(self, k, v)
 
 
-_CALLS: dict = {}
-_CALLS_MAX = 256
+#: Memoised calls (:class:`_Call`) of :func:`integrate`; a hit is one dict lookup (``_CALLS.get``).
+_CALLS = cache.region("taylor.calls", 256)
 _KEY_SCALARS = frozenset((type(None), int, float, str, bool))
 
 
@@ -750,7 +728,7 @@ def _execute_plain(call):
         else:
             return _execute_general(call, None, (ta, res, run_time, (build, cached)))
     finally:
-        if len(free) < 8:
+        if len(free) < cache.MAX_FREE:  # as _release (inline: the plain path is the fast one)
             free.append(ta)
     steps = res[3]
     energy = call.energy

@@ -41,6 +41,7 @@ from fractions import Fraction
 import mpmath
 import numpy as np
 
+from . import cache
 from .models.base import Model
 from .poisson import as_poisson_system
 from .precision import (
@@ -508,7 +509,7 @@ def _prove_step(prog, jprog, CZ, P, g, pars, consts, jconsts, span, flint, major
     return tail, B, D
 
 
-_JACOBIANS: dict = {}
+_JACOBIANS = cache.region("validated.jacobians", 64)
 #: Terms of the interval-matrix exponential that encloses the flow's Jacobian over one piece of a step, and the
 #: number of pieces a step is cut into for it (twice as many when the set is wider than 10^-dps, as from uncertain
 #: data, where the Jacobian's own width multiplies the set's spread: measured on the rigid body from data known to
@@ -613,7 +614,7 @@ def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECE
 
 #: A run that switches charts this many times stops (it would be cycling).
 MAX_SWITCHES = 10_000
-_CHART_MAPS: dict = {}
+_CHART_MAPS = cache.region("validated.chart_maps", 64)
 
 
 def _chart_context(model, flint):

@@ -1,6 +1,6 @@
 """Scenes of the constrained models: the kinds heavy_top, spherical_pendulum, planar_pendulum,
 double_spherical_pendulum, ellipsoid_geodesic and constrained (a Lagrangian with constraints written in the scene),
-their refusals at load time, and the built-in scenes heavy-top and spherical-pendulum against independent
+their refusals at load time, and the built-in scenes heavy-top, spherical-pendulum and ellipsoid-geodesic against independent
 references (mpmath's odefun on equations written here, conservation laws)."""
 
 from fractions import Fraction
@@ -262,6 +262,11 @@ qdot = [0, 1, 0]
 t = "1.2"
 chart = { z = "sqrt(1 - x**2 - y**2)" }
 """
+    from lieseries.cost import estimate_scene
+
+    est = estimate_scene(parse_scene(text))  # the study prices each formulation by each method
+    priced = [p.what for p in est.parts if p.field == "studies.formulations.t" and " by " in p.what]
+    assert not est.lower_bound and len(priced) == 12, [p.what for p in est.parts]
     res = run_scene(parse_scene(text), progress=False)
     (_lab, comp), = res.studies["formulations"]
     assert {r.formulation for r in comp.rows} == {"dirac", "reduced", "intermediate", "local"}
@@ -303,3 +308,68 @@ def test_formulations_measures_quad_constraint_residuals_at_quad_precision():
     assert row.status == "success" and row.G < 1e-31 and row.Phi < 1e-31 and row.error < 1e-31
     # the final point, as floats, is on the sphere of radius 0.3 to double rounding
     assert abs(sum(c * c for c in row.q) - 0.09) < 1e-15
+
+
+def _geodesic_reference(t, dps=30):
+    """(x, xdot) at t of the geodesic on x^2 + y^2/4 + z^2/9 = 1 from q0 = (2/7, 6/7, 18/7), qdot0 = (1, 0, -1), by
+    mpmath's odefun on x'' = -mu n, n = (x/a^2, y/b^2, z/c^2), mu = sum v_i^2/a_i^2 / |n|^2 (G'' = 0; written here)."""
+    with mpmath.workdps(dps):
+        w = [mpmath.mpf(1), mpmath.mpf(1) / 4, mpmath.mpf(1) / 9]
+
+        def f(_t, y):
+            x, v = y[:3], y[3:]
+            n = [xi * wi for xi, wi in zip(x, w)]
+            mu = sum(vi * vi * wi for vi, wi in zip(v, w)) / sum(c * c for c in n)
+            return list(v) + [-mu * c for c in n]
+
+        sol = mpmath.odefun(f, 0, [mpmath.mpf(2) / 7, mpmath.mpf(6) / 7, mpmath.mpf(18) / 7, 1, 0, -1])
+        return [+c for c in sol(mpmath.mpf(t.numerator) / t.denominator)]
+
+
+@pytest.mark.slow
+def test_builtin_ellipsoid_geodesic_scene_against_odefun_in_each_formulation():
+    """ellipsoid-geodesic in quick mode (run to t = 1, formulations to t = 0.4): the final (q, qdot) of every run
+    of every formulation against mpmath's odefun on the Cartesian geodesic equations; Joachimsthal's integral, the
+    energy, G and Phi kept to each precision; the radius table has a row per formulation."""
+    res = run_scene(load_scene("ellipsoid-geodesic"), quick=True, progress=False)
+    rows = _check_drifts(res, {"energy", "G1", "Phi1", "joachimsthal"})
+    ref = [float(c) for c in _geodesic_reference(Fraction(1))]
+    for r in rows:
+        y = [float(c) for c in r.final_state]
+        assert max(abs(a - b) for a, b in zip(y, ref)) < 1e-13, (r.method, y, ref)  # p = qdot (unit mass)
+    (_lab, comp), = res.studies["formulations"]
+    ref = [float(c) for c in _geodesic_reference(Fraction(2, 5))]
+    assert len(comp.rows) == 12 and {r.status for r in comp.rows} == {"success"}
+    for r in comp.rows:
+        assert max(abs(a - b) for a, b in zip(r.q + r.qdot, ref)) < 1e-14, r
+    assert [r.formulation for r in comp.radii] == ["dirac", "reduced", "intermediate", "local"]
+
+
+def test_the_formulations_study_prices_each_formulation_by_each_method_for_the_scene_estimate():
+    from lieseries.cost import estimate_scene
+
+    text = HEAD + """
+[model]
+kind = "constrained"
+lagrangian = "(x_dot**2 + y_dot**2)/2"
+coordinates = ["x", "y"]
+constraints = ["x**2 + y**2 - 1"]
+[initial]
+q = ["0.6", "0.8"]
+qdot = ["-0.8", "0.6"]
+[studies.formulations]
+t = "0.5"
+formulations = ["dirac", "local"]
+chart = { y = "sqrt(1 - x**2)" }
+methods = [{ method = "taylor", precision = "double" }, { method = "lie", dps = 20 }]
+radius_t = "0.1"
+radius_max_order = 8
+"""
+    est = estimate_scene(parse_scene(text))
+    parts = {p.what: p for p in est.parts if p.field.startswith("studies.formulations")}
+    assert not est.lower_bound, parts
+    for name in ("dirac", "local"):
+        for label in ("heyoka double", "Lie series 20 dps"):
+            assert parts[f"10 sample intervals of {name} by {label}"].seconds > 0
+        assert parts[f"{name}: a Lie series to order 8 at 40 digits"].seconds > 0
+    assert "the reference (Dirac, heyoka 256 bits)" in parts

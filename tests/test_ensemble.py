@@ -436,7 +436,7 @@ def test_dask_machinery_errors_become_a_runtime_error_naming_client():
     pytest.importorskip("distributed")
     from distributed.client import FutureCancelledError
 
-    from lieseries.ensemble import _dask_failure, _is_dask_error
+    from lieseries.ensemble.cluster import dask_failure as _dask_failure, is_dask_error as _is_dask_error
 
     err = FutureCancelledError("key", "lost")
     assert _is_dask_error(err) and not _is_dask_error(ValueError("`y0` bad"))

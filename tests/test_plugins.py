@@ -122,3 +122,30 @@ def test_registrations_refuse_what_they_cannot_use():
     with pytest.raises(TypeError, match="`method` must be a Method"):
         register_method({"name": "euler"})
     assert "no_docs" not in scenes.STUDIES and "odd" not in scenes.MODEL_KINDS
+
+
+def test_a_study_prices_itself_for_the_scene_estimate_or_the_estimate_says_it_is_a_lower_bound(plugins):
+    from lieseries.cost import CostPart, SceneTooLong, check_scene_budget, estimate_scene
+    from lieseries.studies.plugin import study_plugin
+
+    scene = parse_scene(SCENE)
+    est = estimate_scene(scene)
+    unpriced = [p for p in est.parts if p.field == "studies.energy_table"]
+    assert est.lower_bound and len(unpriced) == 1 and "not estimated" in unpriced[0].what
+
+    study = study_plugin("energy_table")
+
+    def cost(opts, ctx, pricer):  # one heyoka run per model, priced by the model of heyoka's steps
+        assert opts["t"] == 4 and [lab for lab, _ in ctx.built] == [lab for lab, _ in scene.build_models()]
+        parts = []
+        for _lab, model in ctx.built:
+            secs, lower, basis = pricer.heyoka_run(model, ctx.initial_state(model), opts["t"], opts["precision"])
+            parts.append(CostPart("studies.energy_table.t", "one run", 10**9, "run", secs, basis, lower))
+        return parts
+
+    study.cost = cost
+    est = estimate_scene(scene)
+    assert not est.lower_bound
+    assert est.driver().field == "studies.energy_table.t" and est.driver().seconds > 1e3
+    with pytest.raises(SceneTooLong, match=r"`studies\.energy_table\.t`"):
+        check_scene_budget(est, 60)

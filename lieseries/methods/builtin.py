@@ -7,6 +7,7 @@ from fractions import Fraction
 
 import numpy as np
 
+from .. import cache
 from .. import fields as F
 from ..models.base import state_fractions
 from ..poisson import as_poisson_system
@@ -19,7 +20,7 @@ __all__ = ["clear_rhs_cache"]
 
 
 # -- compiled right-hand sides (cached per system structure) ---------------------------------------------------
-_RHS_CACHE: dict = {}
+_RHS_CACHE = cache.region("methods.rhs", 64)
 
 
 def clear_rhs_cache() -> None:
@@ -49,8 +50,7 @@ def _scipy_rhs(system):
     else:
         def rhs(t, y, _cf=cf):
             return _cf(y)
-    _RHS_CACHE[key] = rhs
-    return rhs, build
+    return _RHS_CACHE.put(key, rhs, cost=build), build
 
 
 def _mpmath_rhs(system):
@@ -68,8 +68,7 @@ def _mpmath_rhs(system):
         ctx = mp_context()
         return list(_prog.evaluate(values, pars, ctx.dps, ctx=ctx))
 
-    _RHS_CACHE[key] = fn
-    return fn
+    return _RHS_CACHE.put(key, fn)
 
 
 def _rows_with_reached(sol):

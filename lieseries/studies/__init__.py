@@ -31,7 +31,7 @@ from .convergence import ErrorVsOrder, error_vs_order
 from .work_precision import WorkPrecision, WorkPrecisionRow, work_precision
 from .drift import Drift, drift
 from .departure import DepartureMap, departure_map
-from .formulations import FormulationComparison, compare_formulations
+from .formulations import FormulationComparison, FormulationRadius, compare_formulations, formulation_radii
 from .plugin import ReportContext, Study, StudyContext, register_study, studies_registry, unregister_study
 
 __all__ = reference.__all__ + [
@@ -52,4 +52,6 @@ __all__ = reference.__all__ + [
     "departure_map",
     "FormulationComparison",
     "compare_formulations",
+    "FormulationRadius",
+    "formulation_radii",
 ]

@@ -19,6 +19,7 @@ import numpy as np
 from fractions import Fraction
 
 from .. import fields as F
+from ..methods.pricing import CostPart
 from ..formatting import MARKERS, fmt_num, fmt_sci, markdown_table, positive_or_nan, pyplot, save_figure
 from ..poisson import as_poisson_system
 from ..precision import thread_mp as mp
@@ -287,6 +288,19 @@ class ErrorVsOrderStudy(Study):
         ev["orders"] = [o for o in orders if o <= top]
         ev["max_order"] = None
         ev["dps"] = min(ev["dps"], 40)
+
+    def cost(self, ev, ctx, pricer):
+        from ..lie.operator import lie_series
+
+        top = max(orders_of(ev))
+        dps = int(ev["dps"])
+        model = ctx.built[0][1]
+        y0 = ctx.initial_state(model)
+        o_c = min(top, 12)
+        _, secs = pricer.timed(lambda: lie_series(model, y0, order=o_c, dps=dps))
+        return [CostPart("studies.error_vs_order.max_order", f"{len(ctx.built)} Lie series to order {top} at {dps} "
+                         "digits", len(ctx.built), "series", secs * (top / o_c) ** 2,
+                         f"timed to order {o_c}, scaled by order^2")]
 
     def run(self, opts, ctx):
         orders = orders_of(opts)

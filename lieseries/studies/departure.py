@@ -24,6 +24,7 @@ import numpy as np
 from .. import exact
 from .. import fields as F
 from ..formatting import file_tag, fmt_sci, markdown_table, pyplot, save_figure
+from ..methods.pricing import CostPart
 from ..models.euler_poisson import EulerPoisson
 from ..precision import check_count, resolve_precision, to_fraction
 from ..precision import thread_mp as mp
@@ -365,6 +366,34 @@ class DepartureMapStudy(Study):
         dm["grid"] = [min(dm["grid"][0], 3), min(dm["grid"][1], 6)]
         dm["T"] = float(to_fraction(dm["T"])) / 10
         dm["samples"] = min(dm["samples"], 20)
+
+    def cost(self, dm, ctx, pricer):
+        cells = int(dm["grid"][0]) * int(dm["grid"][1])
+        samples = int(dm["samples"])
+        T = to_fraction(dm["T"])
+        precs = [resolve_precision(p) for p in dm["precisions"]]
+        ref_dps = max(int(dm["dps"]), max(math.ceil(p.bits * math.log10(2)) for p in precs) + 10)
+        pricer.heyoka_builds += len(precs)
+        parts = []
+        for _lab, model in ctx.built:
+            inertia = tuple(model.inertia_exact[j][j] for j in range(3))
+            # a generic unit M0 (the grid's cells differ in their motion, not in the work of one closed form)
+            M0 = (Fraction(3, 5), Fraction(0), Fraction(4, 5))
+            omega = tuple(m / i for m, i in zip(M0, inertia))
+            times = [T * k / samples for k in (1, 2)]
+            _, secs = pricer.timed(lambda: exact.euler_poisson_many(inertia, omega, times, dps=ref_dps), quiet=False)
+            parts.append(CostPart("studies.departure_map.grid", f"{cells} cells x {samples} closed-form times at "
+                                  f"{ref_dps} digits", cells * samples, "closed-form time", secs / len(times),
+                                  f"timed at {ref_dps} digits"))
+            body = EulerPoisson(inertia)
+            y0 = body.initial_state(omega=omega)
+            for p in precs:
+                per, lower, basis = pricer.heyoka_run(body, y0, T, p, samples)
+                drivers = "studies.departure_map.grid" + ("` and `studies.departure_map.precisions" if p.bits > 113
+                                                          else "")
+                parts.append(CostPart(drivers, f"{cells} members to T = {float(T):g} in {p.name}", cells, "member",
+                                      per, basis, lower))
+        return parts
 
     def run(self, opts, ctx):
         out = []

@@ -25,6 +25,7 @@ import numpy as np
 
 from .. import fields as F
 from ..formatting import file_tag, fmt_num, fmt_p, fmt_sci, markdown_table, positive_or_nan, pyplot, save_figure
+from ..methods.pricing import CostPart
 from ..models.base import as_model, state_fractions
 from ..poisson import as_poisson_system
 from ..precision import check_count, resolve_precision, to_fraction
@@ -288,6 +289,17 @@ class DriftStudy(Study):
         dr["ensemble"] = min(dr["ensemble"], 4)
         if dr["first"] is not None:
             dr["first"] = min(float(to_fraction(dr["first"])), dr["t"] / 100)
+
+    def cost(self, dr, ctx, pricer):
+        parts = []
+        pricer.heyoka_builds += 1
+        for _lab, model in ctx.built:
+            per, lower, basis = pricer.heyoka_run(model, ctx.initial_state(model), dr["t"], dr["precision"],
+                                                  dr["samples"])
+            parts.append(CostPart("studies.drift.ensemble", f"{dr['ensemble']} drift members to t = "
+                                  f"{float(to_fraction(dr['t'])):g} in {dr['precision']}", dr["ensemble"], "member",
+                                  per, basis, lower))
+        return parts
 
     def run(self, opts, ctx):
         return [(lab, drift(model, ctx.initial_state(model), opts["t"], precision=opts["precision"],

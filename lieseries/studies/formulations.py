@@ -15,6 +15,17 @@ above every run's, stated in the report), the largest |G_alpha(q)| and |Phi_alph
 constraints and their time derivatives, evaluated from q and qdot whatever the formulation's variables), the drift
 of the energy, steps, run time, and where a chart (reduced, intermediate, local) ends: such a run stops with
 status ``chart_edge`` and its row says at which time.
+
+With ``radius_t``, the study also measures the radius of convergence of the Lie series exp(t X_H) y0 in each
+formulation, in the formulation's own variables, as :mod:`~lieseries.studies.convergence` does: the error of the
+series truncated at each order N, at t = ``radius_t``, against heyoka at 256 bits or more; inside the disc
+error_N ~ C (t / rho)^N, and the least-squares slope of log10(error_N) gives rho. The formulations need not agree:
+the series of one set of variables can converge for every t (the Dirac form of the sphere: sines and cosines)
+while another's ends at a complex singularity (a local chart's momenta, which blow up where the chart does). A
+radius is claimed only when the rate is steady: the radii fitted over the lower and the upper half of the fitted
+orders agree within ``RADIUS_AGREEMENT``. A rate that steepens is a series falling faster than geometrically (an
+entire series, or a singularity farther than these orders resolve): no radius is given. So is one that flattens,
+or that has fewer than ``RADIUS_MIN_POINTS`` errors above the precision floor.
 """
 
 from __future__ import annotations
@@ -27,13 +38,16 @@ import sympy as sp
 
 from .. import fields as F
 from ..formatting import fmt_int, fmt_num, fmt_sci, markdown_table
-from ..methods import reference_dps, run_method, scene_methods
+from ..methods import method_label, normalize_method, reference_dps, run_method, scene_methods
+from ..methods.pricing import CostPart
 from ..models.constrained import ConstrainedSystem
 from ..precision import dps_to_bits, to_fraction
 from ..precision import thread_mp as mp
+from .convergence import error_vs_order, fit_geometric_rate
 from .plugin import Study, register_study
 
-__all__ = ["FormulationRow", "FormulationComparison", "compare_formulations", "FormulationsStudy", "FORMULATIONS"]
+__all__ = ["FormulationRow", "FormulationComparison", "compare_formulations", "FormulationsStudy", "FORMULATIONS",
+           "FormulationRadius", "formulation_radii", "radius_verdict", "RADIUS_AGREEMENT", "RADIUS_MIN_POINTS"]
 
 FORMULATIONS = ("dirac", "reduced", "intermediate", "local")
 
@@ -64,16 +78,55 @@ class FormulationRow:
         return dict(self.__dict__)
 
 
+#: A radius is claimed when the radii fitted over the lower and the upper half of the fitted orders differ by less
+#: than this factor. A geometric rate (a pole or branch point at distance rho) keeps its slope: the halves agree to a
+#: few per cent (up to ~12 % where the errors come in pairs, as for an even function). An entire series of order 1
+#: (errors ~ t^N / N!) over orders [a, 2a] steepens by a factor ~1.35-1.45 between the halves.
+RADIUS_AGREEMENT = 1.2
+
+#: Fewest errors above the precision floor for a radius to be fitted (three per half).
+RADIUS_MIN_POINTS = 6
+
+
+@dataclass
+class FormulationRadius:
+    """The radius of convergence of one formulation's Lie series, measured at one time (module docstring).
+
+    ``radius`` is the fitted rho, or None when the data do not support one (``verdict`` says why); ``radius_fit``
+    is the fit over all fitted orders whatever the verdict, ``radius_low`` / ``radius_high`` over their lower and
+    upper halves."""
+
+    formulation: str
+    dimension: int
+    t: float
+    dps: int
+    verdict: str
+    radius: float | None
+    radius_fit: float | None = None
+    radius_low: float | None = None
+    radius_high: float | None = None
+    slope: float | None = None
+    fit_orders: list = field(default_factory=list)
+    orders: list = field(default_factory=list)
+    errors: list = field(default_factory=list)
+    reference: str = ""
+    message: str = ""
+
+    def to_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
 @dataclass
 class FormulationComparison:
     t: float
     rows: list
     reference: str
     notes: list = field(default_factory=list)
+    radii: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {"t": self.t, "reference": self.reference, "notes": list(self.notes),
-                "rows": [r.to_dict() for r in self.rows]}
+                "rows": [r.to_dict() for r in self.rows], "radii": [r.to_dict() for r in self.radii]}
 
 
 def _system_of(model):
@@ -193,6 +246,63 @@ def compare_formulations(system, q, qdot, t, methods, *, formulations=FORMULATIO
                                  f"precise run), at the time each run reached", notes)
 
 
+# -- the radius of convergence of the Lie series, per formulation -------------------------------------------------
+def radius_verdict(t, orders, errors, floor, fit_orders, slope):
+    """(verdict, radius or None, radius over all fitted orders, over their lower half, over their upper half) of an
+    error-against-order table (:func:`~lieseries.studies.convergence.error_vs_order`'s ``orders``, ``errors``,
+    ``floor``, ``fit_orders``, ``rate``). The radius is given only when the rate is steady (module docstring)."""
+    t = abs(float(t))
+    fit = None if slope is None else t * 10.0 ** (-slope)
+    used = list(fit_orders)
+    if slope is None or len(used) < RADIUS_MIN_POINTS:
+        return (f"not measured: {len(used)} errors above the precision floor {floor:.0e} (at least "
+                f"{RADIUS_MIN_POINTS} are needed): raise the digits or the orders, or lower t"), None, fit, None, None
+    by_order = dict(zip(orders, errors))
+    half = len(used) // 2
+    radii = []
+    for part in (used[:half + len(used) % 2], used[half:]):
+        s, _i, _u = fit_geometric_rate(part, [by_order[k] for k in part], floor, min_order=part[0])
+        radii.append(None if s is None else t * 10.0 ** (-s))
+    low, high = radii
+    if low is None or high is None:  # pragma: no cover - each half has >= 3 points above the floor
+        return "not measured: a half of the fitted orders has too few points", None, fit, low, high
+    span = f"orders {used[0]}-{used[-1]}"
+    if high > RADIUS_AGREEMENT * low:
+        return (f"no radius: the rate steepens with the order (rho {low:.3g} over the lower half of {span}, "
+                f"{high:.3g} over the upper): faster than geometric, as an entire series"), None, fit, low, high
+    if low > RADIUS_AGREEMENT * high:
+        return (f"no radius: the rate flattens with the order (rho {low:.3g} over the lower half of {span}, "
+                f"{high:.3g} over the upper): not a steady geometric rate"), None, fit, low, high
+    where = "inside the disc" if fit > t else "beyond the disc: the series diverges there"
+    return f"geometric over {span} (t {where})", fit, fit, low, high
+
+
+def formulation_radii(system, q, qdot, t, *, max_order: int = 30, dps: int = 40, formulations=FORMULATIONS,
+                      chart=None, dependent=None, progress=None) -> list:
+    """The radius of convergence of the Lie series of each formulation of ``system`` at (``q``, ``qdot``),
+    measured from its error at time ``t`` for the orders 1..``max_order`` at ``dps`` digits (module docstring).
+
+    Returns a list of :class:`FormulationRadius`; a formulation whose measurement fails (its reference run ends at
+    its chart's edge before ``t``, say) has ``radius`` None and the reason in ``message``."""
+    out = []
+    orders = list(range(1, int(max_order) + 1))
+    for i, name in enumerate(formulations):
+        if progress is not None:
+            progress(i, len(formulations), f"radius: {name}")
+        model = _formulation(system, name, chart, dependent)
+        dim = model.poisson.dimension
+        try:
+            ev = error_vs_order(model, model.initial_state(q, qdot), t, orders, dps=dps)
+        except RuntimeError as err:
+            out.append(FormulationRadius(name, dim, float(to_fraction(t)), dps, f"not measured: {err}", None,
+                                         message=str(err)))
+            continue
+        verdict, rho, fit, low, high = radius_verdict(ev.t, ev.orders, ev.errors, ev.floor, ev.fit_orders, ev.rate)
+        out.append(FormulationRadius(name, dim, ev.t, dps, verdict, rho, fit, low, high, ev.rate, ev.fit_orders,
+                                     ev.orders, ev.errors, ev.reference))
+    return out
+
+
 # -- the study ---------------------------------------------------------------------------------------------------
 def _chart_field(value, path):
     if not isinstance(value, dict) or not value or not all(isinstance(v, str) for v in value.values()):
@@ -213,7 +323,9 @@ class FormulationsStudy(Study):
     title = "Formulations compared"
     fields = {"t": (F.positive, F.REQUIRED), "methods": (scene_methods(lists=False), None),
               "formulations": (_formulations_field, list(FORMULATIONS)), "chart": (_chart_field, None),
-              "dependent": (F.list_of(F.string, allow_scalar=False), None), "samples": (F.integer(2, 1001), 11)}
+              "dependent": (F.list_of(F.string, allow_scalar=False), None), "samples": (F.integer(2, 1001), 11),
+              "radius_t": (F.positive, None), "radius_max_order": (F.integer(6, 200), 30),
+              "radius_dps": (F.integer(15, 1000), 40)}
     docs = {"t": ("positive number", "the final time"),
             "methods": ("list of methods", "the methods run on each formulation (default: heyoka double and quad, "
                         "the Lie series at 30 digits)"),
@@ -221,9 +333,13 @@ class FormulationsStudy(Study):
             "chart": ("table name = string", "the local chart (required with 'local'): each dependent coordinate "
                       "as an expression of the others"),
             "dependent": ("list of names", "reduced / intermediate: the coordinates whose momenta are eliminated"),
-            "samples": ("integer >= 2", "output times at which G, Phi and the energy are measured")}
+            "samples": ("integer >= 2", "output times at which G, Phi and the energy are measured"),
+            "radius_t": ("positive number", "measure the radius of convergence of each formulation's Lie series "
+                         "from its error at this time (default: not measured)"),
+            "radius_max_order": ("integer 6..200", "the radius: orders 1..radius_max_order"),
+            "radius_dps": ("integer 15..1000", "the radius: digits of the series")}
     has_plot = False
-    quick_doc = "a fifth of the time, 5 samples"
+    quick_doc = "a fifth of the time, 5 samples; the radius up to half the order (at least 12) at most 40 digits"
 
     def check(self, opts, run, models, where):
         if "local" in opts["formulations"] and opts["chart"] is None:
@@ -245,17 +361,63 @@ class FormulationsStudy(Study):
         t = to_fraction(opts["t"]) / 5  # kept exact: 1.2 becomes 6/25, not the double 0.24
         opts["t"] = str(t) if t.denominator > 1 else t.numerator
         opts["samples"] = min(opts["samples"], 5)
+        opts["radius_max_order"] = min(opts["radius_max_order"], max(12, opts["radius_max_order"] // 2))
+        opts["radius_dps"] = min(opts["radius_dps"], 40)
+
+    @staticmethod
+    def _methods(opts):
+        return opts["methods"] or [{"method": "taylor", "precision": "double"},
+                                   {"method": "taylor", "precision": "quad"}, {"method": "lie", "dps": 30}]
+
+    def cost(self, opts, ctx, pricer):
+        from ..lie.operator import lie_series
+
+        specs = [normalize_method(m, f"studies.formulations.methods[{i}]") for i, m in enumerate(self._methods(opts))]
+        ini = ctx.scene.initial
+        n_int = opts["samples"] - 1
+        bits = max(256, dps_to_bits(reference_dps(specs)) + 16)
+        parts = []
+        for _lab, model in ctx.built:
+            system = _system_of(model)
+            pricer.heyoka_builds += 1  # the reference
+            for name in opts["formulations"]:
+                form = _formulation(system, name, opts["chart"], opts["dependent"])  # derived once, cached
+                y0 = form.initial_state(ini["q"], ini["qdot"])
+                if name == "dirac":
+                    secs, lower, basis = pricer.heyoka_run(form, y0, opts["t"], bits, n_int)
+                    parts.append(CostPart("studies.formulations.t", f"the reference (Dirac, heyoka {bits} bits)", 1,
+                                          "run", secs, basis, lower))
+                for spec in specs:
+                    pricer.heyoka_builds += spec["method"] == "taylor"
+                    per, lower, basis, _ = pricer.span(form, y0, spec, opts["t"], n_int)
+                    parts.append(CostPart("studies.formulations.t", f"{n_int} sample intervals of {name} by "
+                                          f"{method_label(spec)}", n_int, "sample interval", per, basis, lower))
+                if opts["radius_t"] is not None:
+                    pricer.heyoka_builds += 1  # its reference
+                    top, dps = int(opts["radius_max_order"]), int(opts["radius_dps"])
+                    o_c = min(top, 12)
+                    _, secs = pricer.timed(lambda: lie_series(form, y0, order=o_c, dps=dps))
+                    parts.append(CostPart("studies.formulations.radius_max_order", f"{name}: a Lie series to order "
+                                          f"{top} at {dps} digits", 1, "series", secs * (top / o_c) ** 2,
+                                          f"timed to order {o_c}, scaled by order^2"))
+        return parts
 
     def run(self, opts, ctx):
-        methods = opts["methods"] or [{"method": "taylor", "precision": "double"},
-                                      {"method": "taylor", "precision": "quad"}, {"method": "lie", "dps": 30}]
+        methods = self._methods(opts)
         out = []
         for i, (lab, model) in enumerate(ctx.built):
             ini = ctx.scene.initial
-            out.append((lab, compare_formulations(
-                _system_of(model), ini["q"], ini["qdot"], opts["t"], methods, formulations=opts["formulations"],
+            system = _system_of(model)
+            comp = compare_formulations(
+                system, ini["q"], ini["qdot"], opts["t"], methods, formulations=opts["formulations"],
                 chart=opts["chart"], dependent=opts["dependent"], samples=opts["samples"],
-                progress=ctx.model_progress(i, lab))))
+                progress=ctx.model_progress(i, lab))
+            if opts["radius_t"] is not None:
+                comp.radii = formulation_radii(
+                    system, ini["q"], ini["qdot"], opts["radius_t"], max_order=opts["radius_max_order"],
+                    dps=opts["radius_dps"], formulations=opts["formulations"], chart=opts["chart"],
+                    dependent=opts["dependent"], progress=ctx.model_progress(i, lab))
+            out.append((lab, comp))
         return out
 
     def unsuccessful(self, items):
@@ -275,11 +437,51 @@ class FormulationsStudy(Study):
                  markdown_table(h, rows), ""]
         for _lab, c in items:
             lines += [n for n in c.notes if n not in lines]
-        return lines, [("formulations.csv", h, rows)]
+        csvs = [("formulations.csv", h, rows)]
+        if any(c.radii for _lab, c in items):
+            lines += [""] + self._radius_section(items, csvs)
+        return lines, csvs
+
+    @staticmethod
+    def _radius_section(items, csvs):
+        first = next(r for _lab, c in items for r in c.radii)
+        h = ["model", "formulation", "variables", "t", "dps", "orders fitted", "rho (all fitted orders)",
+             "rho (lower half)", "rho (upper half)", "radius", "verdict"]
+        rows = [[lab, r.formulation, fmt_int(r.dimension), fmt_num(r.t), str(r.dps),
+                 f"{min(r.fit_orders)}-{max(r.fit_orders)}" if r.fit_orders else "", fmt_sci(r.radius_fit, 4),
+                 fmt_sci(r.radius_low, 4), fmt_sci(r.radius_high, 4),
+                 fmt_sci(r.radius, 4) if r.radius is not None else "none", r.verdict]
+                for lab, c in items for r in c.radii]
+        csvs.append(("formulations_radius.csv", h, rows))
+        orders = sorted({o for _lab, c in items for r in c.radii for o in r.orders})
+        h2 = ["order"] + [f"{r.formulation} ({lab})" if len(items) > 1 else r.formulation
+                          for lab, c in items for r in c.radii]
+        maps = [dict(zip(r.orders, r.errors)) for _lab, c in items for r in c.radii]
+        rows2 = [[str(o)] + [fmt_sci(m.get(o)) for m in maps] for o in orders]
+        csvs.append(("formulations_radius_errors.csv", h2, rows2))
+        return ["**The radius of convergence of the Lie series exp(t X_H), per formulation.** Each formulation's "
+                "series in its own variables, truncated at order N, evaluated at t and compared with "
+                f"{first.reference or 'a numerical reference'}: inside the disc error_N ~ C (t / rho)^N, and the "
+                "least-squares slope of log10(error_N) over the upper half of the orders above the precision "
+                "floor (100 x 10^-dps) gives rho = t 10^(-slope). A radius is given only when the rate is steady: "
+                f"the fits over the lower and the upper half of those orders agree within a factor "
+                f"{RADIUS_AGREEMENT}. A rate that steepens is a series falling faster than geometrically (an entire "
+                "series, or a singularity farther than these orders resolve): the column 'rho (all fitted orders)' "
+                "is then only the mean rate over the orders shown, not a radius. The formulations need not agree: "
+                "the same motion in other variables can have other singularities (a chart's momenta blow up where "
+                "the chart does).", "", markdown_table(h, rows), "",
+                "<details><summary>Error of the truncated series against its order</summary>", "",
+                markdown_table(h2, rows2), "", "</details>", ""]
 
     def summary(self, items):
-        return [f"formulations ({lab}): {len(c.rows)} runs, largest error {fmt_sci(max((r.error or 0) for r in c.rows))}"
-                for lab, c in items]
+        out = []
+        for lab, c in items:
+            out.append(f"formulations ({lab}): {len(c.rows)} runs, largest error "
+                       f"{fmt_sci(max((r.error or 0) for r in c.rows))}")
+            if c.radii:
+                out.append(f"formulations ({lab}): Lie series radius " + ", ".join(
+                    f"{r.formulation} {fmt_sci(r.radius, 4) if r.radius is not None else 'none'}" for r in c.radii))
+        return out
 
 
 register_study(FormulationsStudy())

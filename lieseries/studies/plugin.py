@@ -115,6 +115,14 @@ class Study:
         """Lines for the terminal summary."""
         return []
 
+    def cost(self, opts: dict, ctx: StudyContext, pricer) -> list | None:
+        """The study's work priced for an up-front estimate (:func:`lieseries.cost.estimate_scene`): a list of
+        :class:`~lieseries.methods.pricing.CostPart` (units, the price of one from ``pricer``, a
+        :class:`~lieseries.methods.pricing.Pricer`, and the scene field ``studies.<name>.<key>`` that drives them);
+        add the heyoka integrators it compiles to ``pricer.heyoka_builds``. None (the default): the study does not
+        price itself, and an estimate of a scene with it is a lower bound that says so."""
+        return None
+
 
 _STUDIES: dict = {}
 

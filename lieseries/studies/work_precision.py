@@ -18,6 +18,7 @@ from .. import fields as F
 from ..formatting import MARKERS, fmt_int, fmt_num, fmt_sci, markdown_table, pyplot, save_figure
 from ..methods import (RunRecord, default_methods, expand_methods, method_label, method_plugin, reference_dps,
                        run_method, scene_methods, setting)
+from ..methods.pricing import CostPart
 from ..poisson import as_poisson_system
 from ..precision import check_count, to_fraction
 from .plugin import Study, register_study
@@ -151,6 +152,22 @@ class WorkPrecisionStudy(Study):
             hook = method_plugin(m["method"]).quick_study
             if hook is not None:
                 hook(m)
+
+    def cost(self, wp, ctx, pricer):
+        methods = wp["methods"] if wp["methods"] is not None else default_methods(ctx.quick)
+        t = to_fraction(wp["t"] if wp["t"] is not None else (ctx.scene.run or {}).get("t", 1))
+        specs = expand_methods(methods, "studies.work_precision.methods")
+        pricer.heyoka_builds += sum(1 for spec in specs if spec["method"] == "taylor")
+        parts = []
+        for _lab, model in ctx.built:
+            y0 = ctx.initial_state(model)
+            for spec in specs:
+                per, lower, basis, _ = pricer.span(model, y0, spec, t, 1)
+                if spec["method"] == "mpmath":
+                    per *= float(min(abs(t), to_fraction(spec["t_max"])) / abs(t))
+                parts.append(CostPart("studies.work_precision.methods", f"{spec['method']} run to t = {float(t):g}",
+                                      pricer.repeats(per, wp["repeat"]), "run", per, basis, lower))
+        return parts
 
     def run(self, opts, ctx):
         methods = opts["methods"] if opts["methods"] is not None else default_methods(ctx.quick)

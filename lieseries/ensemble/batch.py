@@ -1,0 +1,237 @@
+"""The double path: heyoka's batch mode, ``B`` members in the SIMD lanes of one integrator, batches spread over
+threads (each thread on its own pooled copy of the cached integrator); members the batch cannot decide are handed
+to single runs (see the package docstring)."""
+
+from __future__ import annotations
+
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from .. import cache
+from ..precision import to_fraction
+from .result import TIME_LIMIT, outcome_kind
+
+__all__ = ["run_batches", "over_threads", "BATCH_STEPS", "CHUNK_STEPS"]
+
+#: Steps a lane may take inside a batch (with the default ``max_steps``) before it is handed to a single run, which
+#: decides whether the run is healthy and long, stiff, or collapsing (see the package docstring).
+BATCH_STEPS = 100_000
+#: A batch runs in chunks of steps (growing 4x from this many); between chunks, a lane that at its current step
+#: size would need more than the step cap is handed to a single run early.
+CHUNK_STEPS = 2048
+
+
+def _record_lane(res, i, lane, kind, ta, out, Ynat, tgrid, t0n, direction, simple, event_info, nsteps, success_msg):
+    """Record one lane that finished (``kind`` "done") or stopped at a terminal event (``kind`` its index)."""
+    t_r = to_fraction(ta.time[lane])
+    y_r = np.array(ta.state[:, lane], copy=True)
+    if simple:
+        res.y[i, 0] = Ynat[i]
+        res.y[i, 1] = y_r
+        res.rows[i] = 1 + (kind == "done" or t_r == tgrid[-1])
+    else:
+        m = 0
+        for j, tj in enumerate(tgrid):
+            if (tj - t0n) * direction > (t_r - t0n) * direction:
+                break
+            res.y[i, j] = Ynat[i] if tj == t0n else (y_r if tj == t_r else out[j, :, lane])
+            m = j + 1
+        res.rows[i] = m
+    if kind == "done":
+        res.finish(i, "success", success_msg, t_r, y_r, nsteps)
+    else:
+        status, msg = event_info[kind]
+        h = abs(float(ta.last_h[lane]))
+        res.finish(i, status, f"Stopped at t = {float(t_r):.17g} (last step size {h:.3g}): {msg}.", t_r, y_r, nsteps)
+
+
+def _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, event_info, cap, t_end, success_msg):
+    """Finish a batch (final-time run) that did not finish in one go.
+
+    Either a lane stopped the batch (a terminal event, a non-finite state) or the batch used up its chunk of
+    :data:`CHUNK_STEPS` steps. Lanes that finished or met a terminal event are recorded and parked at the final time
+    on a finite state (they take no more steps); the others go on. heyoka's step size depends on the current state
+    alone, so a lane that goes on takes the steps it would have taken without the stop. Returned (for single runs):
+    the lanes that became non-finite, and those that at their current step size would need more than ``cap``
+    steps in all (a long, stiff or collapsing run: the single run's guard decides which).
+    """
+    B = len(idx)
+    decided = np.zeros(B, dtype=bool)
+    steps = np.zeros(B, dtype=np.int64)
+    handed = []
+    n_events = len(event_info)
+    chunk = CHUNK_STEPS
+    while True:
+        times = np.array(ta.time, copy=True)
+        last_h = np.abs(np.array(ta.last_h, dtype=np.float64))
+        parked = False
+        for lane in range(B):
+            if decided[lane]:
+                continue
+            outcome, _hmin, _hmax, nsteps = prs[lane]
+            steps[lane] += nsteps
+            kind = outcome_kind(outcome, n_events)
+            if kind == "interrupted" and times[lane] == t_end:
+                kind = "done"  # finished while the batch ran out of its chunk of steps
+            if kind == "interrupted":
+                if not str(outcome).endswith("step_limit"):
+                    continue  # stopped by another lane: goes on
+                left = abs(float(t_end) - float(times[lane]))
+                if last_h[lane] > 0 and steps[lane] + left / last_h[lane] <= cap:
+                    continue  # healthy: goes on in the next chunk
+            decided[lane] = True
+            if lane < nl:
+                if kind == "done" or isinstance(kind, int):
+                    _record_lane(res, lo + lane, lane, kind, ta, None, Ynat, tgrid, t0n, direction, True,
+                                 event_info, int(steps[lane]), success_msg)
+                else:  # non-finite, or too many steps ahead
+                    handed.append(lo + lane)
+            if kind != "done":
+                times[lane] = t_end
+                parked = True
+        if decided.all():
+            return handed
+        if parked:
+            # a parked lane takes zero-length steps, but heyoka still evaluates the field at its state: give it
+            # the state of a lane that goes on (finite, and where the field is finite)
+            live = int(np.flatnonzero(~decided)[0])
+            for lane in np.flatnonzero(times == t_end):
+                if decided[lane] and lane != live and prs[lane][0] != TIME_LIMIT:
+                    ta.state[:, lane] = ta.state[:, live]
+            ta.set_time(times)
+        if n_events:
+            ta.reset_cooldowns()
+        left = cap - int(steps[~decided].max())
+        if left <= 0:  # the cap is reached: what is left goes to single runs
+            handed.extend(lo + lane for lane in range(nl) if not decided[lane])
+            return handed
+        chunk = min(4 * chunk, 1 << 20)
+        ta.propagate_until(t_end, max_steps=min(left, chunk))
+        prs = ta.propagate_res
+
+
+def run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, n_threads, res, progress):
+    """Integrate every member in batches of B lanes over ``n_threads`` threads; return the members to hand over."""
+    k, n = Ynat.shape
+    npar = len(ps.parameter_values)
+    par_rows = None
+    if npar:
+        base = np.array([float(v) for v in ps.parameter_values])
+        par_rows = np.tile(base, (k, 1)) if pars is None else np.array([[float(v) for v in r] for r in pars])
+    simple = len(tgrid) == 2 and tgrid[0] == t0n
+    t_end = float(tgrid[-1])
+    if not simple:
+        lead = tgrid[0] != t0n
+        times = [float(t0n)] * lead + [float(g) for g in tgrid]
+        grid = np.repeat(np.array(times), B).reshape(-1, B)
+    success_msg = f"Reached t = {float(tgrid[-1]):.17g}."
+    n_batches = -(-k // B)
+    counter = iter(range(n_batches))
+    lock = threading.Lock()
+    handed = []
+    done = [0]
+
+    def work(_):
+        ta, free = cache.checkout(ta0)
+        try:
+            _work(ta)
+        finally:
+            cache.release(ta, free)
+
+    def _work(ta):
+        state, t0f = ta.state, float(t0n)
+        if npar and pars is None:
+            ta.pars[:] = par_rows[:B].T if k >= B else par_rows[[0] * B].T  # the same for every member
+        while True:
+            with lock:
+                b = next(counter, None)
+            if b is None:
+                return
+            lo, hi = b * B, min(k, b * B + B)
+            if hi - lo == B:
+                idx = range(lo, hi)
+                state[:] = Ynat[lo:hi].T
+            else:
+                idx = list(range(lo, hi)) + [lo] * (B - (hi - lo))  # pad the last batch with copies of its first
+                state[:] = Ynat[idx].T
+            ta.set_time(t0f)
+            if npar and pars is not None:
+                ta.pars[:] = par_rows[list(idx)].T
+            if event_info:
+                ta.reset_cooldowns()
+            if simple:
+                ta.propagate_until(t_end, max_steps=min(cap, CHUNK_STEPS))
+                out = None
+            else:
+                out = ta.propagate_grid(grid, max_steps=cap)[-1]
+                if lead:
+                    out = out[1:]
+            prs = ta.propagate_res
+            nl = hi - lo
+            outcomes = [prs[lane][0] for lane in range(nl)]
+            mine = []
+            if all(o == TIME_LIMIT for o in outcomes):  # the common case, in bulk
+                _record_batch(res, lo, hi, ta, out, prs, Ynat, tgrid, t0n, simple, success_msg)
+            elif not simple:
+                mine = _record_grid_lanes(res, lo, nl, ta, out, outcomes, prs, Ynat, tgrid, t0n, direction,
+                                          event_info, t_end, success_msg)
+            else:
+                mine = _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, event_info, cap,
+                                       t_end, success_msg)
+            with lock:
+                handed.extend(mine)
+                done[0] += hi - lo - len(mine)
+                if progress is not None:
+                    progress(done[0], k)
+
+    over_threads(work, n_threads)
+    return sorted(handed)
+
+
+def over_threads(work, n_threads) -> None:
+    """``work(j)`` for j < ``n_threads``: in this thread when there is one, else over a pool of threads."""
+    if n_threads <= 1:
+        work(0)
+    else:
+        with ThreadPoolExecutor(max_workers=n_threads) as pool:
+            list(pool.map(work, range(n_threads)))
+
+
+def _record_batch(res, lo, hi, ta, out, prs, Ynat, tgrid, t0n, simple, success_msg) -> None:
+    """Record members lo..hi-1, every lane of which reached the final time."""
+    nl = hi - lo
+    state = ta.state
+    res.y_reached[lo:hi] = state.T[:nl]
+    if simple:
+        res.y[lo:hi, 0] = Ynat[lo:hi]
+        res.y[lo:hi, 1] = state.T[:nl]
+    else:
+        res.y[lo:hi] = np.transpose(out[:, :, :nl], (2, 0, 1))
+        res.y[lo:hi, -1] = state.T[:nl]
+        if tgrid[0] == t0n:
+            res.y[lo:hi, 0] = Ynat[lo:hi]
+    res.rows[lo:hi] = len(tgrid)
+    res.status[lo:hi] = "success"
+    res.message[lo:hi] = [success_msg] * nl
+    res.t_reached[lo:hi] = [tgrid[-1]] * nl
+    res.steps[lo:hi] = [prs[lane][3] for lane in range(nl)]
+
+
+def _record_grid_lanes(res, lo, nl, ta, out, outcomes, prs, Ynat, tgrid, t0n, direction, event_info, t_end,
+                       success_msg) -> list:
+    """A grid run that one lane stopped: record the lanes that finished or met a terminal event; return the
+    members it interrupted (or that became non-finite), to run again as single runs."""
+    mine = []
+    for lane in range(nl):
+        i = lo + lane
+        kind = outcome_kind(outcomes[lane], len(event_info))
+        if kind == "interrupted" and ta.time[lane] == t_end:
+            kind = "done"  # finished while the batch ran out of steps
+        if kind in ("interrupted", "non_finite"):
+            mine.append(i)
+            continue
+        _record_lane(res, i, lane, kind, ta, out, Ynat, tgrid, t0n, direction, False, event_info, prs[lane][3],
+                     success_msg)
+    return mine

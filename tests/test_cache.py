@@ -1,0 +1,152 @@
+"""The one cache (lieseries.cache): clearing it makes every build a scene's own, its bounds and eviction order,
+and the pool of integrator copies shared by single runs and ensembles."""
+
+import math
+import threading
+
+import heyoka as hy
+import numpy as np
+import pytest
+
+import lieseries as ls
+from lieseries.ensemble import build_batch_integrator
+from lieseries.taylor import build_integrator, clear_cache
+
+
+def _oscillator():
+    """q' = p, p' = -q: q(t) = q0 cos t + p0 sin t, p(t) = p0 cos t - q0 sin t (compiles in milliseconds)."""
+    q, p = hy.make_vars("q", "p")
+    return ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], (p * p + q * q) / 2, name="oscillator")
+
+
+def _exact(y0, t):
+    q0, p0 = y0
+    return np.array([q0 * math.cos(t) + p0 * math.sin(t), p0 * math.cos(t) - q0 * math.sin(t)])
+
+
+def test_a_repeated_call_after_clear_cache_reports_its_own_build():
+    # a scene run clears the cache so that the build times it reports are its own: a call repeated from earlier
+    # work (memoised) must build again, not report the earlier build as cached
+    osc = _oscillator()
+    y0 = np.array([1.0, 0.5])
+    first = ls.integrate(osc, y0, 2.0)
+    again = ls.integrate(osc, y0, 2.0)
+    assert again.stats.cached
+    clear_cache()
+    after = ls.integrate(osc, y0, 2.0)
+    assert not after.stats.cached and after.stats.build_time > 0
+    for sol in (first, again, after):
+        assert sol.status == "success"
+        np.testing.assert_allclose(np.asarray(sol.y[-1], dtype=float), _exact(y0, 2.0), rtol=0, atol=1e-13)
+
+
+def test_clear_cache_forgets_the_ensemble_integrators_too():
+    osc = _oscillator()
+    ta, build, _ = build_batch_integrator(osc, batch_size=2)
+    assert build_batch_integrator(osc, batch_size=2)[1] == 0.0  # cached
+    clear_cache()
+    ta2, build2, _ = build_batch_integrator(osc, batch_size=2)
+    assert build2 > 0 and ta2 is not ta
+    Y0 = np.array([[1.0, 0.0], [0.0, 1.0], [0.3, -0.2]])
+    sol = ls.integrate(osc, Y0, 1.5, batch_size=2)
+    for i in range(3):
+        np.testing.assert_allclose(np.asarray(sol.y_reached[i], dtype=float), _exact(Y0[i], 1.5), rtol=0, atol=1e-13)
+
+
+def test_run_scene_starts_from_an_empty_cache(monkeypatch):
+    from lieseries import cache, run
+
+    seen = []
+    def plan(scene, quick):  # what run_scene does first after clearing: record the cache, stop
+        seen.append(dict(cache.info()))
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(run, "load_scene", lambda scene: scene)
+    monkeypatch.setattr(run, "effective_plan", plan)
+    ls.integrate(_oscillator(), np.array([1.0, 0.0]), 1.0)  # something cached
+    assert cache.info()["taylor.integrators"] >= 1
+    with pytest.raises(RuntimeError, match="stop"):
+        run.run_scene("unused")
+    assert seen  # the plan was asked for, after the clear
+    assert all(v == 0 for k, v in seen[0].items() if k != "cost") and seen[0]["cost"] == 0
+
+
+def test_a_region_is_bounded_and_evicts_the_least_recently_used():
+    from lieseries import cache
+
+    evicted = []
+    reg = cache.region("test.lru", 3, on_evict=evicted.append)
+    reg.clear()
+    evicted.clear()
+    for k in "abc":
+        assert reg.put(k, k.upper()) == k.upper()
+    assert reg.put("a", "other") == "A"  # a key already cached keeps its value
+    reg.touch("a")  # a is now the most recently used: b is the oldest
+    reg.put("d", "D")
+    assert evicted == ["B"] and sorted(reg.data) == ["a", "c", "d"] and reg.get("b") is None
+    reg.put("e", "E")
+    assert evicted == ["B", "C"] and len(reg) == 3
+    reg.clear()
+    assert len(reg) == 0 and cache.info()["test.lru"] == 0
+
+
+def test_the_cache_is_bounded_by_build_cost(monkeypatch):
+    from lieseries import cache
+
+    cache.clear()
+    monkeypatch.setattr(cache, "MAX_COST", 10.0)
+    reg = cache.region("test.cost", 100)
+    cheap = cache.region("test.cheap", 100)
+    reg.put("x", 1, cost=6.0)
+    cheap.put("free", 0)  # no cost: never evicted for cost
+    reg.put("y", 2, cost=3.0)
+    reg.touch("x")  # x used last: y is the least recently used costly entry
+    reg.put("z", 3, cost=4.0)  # 13 s > 10 s: y goes
+    assert reg.get("y") is None and reg.get("x") == 1 and reg.get("z") == 3 and cheap.get("free") == 0
+    assert cache.info()["cost"] == pytest.approx(10.0)
+    cache.clear()
+    assert cache.info()["cost"] == 0 and len(reg) == 0 and len(cheap) == 0
+
+
+def test_the_pool_lends_copies_never_the_template_and_drops_them_with_it():
+    from lieseries import cache
+
+    clear_cache()
+    osc = _oscillator()
+    template = build_integrator(osc, "double")[0]
+    ta, free = cache.checkout(template)
+    assert ta is not template
+    ta.time, ta.state[:] = 0.0, [1.0, 0.0]
+    ta.propagate_until(1.0)
+    np.testing.assert_allclose(ta.state, _exact((1.0, 0.0), 1.0), rtol=0, atol=1e-13)
+    assert template.time == 0.0  # the template never ran
+    cache.release(ta, free)
+    assert cache.checkout(template)[0] is ta  # the copy comes back
+    lent = [cache.checkout(template) for _ in range(cache.MAX_FREE + 3)]  # more runs at once than free copies
+    assert len({id(c) for c, _ in lent}) == len(lent) and all(c is not template for c, _ in lent)
+    for c, fr in lent:
+        cache.release(c, fr)
+    assert len(cache.free_copies(template)) == cache.MAX_FREE  # the extra copies are not kept
+    clear_cache()
+    assert cache.free_copies(template) == [] and cache.info()["pooled"] == 0
+
+
+def test_threads_share_the_pool_and_get_the_serial_answer():
+    clear_cache()
+    osc = _oscillator()
+    rows = [np.array([math.cos(0.1 * i), math.sin(0.1 * i)]) for i in range(12)]
+    serial = [np.asarray(ls.integrate(osc, y, 3.0).y[-1], dtype=float) for y in rows]
+    out = [None] * len(rows)
+
+    def work(j):
+        for i in range(j, len(rows), 4):
+            out[i] = np.asarray(ls.integrate(osc, rows[i], 3.0).y[-1], dtype=float)
+
+    threads = [threading.Thread(target=work, args=(j,)) for j in range(4)]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    for i, y in enumerate(rows):
+        assert np.array_equal(out[i], serial[i])  # bit for bit: the same compiled code, a private copy each
+        np.testing.assert_allclose(out[i], _exact(y, 3.0), rtol=0, atol=1e-13)

@@ -1,0 +1,32 @@
+"""The scene estimate prices heyoka runs by the steps they will take: a stiff run stops after a few chunks
+(status step_collapse), a long run that is not stiff takes all its steps. The references are the runs themselves
+(their step counts), not the estimator."""
+
+from fractions import Fraction
+
+import lieseries as ls
+from lieseries.methods.pricing import Pricer, heyoka_step_seconds
+from lieseries.taylor import STIFF_STEPS
+
+
+def _priced_steps(model, y0, t, precision="double"):
+    per, _lower, _basis, _ = Pricer().span(model, y0, {"method": "taylor", "precision": precision}, t, 1)
+    return per / heyoka_step_seconds(precision, len(y0))
+
+
+def test_a_stiff_run_is_priced_at_the_steps_it_takes_before_it_stops():
+    body = ls.DampedEulerPoisson((1, 2, 3), damping=10**5)
+    y0 = body.initial_state(omega=(1, Fraction(1, 10), Fraction(1, 2)))
+    run = ls.integrate(body, y0, t=10, precision="double")
+    assert run.status == "step_collapse"
+    priced = _priced_steps(body, y0, 10)
+    assert run.stats.steps / 3 <= priced <= 3 * run.stats.steps + 100, (priced, run.stats.steps)
+
+
+def test_a_long_run_that_is_not_stiff_is_priced_at_all_its_steps():
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega=(100, 10, 50))  # fast: ~100x the steps per unit time of omega ~ 1
+    per_time = ls.integrate(body, y0, t=1, precision="double").stats.steps  # periodic motion: steps grow with t
+    t = 3 * STIFF_STEPS // per_time + 1
+    priced = _priced_steps(body, y0, t)  # it used to be capped at STIFF_STEPS (an under-estimate)
+    assert per_time * t / 2 <= priced <= 2 * per_time * t, (priced, per_time * t)
