@@ -6,15 +6,19 @@ or an end-of-step check (Lie series) fires when |x_k| falls to half of |x|, the 
 chart of the now-largest coordinate (|x_j| >= |x| / sqrt 3) and the run continues from there. Output rows carry
 the chart they are written in: ``sol.charts``.
 
-The driver is shared by both integrators: it calls the integrator on each chart segment with ``atlas=False``.
+Both integrators share it: the driver loop (:mod:`lieseries.driver`) calls the integrator on each chart segment
+with ``atlas=False``, and the run's budgets ``max_steps`` and ``max_time`` bound the whole run, not each segment.
 """
 
 from __future__ import annotations
 
+import math
+import time as _time
 from dataclasses import replace
 
 import numpy as np
 
+from .driver import Outcome, StepResult, Stop, drive
 from .energy import drift_threshold, energy_exact
 from .precision import to_fraction
 from .solution import ChartRows, Solution, Stats
@@ -27,7 +31,8 @@ MAX_SWITCHES = 100_000
 
 
 def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, energy_tol=None, **kwargs) -> Solution:
-    """Integrate ``model`` (a chart-aware model such as :class:`lieseries.Sphere`) across its atlas.
+    """Integrate ``model`` (a chart-aware model such as :class:`lieseries.Sphere`) across its atlas: the driver
+    loop (:func:`lieseries.driver.drive`) with a whole run of ``integrator`` in one chart as its step.
 
     Parameters
     ----------
@@ -44,7 +49,8 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, energy_
         up); a change beyond :func:`lieseries.energy.drift_threshold` times the energy scale turns ``success``
         into ``invariant_drift``.
     kwargs :
-        Passed to the integrator on every segment.
+        Passed to the integrator on every segment, except the budgets ``max_steps`` and ``max_time``: they bound
+        the whole run (each segment gets what the ones before it left).
     """
     if not hasattr(model, "for_chart"):
         raise ValueError(
@@ -53,56 +59,97 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, energy_
     if dense:
         raise ValueError("`dense` output is not available with `atlas=True`; pass the output times as `t` instead")
     z0 = model.check_state(y0, "y0")
-    grid, direction, t0f = parse_times(t, t0, max_time=kwargs.get("max_time"))
-    switch = model.ATLAS_SWITCH
+    max_steps, max_time = kwargs.pop("max_steps", None), kwargs.pop("max_time", None)
+    grid, direction, t0f = parse_times(t, t0, max_time=max_time)
+    start = _time.perf_counter()
     # start in the best chart for y0
     chart = model.best_chart(z0)
     z = model.change_chart(z0, chart, bits) if chart != model.chart else list(z0)
-    current = model.for_chart(chart, edge=switch)
+    engine = _Segments(integrator, model, chart, grid, t if direction == 0 else None, direction, bits, max_steps,
+                       max_time, start, kwargs)
+    if direction == 0:  # nothing to integrate: one segment gives the row (and says so)
+        res = engine.step(t0f, z, t0f)
+        out = Outcome(res.stop.status if res.stop is not None else "success", "", res.t, res.z, res.steps,
+                      rows_t=[g for g, _ in res.rows], rows_y=[y for _, y in res.rows],
+                      rows_chart=[engine.chart] * len(res.rows))
+        out.message = (res.stop.message if res.stop is not None else engine.sol.message) + " (0 chart switches)"
+    else:
+        def guard(out):
+            if energy_tol is not None:
+                out.status, out.message = _energy_guard(model, z0, engine.current, out.z, bits, energy_tol,
+                                                        out.steps, out.switches, out.status, out.message)
 
-    rows_t, rows_y, rows_c = [], [], []
-    tcur = t0f
-    stats = None
-    switches = 0
-    events = None
-    sol = None
-    first = True
-    while True:
-        if direction == 0:
-            remaining = t
+        out = drive(engine, t0f, z, [(g, g) for g in grid], direction=direction,
+                    max_steps=max_steps if max_steps is not None else math.inf, max_time=max_time, start=start,
+                    atlas=True, max_switches=MAX_SWITCHES + 1, guard=guard)
+    sol = engine.sol
+    stats = replace(engine.stats, extra={**engine.stats.extra, "chart_switches": out.switches})
+    y = np.stack(out.rows_y) if out.rows_y else np.empty((0, model.dimension), dtype=sol.y.dtype)
+    tarr = np.array([float(v) for v in out.rows_t])
+    return Solution(tarr, ChartRows(y, out.rows_chart), stats, out.status, out.message,
+                    t_reached=sol.t_reached, t_requested=grid, y_reached=ChartRows(sol.y_reached, engine.chart),
+                    charts=np.array(out.rows_chart, dtype=int), chart_reached=engine.chart, events=engine.events)
+
+
+class _Segments:
+    """The step of an atlas run for the driver: a whole run of the integrator in one chart, up to the chart's edge
+    (or the end), within what the budgets have left; its rows come evaluated (``emits_rows``)."""
+
+    emits_rows = True
+
+    def __init__(self, integrator, model, chart, grid, t_arg, direction, bits, max_steps, max_time, start, kwargs):
+        self.integrator, self.model, self.grid, self.t_arg, self.direction, self.bits = (
+            integrator, model, grid, t_arg, direction, bits)
+        self.max_steps, self.max_time, self.start, self.kwargs = max_steps, max_time, start, kwargs
+        self.current = model.for_chart(chart, edge=model.ATLAS_SWITCH)
+        self.chart = chart
+        self.first = True
+        self.steps = 0
+        self.switches = 0
+        self.stats = self.events = self.sol = None
+
+    def step(self, t, z, t_end):
+        if self.t_arg is not None:
+            remaining = self.t_arg
         else:
-            remaining = [g for g in grid if (g - tcur) * direction > 0 or (first and g == tcur)]
-        if direction != 0 and not remaining:
-            status, message = "success", f"Reached t = {float(grid[-1]):.17g}."
-            break
-        sol = integrator(current, z, t=remaining, t0=tcur, atlas=False, **kwargs)
-        first = False
-        stats = _merge(stats, sol.stats)
-        events = _merge_events(events, sol.events, current.chart)
-        rows_t.extend(to_fraction(v) for v in sol.t)
-        rows_y.extend(sol.y)
-        rows_c.extend([current.chart] * len(sol.t))
-        if sol.status != "chart_edge":
-            status, message = sol.status, sol.message
-            break
-        if sol.t_reached == tcur or switches >= MAX_SWITCHES:
-            status = "event"
-            message = f"The atlas run made no progress at t = {float(tcur):.17g} after {switches} chart switches."
-            break
-        tcur = sol.t_reached
-        chart = model.best_chart(sol.y_reached)
-        z = current.change_chart(sol.y_reached, chart, bits)
-        current = model.for_chart(chart, edge=switch)
-        switches += 1
-    if status == "success" and direction != 0 and energy_tol is not None:
-        status, message = _energy_guard(model, z0, current, sol.y_reached, bits, energy_tol, stats.steps,
-                                        switches, status, message)
-    stats = replace(stats, extra={**stats.extra, "chart_switches": switches})
-    y = np.stack(rows_y) if rows_y else np.empty((0, model.dimension), dtype=sol.y.dtype)
-    tarr = np.array([float(v) for v in rows_t])
-    return Solution(tarr, ChartRows(y, rows_c), stats, status, f"{message} ({switches} chart switches)",
-                    t_reached=sol.t_reached, t_requested=grid, y_reached=ChartRows(sol.y_reached, current.chart),
-                    charts=np.array(rows_c, dtype=int), chart_reached=current.chart, events=events)
+            remaining = [g for g in self.grid if (g - t) * self.direction > 0 or (self.first and g == t)]
+        budget = {}
+        if self.max_steps is not None:
+            budget["max_steps"] = self.max_steps - self.steps
+        if self.max_time is not None:
+            budget["max_time"] = max(self.max_time - (_time.perf_counter() - self.start), 1e-6)
+        sol = self.integrator(self.current, z, t=remaining, t0=t, atlas=False, **budget, **self.kwargs)
+        self.first = False
+        self.sol = sol
+        self.steps += sol.stats.steps
+        self.stats = _merge(self.stats, sol.stats)
+        self.events = _merge_events(self.events, sol.events, self.chart)
+        times = remaining if isinstance(remaining, list) else [to_fraction(v) for v in sol.t]
+        rows = list(zip(times, sol.y))
+        stop = None
+        if sol.status == "chart_edge":
+            if sol.t_reached == t or self.switches >= MAX_SWITCHES:
+                stop = Stop("event", message=f"The atlas run made no progress at t = {float(t):.17g} after "
+                            f"{self.switches} chart switches.")
+            else:
+                stop = Stop("chart_edge", message=sol.message)
+        elif (sol.status == "step_budget" and self.max_steps is not None
+              or sol.status == "time_budget" and self.max_time is not None):
+            stop = Stop(sol.status)  # the run's budget ran out: the table's message, with the budget as given
+        elif sol.status != "success":
+            stop = Stop(sol.status, message=sol.message)
+        else:  # the run is done (heyoka reaches the final time as rounded in its format: t_reached may differ)
+            stop = Stop("success")
+        return StepResult(sol.t_reached, sol.y_reached, rows=rows, steps=sol.stats.steps, stop=stop)
+
+    def switch_chart(self, t, z):
+        """The state at the chart's edge written exactly in the chart of its largest coordinate."""
+        chart = self.model.best_chart(z)
+        z = self.current.change_chart(z, chart, self.bits)
+        self.current = self.model.for_chart(chart, edge=self.model.ATLAS_SWITCH)
+        self.chart = chart
+        self.switches += 1
+        return z
 
 
 def _energy_guard(model, z0, last, y_end, bits, tol, steps, switches, status, message):

@@ -54,6 +54,7 @@ from .precision import (
     to_fraction,
     warn_if_coarse,
 )
+from .driver import StepResult, Stop, drive
 from .lie.jets import DeadlineExceeded
 from .solution import ChartRows, Solution, Stats
 from .timegrid import parse_times
@@ -876,11 +877,6 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     start = _time.perf_counter()
     deadline = None if max_time is None else start + max_time
 
-    def budget_message():
-        return (f"The wall-time budget `max_time` = {max_time:g} s ran out at t = {float(tcur):.17g} (checked between "
-                f"and inside the steps: one step of order {N} at {dps} digits may take longer); every row up to here "
-                "is a proven enclosure.")
-
     with _working_precision(bits, cap=max(N, BOX_ORDER + 1) + DEFECT_EXTRA + 4) as flint:
         arb = flint.arb
         z = _initial_balls(system, y0, ps.dimension, flint)
@@ -894,207 +890,189 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                 "the run would stop at once with validation_failed. Pass a larger `max_width` to follow so wide a "
                 "set (its enclosures widen fast and the steps shrink), or give a narrower uncertainty"
             )
-        n = ps.dimension
         current = system
-        switches = 0
         if atlas:
             current = system.for_chart(system.chart, edge=system.ATLAS_SWITCH)
             best = system.best_chart([_exact_mid(v) for v in z])
             if best != system.chart:
                 z, current = _switch_chart(system, current, best, z, flint), system.for_chart(best, edge=system.ATLAS_SWITCH)
-        ps, prog, pars, consts, events, ev_consts, jprog, jconsts = _chart_context(current, flint)
-        stepper = _jet_stepper(ps, N, dps)
-        ev_pars = pars
-        _check_regular(prog, z, pars, consts, flint)
-        # the set of states is m + A r: a centre point, a matrix (the identity to start) and a box around 0
-        m, A, r = _lohner_set(z, flint)
-        rows_t, rows_y, widths, tails, rows_c = [], [], [], [], []
-        tcur = t0f
-        status, message = "success", ""
-        steps = 0
-        pending = [g for g in grid]
-        if pending and pending[0] == t0f:
-            rows_t.append(t0f)
-            rows_c.append(getattr(current, "chart", None))
-            rows_y.append(list(z))
-            widths.append(max(_float_up(zi.rad()) for zi in z))
-            pending.pop(0)
-        # per-step remainder bound, relative: far below 10^-dps, because every step's remainder is then carried
-        # (and widened by the wrapping effect) to the end of the run (a ball: 10^-dps underflows a float)
-        unit = arb(10) ** -dps
-        rem_tol = arb(REMAINDER_FACTOR) * unit
-        t_end = grid[-1]
         # the shortest step tried: 2^-40 of the run's time span (a time, whatever the size of the state)
-        h_min = float(abs(t_end - t0f)) * 2.0**-40
-        while direction and (t_end - tcur) * direction > 0:
-            if steps >= max_steps:
-                status, message = "step_budget", f"The step budget max_steps = {max_steps} ran out at t = {float(tcur):.17g}."
-                break
-            if deadline is not None and _time.perf_counter() > deadline:
-                status, message = "time_budget", budget_message()
-                break
-            scale = max([1.0] + [abs(float(zi.mid())) for zi in z])
-            tol = rem_tol * scale
-            wide = any(zi.rad() > unit * scale for zi in z)  # wider than 10^-dps of the state's size
-            pieces = 2 * JACOBIAN_PIECES if wide else JACOBIAN_PIECES
-            try:
-                C, jets = _centre_polynomial(stepper, prog, m, pars, consts, N, flint,
-                                       mpmath.mpf(float(abs(t_end - tcur))), deadline)  # centre
-                g = _defect_coefficients(prog, C, pars, consts, flint)
-                CZ = _taylor(prog, z, pars, consts, BOX_ORDER, flint, bits=64)  # from the whole enclosure
-            except DeadlineExceeded:
-                status, message = "time_budget", budget_message()
-                break
-            except _Singular as e:
-                # the enclosure of the state itself reaches a singularity of the field: nothing beyond is proved
-                status = "validation_failed"
-                message = (f"Validation failed at t = {float(tcur):.17g}: the vector field cannot be evaluated on "
-                           f"the enclosure of the state ({e}): the solution is at or near a singularity of the "
-                           f"field (widest ball {max(float(zi.rad()) for zi in z):.3g}); every row up to here is "
-                           "a proven enclosure.")
-                break
-            left = abs(t_end - tcur)
-            h_f = min(_step_estimate(g, N, tol, flint), float(left))
-            proved = None
-            event_hit = None
-            out_of_time = False
-            h_event_start = h_f
-            for _attempt in range(60):
-                if not (h_f > h_min or h_f >= float(left)):
-                    break
-                if deadline is not None and _time.perf_counter() > deadline:
-                    out_of_time = True
-                    break
-                h = left if h_f >= float(left) else Fraction(math.floor(h_f * 2**50), 2**50)
-                if h <= 0:
-                    break
-                hs = h * direction
-                hb = arb(flint.fmpq(hs.numerator, hs.denominator))
-                span = hb / 2 + arb(0, abs(hb) / 2)  # the ball [0, h] (or [h, 0])
-                got = _prove_step(prog, jprog, CZ, C, g, pars, consts, jconsts, span, flint,
-                                  majorant=(jets, h, ps.parameter_values) if jets is not None else None)
-                tail, B, D = got if got is not None else (None, None, None)
-                hit = _event_in(events, B, ev_pars, ev_consts, arb(1)) if events and got is not None else None
-                if hit is not None:
-                    # the step's box may reach the event: shorten the step towards it, and stop when that no
-                    # longer helps (the event is closer than 1/1000 of the step)
-                    event_hit = hit
-                    if float(h) < 1e-3 * h_event_start:
-                        break
-                    h_f = float(h) / 2
-                    continue
-                J = _flow_jacobian(jprog, CZ, D, pars, jconsts, hb, flint, pieces) if got is not None else None
-                bounds_h = tail(hb) if J is not None else None
-                worst = max(bounds_h, key=float) if J is not None else None
-                if J is not None and worst <= tol:
-                    proved = (h, hs, tail, D, J, bounds_h)
-                    break
-                # the remainder scales like h^(N+1): aim just below the tolerance (halve when unproved)
-                shrink = 0.5 if worst is None or not worst.is_finite() else min(0.9 * _root(tol / worst, N + 1), 0.9)
-                h_f = float(h) * shrink
-            if proved is None and out_of_time:
-                status, message = "time_budget", budget_message()
-                break
-            if proved is None and event_hit is not None and atlas and switches < MAX_SWITCHES:
-                # the chart is ending: rewrite the enclosure in the chart of the largest coordinate (in ball
-                # arithmetic: the box of the map's values over the box) and go on from there
-                best = system.best_chart([_exact_mid(v) for v in z])
-                if best != current.chart:
-                    z = _switch_chart(system, current, best, z, flint)
-                    current = system.for_chart(best, edge=system.ATLAS_SWITCH)
-                    ps, prog, pars, consts, events, ev_consts, jprog, jconsts = _chart_context(current, flint)
-                    stepper = _jet_stepper(ps, N, dps)
-                    ev_pars = pars
-                    m, A, r = _lohner_set(z, flint)
-                    switches += 1
-                    continue
-            if proved is None and event_hit is not None:
-                status = event_hit[0]
-                message = (f"Stopped at t = {float(tcur):.17g}: {event_hit[1]} within the next step (every row up "
-                           "to here is a proven enclosure; `atlas=True` switches charts instead).")
-                break
-            if proved is None:
-                status = "validation_failed"
-                message = (f"Validation failed at t = {float(tcur):.17g}: no step down to {h_min:.3g} "
-                           "has an a priori enclosure with a small enough remainder (the field is singular near "
-                           f"the enclosure, or the enclosure is too wide: widest ball "
-                           f"{max(float(zi.rad()) for zi in z):.3g}).")
-                break
-            h, hs, tail, D, J, bounds_h = proved
-            stepper.h_last = float(h)  # the next centre's jets hold what a step of about this length needs
-            tnew = tcur + hs
-
-            def point(tau: Fraction):
-                """Enclosure at tcur + tau of the solution from the centre m: its polynomial plus the bound of
-                their difference."""
-                ta = arb(flint.fmpq(tau.numerator, tau.denominator))
-                bounds = bounds_h if tau == hs else tail(ta)  # the step's own end: bounded when it was proved
-                out = [p + arb(0, e) for p, e in zip(_horner(C, ta), bounds)]
-                return out, max(float(e) for e in bounds), ta
-
-            def whole(phi, JA):
-                """The box of phi + JA r: every solution from the set m + A r (mean-value theorem)."""
-                spread = JA * r
-                return [phi[i] + spread[i, 0] for i in range(n)]
-
-            while pending and (pending[0] - tnew) * direction <= 0:
-                phi_k, _, ta = point(pending[0] - tcur)
-                Jk = J if pending[0] == tnew else _flow_jacobian(jprog, CZ, D, pars, jconsts, ta, flint, pieces)
-                if Jk is None:  # the field's Jacobian cannot be bounded over the shorter span: stop here
-                    status = "validation_failed"
-                    message = (f"Validation failed at t = {float(tcur):.17g}: the flow's Jacobian up to the output "
-                               f"time {float(pending[0]):.17g} cannot be bounded (the field is singular or too "
-                               "steep near the enclosure); every row up to here is a proven enclosure.")
-                    break
-                tk = pending.pop(0)
-                yk = whole(phi_k, Jk * A)
-                rows_t.append(tk)
-                rows_c.append(getattr(current, "chart", None))
-                rows_y.append(yk)
-                widths.append(max(_float_up(v.rad()) for v in yk))
-            if status != "success":
-                break
-            phi, tail_h, _ = point(hs)
-            JA = J * A
-            z = whole(phi, JA)
-            # Lohner's QR step: the new set is m' + A' r' with m' the centre of phi, A' the orthogonal factor of
-            # mid(J A) (exact floats) and r' = (A'^-1 J A) r + A'^-1 (phi - m'), A'^-1 enclosed in ball arithmetic
-            m = [arb(v.mid()) for v in phi]
-            Q, _ = np.linalg.qr(np.array([[float(JA[i, j].mid()) for j in range(n)] for i in range(n)]))
-            A = flint.arb_mat([[float(Q[i, j]) for j in range(n)] for i in range(n)])
-            Ainv = A.inv()
-            r = (Ainv * JA) * r + Ainv * flint.arb_mat([[phi[i] - m[i]] for i in range(n)])
-            tails.append(tail_h)
-            tcur = tnew
-            steps += 1
-            cap = width_cap if width_cap is not None else arb(scale) / 1000
-            widest = max(z, key=lambda v: float(v.rad()))
-            if not all(v.is_finite() for v in z) or widest.rad() > cap:
-                status = "validation_failed"
-                message = (f"Validation failed at t = {float(tcur):.17g}: the widest ball has radius "
-                           f"{float(widest.rad()):.3g}, beyond max_width ({float(cap):.3g}); the enclosures up to "
-                           "here are guaranteed.")
-                break
-        if status == "success":
-            message = f"Reached t = {float(t_end):.17g}; every row is a proven enclosure."
+        engine = _ValidatedEngine(system, current, z, N, dps, flint, width_cap, deadline,
+                                  float(abs(grid[-1] - t0f)) * 2.0**-40, direction, atlas)
+        out = drive(engine, t0f, z, [(g, g) for g in grid], direction=direction, max_steps=max_steps,
+                    max_time=max_time, start=start, kept="Every row up to here is a proven enclosure.",
+                    atlas=atlas, max_switches=MAX_SWITCHES, reached="; every row is a proven enclosure")
+        message = out.message
+        widths = [max(_float_up(v.rad()) for v in row) for row in out.rows_y]
+        n = engine.ps.dimension
         stats = Stats(method="validated lie series (arb)", precision=f"{dps} dps", tol=10.0 ** -dps, order=N,
-                      steps=steps, run_time=_time.perf_counter() - start,
-                      extra={"widths": widths, "tail_bounds": tails, "max_width": max(widths) if widths else 0.0,
-                             "chart_switches": switches})
-        y = np.empty((len(rows_y), ps.dimension), dtype=object)
-        for i, row in enumerate(rows_y):
+                      steps=out.steps, run_time=out.run_time,
+                      extra={"widths": widths, "tail_bounds": engine.tails,
+                             "max_width": max(widths) if widths else 0.0, "chart_switches": out.switches})
+        y = np.empty((len(out.rows_y), n), dtype=object)
+        for i, row in enumerate(out.rows_y):
             for j, v in enumerate(row):
                 y[i, j] = v
-        y_reached = np.empty(ps.dimension, dtype=object)
-        for j, v in enumerate(z):
+        y_reached = np.empty(n, dtype=object)
+        for j, v in enumerate(out.z):
             y_reached[j] = v
+    tarr = np.array([float(v) for v in out.rows_t])
     if atlas:
-        return Solution(np.array([float(v) for v in rows_t]), ChartRows(y, rows_c), stats, status,
-                        f"{message} ({switches} chart switches)", t_reached=tcur, t_requested=grid,
-                        y_reached=ChartRows(y_reached, current.chart), charts=np.array(rows_c, dtype=int),
-                        chart_reached=current.chart)
-    return Solution(np.array([float(v) for v in rows_t]), y, stats, status, message, t_reached=tcur,
-                    t_requested=grid, y_reached=y_reached)
+        return Solution(tarr, ChartRows(y, out.rows_chart), stats, out.status, message, t_reached=out.t,
+                        t_requested=grid, y_reached=ChartRows(y_reached, engine.chart),
+                        charts=np.array(out.rows_chart, dtype=int), chart_reached=engine.chart)
+    return Solution(tarr, y, stats, out.status, message, t_reached=out.t, t_requested=grid, y_reached=y_reached)
+
+
+class _ValidatedEngine:
+    """One validated step for :func:`lieseries.driver.drive`: the a priori enclosure and remainder bound of the
+    step (shortened until proved), the rows inside it, Lohner's QR update of the set m + A r."""
+
+    def __init__(self, system, current, z, N, dps, flint, width_cap, deadline, h_min, direction, atlas):
+        self.system, self.N, self.dps, self.flint = system, N, dps, flint
+        self.width_cap, self.deadline, self.h_min, self.direction, self.atlas = (
+            width_cap, deadline, h_min, direction, atlas)
+        self.tails = []
+        arb = flint.arb
+        self.unit = arb(10) ** -dps
+        # per-step remainder bound, relative: far below 10^-dps, because every step's remainder is then carried
+        # (and widened by the wrapping effect) to the end of the run (a ball: 10^-dps underflows a float)
+        self.rem_tol = arb(REMAINDER_FACTOR) * self.unit
+        self._enter(current, z)
+        _check_regular(self.prog, z, self.pars, self.consts, flint)
+
+    def _enter(self, current, z):
+        """Work in the chart of ``current`` from the balls ``z``."""
+        self.current = current
+        self.chart = getattr(current, "chart", None)
+        (self.ps, self.prog, self.pars, self.consts, self.events, self.ev_consts, self.jprog,
+         self.jconsts) = _chart_context(current, self.flint)
+        self.stepper = _jet_stepper(self.ps, self.N, self.dps)
+        # the set of states is m + A r: a centre point, a matrix (the identity to start) and a box around 0
+        self.m, self.A, self.r = _lohner_set(z, self.flint)
+
+    def switch_chart(self, t, z):
+        """The chart is ending: the enclosure rewritten in the chart of the largest coordinate (in ball
+        arithmetic: the box of the map's values over the box), or None when that is the current chart."""
+        system = self.system
+        best = system.best_chart([_exact_mid(v) for v in z])
+        if best == self.current.chart:
+            return None
+        z = _switch_chart(system, self.current, best, z, self.flint)
+        self._enter(system.for_chart(best, edge=system.ATLAS_SWITCH), z)
+        return z
+
+    def step(self, tcur, z, t_end):
+        flint, N, direction = self.flint, self.N, self.direction
+        arb = flint.arb
+        prog, pars, consts, jprog, jconsts = self.prog, self.pars, self.consts, self.jprog, self.jconsts
+        n = len(z)
+        scale = max([1.0] + [abs(float(zi.mid())) for zi in z])
+        tol = self.rem_tol * scale
+        wide = any(zi.rad() > self.unit * scale for zi in z)  # wider than 10^-dps of the state's size
+        pieces = 2 * JACOBIAN_PIECES if wide else JACOBIAN_PIECES
+        try:
+            C, jets = _centre_polynomial(self.stepper, prog, self.m, pars, consts, N, flint,
+                                         mpmath.mpf(float(abs(t_end - tcur))), self.deadline)  # centre
+            g = _defect_coefficients(prog, C, pars, consts, flint)
+            CZ = _taylor(prog, z, pars, consts, BOX_ORDER, flint, bits=64)  # from the whole enclosure
+        except DeadlineExceeded:
+            raise Stop("time_budget", note=" (inside a step)") from None
+        except _Singular as e:
+            # the enclosure of the state itself reaches a singularity of the field: nothing beyond is proved
+            raise Stop("validation_failed", f"the vector field cannot be evaluated on the enclosure of the state "
+                       f"({e}): the solution is at or near a singularity of the field (widest ball "
+                       f"{max(float(zi.rad()) for zi in z):.3g})") from None
+        left = abs(t_end - tcur)
+        h_f = min(_step_estimate(g, N, tol, flint), float(left))
+        proved = None
+        event_hit = None
+        h_event_start = h_f
+        for _attempt in range(60):
+            if not (h_f > self.h_min or h_f >= float(left)):
+                break
+            if self.deadline is not None and _time.perf_counter() > self.deadline:
+                raise Stop("time_budget", note=" (inside a step)")
+            h = left if h_f >= float(left) else Fraction(math.floor(h_f * 2**50), 2**50)
+            if h <= 0:
+                break
+            hs = h * direction
+            hb = arb(flint.fmpq(hs.numerator, hs.denominator))
+            span = hb / 2 + arb(0, abs(hb) / 2)  # the ball [0, h] (or [h, 0])
+            got = _prove_step(prog, jprog, CZ, C, g, pars, consts, jconsts, span, flint,
+                              majorant=(jets, h, self.ps.parameter_values) if jets is not None else None)
+            tail, B, D = got if got is not None else (None, None, None)
+            hit = (_event_in(self.events, B, pars, self.ev_consts, arb(1)) if self.events and got is not None
+                   else None)
+            if hit is not None:
+                # the step's box may reach the event: shorten the step towards it, and stop when that no
+                # longer helps (the event is closer than 1/1000 of the step)
+                event_hit = hit
+                if float(h) < 1e-3 * h_event_start:
+                    break
+                h_f = float(h) / 2
+                continue
+            J = _flow_jacobian(jprog, CZ, D, pars, jconsts, hb, flint, pieces) if got is not None else None
+            bounds_h = tail(hb) if J is not None else None
+            worst = max(bounds_h, key=float) if J is not None else None
+            if J is not None and worst <= tol:
+                proved = (h, hs, tail, D, J, bounds_h)
+                break
+            # the remainder scales like h^(N+1): aim just below the tolerance (halve when unproved)
+            shrink = 0.5 if worst is None or not worst.is_finite() else min(0.9 * _root(tol / worst, N + 1), 0.9)
+            h_f = float(h) * shrink
+        if proved is None and event_hit is not None:
+            # the driver switches charts (atlas) or stops here
+            raise Stop(event_hit[0], f"{event_hit[1]} within the next step (every row up to here is a proven "
+                       "enclosure; `atlas=True` switches charts instead)")
+        if proved is None:
+            raise Stop("validation_failed", f"no step down to {self.h_min:.3g} has an a priori enclosure with a "
+                       "small enough remainder (the field is singular near the enclosure, or the enclosure is too "
+                       f"wide: widest ball {max(float(zi.rad()) for zi in z):.3g})")
+        h, hs, tail, D, J, bounds_h = proved
+        self.stepper.h_last = float(h)  # the next centre's jets hold what a step of about this length needs
+        tnew = tcur + hs
+        A, r = self.A, self.r
+
+        def point(tau: Fraction):
+            """Enclosure at tcur + tau of the solution from the centre m: its polynomial plus the bound of
+            their difference."""
+            ta = arb(flint.fmpq(tau.numerator, tau.denominator))
+            bounds = bounds_h if tau == hs else tail(ta)  # the step's own end: bounded when it was proved
+            out = [p + arb(0, e) for p, e in zip(_horner(C, ta), bounds)]
+            return out, max(float(e) for e in bounds), ta
+
+        def whole(phi, JA):
+            """The box of phi + JA r: every solution from the set m + A r (mean-value theorem)."""
+            spread = JA * r
+            return [phi[i] + spread[i, 0] for i in range(n)]
+
+        def row(tk):
+            phi_k, _, ta = point(tk - tcur)
+            Jk = J if tk == tnew else _flow_jacobian(jprog, CZ, D, pars, jconsts, ta, flint, pieces)
+            if Jk is None:  # the field's Jacobian cannot be bounded over the shorter span: stop here
+                raise Stop("validation_failed", f"the flow's Jacobian up to the output time {float(tk):.17g} cannot "
+                           "be bounded (the field is singular or too steep near the enclosure)")
+            return whole(phi_k, Jk * A)
+
+        phi, tail_h, _ = point(hs)
+        JA = J * A
+        znew = whole(phi, JA)
+        # Lohner's QR step: the new set is m' + A' r' with m' the centre of phi, A' the orthogonal factor of
+        # mid(J A) (exact floats) and r' = (A'^-1 J A) r + A'^-1 (phi - m'), A'^-1 enclosed in ball arithmetic
+        self.m = [arb(v.mid()) for v in phi]
+        Q, _ = np.linalg.qr(np.array([[float(JA[i, j].mid()) for j in range(n)] for i in range(n)]))
+        self.A = flint.arb_mat([[float(Q[i, j]) for j in range(n)] for i in range(n)])
+        Ainv = self.A.inv()
+        self.r = (Ainv * JA) * r + Ainv * flint.arb_mat([[phi[i] - self.m[i]] for i in range(n)])
+        self.tails.append(tail_h)
+        cap = self.width_cap if self.width_cap is not None else arb(scale) / 1000
+        widest = max(znew, key=lambda v: float(v.rad()))
+        end = None
+        if not all(v.is_finite() for v in znew) or widest.rad() > cap:
+            end = ("validation_failed", f"the widest ball has radius {float(widest.rad()):.3g}, beyond max_width "
+                   f"({float(cap):.3g})", "")
+        return StepResult(tnew, znew, h=h, row=row, stop=end)
 
 
 def midpoints(sol, as_mpf: bool = False) -> np.ndarray:

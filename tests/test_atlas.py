@@ -144,3 +144,48 @@ def test_ensemble_batch_members_get_the_same_energy_verdict_as_single_runs():
     assert single.status == "invariant_drift" or err < 1e-11, (single.status, float(err))
     ens = ls.integrate(s, np.array([y0, y0, y0]), t=R)
     assert list(ens.status) == [single.status] * 3
+
+
+@pytest.mark.parametrize("engine", ["heyoka", "lie"])
+def test_atlas_budget_bounds_the_whole_run_not_each_chart(engine):
+    """``max_steps`` counts every step of an atlas run (it once restarted at each chart switch: 16 steps for a
+    budget of 10); the run stops on the exact great circle at the time it reached."""
+    s = ls.Sphere()
+    if engine == "heyoka":
+        sol = ls.integrate(s, s.initial_state(X0, V0), t=200, atlas=True, max_steps=10)
+        bound = 1e-12
+    else:
+        sol = ls.lie_integrate(s, s.initial_state(X0, V0, precision=200), t=20, dps=20, atlas=True, max_steps=10)
+        bound = 1e-17
+    assert sol.status == "step_budget" and sol.stats.steps == 10, (sol.stats.steps, sol.message)
+    assert sol.stats.extra["chart_switches"] >= 1  # the budget ran out in the second chart
+    assert "`max_steps` = 10" in sol.message
+    x = s.position(sol.y_reached)
+    with mp.workdps(40):
+        xe, _ = exact.sphere(1, X0, V0, to_fraction(sol.t_reached), dps=40)
+        assert max(abs(mpf(a) - b) for a, b in zip(x, xe)) < bound
+
+
+def test_atlas_time_budget_bounds_the_whole_run():
+    """``max_time`` is the whole run's (each chart segment once got it afresh, so a run of many switches went on
+    far beyond it): a budget far below one segment's work stops after the first segment, with its rows on the
+    exact great circle."""
+    s = ls.Sphere()
+    sol = ls.integrate(s, s.initial_state(X0, V0), t=[0, 1, 50], atlas=True, max_time=1e-6)
+    assert sol.status == "time_budget" and "`max_time`" in sol.message, sol.message
+    assert sol.stats.extra["chart_switches"] == 1 and float(sol.t_reached) < 1
+    assert list(sol.t) == [0.0]
+    x = s.position(sol.y_reached)
+    with mp.workdps(40):
+        xe, _ = exact.sphere(1, X0, V0, to_fraction(sol.t_reached), dps=40)
+        assert max(abs(mpf(a) - b) for a, b in zip(x, xe)) < 1e-12
+
+
+def test_atlas_run_to_a_final_time_that_is_not_a_double_ends_there():
+    """t = 2.001 is reached as heyoka rounds it (its t_reached is the double next to 2.001): the run ends there,
+    on the exact great circle, instead of asking for a segment of zero length."""
+    s = ls.Sphere()
+    sol = ls.integrate(s, s.initial_state(X0, V0), t="2.001", atlas=True)
+    assert sol.success and sol.stats.extra["chart_switches"] == 1, sol.message
+    assert len(sol.t) == 2 and sol.t[-1] == 2.001
+    assert position_errors(s, sol, [0, Fraction(2001, 1000)], 40)[-1] < 1e-14

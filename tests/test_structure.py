@@ -66,7 +66,7 @@ def test_layers_point_one_way():
 LAYERS = [
     ("utilities", {"progress", "interrupts", "formatting", "folder", "cache"}),
     ("core", {"precision", "fields", "expr", "poisson", "solution", "events", "timegrid", "balls", "models"}),
-    ("engines", {"energy", "atlas", "ensemble", "taylor", "lie", "exact", "validated"}),
+    ("engines", {"energy", "atlas", "ensemble", "taylor", "lie", "exact", "validated", "driver"}),
     ("methods", {"methods"}),
     ("studies", {"studies"}),
     ("scenes", {"scenes"}),

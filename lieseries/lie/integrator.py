@@ -35,7 +35,7 @@ from fractions import Fraction
 
 import numpy as np
 
-from ..energy import energy_exact, exact_energy_verdict
+from ..driver import StepResult, Stop, drive, energy_guard
 from ..events import resolve_events
 from ..poisson import as_poisson_system
 from ..precision import (
@@ -128,7 +128,6 @@ def lie_integrate(
         one :class:`~lieseries.precision.PrecisionWarning` says so.
     """
     from .fixed import FixedStepper
-    from .jets import DeadlineExceeded
 
     dps = check_dps(dps)
     user_events_arg = events
@@ -178,153 +177,119 @@ def lie_integrate(
     N = N_auto if order is None else check_order(order)
     bits = coarse_bits(ps, y0, dps_to_bits(dps), times=[t, t0])
 
-    prog = ps.program
-    stepper = FixedStepper(prog, pars, N, wdps)  # the jets in fixed-point big integers
+    stepper = FixedStepper(ps.program, pars, N, wdps)  # the jets in fixed-point big integers
     start = _time.perf_counter()
-    estimates, extra = [], {"data_bits": bits}
-    events = _event_checks(model, ps, wdps)
     user_events = resolve_events(user_events_arg, system, ps)
-
     with mp.workdps(wdps):
-        floor = mp.mpf(2) ** (-bits) if bits is not None else mp.mpf(0)
-        user = _UserEvents(user_events, ps, pars) if user_events else None
+        engine = _LieEngine(stepper, N, N_auto if order is not None else None, tolm, wdps, bits,
+                            1 if direction >= 0 else -1, _event_checks(model, ps, wdps),
+                            _UserEvents(user_events, ps, pars) if user_events else None,
+                            None if max_time is None else start + max_time, dense)
         z = [to_mpf(v, ctx=mp_context()) for v in z0]
-        tcur = to_mpf(t0f, ctx=mp_context())
-        tend = to_mpf(grid[-1], ctx=mp_context())
-        sgn = 1 if direction >= 0 else -1
-        out_t, out_y = [], []
-        pending = [(to_mpf(tk, ctx=mp_context()), tk) for tk in grid]
-        segments = [] if dense else None
-        status, message = "success", ""
-        hmin, hmax = mp.inf, mp.mpf(0)
-        nsteps = 0
-
-        def emit_until(limit_t, coeffs, t_start):
-            while pending and (pending[0][0] - limit_t) * sgn <= 0:
-                tk, tkf = pending.pop(0)
-                vals = z if coeffs is None else horner(coeffs, tk - t_start)
-                out_t.append(tkf)
-                out_y.append(list(vals))
-
-        emit_until(tcur, None, tcur)
-        _check_events(events, z)  # records the signs at the start
-        while (tend - tcur) * sgn > 0:
-            if nsteps >= max_steps:
-                status = "step_budget"
-                message = f"The step budget max_steps = {max_steps} ran out at t = {mp.nstr(tcur, 17)}."
-                break
-            if max_time is not None and _time.perf_counter() - start > max_time:
-                status = "time_budget"
-                message = f"The wall-time budget ran out at t = {mp.nstr(tcur, 17)}; raise `max_time`."
-                break
-            try:
-                jet = stepper.expand(z, abs(tend - tcur), deadline=None if max_time is None else start + max_time)
-            except DeadlineExceeded:  # the budget ran out inside the step's expansion
-                status = "time_budget"
-                message = f"The wall-time budget ran out at t = {mp.nstr(tcur, 17)}; raise `max_time`."
-                break
-            except (ValueError, ZeroDivisionError, OverflowError) as exc:
-                status = "non_finite"
-                message = (
-                    f"The series coefficients cannot be computed at t = {mp.nstr(tcur, 17)} ({exc}): the state has "
-                    "left the domain of the equations (or the vector field is singular there). The rows up to this "
-                    "time are kept."
-                )
-                break
-            coeffs, nrm = jet.coefficients, jet.norms
-            if not all(mp.isfinite(c) for c in nrm):
-                status = "non_finite"
-                message = (
-                    f"The series coefficients are non-finite at t = {mp.nstr(tcur, 17)}: the vector field is "
-                    "singular at this state."
-                )
-                break
-            rho = jet.rho  # estimate_radius(nrm), computed once by the stepper
-            tol_abs = tolm * max(mp.mpf(1), nrm[0])
-            h = mp.inf
-            for k in (N - 1, N):
-                if k >= 1 and nrm[k] > 0:
-                    h = min(h, _kth_root(tol_abs / nrm[k], k))
-            h = min(h, rho / 2)
-            if h == mp.inf:  # polynomial solution of degree < N - 1: one step reaches the end
-                h = abs(tend - tcur)
-            h = min(h, abs(tend - tcur), jet.max_step)  # the jets hold what steps up to max_step need
-            # per component: the tolerance is relative to the component's own size over the step (absolute below
-            # 1), not to the largest component -- a momentum of size 1 beside positions of size 1e6 would keep
-            # only tol * 1e6 of its digits, and its error grows into the positions over the run
-            scales = jet.component_scales(h)
-            last = {k: jet.column(k) for k in (N - 1, N) if k >= 1}
-            for k, col in last.items():
-                for c, sc in zip(col, scales):
-                    if c != 0:
-                        h = min(h, _kth_root(tolm * sc / c, k))
-            if h <= abs(tcur) * mp.mpf(10) ** (-wdps + 2) or h == 0:
-                status = "step_collapse"
-                message = (
-                    f"The step size collapsed to {mp.nstr(h, 3)} at t = {mp.nstr(tcur, 17)}: the series' radius "
-                    f"of convergence there is ~{mp.nstr(rho, 3)}; the solution is singular nearby."
-                )
-                break
-            hs = h * sgn
-            pad = [mp.mpf(0)] * (N - 1)  # tail_estimate reads the last two orders
-            err = max(max(tail_estimate(pad + [last[N - 1][i] if N >= 2 else mp.mpf(0), last[N][i]], h, rho) / sc
-                          for i, sc in enumerate(scales)), floor)
-            if nsteps == 0 and order is not None and N < N_auto:
-                _warn_slow_order(N, N_auto, nrm, tol_abs, rho, abs(tend - tcur))
-            znew = jet.horner(hs)
-            tnew = tcur + hs if abs(tend - tcur) != h else tend
-            try:
-                stop = user.step(coeffs, tcur, hs, sgn) if user is not None else None
-            except (ValueError, ZeroDivisionError, OverflowError) as exc:
-                status = "non_finite"
-                message = (
-                    f"An event expression cannot be evaluated in the step after t = {mp.nstr(tcur, 17)} ({exc}): "
-                    "the state leaves its domain there. The rows up to this time are kept."
-                )
-                break
-            if stop is not None:  # a terminal event inside the step: the step ends there
-                hs = stop - tcur
-                h = abs(hs)
-                znew, tnew = horner(coeffs, hs), stop
-            emit_until(tnew, coeffs, tcur)
-            if segments is not None:
-                segments.append((tcur, tnew, coeffs))
-            estimates.append(float(err))
-            ratio = float(h / rho) if rho != mp.inf else 0.0
-            extra["max_step_over_radius"] = max(extra.get("max_step_over_radius", 0.0), ratio)
-            hmin, hmax = min(hmin, h), max(hmax, h)
-            nsteps += 1
-            z, tcur = znew, tnew
-            if progress is not None:
-                progress(float((tcur - to_mpf(t0f, ctx=mp_context())) / (tend - to_mpf(t0f, ctx=mp_context()))))
-            if stop is not None:
-                status, message = "event", f"Stopped at t = {mp.nstr(tcur, 17)}: {user.fired}."
-                break
-            hit = _check_events(events, z)
-            if hit is not None:
-                status, msg = hit
-                message = f"Stopped at t = {mp.nstr(tcur, 17)} (end of the step that crossed it): {msg}."
-                break
-        if status == "success":
-            message = f"Reached t = {mp.nstr(tend, 17)}."
-            if direction != 0 and ps.is_hamiltonian:
-                # the energy guard of every run: H at the end against H(y0) (lieseries.energy.drift_threshold)
-                e0, scale = energy_exact(ps, z0, dps_to_bits(wdps))
-                e1, _ = energy_exact(ps, export_mpf(list(z)), dps_to_bits(wdps))
-                status, message = exact_energy_verdict(e0, e1, scale, tolm, status, message, nsteps)
+        tstart = to_mpf(t0f, ctx=mp_context())
+        _check_events(engine.events, z)  # records the signs at the start
+        out = drive(engine, tstart, z, [(to_mpf(tk, ctx=mp_context()), tk) for tk in grid], direction=direction,
+                    max_steps=max_steps, max_time=max_time, start=start, progress=progress,
+                    kept="The rows up to this time are kept.",
+                    # the energy guard of every run: H at the end against H(y0) (lieseries.energy.drift_threshold)
+                    guard=lambda out: energy_guard(out, ps, z0, export_mpf(list(out.z)), dps_to_bits(wdps), tolm))
         # y_reached keeps the guard digits: a run continued from it (an atlas chart change) loses nothing
-        y_reached = export_mpf(np.array(list(z), dtype=object))
-        t_reached = to_fraction(tcur)
+        y_reached = export_mpf(np.array(list(out.z), dtype=object))
+        t_reached = to_fraction(out.t)
         prec = dps_to_bits(dps)
-        y_rows = [export_mpf(np.array(row, dtype=object), prec) for row in out_y]
+        y_rows = [export_mpf(np.array(row, dtype=object), prec) for row in out.rows_y]
+    extra = {"data_bits": bits}
+    if engine.max_ratio is not None:
+        extra["max_step_over_radius"] = engine.max_ratio
+    nsteps = out.steps
     stats = Stats(method="lie series (mpmath)", precision=f"{dps} dps", tol=float(tolm), order=N, steps=nsteps,
-                  run_time=_time.perf_counter() - start, min_step=float(hmin) if nsteps else float("nan"),
-                  max_step=float(hmax) if nsteps else float("nan"), error_estimates=tuple(estimates), extra=extra)
+                  run_time=out.run_time, min_step=float(out.hmin) if nsteps else float("nan"),
+                  max_step=float(out.hmax) if nsteps else float("nan"), error_estimates=tuple(out.estimates),
+                  extra=extra)
     y = np.stack(y_rows) if y_rows else np.empty((0, ps.dimension), dtype=object)
-    tarr = np.array([float(v) for v in out_t])
-    dense_fn = _Dense(segments, dps, sgn) if segments is not None else None
-    return Solution(tarr, y, stats, status, message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
+    tarr = np.array([float(v) for v in out.rows_t])
+    dense_fn = _Dense(engine.segments, dps, engine.sgn) if dense else None
+    user = engine.user
+    return Solution(tarr, y, stats, out.status, out.message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
                     y_reached=y_reached, events=user.records(dps, ps.dimension) if user is not None else None)
+
+
+class _LieEngine:
+    """One Lie-series step for :func:`lieseries.driver.drive` (module docstring: order, step and error rules)."""
+
+    def __init__(self, stepper, N, N_auto, tolm, wdps, bits, sgn, events, user, deadline, dense):
+        self.stepper, self.N, self.N_auto, self.tolm, self.wdps = stepper, N, N_auto, tolm, wdps
+        self.floor = mp.mpf(2) ** (-bits) if bits is not None else mp.mpf(0)
+        self.sgn, self.events, self.user, self.deadline = sgn, events, user, deadline
+        self.segments = [] if dense else None
+        self.max_ratio = None  # the largest step over the estimated radius of convergence
+        self.first = True
+
+    def step(self, tcur, z, tend):
+        from .jets import DeadlineExceeded
+
+        N, tolm, sgn = self.N, self.tolm, self.sgn
+        try:
+            jet = self.stepper.expand(z, abs(tend - tcur), deadline=self.deadline)
+        except DeadlineExceeded:  # the budget ran out inside the step's expansion
+            raise Stop("time_budget", note=" (inside a step's expansion)") from None
+        except (ValueError, ZeroDivisionError, OverflowError) as exc:
+            raise Stop("non_finite", f"the series coefficients cannot be computed ({exc}): the state has left the "
+                       "domain of the equations (or the vector field is singular there)") from None
+        coeffs, nrm = jet.coefficients, jet.norms
+        if not all(mp.isfinite(c) for c in nrm):
+            raise Stop("non_finite", "the series coefficients are non-finite: the vector field is singular at "
+                       "this state")
+        rho = jet.rho  # estimate_radius(nrm), computed once by the stepper
+        tol_abs = tolm * max(mp.mpf(1), nrm[0])
+        h = mp.inf
+        for k in (N - 1, N):
+            if k >= 1 and nrm[k] > 0:
+                h = min(h, _kth_root(tol_abs / nrm[k], k))
+        h = min(h, rho / 2)
+        if h == mp.inf:  # polynomial solution of degree < N - 1: one step reaches the end
+            h = abs(tend - tcur)
+        h = min(h, abs(tend - tcur), jet.max_step)  # the jets hold what steps up to max_step need
+        # per component: the tolerance is relative to the component's own size over the step (absolute below
+        # 1), not to the largest component -- a momentum of size 1 beside positions of size 1e6 would keep
+        # only tol * 1e6 of its digits, and its error grows into the positions over the run
+        scales = jet.component_scales(h)
+        last = {k: jet.column(k) for k in (N - 1, N) if k >= 1}
+        for k, col in last.items():
+            for c, sc in zip(col, scales):
+                if c != 0:
+                    h = min(h, _kth_root(tolm * sc / c, k))
+        if h <= abs(tcur) * mp.mpf(10) ** (-self.wdps + 2) or h == 0:
+            raise Stop("step_collapse", f"it fell to {mp.nstr(h, 3)}, and the series' radius of convergence there "
+                       f"is ~{mp.nstr(rho, 3)}: the solution is singular nearby")
+        hs = h * sgn
+        pad = [mp.mpf(0)] * (N - 1)  # tail_estimate reads the last two orders
+        err = max(max(tail_estimate(pad + [last[N - 1][i] if N >= 2 else mp.mpf(0), last[N][i]], h, rho) / sc
+                      for i, sc in enumerate(scales)), self.floor)
+        if self.first and self.N_auto is not None and N < self.N_auto:
+            _warn_slow_order(N, self.N_auto, nrm, tol_abs, rho, abs(tend - tcur))
+        self.first = False
+        znew = jet.horner(hs)
+        tnew = tcur + hs if abs(tend - tcur) != h else tend
+        try:
+            stop = self.user.step(coeffs, tcur, hs, sgn) if self.user is not None else None
+        except (ValueError, ZeroDivisionError, OverflowError) as exc:
+            raise Stop("non_finite", f"an event expression cannot be evaluated in the step ({exc}): the state "
+                       "leaves its domain there") from None
+        if stop is not None:  # a terminal event inside the step: the step ends there
+            hs = stop - tcur
+            h = abs(hs)
+            znew, tnew = horner(coeffs, hs), stop
+        if self.segments is not None:
+            self.segments.append((tcur, tnew, coeffs))
+        ratio = float(h / rho) if rho != mp.inf else 0.0
+        self.max_ratio = ratio if self.max_ratio is None else max(self.max_ratio, ratio)
+        if stop is not None:
+            end = ("event", self.user.fired, "")
+        else:
+            hit = _check_events(self.events, znew)
+            end = None if hit is None else (hit[0], hit[1], " (end of the step that crossed it)")
+        return StepResult(tnew, znew, h=h, row=lambda tk: horner(coeffs, tk - tcur), error=float(err), stop=end)
 
 
 _LN2 = math.log(2)
@@ -363,7 +328,7 @@ def _warn_slow_order(N, N_auto, nrm, tol_abs, rho, span):
             f"{mp.nstr(steps_fixed, 2)} steps instead of about {mp.nstr(steps_auto, 2)}. Leave `order` out unless "
             "you study the order itself.",
             UserWarning,
-            stacklevel=3,
+            stacklevel=5,
         )
 
 

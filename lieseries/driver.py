@@ -1,0 +1,225 @@
+"""One driver loop for the step-by-step engines: budgets, output rows, stops, statuses and their messages.
+
+An engine plugs in through a small step protocol: an object with
+
+``step(t, z, t_end) -> StepResult``
+    One step from ``(t, z)`` towards ``t_end`` (never beyond it). The result carries the new time and state, the
+    step's length, its error estimate, a dense evaluator ``row(t)`` for the output times inside the step, and
+    ``stop``: a terminal condition met in the step (an event, a chart's edge), which ends the run after it.
+    A step that cannot be taken raises :class:`Stop` with its status and the cause (the run keeps what it had).
+    A step may instead give its rows already evaluated (``rows``) and count for many steps (``steps``): an atlas
+    run's step is a whole run in one chart (:mod:`lieseries.atlas`).
+
+``switch_chart(t, z)`` (with ``atlas=True``) and ``chart``
+    The state rewritten in a better chart when the current one is ending (status ``chart_edge``), and the chart
+    the engine works in (each row records it).
+
+The driver owns the rest, the same for every engine: the step budget ``max_steps`` and the wall-time budget
+``max_time`` (read between steps; an engine that can stop inside a step raises ``Stop("time_budget")``), the rows
+at the requested times (in time order, from each step's dense evaluator), progress reports, chart switches, the
+energy guard of a run that reached its final time (:func:`energy_guard`), and every message a run ends with, from
+one table (:data:`MESSAGES`) so that the same stop reads the same whatever the engine.
+
+heyoka's runs (:mod:`lieseries.taylor`, :mod:`lieseries.ensemble`) keep their own chunked loops (a chunk of steps
+runs inside heyoka); across an atlas they run as the driver's steps.
+"""
+
+from __future__ import annotations
+
+import time as _time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from .precision import short_decimal, to_fraction
+from .solution import STATUSES
+
+__all__ = ["MESSAGES", "Stop", "StepResult", "Outcome", "drive", "run_message", "format_time", "energy_guard"]
+
+
+#: The message of every way a run ends, by reason (a status of :data:`lieseries.solution.STATUSES`, or a more
+#: precise reason of one). ``{where}`` is "t = <time>" (with the engine's note), ``{detail}`` the engine's own
+#: account of the cause, ``{kept}`` what the rows up to the stop are worth.
+MESSAGES = {
+    "success": "Reached t = {t}{detail}.",
+    "step_budget": "The step budget `max_steps` = {max_steps} ran out at {where}; raise `max_steps` to go on. {kept}",
+    "time_budget": ("The wall-time budget `max_time` = {max_time:g} s ran out at {where}; raise `max_time` to go on. "
+                    "{kept}"),
+    "event": "Stopped at {where}: {detail}.",
+    "chart_edge": "Stopped at {where}: {detail}.",
+    "non_finite": "The step after {where} cannot be taken: {detail}. {kept}",
+    "step_collapse": "The step size collapsed at {where}: {detail}.",
+    "validation_failed": "Validation failed at {where}: {detail}; {kept_lower}",
+}
+
+
+def format_time(t) -> str:
+    """A time of any engine (float, Fraction, mpf, a heyoka format) to 17 significant digits, beyond the double
+    range too."""
+    f = to_fraction(t)
+    try:
+        return f"{float(f):.17g}"
+    except OverflowError:
+        return short_decimal(f)
+
+
+def run_message(reason: str, *, t=None, note: str = "", detail: str = "", kept: str = "", **fields) -> str:
+    """The message of a run that ended for ``reason`` (a key of :data:`MESSAGES`) at time ``t``."""
+    where = f"t = {format_time(t)}{note}" if t is not None else ""
+    kept_lower = kept[:1].lower() + kept[1:] if kept else ""
+    return MESSAGES[reason].format(t=format_time(t) if t is not None else "", where=where, detail=detail,
+                                   kept=kept, kept_lower=kept_lower, **fields).strip()
+
+
+class Stop(Exception):
+    """Raised by an engine's step (or its dense evaluator) that cannot go on: the run ends with ``status`` at the
+    time the step started. ``detail``: the cause, worded to follow "at t = ...: " in :data:`MESSAGES`;
+    ``message``: a whole message instead (rarely needed)."""
+
+    def __init__(self, status: str, detail: str = "", message: str | None = None, note: str = ""):
+        if status not in STATUSES:  # pragma: no cover - programming error
+            raise ValueError(f"unknown status {status!r}")
+        super().__init__(status, detail)
+        self.status, self.detail, self.message, self.note = status, detail, message, note
+
+
+@dataclass
+class StepResult:
+    """What one step of an engine gives the driver."""
+
+    t: Any
+    z: Any
+    h: Any = None  # the step's length (for the statistics), in the engine's numbers
+    row: Callable | None = None  # the state at an output time inside the step (None: only the step's end)
+    error: float | None = None  # the step's error estimate
+    # (status, detail, note) or a Stop: a terminal condition met in the step; Stop("success"): the run is done
+    # (an engine whose final time, rounded in its format, is not exactly the driver's)
+    stop: tuple | Stop | None = None
+    rows: list | None = None  # instead of ``row``: the step's rows, already evaluated, at the next output times
+    steps: int = 1  # how many steps it counts for (a whole chart segment of another run: its steps)
+
+
+@dataclass
+class Outcome:
+    """Where a driven run ended: its status and message, the time and state reached, the rows, the counts."""
+
+    status: str
+    message: str
+    t: Any
+    z: Any
+    steps: int
+    rows_t: list = field(default_factory=list)
+    rows_y: list = field(default_factory=list)
+    rows_chart: list = field(default_factory=list)
+    switches: int = 0
+    estimates: list = field(default_factory=list)
+    hmin: Any = None
+    hmax: Any = None
+    run_time: float = 0.0
+
+
+def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float | None = None, start=None,
+          progress=None, kept: str = "", reached: str = "", atlas: bool = False, max_switches: int = 0,
+          guard=None) -> Outcome:
+    """Run ``engine`` from ``(t0, z0)`` to the last of ``pending``, the output times as ``(time, label)`` pairs
+    in time order (``time`` in the engine's numbers, ``label`` what the row is reported at).
+
+    Rows at the times not after ``t0`` are the initial state. ``max_time`` is measured from ``start`` (a
+    ``time.perf_counter()`` reading; default now). ``progress(fraction)`` is called after every step. ``kept``
+    says what the rows up to an early stop are worth (ends the messages of failures)."""
+    start = _time.perf_counter() if start is None else start
+    sgn = 1 if direction >= 0 else -1
+    pending = list(pending)
+    t_end = pending[-1][0] if pending else t0
+    out = Outcome("success", "", t0, z0, 0)
+    t, z = t0, z0
+
+    def emit(limit, row):
+        while pending and (pending[0][0] - limit) * sgn <= 0:
+            tk, label = pending.pop(0)
+            out.rows_y.append(z if row is None else row(tk))  # may raise Stop: the rows before it stay
+            out.rows_t.append(label)
+            out.rows_chart.append(getattr(engine, "chart", None))
+
+    def switch(t, z):
+        """The state in a better chart, or None (no atlas, no better chart, or too many switches)."""
+        if not atlas or out.switches >= max_switches:
+            return None
+        znew = engine.switch_chart(t, z)
+        if znew is not None:
+            out.switches += 1
+        return znew
+
+    if not getattr(engine, "emits_rows", False):
+        emit(t, None)
+    fields = {"kept": kept, "max_time": max_time or 0, "max_steps": max_steps}
+    span = t_end - t0
+    # an engine that emits its rows gives the row at t0 in its first step, which runs whatever the budgets (it
+    # bounds itself: an atlas segment gets the budgets as given)
+    budgets = not getattr(engine, "emits_rows", False)
+    while direction and (t_end - t) * sgn > 0:
+        if budgets and out.steps >= max_steps:
+            out.status, out.message = "step_budget", run_message("step_budget", t=t, max_steps=max_steps, kept=kept)
+            break
+        if budgets and max_time is not None and _time.perf_counter() - start > max_time:
+            out.status, out.message = "time_budget", run_message("time_budget", t=t, max_time=max_time, kept=kept)
+            break
+        budgets = True
+        try:
+            res = engine.step(t, z, t_end)
+            if res.rows is not None:
+                for _tk, y in res.rows:
+                    out.rows_t.append(pending.pop(0)[1])
+                    out.rows_y.append(y)
+                    out.rows_chart.append(getattr(engine, "chart", None))
+            else:
+                emit(res.t, res.row)
+        except Stop as stop:
+            znew = switch(t, z) if stop.status == "chart_edge" else None
+            if znew is not None:  # the chart was ending before the step: go on in the new one
+                z = znew
+                continue
+            out.status = stop.status
+            out.message = stop.message or run_message(stop.status, t=t, note=stop.note, detail=stop.detail,
+                                                      **fields)
+            break
+        out.steps += res.steps
+        if res.error is not None:
+            out.estimates.append(res.error)
+        if res.h is not None:
+            out.hmin = res.h if out.hmin is None else min(out.hmin, res.h)
+            out.hmax = res.h if out.hmax is None else max(out.hmax, res.h)
+        t, z = res.t, res.z
+        if progress is not None:
+            progress(float((t - t0) / span))
+        if res.stop is not None:
+            stop = res.stop if isinstance(res.stop, Stop) else Stop(res.stop[0], res.stop[1], note=res.stop[2])
+            status = stop.status
+            znew = switch(t, z) if status == "chart_edge" else None
+            if znew is not None:  # the step crossed into the chart's edge: go on in the new chart
+                z = znew
+                continue
+            out.status = status
+            out.message = stop.message or run_message(status, t=t, note=stop.note, detail=stop.detail, **fields)
+            break
+    out.t, out.z = t, z
+    if out.status == "success":
+        out.message = run_message("success", t=t_end, detail=reached)
+        if guard is not None and direction:
+            guard(out)
+    if atlas:
+        out.message = f"{out.message} ({out.switches} chart switches)"
+    out.run_time = _time.perf_counter() - start
+    return out
+
+
+def energy_guard(out: Outcome, ps, y0, y_end, bits: int, tol) -> None:
+    """The energy guard of a run that reached its final time: ``invariant_drift`` (with its message) when the
+    Hamiltonian of ``ps``, at the exact values of ``y0`` and ``y_end`` in mpmath at ``bits`` bits, changed by more
+    than :func:`lieseries.energy.drift_threshold` times the energy scale of ``y0``."""
+    from .energy import energy_exact, exact_energy_verdict
+
+    if out.status != "success" or not ps.is_hamiltonian:
+        return
+    e0, scale = energy_exact(ps, y0, bits)
+    e1, _ = energy_exact(ps, y_end, bits)
+    out.status, out.message = exact_energy_verdict(e0, e1, scale, tol, out.status, out.message, out.steps)
