@@ -60,7 +60,7 @@ from __future__ import annotations
 from .batch import BATCH_STEPS, CHUNK_STEPS  # noqa: F401  (the package keeps the old module's names)
 from .build import MAX_BATCH_SIZE, build_batch_integrator, build_scalar_integrator, clear_batch_cache  # noqa: F401
 from .cluster import DASK_RETRIES  # noqa: F401
-from .driver import integrate_ensemble
+from .propagate import integrate_ensemble
 
 __all__ = ["integrate_ensemble", "build_batch_integrator", "build_scalar_integrator", "clear_batch_cache",
            "BATCH_STEPS"]

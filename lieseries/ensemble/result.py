@@ -99,7 +99,7 @@ def outcome_kind(outcome, n_events):
 
 def assemble(plan, res, path, run_time) -> EnsembleSolution:
     """The :class:`~lieseries.solution.EnsembleSolution` of a local run: ``res`` filled by ``path`` (a
-    :class:`~lieseries.ensemble.driver.PathRun`)."""
+    :class:`~lieseries.ensemble.propagate.PathRun`)."""
     stats = dict(method="taylor (heyoka)", precision=plan.prec.name, tol=float(plan.tolf), order=path.order,
                  steps=res.steps, build_time=path.build, run_time=run_time, workers=path.workers,
                  batch_size=plan.B if path.name == "batch" else 1, path=path.name, single_runs=len(path.handed))

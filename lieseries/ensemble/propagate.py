@@ -1,4 +1,4 @@
-"""The ensemble driver: :func:`integrate_ensemble` checks the inputs once (:mod:`.plan`), runs the members on a
+"""The ensemble entry point: :func:`integrate_ensemble` checks the inputs once (:mod:`.plan`), runs the members on a
 Dask cluster (:mod:`.cluster`) or here on one path -- batch (:mod:`.batch`), scalar threads or single runs
 (:mod:`.threads`) --, hands what a path cannot decide to single runs, applies the single run's energy check, and
 assembles the result (:mod:`.result`)."""
