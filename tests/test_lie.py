@@ -162,10 +162,12 @@ def test_step_budget_keeps_what_was_computed(body, y0):
 
 
 def test_rigid_body_series_dt61(body):
-    """R(t) = sum C_k t^k from R0 = 1 (paper dt61): C_1, C_2 by hand; exact C_k equal the numeric jets."""
+    """R(t) = sum C_k t^k from R0 = 1 (paper dt61): C_1, C_2 by hand; exact C_k equal the numeric jets (to order 6)
+    and the symbolic C_k evaluated at Omega0 (to order 4: the symbolic series costs seconds per order beyond)."""
     import sympy
 
-    C = ls.rigid_body_series(body, 6)
+    C = ls.rigid_body_series(body, 4)
+    assert len(C) == 5
     w = sympy.symbols("Omega1 Omega2 Omega3", real=True)
     hat = lambda v: sympy.Matrix([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])  # noqa: E731
     M = [w[0], 2 * w[1], 3 * w[2]]
@@ -180,6 +182,8 @@ def test_rigid_body_series_dt61(body):
             num = series.coefficients[k][:9]
             sym = [mp.mpf(int(c.p)) / int(c.q) for c in exact_C[k]]
             assert max(abs(a - b) for a, b in zip(num, sym)) < 1e-38
+            if k >= len(C):
+                continue
             # the symbolic matrices, evaluated at the sample Omega0, are the same exact rationals
             at = C[k].subs({w[0]: 1, w[1]: sympy.Rational(1, 10), w[2]: sympy.Rational(1, 2)})
             assert sympy.simplify(at - exact_C[k]) == sympy.zeros(3)
