@@ -264,7 +264,8 @@ def test_a_root_field_reaching_its_branch_point_ends_as_validation_failed_with_t
     q, p = hy.make_vars("q", "p")
     system = _canonical([q, p], p**2 / 2 + hy.sqrt(q), "root potential")
     times = [Fraction(k, 4) for k in range(1, 11)]  # q reaches 0 at t = 4 sqrt(2) / 3 = 1.8856...
-    sol = validated_integrate(system, ["1", "0"], times, dps=30)
+    # order 20, not the default 36: the steps shrink onto the branch point either way, at half the cost
+    sol = validated_integrate(system, ["1", "0"], times, dps=30, order=20)
     assert sol.status == "validation_failed" and "t = 1.88" in sol.message and "singular" in sol.message
     assert len(sol.t) == 7 and float(sol.t_reached) < 4 * 2**0.5 / 3
     ctx = mp.MPContext()
