@@ -596,30 +596,115 @@ def _tidy(e):
     return sp.factor_terms(e)
 
 
-def _derive_dirac(cs):
-    n = len(cs._q)
-    k = len(cs.constraints)
-    q = list(cs._q)
-    p = [sp.Symbol(f"p_{c}", real=True) for c in cs.coordinates]
-    M, A, U = cs._M, cs._A, cs._U
-    Minv = M.inv(method="LU") if any(M[i, j] != 0 for i in range(n) for j in range(n) if i != j) else \
-        sp.diag(*[1 / M[i, i] for i in range(n)])
-    Minv = Minv.applyfunc(sp.cancel)
-    P = sp.Matrix(p)
-    v = (Minv * (P - A)).applyfunc(sp.cancel)
-    H0 = sp.expand((((P - A).T * Minv * (P - A))[0, 0]) / 2 + U)
-    G = list(cs.constraints)
-    Phi = [sp.expand(sum(sp.diff(g, q[a]) * v[a] for a in range(n))) for g in G]
-    chi = G + Phi
-    b = sp.Matrix(k, k, lambda a, c: _tidy(_canonical(G[a], Phi[c], q, p)))
-    c = sp.Matrix(k, k, lambda a, d: _tidy(_canonical(Phi[a], Phi[d], q, p)) if a != d else 0)
-    binv = (b.inv(method="LU") if k > 1 else sp.Matrix([[1 / b[0, 0]]])).applyfunc(sp.cancel)
+def _dirac_combination(bs, cs_, bz, n, k):
+    """(b, c, T): b = {G, Phi}, c = {Phi, Phi} and the Dirac tensor T_ij = {z_i, z_j} - {z_i, chi_I} Delta^-1_IJ
+    {chi_J, z_j} (p8.1, p8.7) from the canonical brackets ``bs`` = {G_a, Phi_c}, ``cs_`` = {Phi_a, Phi_d} (a < d)
+    and ``bz`` = {z_i, chi_I}.
+
+    The combination is done in a field of rational functions (sympy's sparse polynomials, one gcd per operation on
+    small pieces): expression-level together/cancel on the assembled entries took 25 s for the double spherical
+    pendulum, the same result here takes a few. Expressions the field cannot hold (a domain that is not the
+    rationals) take the expression route."""
+    from sympy.polys.fields import sfield
+
+    flat = [e for row in bs for e in row] + [e for row in cs_ for e in row] + [e for row in bz for e in row]
+    try:
+        K, els = sfield([sp.sympify(e) for e in flat])
+    except Exception:  # sympy refuses some expressions as polynomial generators: the expression route then
+        K = None
+    if K is None or not (K.domain.is_ZZ or K.domain.is_QQ):
+        return _dirac_combination_expr(bs, cs_, bz, n, k)
+    it = iter(els)
+    bf = [[next(it) for _ in range(k)] for _ in range(k)]
+    cf = [[next(it) for _ in range(k)] for _ in range(k)]
+    zf = [[next(it) for _ in range(2 * k)] for _ in range(2 * n)]
+    for a in range(k):
+        for d in range(a):
+            cf[a][d] = -cf[d][a]
+    binv = _field_inverse(bf, K)
+    binvT = [list(r) for r in zip(*binv)]
+    top = _field_mul(_field_mul(binvT, cf, K), binv, K)
+    # Delta^-1 = [[b^-T c b^-1, -b^-T], [b^-1, 0]] over chi = (G, Phi)
+    dinv = [top[i] + [-x for x in binvT[i]] for i in range(k)] + [binv[i] + [K.zero] * k for i in range(k)]
+    T = sp.zeros(2 * n, 2 * n)
+    for i in range(2 * n):
+        for j in range(i + 1, 2 * n):
+            acc = K.one if (i < n and j == i + n) else K.zero
+            for I in range(2 * k):
+                if not zf[i][I]:
+                    continue
+                for J in range(2 * k):
+                    if dinv[I][J] and zf[j][J]:
+                        acc += zf[i][I] * dinv[I][J] * zf[j][J]  # - {z_i, chi_I} D_IJ {chi_J, z_j}
+            e = _field_expr(acc)
+            T[i, j] = e
+            T[j, i] = -e
+    b = sp.Matrix(k, k, lambda a, d: _field_expr(bf[a][d]))
+    c = sp.Matrix(k, k, lambda a, d: _field_expr(cf[a][d]) if a != d else 0)
+    return b, c, T
+
+
+def _field_mul(X, Y, K):
+    return [[sum((X[i][m] * Y[m][j] for m in range(len(Y))), K.zero) for j in range(len(Y[0]))]
+            for i in range(len(X))]
+
+
+def _field_inverse(B, K):
+    """Inverse of a small square matrix of field elements: the generic adjugate over the determinant."""
+    d = len(B)
+    gen = sp.Matrix(d, d, lambda i, j: sp.Symbol(f"__k{i}_{j}"))
+    det = _field_eval(gen.det(method="berkowitz"), gen, B, K)
+    if not det:
+        raise ValueError("internal: the Dirac matrix {G, Phi} is singular")
+    adj = gen.adjugate(method="berkowitz")
+    return [[_field_eval(adj[i, j], gen, B, K) / det for j in range(d)] for i in range(d)]
+
+
+def _field_eval(poly, gen, B, K):
+    """The polynomial ``poly`` in the generic entries ``gen`` at the field elements ``B``."""
+    d = len(B)
+    P = sp.Poly(poly, *[gen[i, j] for i in range(d) for j in range(d)])
+    vals = [B[i][j] for i in range(d) for j in range(d)]
+    out = K.zero
+    for monom, coeff in P.terms():
+        term = K(coeff)
+        for v, e in zip(vals, monom):
+            if e:
+                term *= v ** e
+        out += term
+    return out
+
+
+def _field_expr(x):
+    """A field element as a sympy expression: numerator and denominator with their integer content and common
+    monomial pulled out (what factor_terms does, on the polynomials, at a fraction of its cost)."""
+    num, den = x.numer, x.denom
+    if not num:
+        return sp.Integer(0)
+    syms = x.field.ring.symbols
+    factor = sp.Integer(1)
+    parts = []
+    for poly, power in ((num, 1), (den, -1)):
+        content, poly = poly.primitive()
+        if poly.LC < 0:
+            content, poly = -content, -poly
+        monom = tuple(min(es) for es in zip(*poly.itermonoms()))
+        if any(monom):
+            poly = poly.ring({tuple(a - b for a, b in zip(m, monom)): c for m, c in poly.items()})
+        factor *= (sp.Integer(content) * sp.Mul(*[s ** e for s, e in zip(syms, monom)])) ** power
+        parts.append(poly.as_expr())
+    return factor * parts[0] / parts[1]
+
+
+def _dirac_combination_expr(bs, cs_, bz, n, k):
+    """:func:`_dirac_combination` with sympy expressions (together/cancel per entry)."""
+    b = sp.Matrix(k, k, lambda a, d: _tidy(bs[a][d]))
+    c = sp.Matrix(k, k, lambda a, d: (_tidy(cs_[a][d]) if a < d else -_tidy(cs_[d][a])) if a != d else 0)
+    binv = _inverse(b).applyfunc(sp.cancel)
     Dinv = sp.zeros(2 * k, 2 * k)
     Dinv[:k, :k] = (binv.T * c * binv).applyfunc(sp.cancel)
     Dinv[:k, k:] = -binv.T
     Dinv[k:, :k] = binv
-    z = q + p
-    bz = [[_canonical(zi, ch, q, p) for ch in chi] for zi in z]  # {z_i, chi_I}
     T = sp.zeros(2 * n, 2 * n)
     for i in range(2 * n):
         for j in range(i + 1, 2 * n):
@@ -635,6 +720,29 @@ def _derive_dirac(cs):
             e = _tidy(canon - corr)
             T[i, j] = e
             T[j, i] = -e
+    return b, c, T
+
+
+def _derive_dirac(cs):
+    n = len(cs._q)
+    k = len(cs.constraints)
+    q = list(cs._q)
+    p = [sp.Symbol(f"p_{c}", real=True) for c in cs.coordinates]
+    M, A, U = cs._M, cs._A, cs._U
+    Minv = M.inv(method="LU") if any(M[i, j] != 0 for i in range(n) for j in range(n) if i != j) else \
+        sp.diag(*[1 / M[i, i] for i in range(n)])
+    Minv = Minv.applyfunc(sp.cancel)
+    P = sp.Matrix(p)
+    v = (Minv * (P - A)).applyfunc(sp.cancel)
+    H0 = sp.expand((((P - A).T * Minv * (P - A))[0, 0]) / 2 + U)
+    G = list(cs.constraints)
+    Phi = [sp.expand(sum(sp.diff(g, q[a]) * v[a] for a in range(n))) for g in G]
+    chi = G + Phi
+    z = q + p
+    bz = [[_canonical(zi, ch, q, p) for ch in chi] for zi in z]  # {z_i, chi_I}
+    bs = [[_canonical(G[a], Phi[c], q, p) for c in range(k)] for a in range(k)]
+    cs_ = [[_canonical(Phi[a], Phi[d], q, p) if a < d else 0 for d in range(k)] for a in range(k)]
+    b, c, T = _dirac_combination(bs, cs_, bz, n, k)
     return {"q": q, "p": p, "H0": H0, "velocity": list(v), "chi": chi, "G": G, "Phi": Phi, "tensor": T,
             "b": b, "c": c}
 
