@@ -178,12 +178,13 @@ def _eps(i, j, k):
     return (i - j) * (j - k) * (k - i) // 2
 
 
-def rigid_body_system(g=("5/2", "3/2", "1/2")):
-    """R (nine entries, row-major), L = 1/2 tr(Rdot g Rdot^T), R^T R = 1 (six constraints) and the paper's frame
-    R^-T E_k (3.7), written with the cofactors of R: pi_k = -eps_kij (R^-1 p)_ij = M_k."""
+def rigid_body_system(g=("5/2", "3/2", "1/2"), potential="", parameters=None):
+    """R (nine entries, row-major), L = 1/2 tr(Rdot g Rdot^T) - ``potential``, R^T R = 1 (six constraints) and the
+    paper's frame R^-T E_k (3.7), written with the cofactors of R: pi_k = -eps_kij (R^-1 p)_ij = M_k."""
     R = [[f"R{i}{j}" for j in range(1, 4)] for i in range(1, 4)]
     names = [e for row in R for e in row]
     L = " + ".join(f"g{j + 1}/2*{R[k][j]}_dot**2" for k in range(3) for j in range(3))
+    L += f" - ({potential})" if potential else ""
     G = [" + ".join(f"{R[k][i]}*{R[k][j]}" for k in range(3)) + (" - 1" if i == j else "")
          for i in range(3) for j in range(i, 3)]
 
@@ -196,7 +197,9 @@ def rigid_body_system(g=("5/2", "3/2", "1/2")):
     det = "(" + " + ".join(f"{R[0][b]}*{cof(0, b)}" for b in range(3)) + ")"
     frame = [[("(" + " + ".join(f"{-_eps(k, i, b)}*{cof(a, i)}" for i in range(3) if _eps(k, i, b)) + f")/{det}")
               if b != k else "0" for a in range(3) for b in range(3)] for k in range(3)]
-    cs = ls.ConstrainedSystem(L, names, G, parameters={f"g{i + 1}": v for i, v in enumerate(g)}, name="rigid body")
+    values = {f"g{i + 1}": v for i, v in enumerate(g)}
+    values.update(parameters or {})
+    cs = ls.ConstrainedSystem(L, names, G, parameters=values, name="rigid body")
     return cs, frame
 
 
