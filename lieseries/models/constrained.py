@@ -26,7 +26,12 @@ G_alpha(q) = 0, and derives symbolically (sympy) the Hamiltonian formulations of
 The Lagrangian must be quadratic in the velocities, L = 1/2 qdot^T M(q) qdot + A(q) . qdot - U(q), with M
 positive definite: that is the class the paper treats (int01.02), for which p = M qdot + A inverts in closed form
 and b = G_q M^-1 G_q^T is invertible when the constraints are independent (paper, appendix). The derivation runs
-once per system (a few seconds at most for small systems) and is cached.
+once per system and is kept for the process (under a second for the built-in systems, 4-5 CPU s for the
+double spherical pendulum's twelve variables; docs/theory.md, "The derivation as the code does it").
+
+This module reads and checks the input; the algebra is :mod:`~lieseries.models.constrained_derive`, the four models
+are :mod:`~lieseries.models.constrained_forms` (their classes are importable from here too), the residual checks
+of states :mod:`~lieseries.models.constrained_checks`.
 
 Parameters of the Lagrangian are heyoka runtime parameters: exact values (int, str such as "9.81", Fraction) stay
 exact and are rounded once to each working precision; a float is its binary value and is reported as binary data
@@ -82,6 +87,17 @@ class ConstrainedSystem:
         Values of the other names in the expressions (int, str, Fraction kept exact; a float is binary data).
     name : str, optional
         A label for messages and reports.
+
+    Attributes
+    ----------
+    q_symbols, qdot_symbols, parameter_symbols
+        The sympy symbols of the coordinates, the velocities and the parameters (name -> symbol).
+    mass_matrix, linear_term, potential
+        M(q), A(q) (sympy matrices) and U(q) of L = 1/2 qdot^T M qdot + A . qdot - U: the derivation's inputs.
+    constraint_jacobian
+        dG_alpha/dq^A at the parameters' values; ``hessian_constant``: whether M depends on q.
+    parameter_bits, input_bits
+        The bits binary inputs carry (parameters; floats in the expressions), for the models' reports.
 
     Examples
     --------
