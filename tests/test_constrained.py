@@ -438,3 +438,21 @@ def test_powers_of_a_coordinate_that_starts_at_zero_stay_finite():
         t_ = c.mpf(str(ref[0]))
         err = max(abs(ctx_mpf(c, a) - b) for a, b in zip(row, [c.cos(t_), c.sin(t_)]))
         assert err < 1e-30, err  # quad: measured 4e-34
+
+
+def test_dirac_tensor_expression_route_equals_the_field_route():
+    """The route taken when sympy cannot hold the brackets in a field of rational functions (together/cancel per
+    entry) gives the same tensor, b and c, symbolically, for a system with a magnetic term and two constraints."""
+    from lieseries.models import constrained_derive as D
+
+    L, coords, G, pars = DIRAC_CASES["magnetic term, two constraints"]
+    cs = ls.ConstrainedSystem(L, coords, G, parameters=pars)
+    d = cs.dirac_bracket()
+    q, p, chi, n, k = d["q"], d["p"], d["chi"], len(d["q"]), len(d["G"])
+    bz = [[D.canonical_bracket(zi, ch, q, p) for ch in chi] for zi in q + p]
+    bs = [[D.canonical_bracket(d["G"][a], d["Phi"][c], q, p) for c in range(k)] for a in range(k)]
+    cs_ = [[D.canonical_bracket(d["Phi"][a], d["Phi"][e], q, p) if a < e else 0 for e in range(k)] for a in range(k)]
+    b, c, T = D._dirac_combination_expr(bs, cs_, bz, n, k)
+    assert (T - d["tensor"]).applyfunc(sp.cancel) == sp.zeros(2 * n, 2 * n)
+    assert (b - d["b"]).applyfunc(sp.cancel) == sp.zeros(k, k)
+    assert (c - d["c"]).applyfunc(sp.cancel) == sp.zeros(k, k)
