@@ -293,10 +293,12 @@ def derive_intermediate(cs, dependent, F, names):
         # minutes for the rigid body
         out.update({"c": None, "K": F * M * F.T, "H": None, "velocity": None, "p": None, "tensor": None})
         return out
-    c = {}
-    for i in range(d):
-        for j in range(i + 1, d):
-            c[(i, j)] = [sp.cancel(e) for e in lie_bracket(F.row(i), F.row(j), q)]
+    raw = {(i, j): lie_bracket(F.row(i), F.row(j), q) for i in range(d) for j in range(i + 1, d)}
+    done = _intermediate_in_field(F, M, A, U, pi, raw, n, d)
+    if done is not None:
+        out.update(done)
+        return out
+    c = {key: [sp.cancel(e) for e in cij] for key, cij in raw.items()}
     out["c"] = c
     K = (F * M * F.T).applyfunc(sp.cancel)
     Kinv = symbolic_inverse(K)
@@ -321,3 +323,53 @@ def derive_intermediate(cs, dependent, F, names):
     return out
 
 
+
+
+def _intermediate_in_field(F, M, A, U, pi, raw, n, d):
+    """c, K, H'_0, qdot, p(q, pi) and the tensor of the intermediate formalism (as in :func:`derive_intermediate`)
+    computed in a field of rational functions, each fraction kept reduced: the expression route (together, cancel,
+    factor_terms on assembled entries) took 120 CPU s for the double spherical pendulum's chart. None when the
+    expressions do not fit such a field (the expression route then)."""
+    from sympy.polys.fields import sfield
+
+    flat = ([F[i, a] for i in range(d) for a in range(n)] + [M[a, b] for a in range(n) for b in range(n)]
+            + [A[a] for a in range(n)] + [U] + list(pi) + [e for cij in raw.values() for e in cij])
+    try:
+        K_, els = sfield([sp.sympify(e) for e in flat])
+    except Exception:  # sympy refuses some expressions as polynomial generators: the expression route then
+        return None
+    if not (K_.domain.is_ZZ or K_.domain.is_QQ):
+        return None
+    it = iter(els)
+    Ff = [[next(it) for _ in range(n)] for _ in range(d)]
+    Mf = [[next(it) for _ in range(n)] for _ in range(n)]
+    Af = [next(it) for _ in range(n)]
+    Uf = next(it)
+    pif = [next(it) for _ in range(d)]
+    cf = {key: [next(it) for _ in range(n)] for key in raw}
+
+    def dot(xs, ys):
+        return sum((x * y for x, y in zip(xs, ys) if x and y), K_.zero)
+
+    MFt = [[dot(Mf[a], Ff[l]) for l in range(d)] for a in range(n)]  # (M F^T)_{a l}
+    Kf = [[dot([Ff[i][a] for a in range(n)], [MFt[a][l] for a in range(n)]) for l in range(d)] for i in range(d)]
+    Kinv = _field_inverse(Kf, K_)
+    w = [pif[i] - dot(Ff[i], Af) for i in range(d)]
+    a = [dot(Kinv[i], w) for i in range(d)]
+    v = [dot([Ff[i][b] for i in range(d)], a) for b in range(n)]
+    p = [Af[b] + dot(Mf[b], v) for b in range(n)]
+    H = dot(w, a) / 2 + Uf
+    T = sp.zeros(n + d, n + d)
+    for i in range(d):
+        for b in range(n):
+            if F[i, b] != 0:
+                T[b, n + i] = F[i, b]
+                T[n + i, b] = -F[i, b]
+    for (i, j), cij in cf.items():
+        e = _field_expr(-dot(cij, p))
+        if e != 0:
+            T[n + i, n + j] = e
+            T[n + j, n + i] = -e
+    return {"c": {key: [_field_expr(x) for x in cij] for key, cij in cf.items()},
+            "K": sp.Matrix(d, d, lambda i, j: _field_expr(Kf[i][j])), "H": _field_expr(H),
+            "velocity": [_field_expr(x) for x in v], "p": [_field_expr(x) for x in p], "tensor": T}
