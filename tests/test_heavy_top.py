@@ -202,3 +202,33 @@ def test_heavy_top_case_detection():
     generic = ls.HeavyTop(**TOP)
     inv = generic.invariants(generic.initial_state(omega=OMEGA))
     assert not {"M2", "M3", "kovalevskaya"} & set(inv)
+
+
+def test_heavy_top_is_the_rigid_body_with_gravity_derived_by_constrained_system():
+    """The nine entries of R with R^T R = 1, L = 1/2 tr(Rdot g Rdot^T) - mass g (R com)_3 and the frame R^-T E_k,
+    derived by ConstrainedSystem's intermediate formalism: its vector field equals HeavyTop's (both brackets, 11.20
+    and its Chetaev form) at rotations with rational entries, at 50 digits; g = (5/2, 3/2, 1/2) gives the inertia
+    I = tr(g) - g = (2, 3, 4)."""
+    import random
+
+    from lieseries.expr import compile_expressions
+    from test_intermediate import _rotation, rigid_body_system
+
+    com = ("1/2", "-1/3", "1/4")
+    cs, frame = rigid_body_system(potential="mass*grav*(R31*c1 + R32*c2 + R33*c3)",
+                                  parameters={"mass": 2, "grav": "9.81", "c1": com[0], "c2": com[1], "c3": com[2]})
+    derived = cs.intermediate(frame=frame, momenta=["M1", "M2", "M3"])
+
+    def field(model, z):
+        ps = model.poisson
+        prog = compile_expressions(ps.variables, ps.vector_field, len(ps.parameter_values), cse=False)
+        return prog.evaluate(list(z), list(ps.parameter_values), 50)
+
+    rng = random.Random(8)
+    for bracket in ("intermediate", "chetaev"):
+        top = ls.HeavyTop((2, 3, 4), com=com, mass=2, g="9.81", bracket=bracket)
+        for _ in range(2):
+            R = _rotation(None, *[Fraction(rng.randint(-9, 9)) for _ in range(4)])
+            z = [e for row in R for e in row] + [Fraction(rng.randint(-900, 900), 100) for _ in range(3)]
+            for x, y in zip(field(derived, z), field(top, z)):
+                assert abs(x - y) < 1e-44 * (1 + abs(y))
