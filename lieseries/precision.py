@@ -33,6 +33,10 @@ __all__ = [
     "MAX_DPS",
     "MAX_BITS",
     "MAX_ORDER",
+    "MAX_SAMPLES",
+    "MAX_TIME_MAGNITUDE",
+    "check_time",
+    "check_count",
     "MAX_EXPONENT",
     "MAX_DIGITS",
     "EXACT_BITS",
@@ -80,6 +84,11 @@ MAX_DPS = 10_000
 MAX_BITS = 1024
 #: Highest series order the Lie engine computes (the cost grows like order^2 per node of the field).
 MAX_ORDER = 2000
+#: Times lie within 1e-MAX_TIME_MAGNITUDE .. 1eMAX_TIME_MAGNITUDE in magnitude: runs report the times they reached,
+#: and reports plot them, as doubles.
+MAX_TIME_MAGNITUDE = 300
+#: Most output samples (times) a run or a study keeps.
+MAX_SAMPLES = 100_000
 #: Largest decimal exponent of an input number (|x| < 10**MAX_EXPONENT, nonzero |x| > 10**-MAX_EXPONENT).
 MAX_EXPONENT = 4000
 #: Most digits of a number written as a decimal string (a run uses at most MAX_DPS of them).
@@ -141,14 +150,27 @@ def check_tolerance(tol, prec: "Precision") -> Fraction:
         return eps
     f = to_fraction(tol, "tol")
     if f <= 0:
-        raise ValueError(f"`tol` must be positive; got {float(f)}. Leave it out to use the precision's epsilon.")
+        raise ValueError(f"`tol` must be positive; got {short_decimal(f)}. Leave it out to use the precision's "
+                         "epsilon.")
     if f >= 1:
-        raise ValueError(f"`tol` must be below 1 (it is a relative and absolute tolerance); got {float(f)}")
+        raise ValueError(f"`tol` must be below 1 (it is a relative and absolute tolerance); got {short_decimal(f)}")
     if f < eps:
         raise ValueError(
             f"`tol` = {float(f):.3g} is below the epsilon of {prec.name} ({float(eps):.3g}): no run in that "
             "precision can reach it. Raise `tol`, or choose a higher `precision`."
         )
+    return f
+
+
+def check_time(value, argname: str = "t", *, positive: bool = False) -> Fraction:
+    """A nonzero (``positive``: positive) time within 1e-MAX_TIME_MAGNITUDE .. 1eMAX_TIME_MAGNITUDE in magnitude,
+    as an exact Fraction."""
+    f = to_fraction(value, argname)
+    if f == 0 or (positive and f < 0):
+        raise ValueError(f"`{argname}` must be a {'positive' if positive else 'nonzero'} time; got {value!r}")
+    if not Fraction(1, 10**MAX_TIME_MAGNITUDE) <= abs(f) <= 10**MAX_TIME_MAGNITUDE:
+        raise ValueError(f"`{argname}` = {short_decimal(f)} must lie within 1e-{MAX_TIME_MAGNITUDE} .. "
+                         f"1e{MAX_TIME_MAGNITUDE} in magnitude (runs report their times as doubles)")
     return f
 
 

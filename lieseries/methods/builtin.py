@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time as _time
 from fractions import Fraction
 
@@ -10,12 +11,12 @@ import numpy as np
 from .. import fields as F
 from ..models.base import state_fractions
 from ..poisson import as_poisson_system
-from ..precision import (bits_to_dps, data_bits, dps_to_bits, export_mpf, mp_context, resolve_precision, to_fraction,
-                         warn_if_coarse)
+from ..precision import (MAX_DPS, MAX_ORDER, MIN_DPS, bits_to_dps, check_dps, check_tolerance, data_bits, dps_to_bits,
+                         export_mpf, mp_context, resolve_precision, to_fraction, warn_if_coarse)
 from ..precision import thread_mp as mp
 from .registry import Method, RunRecord, best_of, precision_name, register_method, setting, setting_number, thin
 
-__all__ = ["clear_rhs_cache"]
+__all__ = ["MAX_ODEFUN_DPS", "clear_rhs_cache", "odefun_digits"]
 
 
 # -- compiled right-hand sides (cached per system structure) ---------------------------------------------------
@@ -102,6 +103,18 @@ def _run_taylor(system, y0, tf, grid, spec, label, repeat):
     )
 
 
+def _check_double_tolerance(value, argname: str, *, below_one: bool = True) -> float:
+    """A scipy tolerance: a positive number (below 1 for ``rtol``) that is a positive, finite double (scipy computes
+    in double: 1e-400 would become 0)."""
+    f = to_fraction(value, argname)
+    if f <= 0 or (below_one and f >= 1):
+        raise ValueError(f"`{argname}` must be a number {'in (0, 1)' if below_one else '> 0'}; got {value!r}")
+    x = float(f) if f < 2**1000 else math.inf
+    if not (0 < x < math.inf):
+        raise ValueError(f"`{argname}` = {value!r} is not a positive finite double (scipy computes in double)")
+    return x
+
+
 def _run_scipy(system, y0, tf, grid, spec, label, repeat):
     from scipy.integrate import solve_ivp
 
@@ -111,8 +124,8 @@ def _run_scipy(system, y0, tf, grid, spec, label, repeat):
     y0f = np.asarray(y0f, dtype=float)
     if len(y0f) != ps.dimension:
         raise ValueError(f"`y0` must have {ps.dimension} entries; got {len(y0f)}")
-    rtol = float(spec["rtol"])
-    atol = rtol if spec["atol"] is None else float(spec["atol"])
+    rtol = _check_double_tolerance(spec["rtol"], "rtol")
+    atol = rtol if spec["atol"] is None else _check_double_tolerance(spec["atol"], "atol", below_one=False)
     t_eval = None if grid is None else np.array([float(v) for v in grid])
     span = (0.0, float(tf))
     res, walls = best_of(
@@ -149,9 +162,9 @@ def _run_lie(system, y0, tf, grid, spec, label, repeat):
 def _run_validated(system, y0, tf, grid, spec, label, repeat):
     from ..validated import certified_digits, midpoints, validated_integrate
 
-    kwargs = {"dps": int(spec["dps"])}
+    kwargs = {"dps": spec["dps"]}
     if spec.get("order") is not None:
-        kwargs["order"] = int(spec["order"])
+        kwargs["order"] = spec["order"]
     t_arg = grid if grid is not None else tf
     sol, walls = best_of(lambda: validated_integrate(system, y0, t_arg, **kwargs), repeat)
     times = [to_fraction(v) for v in sol.t]
@@ -166,10 +179,36 @@ def _run_validated(system, y0, tf, grid, spec, label, repeat):
     )
 
 
+def _check_t_max(value, argname: str) -> Fraction:
+    f = to_fraction(value, argname)
+    if f <= 0:
+        raise ValueError(f"`{argname}` must be a positive time (the run is capped at |t| <= t_max); got {value!r}")
+    return f
+
+
+def odefun_digits(dps: int) -> int:
+    """Digits at which mpmath.odefun evaluates the right-hand side of a run at ``dps`` digits: its Taylor method
+    works at (1 + degree) times the precision, with degree 3 + 1.5 dps."""
+    return bits_to_dps(dps_to_bits(dps) * (4 + int(3 * dps / 2)))
+
+
+#: Most digits of the mpmath method: above them odefun's own working digits pass MAX_DPS.
+MAX_ODEFUN_DPS = next(d for d in range(MIN_DPS, MAX_DPS) if odefun_digits(d + 1) > MAX_DPS)
+
+
+def _check_odefun_dps(dps, argname: str = "dps") -> int:
+    dps = check_dps(dps, argname)
+    if dps > MAX_ODEFUN_DPS:
+        raise ValueError(f"`{argname}` must be at most {MAX_ODEFUN_DPS} for mpmath.odefun, which works internally "
+                         f"at about 1.5 dps^2 digits ({odefun_digits(dps)} for {dps}, above {MAX_DPS}); got {dps}. "
+                         "Use the Lie-series method for more digits.")
+    return dps
+
+
 def _run_mpmath(system, y0, tf, grid, spec, label, repeat):
     ps = as_poisson_system(system)
-    dps = int(spec["dps"])
-    t_max = to_fraction(spec["t_max"], "t_max")
+    dps = _check_odefun_dps(spec["dps"])
+    t_max = _check_t_max(spec["t_max"], "t_max")
     t_run = tf if abs(tf) <= t_max else (t_max if tf > 0 else -t_max)
     fn = _mpmath_rhs(system)
     # the exact values of a model state (its float entries are roundings: 0.2 as a double cost 1e-17 here)
@@ -214,7 +253,10 @@ def _taylor_precision(spec) -> str:
 
 def _taylor_setting(spec) -> str:
     if spec["tol"] is None:
-        return f"tol=eps ({resolve_precision(spec['precision']).eps:.3g})"
+        try:
+            return f"tol=eps ({resolve_precision(spec['precision']).eps:.3g})"
+        except (TypeError, ValueError):  # refused by the run, which names `precision`
+            return "tol=eps"
     return f"tol={setting_number(spec['tol'])}"
 
 
@@ -233,12 +275,36 @@ def _taylor_atlas(model, y0, t_arg, spec):
 
 
 def _lie_kwargs(spec) -> dict:
-    kwargs = {"dps": int(spec["dps"])}
+    kwargs = {"dps": spec["dps"]}
     if spec.get("tol") is not None:
         kwargs["tol"] = spec["tol"]
     if spec.get("order") is not None:
-        kwargs["order"] = int(spec["order"])
+        kwargs["order"] = spec["order"]
     return kwargs
+
+
+def _lie_check(spec) -> None:
+    """What lie_integrate refuses of a specification before it runs: a tolerance below what ``dps`` digits (plus
+    the engine's guard digits) resolve, and an automatic series order above MAX_ORDER."""
+    from ..lie.integrator import default_order
+    from ..lie.operator import GUARD_DIGITS
+
+    ctx = mp_context()
+    dps = spec["dps"]
+    tol = Fraction(1, 10**dps) if spec.get("tol") is None else to_fraction(spec["tol"], "tol")
+    if tol < Fraction(1, 10 ** (dps + GUARD_DIGITS)):
+        raise ValueError(f"`tol` = {float(tol):.3g} is below what {dps} digits (+{GUARD_DIGITS} guard) can resolve; "
+                         f"raise `dps`")
+    if spec.get("order") is None:
+        n_auto = default_order(ctx.mpf(tol.numerator) / tol.denominator)
+        if n_auto > MAX_ORDER:
+            raise ValueError(f"`{'tol' if spec.get('tol') is not None else 'dps'}` asks for the automatic series "
+                             f"order {n_auto}, above the largest order {MAX_ORDER}: give `order` (at most "
+                             f"{MAX_ORDER}), or ask for fewer digits")
+
+
+def _taylor_check(spec) -> None:
+    check_tolerance(spec["tol"], resolve_precision(spec["precision"]))
 
 
 def _lie_atlas(model, y0, t_arg, spec):
@@ -295,21 +361,22 @@ register_method(Method(
     label=lambda spec: f"heyoka {resolve_precision(spec['precision']).name}",
     precision=_taylor_precision, setting=_taylor_setting, digits=_taylor_digits, run=_run_taylor,
     bits=lambda spec: resolve_precision(spec["precision"]).bits, atlas=_taylor_atlas, quick_study=_thin_lists,
-    list_keys=("precision", "tol"),
+    list_keys=("precision", "tol"), check=_taylor_check,
 ))
 register_method(Method(
     "lie",
-    fields={"dps": (F.integer(10, 10_000), 30), "tol": (F.positive, None), "order": (F.integer(1, 10_000), None)},
+    fields={"dps": (F.dps, 30), "tol": (F.tolerance, None), "order": (F.order, None)},
     docs={"dps": ("integer", "decimal digits of lie_integrate (a list in work_precision)"),
-          "tol": ("positive number", "the per-step tolerance (default 10^-dps)"),
+          "tol": ("number in (0, 1)", "the per-step tolerance (default 10^-dps)"),
           "order": ("integer", "a fixed series order (default: the automatic one)")},
     label=lambda spec: f"Lie series {spec['dps']} dps", precision=lambda spec: f"{spec['dps']} dps",
     setting=_dps_setting, digits=_dps_digits, run=_run_lie, bits=lambda spec: dps_to_bits(spec["dps"]),
-    state_digits=_dps_digits, atlas=_lie_atlas, quick_study=_thin_lists, list_keys=("tol", "dps"),
+    state_digits=_dps_digits, atlas=_lie_atlas, quick_study=_thin_lists, list_keys=("tol", "dps"), check=_lie_check,
 ))
 register_method(Method(
     "scipy",
-    fields={"rtol": (F.tolerance, 1e-10), "atol": (F.positive, None)},
+    fields={"rtol": (F.api(_check_double_tolerance), 1e-10),
+            "atol": (F.api(_check_double_tolerance, below_one=False), None)},
     docs={"rtol": ("number in (0, 1)", "DOP853's relative tolerance (a list in work_precision)"),
           "atol": ("positive number", "its absolute tolerance (default rtol)")},
     label=lambda spec: "scipy DOP853", precision=lambda spec: "double", setting=_scipy_setting,
@@ -317,8 +384,8 @@ register_method(Method(
 ))
 register_method(Method(
     "mpmath",
-    fields={"dps": (F.integer(5, 10_000), 15), "t_max": (F.positive, 2.0)},
-    docs={"dps": ("integer", "digits of mpmath.odefun"),
+    fields={"dps": (F.api(_check_odefun_dps), 15), "t_max": (F.api(_check_t_max), 2.0)},
+    docs={"dps": (f"integer {MIN_DPS}..{MAX_ODEFUN_DPS}", "digits of mpmath.odefun"),
           "t_max": ("positive number", "the run is capped at |t| <= t_max (odefun is slow)")},
     label=lambda spec: f"mpmath odefun {spec['dps']} dps", precision=lambda spec: f"{spec['dps']} dps",
     setting=lambda spec: f"dps={spec['dps']}", digits=_dps_digits, run=_run_mpmath,
@@ -327,7 +394,7 @@ register_method(Method(
 ))
 register_method(Method(
     "validated",
-    fields={"dps": (F.integer(5, 10_000), 30), "order": (F.integer(1, 10_000), None)},
+    fields={"dps": (F.dps, 30), "order": (F.order, None)},
     docs={"dps": ("integer", "digits of validated_integrate's ball arithmetic (certified enclosures)"),
           "order": ("integer", "a fixed series order (default: the automatic one)")},
     label=lambda spec: f"validated (Arb) {spec['dps']} dps", precision=lambda spec: f"{spec['dps']} dps",

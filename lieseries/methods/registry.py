@@ -149,7 +149,10 @@ def setting_number(v) -> str:
         return v
     if isinstance(v, int):
         return str(v)
-    return f"{float(v):.3g}"
+    try:
+        return f"{float(v):.3g}"
+    except (TypeError, ValueError, OverflowError):  # not a number: the run refuses it, naming the setting
+        return repr(v)
 
 
 def normalize_method(spec, where: str = "method") -> dict:
@@ -183,11 +186,7 @@ def expand_methods(methods, where: str = "methods") -> list:
     out = []
     for i, spec in enumerate(methods):
         s = normalize_method(spec, f"{where}[{i}]")
-        runs = [s]
-        for key in _METHODS[s["method"]].list_keys:
-            if isinstance(s.get(key), (list, tuple)):
-                runs = [dict(r, **{key: v}) for r in runs for v in s[key]]
-        out.extend(runs)
+        out.extend(_settings(s, _METHODS[s["method"]].list_keys))
     return out
 
 
@@ -270,7 +269,10 @@ def run_method(system, y0, t, spec: dict, *, times=None, repeat: int = 1) -> Run
     spec = normalize_method(spec)
     m = spec["method"]
     tf, grid = _grid(t, times)
-    label = method_label(spec)
+    try:
+        label = method_label(spec)
+    except (TypeError, ValueError):  # a setting the run refuses below, naming it
+        label = m
     try:
         return _METHODS[m].run(system, y0, tf, grid, spec, label, repeat)
     except Exception as err:  # a failing method is a row of the study, not the end of it
@@ -320,6 +322,9 @@ class Method:
     quick_run, quick_study : spec -> None, optional: scale the specification down in quick mode (in a scene's
                                  [run], in a work-precision study), in place
     list_keys : tuple            keys that may be lists in work-precision studies (one run per value)
+    check : spec -> None, optional: the API's checks that tie several fields together (a tolerance against the
+                                 precision, ...), on a specification with scalar settings; raises ValueError or
+                                 TypeError naming the key in backticks, as the run itself would
     """
 
     name: str
@@ -336,6 +341,7 @@ class Method:
     quick_run: Callable | None = None
     quick_study: Callable | None = None
     list_keys: tuple = ()
+    check: Callable | None = None
 
     @property
     def defaults(self) -> dict:
@@ -396,6 +402,13 @@ def scene_methods(lists: bool):
         out = F.table(data, path, spec)
         if out["label"] is None:
             del out["label"]
+        if plugin.check is not None:
+            for one_spec in _settings(out, plugin.list_keys):
+                try:
+                    plugin.check(one_spec)
+                except (TypeError, ValueError) as err:
+                    where = ", ".join(f"{k} = {F.show(one_spec[k])}" for k in plugin.fields)
+                    raise F.SceneError(f"`{path}` ({where}): {err}") from None
         return out
 
     def check(value, path):
@@ -404,6 +417,15 @@ def scene_methods(lists: bool):
         return [one(m, f"{path}[{i}]") for i, m in enumerate(value)]
 
     return check
+
+
+def _settings(spec: dict, list_keys) -> list:
+    """One specification per combination of the list-valued ``list_keys`` of ``spec``."""
+    runs = [spec]
+    for key in list_keys:
+        if isinstance(spec.get(key), (list, tuple)):
+            runs = [dict(r, **{key: v}) for r in runs for v in spec[key]]
+    return runs
 
 
 def thin(values, keep: int = 3):
