@@ -54,6 +54,9 @@ __all__ = [
     "check_tolerance",
     "check_order",
     "Precision",
+    "LIE_GUARD_DIGITS",
+    "EXACT_GUARD_DIGITS",
+    "VALIDATED_GUARD_BITS",
     "resolve_precision",
     "to_fraction",
     "short_decimal",
@@ -238,20 +241,71 @@ def bits_to_dps(bits: int) -> int:
     return mp.libmp.prec_to_dps(int(bits))
 
 
+#: Guard digits and bits the engines carry above the precision a user asks for, in one place. They differ because
+#: each covers a different loss:
+#: the Lie series carries LIE_GUARD_DIGITS between steps (its partial sums cancel a few digits per step; 10 keeps
+#: the last digit of a ``dps``-digit result);
+LIE_GUARD_DIGITS = 10
+#: the closed forms carry EXACT_GUARD_DIGITS (elliptic functions and theta series lose more: the argument reduction
+#: of a large time costs digits in proportion to its size, and 20 covers the times a run reaches);
+EXACT_GUARD_DIGITS = 20
+#: the validated (Arb) engine carries VALIDATED_GUARD_BITS (counted in bits, as Arb's radii are: 32 bits, about
+#: 9.6 digits, the Lie engine's margin).
+VALIDATED_GUARD_BITS = 32
+
+
 @dataclass(frozen=True)
 class Precision:
-    """A floating-point format that heyoka integrates in.
+    """The one precision type: a floating-point format heyoka integrates in ("double", "long double", "quad",
+    ``real<bits>``) or a number of decimal digits of an mpmath/Arb engine ("30 dps").
+
+    Make one with :meth:`of` (or :func:`resolve_precision`, for heyoka's formats only).
 
     Attributes
     ----------
     name : str
-        ``"double"``, ``"long double"``, ``"quad"`` or ``"real<bits>"``.
+        Its label: ``"double"``, ``"long double"``, ``"quad"``, ``"real<bits>"`` or ``"<dps> dps"``.
     bits : int
-        Significand bits (53, 64, 113, or the arbitrary-precision setting).
+        Significand bits (53, 64, 113, the arbitrary-precision setting, or what ``dps`` digits need).
+    digits : int or None
+        The decimal digits of a decimal precision (None for a binary format).
+    guard_digits, guard_bits : int
+        What the engine carries above it between steps (:data:`LIE_GUARD_DIGITS`, :data:`VALIDATED_GUARD_BITS`).
     """
 
     name: str
     bits: int
+    digits: int | None = None
+    guard_digits: int = 0
+    guard_bits: int = 0
+
+    @classmethod
+    def of(cls, precision=None, *, dps=None, guard_digits: int = 0, guard_bits: int = 0,
+           argname: str = "precision") -> "Precision":
+        """A Precision from a name ("double", "long double", "quad"), a number of bits, a Precision, or (``dps=``)
+        a number of decimal digits, checked like the API checks them (:func:`check_dps`)."""
+        if dps is not None:
+            if precision is not None:
+                raise TypeError("give `precision` or `dps`, not both")
+            d = check_dps(dps, "dps")
+            return cls(f"{d} dps", dps_to_bits(d), d, int(guard_digits), int(guard_bits))
+        return resolve_precision(precision, argname)
+
+    @property
+    def is_decimal(self) -> bool:
+        """True for a number of decimal digits (mpmath, Arb); False for a binary format heyoka integrates in."""
+        return self.digits is not None
+
+    @property
+    def working_eps(self) -> float:
+        """The unit round-off of the numbers the engine carries between steps: :attr:`eps` reduced by the guard
+        digits and bits (the size of a perturbation an instability amplifies)."""
+        if self.digits is not None:
+            return 10.0 ** -(self.digits + self.guard_digits) * 2.0 ** -self.guard_bits
+        return self.eps * 10.0 ** -self.guard_digits * 2.0 ** -self.guard_bits
+
+    def __str__(self) -> str:
+        return self.name
 
     @property
     def is_real(self) -> bool:
@@ -271,7 +325,10 @@ class Precision:
 
     @property
     def eps(self) -> float:
-        """Machine epsilon 2**(1 - bits), as a Python float (underflows to 0 only beyond 1074 bits)."""
+        """Unit round-off: 10**-digits for a decimal precision, else machine epsilon 2**(1 - bits), as a Python
+        float (underflows to 0 only beyond 1074 bits, or 323 digits)."""
+        if self.digits is not None:
+            return 10.0 ** -self.digits
         return math.ldexp(1.0, 1 - self.bits)
 
     @property
@@ -282,7 +339,7 @@ class Precision:
     @property
     def dps(self) -> int:
         """Decimal digits carried by this precision."""
-        return bits_to_dps(self.bits)
+        return self.digits if self.digits is not None else bits_to_dps(self.bits)
 
     @property
     def numpy_dtype(self):
@@ -377,8 +434,6 @@ class Precision:
         """A time value in this precision (what heyoka's propagate functions take)."""
         return self.to_native(t, "t")
 
-    def __str__(self) -> str:  # pragma: no cover - trivial
-        return self.name
 
 
 class NamedValues(tuple):

@@ -267,3 +267,37 @@ def test_drift_tolerance_is_the_apis(tol):
     except F.SceneError:
         scene = True
     assert scene == api == (tol == "1e-17")
+
+
+# -- one precision type ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("spec, name, eps, working", [
+    ({"method": "lie", "dps": 20}, "20 dps", 1e-20, 1e-30),  # 10 guard digits between steps
+    ({"method": "validated", "dps": 20}, "20 dps", 1e-20, 1e-20 * 2.0**-32),  # 32 guard bits
+    ({"method": "mpmath", "dps": 20}, "20 dps", 1e-20, 1e-20),
+    ({"method": "taylor", "precision": "quad"}, "quad", 2.0**-112, 2.0**-112),
+    ({"method": "scipy"}, "double", 2.0**-52, 2.0**-52),
+])
+def test_a_run_record_carries_its_precision(spec, name, eps, working):
+    """The record's precision is a Precision (eps, guard) read by studies and reports, written as the same text."""
+    import pickle
+
+    rec = run_method(BODY, Y0, 0, spec)
+    assert rec.status == "success", rec.message
+    assert isinstance(rec.precision, ls.Precision)
+    assert rec.precision.eps == pytest.approx(eps, rel=1e-12)
+    assert rec.precision.working_eps == pytest.approx(working, rel=1e-12)
+    assert rec.to_dict()["precision"] == name
+    assert pickle.loads(pickle.dumps(rec)).precision == rec.precision
+
+
+def test_precision_of_names_bits_and_digits():
+    P = ls.Precision
+    assert P.of("double") is ls.resolve_precision("double") and P.of("binary128").bits == 113
+    assert P.of(200).name == "real200" and P.of(200).eps == 2.0**-199
+    d = P.of(dps=50)
+    assert (d.name, d.dps, d.eps, d.is_decimal) == ("50 dps", 50, 1e-50, True)
+    assert d.bits >= 50 * 3.3219 and not P.of("quad").is_decimal
+    with pytest.raises(ValueError, match="`dps`"):
+        P.of(dps=MAX_DPS + 1)
+    with pytest.raises(TypeError, match="not both"):
+        P.of("double", dps=30)

@@ -11,10 +11,11 @@ import numpy as np
 from .. import fields as F
 from ..models.base import state_fractions
 from ..poisson import as_poisson_system
-from ..precision import (MAX_DPS, MAX_ORDER, MIN_DPS, bits_to_dps, check_dps, check_tolerance, data_bits, dps_to_bits,
-                         export_mpf, mp_context, resolve_precision, to_fraction, warn_if_coarse)
+from ..precision import (LIE_GUARD_DIGITS, MAX_DPS, MAX_ORDER, MIN_DPS, VALIDATED_GUARD_BITS, Precision, bits_to_dps,
+                         check_dps, check_tolerance, data_bits, dps_to_bits, export_mpf, mp_context, resolve_precision,
+                         to_fraction, warn_if_coarse)
 from ..precision import thread_mp as mp
-from .registry import Method, RunRecord, best_of, precision_name, register_method, setting, setting_number, thin
+from .registry import Method, RunRecord, best_of, register_method, run_precision, setting, setting_number, thin
 
 __all__ = ["MAX_ODEFUN_DPS", "clear_rhs_cache", "odefun_digits"]
 
@@ -96,7 +97,7 @@ def _run_taylor(system, y0, tf, grid, spec, label, repeat):
     run_times = [walls[0] - build] + walls[1:]
     times, states = _rows_with_reached(sol)
     return RunRecord(
-        "taylor", label, prec.name, setting(spec), float(times[-1]), float(tf), t_exact=times[-1],
+        "taylor", label, prec, setting(spec), float(times[-1]), float(tf), t_exact=times[-1],
         times=[float(v) for v in times], states=states, steps=int(sol.stats.steps), nfev=None,
         order=int(sol.stats.order), build_time=float(build), run_time=float(min(run_times)),
         core_time=float(sol.stats.run_time), status=sol.status, message=sol.message,
@@ -135,7 +136,7 @@ def _run_scipy(system, y0, tf, grid, spec, label, repeat):
     states = [res.y[:, k].copy() for k in range(res.y.shape[1])]
     times = [float(v) for v in res.t]
     return RunRecord(
-        "scipy", label, "double", setting(spec), times[-1] if times else 0.0, float(tf),
+        "scipy", label, resolve_precision("double"), setting(spec), times[-1] if times else 0.0, float(tf),
         t_exact=tf if ok else (to_fraction(times[-1]) if times else Fraction(0)), times=times,
         states=states, steps=None if t_eval is not None else int(len(res.t) - 1), nfev=int(res.nfev), order=8,
         build_time=float(build), run_time=float(min(walls)), status="success" if ok else "failed",
@@ -152,7 +153,7 @@ def _run_lie(system, y0, tf, grid, spec, label, repeat):
     st = sol.stats
     times, states = _rows_with_reached(sol)
     return RunRecord(
-        "lie", label, precision_name(spec), setting(spec), float(times[-1]), float(tf), t_exact=times[-1],
+        "lie", label, run_precision(spec), setting(spec), float(times[-1]), float(tf), t_exact=times[-1],
         times=[float(v) for v in times], states=states, steps=int(st.steps), nfev=None,
         order=int(st.order) if st.order else None, build_time=None, run_time=float(min(walls)),
         core_time=float(st.run_time) if st.run_time else None, status=sol.status, message=sol.message,
@@ -171,7 +172,7 @@ def _run_validated(system, y0, tf, grid, spec, label, repeat):
     states = [list(row) for row in midpoints(sol, as_mpf=True)]
     digits = [float(d) for d in certified_digits(sol)] if len(sol.y) else []
     return RunRecord(
-        "validated", label, precision_name(spec), setting(spec), float(times[-1]) if times else 0.0, float(tf),
+        "validated", label, run_precision(spec), setting(spec), float(times[-1]) if times else 0.0, float(tf),
         t_exact=times[-1] if times else None, times=[float(v) for v in times], states=states,
         steps=int(sol.stats.steps), order=int(sol.stats.order), build_time=None, run_time=float(min(walls)),
         core_time=float(sol.stats.run_time), status=sol.status, message=sol.message,
@@ -237,18 +238,15 @@ def _run_mpmath(system, y0, tf, grid, spec, label, repeat):
     msg = (f"capped at t = {float(t_run):g} (t_max = {float(t_max):g}; mpmath.odefun is slow)" if capped
            else f"Reached t = {float(tf):g}.")
     return RunRecord(
-        "mpmath", label, f"{dps} dps", setting(spec), float(t_run), float(tf), t_exact=t_run,
+        "mpmath", label, run_precision(spec), setting(spec), float(t_run), float(tf), t_exact=t_run,
         times=[float(v) for v in out_times], states=states, steps=None, nfev=nfev, order=None, build_time=None,
         run_time=float(min(walls)), status="success", message=msg,
     )
 
 
 # -- the built-in methods --------------------------------------------------------------------------------------
-def _taylor_precision(spec) -> str:
-    try:
-        return resolve_precision(spec["precision"]).name
-    except (TypeError, ValueError):
-        return str(spec["precision"])
+def _taylor_precision(spec) -> Precision:
+    return resolve_precision(spec["precision"])
 
 
 def _taylor_setting(spec) -> str:
@@ -369,7 +367,8 @@ register_method(Method(
     docs={"dps": ("integer", "decimal digits of lie_integrate (a list in work_precision)"),
           "tol": ("number in (0, 1)", "the per-step tolerance (default 10^-dps)"),
           "order": ("integer", "a fixed series order (default: the automatic one)")},
-    label=lambda spec: f"Lie series {spec['dps']} dps", precision=lambda spec: f"{spec['dps']} dps",
+    label=lambda spec: f"Lie series {spec['dps']} dps",
+    precision=lambda spec: Precision.of(dps=spec["dps"], guard_digits=LIE_GUARD_DIGITS),
     setting=_dps_setting, digits=_dps_digits, run=_run_lie, bits=lambda spec: dps_to_bits(spec["dps"]),
     state_digits=_dps_digits, atlas=_lie_atlas, quick_study=_thin_lists, list_keys=("tol", "dps"), check=_lie_check,
 ))
@@ -379,7 +378,7 @@ register_method(Method(
             "atol": (F.api(_check_double_tolerance, below_one=False), None)},
     docs={"rtol": ("number in (0, 1)", "DOP853's relative tolerance (a list in work_precision)"),
           "atol": ("positive number", "its absolute tolerance (default rtol)")},
-    label=lambda spec: "scipy DOP853", precision=lambda spec: "double", setting=_scipy_setting,
+    label=lambda spec: "scipy DOP853", precision=lambda spec: resolve_precision("double"), setting=_scipy_setting,
     digits=lambda spec: 16, run=_run_scipy, quick_study=_thin_lists, list_keys=("rtol",),
 ))
 register_method(Method(
@@ -387,7 +386,7 @@ register_method(Method(
     fields={"dps": (F.api(_check_odefun_dps), 15), "t_max": (F.api(_check_t_max), 2.0)},
     docs={"dps": (f"integer {MIN_DPS}..{MAX_ODEFUN_DPS}", "digits of mpmath.odefun"),
           "t_max": ("positive number", "the run is capped at |t| <= t_max (odefun is slow)")},
-    label=lambda spec: f"mpmath odefun {spec['dps']} dps", precision=lambda spec: f"{spec['dps']} dps",
+    label=lambda spec: f"mpmath odefun {spec['dps']} dps", precision=lambda spec: Precision.of(dps=spec["dps"]),
     setting=lambda spec: f"dps={spec['dps']}", digits=_dps_digits, run=_run_mpmath,
     bits=lambda spec: dps_to_bits(spec["dps"]), state_digits=_dps_digits, quick_run=_mpmath_quick_run,
     quick_study=_mpmath_quick_study, list_keys=("dps",),
@@ -397,7 +396,8 @@ register_method(Method(
     fields={"dps": (F.dps, 30), "order": (F.order, None)},
     docs={"dps": ("integer", "digits of validated_integrate's ball arithmetic (certified enclosures)"),
           "order": ("integer", "a fixed series order (default: the automatic one)")},
-    label=lambda spec: f"validated (Arb) {spec['dps']} dps", precision=lambda spec: f"{spec['dps']} dps",
+    label=lambda spec: f"validated (Arb) {spec['dps']} dps",
+    precision=lambda spec: Precision.of(dps=spec["dps"], guard_bits=VALIDATED_GUARD_BITS),
     setting=_dps_setting, digits=_dps_digits, run=_run_validated, state_digits=_dps_digits,
     quick_run=_validated_quick_run, quick_study=_thin_lists, list_keys=("dps",),
 ))
