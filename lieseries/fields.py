@@ -10,16 +10,16 @@ from __future__ import annotations
 
 import copy
 import difflib
-from fractions import Fraction
 
-from .precision import resolve_precision, to_fraction
+from .precision import MAX_EXPONENT, MAX_ORDER, check_count, check_time, check_dps, check_order, resolve_precision, to_fraction
 
 __all__ = ["SceneError", "REQUIRED", "MAX_MAGNITUDE", "show", "fail", "table", "number", "positive", "nonnegative",
            "fraction01", "tolerance", "nonzero", "integer", "boolean", "string", "choice", "identifier", "vector3",
-           "matrix3", "precision", "list_of", "orders"]
+           "matrix3", "precision", "list_of", "orders", "api", "dps", "order", "count", "time"]
 
-#: Numbers in a scene lie within 1e-MAX_MAGNITUDE .. 1eMAX_MAGNITUDE in magnitude (or are 0).
-MAX_MAGNITUDE = 300
+#: Numbers in a scene lie within 1e-MAX_MAGNITUDE .. 1eMAX_MAGNITUDE in magnitude (or are 0): the API's bound
+#: (:data:`lieseries.precision.MAX_EXPONENT`, what :func:`~lieseries.precision.to_fraction` accepts).
+MAX_MAGNITUDE = MAX_EXPONENT
 
 
 class SceneError(ValueError):
@@ -53,8 +53,7 @@ def number(value, path, *, positive=False, nonzero=False, below_one=False, what=
         fail(path, what + ' (a decimal string such as "0.1" is read exactly)', value)
     except ValueError as err:
         raise SceneError(str(err)) from None
-    if q != 0 and not (Fraction(1, 10**MAX_MAGNITUDE) <= abs(q) <= 10**MAX_MAGNITUDE):
-        fail(path, f"a number of magnitude between 1e-{MAX_MAGNITUDE} and 1e{MAX_MAGNITUDE} (or 0)", value)
+    # its magnitude is bounded by to_fraction, as in the API (MAX_MAGNITUDE)
     if positive and q <= 0:
         fail(path, "a positive number", value)
     if nonzero and q == 0:
@@ -62,6 +61,11 @@ def number(value, path, *, positive=False, nonzero=False, below_one=False, what=
     if below_one and not (0 < q < 1):
         fail(path, "a number between 0 and 1", value)
     return value
+
+
+def time(positive=False):
+    """A time: a nonzero (``positive``: a positive) number within the doubles' range (the API's check_time)."""
+    return api(check_time, positive=positive)
 
 
 def positive(value, path):
@@ -171,11 +175,42 @@ def list_of(check, *, allow_scalar=True, nonempty=True):
     return wrapped
 
 
+def api(check, *args, **kwargs):
+    """The scene checker of an API argument: ``check(value, path, *args, **kwargs)`` is the validator the API itself
+    calls (:func:`~lieseries.precision.check_dps`, ...), so the scene's bound is the API's bound; its TypeError or
+    ValueError (which names the argument, here the field's dotted path) becomes a :class:`SceneError`."""
+
+    def checker(value, path):
+        try:
+            check(value, path, *args, **kwargs)
+        except (TypeError, ValueError) as err:
+            raise SceneError(str(err)) from None
+        return value
+
+    checker.api = check
+    return checker
+
+
+#: Decimal digits of an mpmath computation (Lie series, validated, mpmath, references): the API's check_dps.
+dps = api(check_dps)
+#: A series order: the API's check_order (1 .. MAX_ORDER).
+order = api(check_order)
+
+
+def count(low: int = 1, high: int | None = None):
+    """An integer count in [low, high], checked as the API checks its counts (samples, repeat, ensemble, ...)."""
+    return api(check_count, low=low, high=high)
+
+
 def orders(value, path):
+    """A non-empty list of series orders, each in 0 .. MAX_ORDER (the series is built at the largest, which is an
+    API order: at least 1)."""
     if not isinstance(value, list) or not value:
         fail(path, "a non-empty list of non-negative integers", value)
     for i, v in enumerate(value):
-        integer(0, 10_000)(v, f"{path}[{i}]")
+        integer(0, MAX_ORDER)(v, f"{path}[{i}]")
+    if max(value) < 1:
+        fail(path, "a list of orders whose largest is at least 1", value)
     return value
 
 

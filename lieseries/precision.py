@@ -33,6 +33,10 @@ __all__ = [
     "MAX_DPS",
     "MAX_BITS",
     "MAX_ORDER",
+    "MAX_SAMPLES",
+    "MAX_TIME_MAGNITUDE",
+    "check_time",
+    "check_count",
     "MAX_EXPONENT",
     "MAX_DIGITS",
     "EXACT_BITS",
@@ -50,6 +54,9 @@ __all__ = [
     "check_tolerance",
     "check_order",
     "Precision",
+    "LIE_GUARD_DIGITS",
+    "EXACT_GUARD_DIGITS",
+    "VALIDATED_GUARD_BITS",
     "resolve_precision",
     "to_fraction",
     "short_decimal",
@@ -80,6 +87,11 @@ MAX_DPS = 10_000
 MAX_BITS = 1024
 #: Highest series order the Lie engine computes (the cost grows like order^2 per node of the field).
 MAX_ORDER = 2000
+#: Times lie within 1e-MAX_TIME_MAGNITUDE .. 1eMAX_TIME_MAGNITUDE in magnitude: runs report the times they reached,
+#: and reports plot them, as doubles.
+MAX_TIME_MAGNITUDE = 300
+#: Most output samples (times) a run or a study keeps.
+MAX_SAMPLES = 100_000
 #: Largest decimal exponent of an input number (|x| < 10**MAX_EXPONENT, nonzero |x| > 10**-MAX_EXPONENT).
 MAX_EXPONENT = 4000
 #: Most digits of a number written as a decimal string (a run uses at most MAX_DPS of them).
@@ -141,14 +153,27 @@ def check_tolerance(tol, prec: "Precision") -> Fraction:
         return eps
     f = to_fraction(tol, "tol")
     if f <= 0:
-        raise ValueError(f"`tol` must be positive; got {float(f)}. Leave it out to use the precision's epsilon.")
+        raise ValueError(f"`tol` must be positive; got {short_decimal(f)}. Leave it out to use the precision's "
+                         "epsilon.")
     if f >= 1:
-        raise ValueError(f"`tol` must be below 1 (it is a relative and absolute tolerance); got {float(f)}")
+        raise ValueError(f"`tol` must be below 1 (it is a relative and absolute tolerance); got {short_decimal(f)}")
     if f < eps:
         raise ValueError(
             f"`tol` = {float(f):.3g} is below the epsilon of {prec.name} ({float(eps):.3g}): no run in that "
             "precision can reach it. Raise `tol`, or choose a higher `precision`."
         )
+    return f
+
+
+def check_time(value, argname: str = "t", *, positive: bool = False) -> Fraction:
+    """A nonzero (``positive``: positive) time within 1e-MAX_TIME_MAGNITUDE .. 1eMAX_TIME_MAGNITUDE in magnitude,
+    as an exact Fraction."""
+    f = to_fraction(value, argname)
+    if f == 0 or (positive and f < 0):
+        raise ValueError(f"`{argname}` must be a {'positive' if positive else 'nonzero'} time; got {value!r}")
+    if not Fraction(1, 10**MAX_TIME_MAGNITUDE) <= abs(f) <= 10**MAX_TIME_MAGNITUDE:
+        raise ValueError(f"`{argname}` = {short_decimal(f)} must lie within 1e-{MAX_TIME_MAGNITUDE} .. "
+                         f"1e{MAX_TIME_MAGNITUDE} in magnitude (runs report their times as doubles)")
     return f
 
 
@@ -216,20 +241,71 @@ def bits_to_dps(bits: int) -> int:
     return mp.libmp.prec_to_dps(int(bits))
 
 
+#: Guard digits and bits the engines carry above the precision a user asks for, in one place. They differ because
+#: each covers a different loss:
+#: the Lie series carries LIE_GUARD_DIGITS between steps (its partial sums cancel a few digits per step; 10 keeps
+#: the last digit of a ``dps``-digit result);
+LIE_GUARD_DIGITS = 10
+#: the closed forms carry EXACT_GUARD_DIGITS (elliptic functions and theta series lose more: the argument reduction
+#: of a large time costs digits in proportion to its size, and 20 covers the times a run reaches);
+EXACT_GUARD_DIGITS = 20
+#: the validated (Arb) engine carries VALIDATED_GUARD_BITS (counted in bits, as Arb's radii are: 32 bits, about
+#: 9.6 digits, the Lie engine's margin).
+VALIDATED_GUARD_BITS = 32
+
+
 @dataclass(frozen=True)
 class Precision:
-    """A floating-point format that heyoka integrates in.
+    """The one precision type: a floating-point format heyoka integrates in ("double", "long double", "quad",
+    ``real<bits>``) or a number of decimal digits of an mpmath/Arb engine ("30 dps").
+
+    Make one with :meth:`of` (or :func:`resolve_precision`, for heyoka's formats only).
 
     Attributes
     ----------
     name : str
-        ``"double"``, ``"long double"``, ``"quad"`` or ``"real<bits>"``.
+        Its label: ``"double"``, ``"long double"``, ``"quad"``, ``"real<bits>"`` or ``"<dps> dps"``.
     bits : int
-        Significand bits (53, 64, 113, or the arbitrary-precision setting).
+        Significand bits (53, 64, 113, the arbitrary-precision setting, or what ``dps`` digits need).
+    digits : int or None
+        The decimal digits of a decimal precision (None for a binary format).
+    guard_digits, guard_bits : int
+        What the engine carries above it between steps (:data:`LIE_GUARD_DIGITS`, :data:`VALIDATED_GUARD_BITS`).
     """
 
     name: str
     bits: int
+    digits: int | None = None
+    guard_digits: int = 0
+    guard_bits: int = 0
+
+    @classmethod
+    def of(cls, precision=None, *, dps=None, guard_digits: int = 0, guard_bits: int = 0,
+           argname: str = "precision") -> "Precision":
+        """A Precision from a name ("double", "long double", "quad"), a number of bits, a Precision, or (``dps=``)
+        a number of decimal digits, checked like the API checks them (:func:`check_dps`)."""
+        if dps is not None:
+            if precision is not None:
+                raise TypeError("give `precision` or `dps`, not both")
+            d = check_dps(dps, "dps")
+            return cls(f"{d} dps", dps_to_bits(d), d, int(guard_digits), int(guard_bits))
+        return resolve_precision(precision, argname)
+
+    @property
+    def is_decimal(self) -> bool:
+        """True for a number of decimal digits (mpmath, Arb); False for a binary format heyoka integrates in."""
+        return self.digits is not None
+
+    @property
+    def working_eps(self) -> float:
+        """The unit round-off of the numbers the engine carries between steps: :attr:`eps` reduced by the guard
+        digits and bits (the size of a perturbation an instability amplifies)."""
+        if self.digits is not None:
+            return 10.0 ** -(self.digits + self.guard_digits) * 2.0 ** -self.guard_bits
+        return self.eps * 10.0 ** -self.guard_digits * 2.0 ** -self.guard_bits
+
+    def __str__(self) -> str:
+        return self.name
 
     @property
     def is_real(self) -> bool:
@@ -249,7 +325,10 @@ class Precision:
 
     @property
     def eps(self) -> float:
-        """Machine epsilon 2**(1 - bits), as a Python float (underflows to 0 only beyond 1074 bits)."""
+        """Unit round-off: 10**-digits for a decimal precision, else machine epsilon 2**(1 - bits), as a Python
+        float (underflows to 0 only beyond 1074 bits, or 323 digits)."""
+        if self.digits is not None:
+            return 10.0 ** -self.digits
         return math.ldexp(1.0, 1 - self.bits)
 
     @property
@@ -260,7 +339,7 @@ class Precision:
     @property
     def dps(self) -> int:
         """Decimal digits carried by this precision."""
-        return bits_to_dps(self.bits)
+        return self.digits if self.digits is not None else bits_to_dps(self.bits)
 
     @property
     def numpy_dtype(self):
@@ -355,8 +434,6 @@ class Precision:
         """A time value in this precision (what heyoka's propagate functions take)."""
         return self.to_native(t, "t")
 
-    def __str__(self) -> str:  # pragma: no cover - trivial
-        return self.name
 
 
 class NamedValues(tuple):

@@ -49,7 +49,7 @@ import numpy as np
 from .precision import thread_mp as mp
 from .scenes import jsonable
 
-__all__ = ["StabilityRow", "StabilityCase", "Stability", "stability", "run_case", "failed_case", "precision_eps",
+__all__ = ["StabilityRow", "StabilityCase", "Stability", "stability", "run_case", "failed_case",
            "saddle_rate"]
 
 
@@ -62,7 +62,8 @@ class StabilityRow:
     ----------
     case, title : str              the scene's name and title
     model, method : str            model label and method label ("heyoka double", "Lie series 30 dps", ...)
-    precision, setting : str
+    precision : Precision or None  the run's (name, bits, eps, guard; :class:`~lieseries.precision.Precision`)
+    setting : str
     t : float                      the time the run reached
     t_requested : float            the final time asked for
     error : float or None          max-abs error of the final state against the reference
@@ -98,7 +99,7 @@ class StabilityRow:
     extra: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
-        return jsonable(dict(self.__dict__))
+        return jsonable(dict(self.__dict__, precision=None if self.precision is None else str(self.precision)))
 
 
 @dataclass
@@ -189,26 +190,9 @@ class Stability:
 
 
 # -- helpers ---------------------------------------------------------------------------------------------------
-def precision_eps(precision: str, working: bool = False) -> float | None:
-    """Unit round-off of a run's precision name: "double", "long double", "quad", "real256", "30 dps".
-
-    For a Lie-series run ("30 dps") it is 10^-dps, the precision of its results; with ``working=True``
-    10^-(dps + guard), the precision its state is carried in between steps (the size of the perturbation that an
-    instability amplifies).
-    """
-    from .lie.operator import GUARD_DIGITS
-    from .precision import resolve_precision
-
-    if precision is None:
-        return None
-    m = re.fullmatch(r"(\d+) dps", precision.strip())
-    if m:
-        return 10.0 ** -(int(m.group(1)) + (GUARD_DIGITS if working else 0))
-    m = re.fullmatch(r"real(\d+)", precision.strip())
-    try:
-        return resolve_precision(int(m.group(1)) if m else precision).eps
-    except (TypeError, ValueError):
-        return None
+def _working_eps(precision) -> float | None:
+    """The round-off a run carries between steps (its Precision's working_eps; None when unknown)."""
+    return precision.working_eps if precision is not None else None
 
 
 def saddle_rate(model, y0) -> float:
@@ -235,7 +219,7 @@ def _rows_of(scene, result) -> list:
         drifts = [(k, r.drift.get(k)) for k in wanted if r.drift.get(k) is not None]
         max_drift = max((v for _, v in drifts), default=None)
         rel = [v / _drift_scale(k, inv0) for k, v in drifts] if inv0 else []
-        eps = precision_eps(r.precision)
+        eps = r.precision.eps if r.precision is not None else None
         scaled = getattr(r, "scaled_error", None)
         out.append(StabilityRow(
             case=scene.name, title=scene.title, model=r.model, method=r.label, precision=r.precision,
@@ -298,18 +282,18 @@ def _analysis_saddle(scene, result, rows, opts):
         ts = traj["error_times"][label]
         series[label] = {"t": list(ts), "error": list(errs)}
         departs[label] = next((t for t, e in zip(ts, errs) if e > threshold), None)
-        eps = precision_eps(prec_of.get(label), working=True)
+        eps = _working_eps(prec_of.get(label))
         pts = [(t, math.log(e)) for t, e in zip(ts, errs)
                if eps and 1e3 * eps < e < threshold / 10 and e > 0]
         rates[label], windows[label] = _peak_growth_rate(pts, 10 / lam if lam > 0 else None)
     # predicted departures: from the least precise method that departed, shifted by ln(eps ratio) / lambda
-    dep = [(precision_eps(prec_of.get(k), working=True), k, t) for k, t in departs.items() if t is not None]
+    dep = [(_working_eps(prec_of.get(k)), k, t) for k, t in departs.items() if t is not None]
     dep = [d for d in dep if d[0]]
     predicted = {}
     if dep:
         eps0, k0, t0 = max(dep)
         for label in departs:
-            eps = precision_eps(prec_of.get(label), working=True)
+            eps = _working_eps(prec_of.get(label))
             if eps:
                 predicted[label] = t0 + math.log(eps0 / eps) / lam if lam > 0 else None
     t_end = float(result.run["t"])
@@ -338,7 +322,7 @@ def _analysis_saddle(scene, result, rows, opts):
     # of round-off, the same for every precision when the instability is the only source
     amp = {}
     for label, ser in series.items():
-        eps = precision_eps(prec_of.get(label), working=True)
+        eps = _working_eps(prec_of.get(label))
         if departs.get(label) is None and ser["error"] and eps:
             amp[label] = ser["error"][-1] / eps
     amp_txt = ""

@@ -23,7 +23,7 @@ from lieseries.scenes import (
     load_scene,
     parse_scene,
 )
-from lieseries.stability import precision_eps, saddle_rate, stability
+from lieseries.stability import saddle_rate, stability
 
 EXTREME = [name for name, _ in extreme_scenes()]
 
@@ -157,9 +157,11 @@ def test_scaled_error_uses_each_quantity_scale():
 
 
 def test_precision_eps_and_saddle_rate():
-    assert precision_eps("double") == 2.0**-52 and precision_eps("quad") == 2.0**-112
-    assert precision_eps("real256") == 2.0**-255 and precision_eps("30 dps") == 1e-30
-    assert precision_eps("30 dps", working=True) == pytest.approx(1e-40)
+    P = ls.precision.Precision
+    assert P.of("double").eps == 2.0**-52 and P.of("quad").eps == 2.0**-112
+    assert P.of(256).eps == 2.0**-255 and P.of(dps=30).eps == 1e-30
+    assert P.of(dps=30, guard_digits=10).working_eps == pytest.approx(1e-40)
+    assert P.of(dps=30, guard_bits=32).working_eps == pytest.approx(1e-30 * 2.0**-32)
     body = ls.EulerPoisson((3, 4, 6))
     y0 = body.initial_state(("1/512", -1, "1/1024"))
     lam = exact.rigid_body_constants((3, 4, 6), ("1/512", -1, "1/1024")).lam  # on the separatrix: the saddle's rate
@@ -211,7 +213,7 @@ def test_stiff_case_stops_quickly_and_says_stiff(quick):
         assert float(m.group(1)) == pytest.approx(r.t, rel=1e-12)
         assert 1e-7 < float(m.group(2)) < 1e-4
         assert r.steps < 2000
-        assert r.error < 1e3 * precision_eps(r.precision)  # right up to where it stopped (256-bit reference)
+        assert r.error < 1e3 * r.precision.eps  # right up to where it stopped (256-bit reference)
     head = case.headline
     assert head.method == "heyoka double"
     h = float(re.search(r"last step size ([0-9.e+-]+)", head.message).group(1))
@@ -256,7 +258,7 @@ def test_unstable_axis_double_departs_when_its_round_off_has_grown(quick):
 
 def test_unstable_axis_in_principal_axes_never_departs(quick):
     for r in quick.case("unstable-axis-principal").rows:
-        assert r.error < 100 * precision_eps(r.precision)
+        assert r.error < 100 * r.precision.eps
 
 
 @pytest.mark.slow
@@ -298,7 +300,7 @@ def test_sphere_atlas_switches_charts_and_stays_on_the_great_circle(quick):
         if r.model.startswith("intermediate"):
             assert r.status == "success", r.message
             assert r.extra["chart_switches"] >= 4 * revolutions
-            eps = precision_eps(r.precision)
+            eps = r.precision.eps
             assert r.error < 1e3 * eps, (r.method, r.error)
     for key, used in d["charts_used"].items():
         assert used == [0, 1, 2], key

@@ -158,7 +158,7 @@ def lie_integrate(
             if tf <= 0:
                 raise ValueError(f"`tol` must be positive; got {float(tf)}")
             if tf >= 1:
-                raise ValueError(f"`tol` must be below 1; got {float(tf)}")
+                raise ValueError(f"`tol` must be below 1; got {tol!r}")
             tolm = to_mpf(tf, ctx=mp_context())
             if tolm < mp.mpf(10) ** (-(dps + guard)):
                 raise ValueError(

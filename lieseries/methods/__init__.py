@@ -34,8 +34,8 @@ measured in this one run on a shared machine: compare them with each other, not 
 from .builtin import clear_rhs_cache
 from .registry import (LIST_KEYS, METHODS, REPEAT_BUDGET, Method, MethodRun, RunRecord, best_of, default_methods,
                        expand_methods, method_label, method_plugin, methods_registry, normalize_method, precision_name,
-                       reference_dps, register_method, run_atlas_method, run_method, scene_methods, setting, thin,
-                       unregister_method)
+                       reference_dps, register_method, run_atlas_method, run_method, run_precision, scene_methods,
+                       setting, thin, unregister_method)
 
 __all__ = [
     "METHODS",
@@ -54,6 +54,7 @@ __all__ = [
     "method_label",
     "normalize_method",
     "precision_name",
+    "run_precision",
     "reference_dps",
     "run_method",
     "run_atlas_method",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time as _time
 from fractions import Fraction
 
@@ -11,12 +12,13 @@ from .. import cache
 from .. import fields as F
 from ..models.base import state_fractions
 from ..poisson import as_poisson_system
-from ..precision import (bits_to_dps, data_bits, dps_to_bits, export_mpf, mp_context, resolve_precision, to_fraction,
-                         warn_if_coarse)
+from ..precision import (LIE_GUARD_DIGITS, MAX_DPS, MAX_ORDER, MIN_DPS, VALIDATED_GUARD_BITS, Precision, bits_to_dps,
+                         check_dps, check_tolerance, data_bits, dps_to_bits, export_mpf, mp_context, resolve_precision,
+                         to_fraction, warn_if_coarse)
 from ..precision import thread_mp as mp
-from .registry import Method, RunRecord, best_of, precision_name, register_method, setting, setting_number, thin
+from .registry import Method, RunRecord, best_of, register_method, run_precision, setting, setting_number, thin
 
-__all__ = ["clear_rhs_cache"]
+__all__ = ["MAX_ODEFUN_DPS", "clear_rhs_cache", "odefun_digits"]
 
 
 # -- compiled right-hand sides (cached per system structure) ---------------------------------------------------
@@ -94,11 +96,23 @@ def _run_taylor(system, y0, tf, grid, spec, label, repeat):
     run_times = [walls[0] - build] + walls[1:]
     times, states = _rows_with_reached(sol)
     return RunRecord(
-        "taylor", label, prec.name, setting(spec), float(times[-1]), float(tf), t_exact=times[-1],
+        "taylor", label, prec, setting(spec), float(times[-1]), float(tf), t_exact=times[-1],
         times=[float(v) for v in times], states=states, steps=int(sol.stats.steps), nfev=None,
         order=int(sol.stats.order), build_time=float(build), run_time=float(min(run_times)),
         core_time=float(sol.stats.run_time), status=sol.status, message=sol.message,
     )
+
+
+def _check_double_tolerance(value, argname: str, *, below_one: bool = True) -> float:
+    """A scipy tolerance: a positive number (below 1 for ``rtol``) that is a positive, finite double (scipy computes
+    in double: 1e-400 would become 0)."""
+    f = to_fraction(value, argname)
+    if f <= 0 or (below_one and f >= 1):
+        raise ValueError(f"`{argname}` must be a number {'in (0, 1)' if below_one else '> 0'}; got {value!r}")
+    x = float(f) if f < 2**1000 else math.inf
+    if not (0 < x < math.inf):
+        raise ValueError(f"`{argname}` = {value!r} is not a positive finite double (scipy computes in double)")
+    return x
 
 
 def _run_scipy(system, y0, tf, grid, spec, label, repeat):
@@ -110,8 +124,8 @@ def _run_scipy(system, y0, tf, grid, spec, label, repeat):
     y0f = np.asarray(y0f, dtype=float)
     if len(y0f) != ps.dimension:
         raise ValueError(f"`y0` must have {ps.dimension} entries; got {len(y0f)}")
-    rtol = float(spec["rtol"])
-    atol = rtol if spec["atol"] is None else float(spec["atol"])
+    rtol = _check_double_tolerance(spec["rtol"], "rtol")
+    atol = rtol if spec["atol"] is None else _check_double_tolerance(spec["atol"], "atol", below_one=False)
     t_eval = None if grid is None else np.array([float(v) for v in grid])
     span = (0.0, float(tf))
     res, walls = best_of(
@@ -121,7 +135,7 @@ def _run_scipy(system, y0, tf, grid, spec, label, repeat):
     states = [res.y[:, k].copy() for k in range(res.y.shape[1])]
     times = [float(v) for v in res.t]
     return RunRecord(
-        "scipy", label, "double", setting(spec), times[-1] if times else 0.0, float(tf),
+        "scipy", label, resolve_precision("double"), setting(spec), times[-1] if times else 0.0, float(tf),
         t_exact=tf if ok else (to_fraction(times[-1]) if times else Fraction(0)), times=times,
         states=states, steps=None if t_eval is not None else int(len(res.t) - 1), nfev=int(res.nfev), order=8,
         build_time=float(build), run_time=float(min(walls)), status="success" if ok else "failed",
@@ -138,7 +152,7 @@ def _run_lie(system, y0, tf, grid, spec, label, repeat):
     st = sol.stats
     times, states = _rows_with_reached(sol)
     return RunRecord(
-        "lie", label, precision_name(spec), setting(spec), float(times[-1]), float(tf), t_exact=times[-1],
+        "lie", label, run_precision(spec), setting(spec), float(times[-1]), float(tf), t_exact=times[-1],
         times=[float(v) for v in times], states=states, steps=int(st.steps), nfev=None,
         order=int(st.order) if st.order else None, build_time=None, run_time=float(min(walls)),
         core_time=float(st.run_time) if st.run_time else None, status=sol.status, message=sol.message,
@@ -148,16 +162,16 @@ def _run_lie(system, y0, tf, grid, spec, label, repeat):
 def _run_validated(system, y0, tf, grid, spec, label, repeat):
     from ..validated import certified_digits, midpoints, validated_integrate
 
-    kwargs = {"dps": int(spec["dps"])}
+    kwargs = {"dps": spec["dps"]}
     if spec.get("order") is not None:
-        kwargs["order"] = int(spec["order"])
+        kwargs["order"] = spec["order"]
     t_arg = grid if grid is not None else tf
     sol, walls = best_of(lambda: validated_integrate(system, y0, t_arg, **kwargs), repeat)
     times = [to_fraction(v) for v in sol.t]
     states = [list(row) for row in midpoints(sol, as_mpf=True)]
     digits = [float(d) for d in certified_digits(sol)] if len(sol.y) else []
     return RunRecord(
-        "validated", label, precision_name(spec), setting(spec), float(times[-1]) if times else 0.0, float(tf),
+        "validated", label, run_precision(spec), setting(spec), float(times[-1]) if times else 0.0, float(tf),
         t_exact=times[-1] if times else None, times=[float(v) for v in times], states=states,
         steps=int(sol.stats.steps), order=int(sol.stats.order), build_time=None, run_time=float(min(walls)),
         core_time=float(sol.stats.run_time), status=sol.status, message=sol.message,
@@ -165,10 +179,36 @@ def _run_validated(system, y0, tf, grid, spec, label, repeat):
     )
 
 
+def _check_t_max(value, argname: str) -> Fraction:
+    f = to_fraction(value, argname)
+    if f <= 0:
+        raise ValueError(f"`{argname}` must be a positive time (the run is capped at |t| <= t_max); got {value!r}")
+    return f
+
+
+def odefun_digits(dps: int) -> int:
+    """Digits at which mpmath.odefun evaluates the right-hand side of a run at ``dps`` digits: its Taylor method
+    works at (1 + degree) times the precision, with degree 3 + 1.5 dps."""
+    return bits_to_dps(dps_to_bits(dps) * (4 + int(3 * dps / 2)))
+
+
+#: Most digits of the mpmath method: above them odefun's own working digits pass MAX_DPS.
+MAX_ODEFUN_DPS = next(d for d in range(MIN_DPS, MAX_DPS) if odefun_digits(d + 1) > MAX_DPS)
+
+
+def _check_odefun_dps(dps, argname: str = "dps") -> int:
+    dps = check_dps(dps, argname)
+    if dps > MAX_ODEFUN_DPS:
+        raise ValueError(f"`{argname}` must be at most {MAX_ODEFUN_DPS} for mpmath.odefun, which works internally "
+                         f"at about 1.5 dps^2 digits ({odefun_digits(dps)} for {dps}, above {MAX_DPS}); got {dps}. "
+                         "Use the Lie-series method for more digits.")
+    return dps
+
+
 def _run_mpmath(system, y0, tf, grid, spec, label, repeat):
     ps = as_poisson_system(system)
-    dps = int(spec["dps"])
-    t_max = to_fraction(spec["t_max"], "t_max")
+    dps = _check_odefun_dps(spec["dps"])
+    t_max = _check_t_max(spec["t_max"], "t_max")
     t_run = tf if abs(tf) <= t_max else (t_max if tf > 0 else -t_max)
     fn = _mpmath_rhs(system)
     # the exact values of a model state (its float entries are roundings: 0.2 as a double cost 1e-17 here)
@@ -197,23 +237,23 @@ def _run_mpmath(system, y0, tf, grid, spec, label, repeat):
     msg = (f"capped at t = {float(t_run):g} (t_max = {float(t_max):g}; mpmath.odefun is slow)" if capped
            else f"Reached t = {float(tf):g}.")
     return RunRecord(
-        "mpmath", label, f"{dps} dps", setting(spec), float(t_run), float(tf), t_exact=t_run,
+        "mpmath", label, run_precision(spec), setting(spec), float(t_run), float(tf), t_exact=t_run,
         times=[float(v) for v in out_times], states=states, steps=None, nfev=nfev, order=None, build_time=None,
         run_time=float(min(walls)), status="success", message=msg,
     )
 
 
 # -- the built-in methods --------------------------------------------------------------------------------------
-def _taylor_precision(spec) -> str:
-    try:
-        return resolve_precision(spec["precision"]).name
-    except (TypeError, ValueError):
-        return str(spec["precision"])
+def _taylor_precision(spec) -> Precision:
+    return resolve_precision(spec["precision"])
 
 
 def _taylor_setting(spec) -> str:
     if spec["tol"] is None:
-        return f"tol=eps ({resolve_precision(spec['precision']).eps:.3g})"
+        try:
+            return f"tol=eps ({resolve_precision(spec['precision']).eps:.3g})"
+        except (TypeError, ValueError):  # refused by the run, which names `precision`
+            return "tol=eps"
     return f"tol={setting_number(spec['tol'])}"
 
 
@@ -232,12 +272,36 @@ def _taylor_atlas(model, y0, t_arg, spec):
 
 
 def _lie_kwargs(spec) -> dict:
-    kwargs = {"dps": int(spec["dps"])}
+    kwargs = {"dps": spec["dps"]}
     if spec.get("tol") is not None:
         kwargs["tol"] = spec["tol"]
     if spec.get("order") is not None:
-        kwargs["order"] = int(spec["order"])
+        kwargs["order"] = spec["order"]
     return kwargs
+
+
+def _lie_check(spec) -> None:
+    """What lie_integrate refuses of a specification before it runs: a tolerance below what ``dps`` digits (plus
+    the engine's guard digits) resolve, and an automatic series order above MAX_ORDER."""
+    from ..lie.integrator import default_order
+    from ..lie.operator import GUARD_DIGITS
+
+    ctx = mp_context()
+    dps = spec["dps"]
+    tol = Fraction(1, 10**dps) if spec.get("tol") is None else to_fraction(spec["tol"], "tol")
+    if tol < Fraction(1, 10 ** (dps + GUARD_DIGITS)):
+        raise ValueError(f"`tol` = {float(tol):.3g} is below what {dps} digits (+{GUARD_DIGITS} guard) can resolve; "
+                         f"raise `dps`")
+    if spec.get("order") is None:
+        n_auto = default_order(ctx.mpf(tol.numerator) / tol.denominator)
+        if n_auto > MAX_ORDER:
+            raise ValueError(f"`{'tol' if spec.get('tol') is not None else 'dps'}` asks for the automatic series "
+                             f"order {n_auto}, above the largest order {MAX_ORDER}: give `order` (at most "
+                             f"{MAX_ORDER}), or ask for fewer digits")
+
+
+def _taylor_check(spec) -> None:
+    check_tolerance(spec["tol"], resolve_precision(spec["precision"]))
 
 
 def _lie_atlas(model, y0, t_arg, spec):
@@ -294,42 +358,45 @@ register_method(Method(
     label=lambda spec: f"heyoka {resolve_precision(spec['precision']).name}",
     precision=_taylor_precision, setting=_taylor_setting, digits=_taylor_digits, run=_run_taylor,
     bits=lambda spec: resolve_precision(spec["precision"]).bits, atlas=_taylor_atlas, quick_study=_thin_lists,
-    list_keys=("precision", "tol"),
+    list_keys=("precision", "tol"), check=_taylor_check,
 ))
 register_method(Method(
     "lie",
-    fields={"dps": (F.integer(10, 10_000), 30), "tol": (F.positive, None), "order": (F.integer(1, 10_000), None)},
+    fields={"dps": (F.dps, 30), "tol": (F.tolerance, None), "order": (F.order, None)},
     docs={"dps": ("integer", "decimal digits of lie_integrate (a list in work_precision)"),
-          "tol": ("positive number", "the per-step tolerance (default 10^-dps)"),
+          "tol": ("number in (0, 1)", "the per-step tolerance (default 10^-dps)"),
           "order": ("integer", "a fixed series order (default: the automatic one)")},
-    label=lambda spec: f"Lie series {spec['dps']} dps", precision=lambda spec: f"{spec['dps']} dps",
+    label=lambda spec: f"Lie series {spec['dps']} dps",
+    precision=lambda spec: Precision.of(dps=spec["dps"], guard_digits=LIE_GUARD_DIGITS),
     setting=_dps_setting, digits=_dps_digits, run=_run_lie, bits=lambda spec: dps_to_bits(spec["dps"]),
-    state_digits=_dps_digits, atlas=_lie_atlas, quick_study=_thin_lists, list_keys=("tol", "dps"),
+    state_digits=_dps_digits, atlas=_lie_atlas, quick_study=_thin_lists, list_keys=("tol", "dps"), check=_lie_check,
 ))
 register_method(Method(
     "scipy",
-    fields={"rtol": (F.tolerance, 1e-10), "atol": (F.positive, None)},
+    fields={"rtol": (F.api(_check_double_tolerance), 1e-10),
+            "atol": (F.api(_check_double_tolerance, below_one=False), None)},
     docs={"rtol": ("number in (0, 1)", "DOP853's relative tolerance (a list in work_precision)"),
           "atol": ("positive number", "its absolute tolerance (default rtol)")},
-    label=lambda spec: "scipy DOP853", precision=lambda spec: "double", setting=_scipy_setting,
+    label=lambda spec: "scipy DOP853", precision=lambda spec: resolve_precision("double"), setting=_scipy_setting,
     digits=lambda spec: 16, run=_run_scipy, quick_study=_thin_lists, list_keys=("rtol",),
 ))
 register_method(Method(
     "mpmath",
-    fields={"dps": (F.integer(5, 10_000), 15), "t_max": (F.positive, 2.0)},
-    docs={"dps": ("integer", "digits of mpmath.odefun"),
+    fields={"dps": (F.api(_check_odefun_dps), 15), "t_max": (F.api(_check_t_max), 2.0)},
+    docs={"dps": (f"integer {MIN_DPS}..{MAX_ODEFUN_DPS}", "digits of mpmath.odefun"),
           "t_max": ("positive number", "the run is capped at |t| <= t_max (odefun is slow)")},
-    label=lambda spec: f"mpmath odefun {spec['dps']} dps", precision=lambda spec: f"{spec['dps']} dps",
+    label=lambda spec: f"mpmath odefun {spec['dps']} dps", precision=lambda spec: Precision.of(dps=spec["dps"]),
     setting=lambda spec: f"dps={spec['dps']}", digits=_dps_digits, run=_run_mpmath,
     bits=lambda spec: dps_to_bits(spec["dps"]), state_digits=_dps_digits, quick_run=_mpmath_quick_run,
     quick_study=_mpmath_quick_study, list_keys=("dps",),
 ))
 register_method(Method(
     "validated",
-    fields={"dps": (F.integer(5, 10_000), 30), "order": (F.integer(1, 10_000), None)},
+    fields={"dps": (F.dps, 30), "order": (F.order, None)},
     docs={"dps": ("integer", "digits of validated_integrate's ball arithmetic (certified enclosures)"),
           "order": ("integer", "a fixed series order (default: the automatic one)")},
-    label=lambda spec: f"validated (Arb) {spec['dps']} dps", precision=lambda spec: f"{spec['dps']} dps",
+    label=lambda spec: f"validated (Arb) {spec['dps']} dps",
+    precision=lambda spec: Precision.of(dps=spec["dps"], guard_bits=VALIDATED_GUARD_BITS),
     setting=_dps_setting, digits=_dps_digits, run=_run_validated, state_digits=_dps_digits,
     quick_run=_validated_quick_run, quick_study=_thin_lists, list_keys=("dps",),
 ))

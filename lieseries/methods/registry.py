@@ -9,7 +9,7 @@ from fractions import Fraction
 from typing import Callable
 
 from .. import fields as F
-from ..precision import to_fraction
+from ..precision import Precision, to_fraction
 
 __all__ = [
     "LIST_KEYS",
@@ -28,6 +28,7 @@ __all__ = [
     "precision_name",
     "reference_dps",
     "register_method",
+    "run_precision",
     "run_atlas_method",
     "run_method",
     "scene_methods",
@@ -52,7 +53,8 @@ class RunRecord:
     ----------
     method : str                 "taylor", "lie", "scipy", "mpmath", "validated" (a registered method's name)
     label : str                  e.g. "heyoka double", "scipy DOP853"
-    precision : str              "double", "quad", "real256", "30 dps", ...
+    precision : Precision        its working precision (:class:`~lieseries.precision.Precision`: name, bits, dps, eps
+                                 and guard); None when the specification's precision is itself refused
     setting : str                e.g. "tol=1e-12", "rtol=1e-10", "dps=30"
     t : float                    the time the run reached
     t_requested : float          the final time asked for (mpmath runs are capped)
@@ -79,7 +81,7 @@ class RunRecord:
 
     method: str
     label: str
-    precision: str
+    precision: Precision | None
     setting: str
     t: float
     t_requested: float
@@ -128,7 +130,8 @@ class RunRecord:
 
     def to_dict(self) -> dict:
         return {
-            "model": self.model, "method": self.method, "label": self.label, "precision": self.precision,
+            "model": self.model, "method": self.method, "label": self.label,
+            "precision": None if self.precision is None else str(self.precision),
             "setting": self.setting, "t": self.t, "t_requested": self.t_requested, "error": self.error,
             "max_error": self.max_error, "drift": dict(self.drift), "max_drift": self.max_drift, "steps": self.steps,
             "nfev": self.nfev, "order": self.order, "build_time": self.build_time, "run_time": self.run_time,
@@ -149,7 +152,10 @@ def setting_number(v) -> str:
         return v
     if isinstance(v, int):
         return str(v)
-    return f"{float(v):.3g}"
+    try:
+        return f"{float(v):.3g}"
+    except (TypeError, ValueError, OverflowError):  # not a number: the run refuses it, naming the setting
+        return repr(v)
 
 
 def normalize_method(spec, where: str = "method") -> dict:
@@ -183,11 +189,7 @@ def expand_methods(methods, where: str = "methods") -> list:
     out = []
     for i, spec in enumerate(methods):
         s = normalize_method(spec, f"{where}[{i}]")
-        runs = [s]
-        for key in _METHODS[s["method"]].list_keys:
-            if isinstance(s.get(key), (list, tuple)):
-                runs = [dict(r, **{key: v}) for r in runs for v in s[key]]
-        out.extend(runs)
+        out.extend(_settings(s, _METHODS[s["method"]].list_keys))
     return out
 
 
@@ -270,17 +272,30 @@ def run_method(system, y0, t, spec: dict, *, times=None, repeat: int = 1) -> Run
     spec = normalize_method(spec)
     m = spec["method"]
     tf, grid = _grid(t, times)
-    label = method_label(spec)
+    try:
+        label = method_label(spec)
+    except (TypeError, ValueError):  # a setting the run refuses below, naming it
+        label = m
     try:
         return _METHODS[m].run(system, y0, tf, grid, spec, label, repeat)
     except Exception as err:  # a failing method is a row of the study, not the end of it
-        return RunRecord(m, label, precision_name(spec), setting(spec), float(tf), float(tf), status="error",
+        return RunRecord(m, label, run_precision(spec), setting(spec), float(tf), float(tf), status="error",
                          message=f"{type(err).__name__}: {err}")
+
+
+def run_precision(spec) -> Precision | None:
+    """A method's working :class:`~lieseries.precision.Precision` (None when the specification's precision is
+    refused: the run says why)."""
+    try:
+        return _METHODS[spec["method"]].precision(spec)
+    except (TypeError, ValueError):
+        return None
 
 
 def precision_name(spec) -> str:
     """The name of a method's working precision ("double", "quad", "30 dps", ...)."""
-    return _METHODS[spec["method"]].precision(spec)
+    p = run_precision(spec)
+    return str(p) if p is not None else "?"
 
 
 def setting(spec) -> str:
@@ -311,7 +326,8 @@ class Method:
     fields : dict                its scene fields ``{key: (checker, default)}`` (:mod:`lieseries.fields`); the
                                  defaults are the specification's
     docs : dict                  ``{key: (type, meaning)}`` for docs/scenes.md
-    label, precision, setting : spec -> str
+    label, setting : spec -> str
+    precision : spec -> Precision  the run's working precision (:meth:`Precision.of`), guard included
     digits : spec -> int         decimal digits a reference must carry to resolve the method's errors
     run : (system, y0, tf, grid, spec, label, repeat) -> RunRecord
     bits : spec -> int or None   bits the run carries (references and conversions stay 64 bits above)
@@ -320,6 +336,9 @@ class Method:
     quick_run, quick_study : spec -> None, optional: scale the specification down in quick mode (in a scene's
                                  [run], in a work-precision study), in place
     list_keys : tuple            keys that may be lists in work-precision studies (one run per value)
+    check : spec -> None, optional: the API's checks that tie several fields together (a tolerance against the
+                                 precision, ...), on a specification with scalar settings; raises ValueError or
+                                 TypeError naming the key in backticks, as the run itself would
     """
 
     name: str
@@ -336,6 +355,7 @@ class Method:
     quick_run: Callable | None = None
     quick_study: Callable | None = None
     list_keys: tuple = ()
+    check: Callable | None = None
 
     @property
     def defaults(self) -> dict:
@@ -396,6 +416,13 @@ def scene_methods(lists: bool):
         out = F.table(data, path, spec)
         if out["label"] is None:
             del out["label"]
+        if plugin.check is not None:
+            for one_spec in _settings(out, plugin.list_keys):
+                try:
+                    plugin.check(one_spec)
+                except (TypeError, ValueError) as err:
+                    where = ", ".join(f"{k} = {F.show(one_spec[k])}" for k in plugin.fields)
+                    raise F.SceneError(f"`{path}` ({where}): {err}") from None
         return out
 
     def check(value, path):
@@ -404,6 +431,15 @@ def scene_methods(lists: bool):
         return [one(m, f"{path}[{i}]") for i, m in enumerate(value)]
 
     return check
+
+
+def _settings(spec: dict, list_keys) -> list:
+    """One specification per combination of the list-valued ``list_keys`` of ``spec``."""
+    runs = [spec]
+    for key in list_keys:
+        if isinstance(spec.get(key), (list, tuple)):
+            runs = [dict(r, **{key: v}) for r in runs for v in spec[key]]
+    return runs
 
 
 def thin(values, keep: int = 3):
@@ -424,13 +460,13 @@ def run_atlas_method(model, y0, t, spec, *, times, repeat: int = 1, bits: int = 
     tf, grid = _grid(t, times)
     plugin = _METHODS[m]
     if plugin.atlas is None:
-        return RunRecord(m, label, precision_name(spec), setting(spec), float(tf), float(tf), status="skipped",
+        return RunRecord(m, label, run_precision(spec), setting(spec), float(tf), float(tf), status="skipped",
                          message=f"method {m!r} has no atlas runs (use taylor or lie)"), None
     call = plugin.atlas(model, y0, grid if grid is not None else tf, spec)
     try:
         sol, walls = best_of(call, repeat)
     except Exception as err:  # a failing method is a row, not the end of the run
-        return RunRecord(m, label, precision_name(spec), setting(spec), float(tf), float(tf), status="error",
+        return RunRecord(m, label, run_precision(spec), setting(spec), float(tf), float(tf), status="error",
                          message=f"{type(err).__name__}: {err}"), None
     times_ = [to_fraction(v) for v in sol.t]
     rows = list(sol.y)
@@ -443,7 +479,7 @@ def run_atlas_method(model, y0, t, spec, *, times, repeat: int = 1, bits: int = 
     st = sol.stats
     build = float(st.build_time or 0.0)
     run = RunRecord(
-        m, label, precision_name(spec), setting(spec), float(times_[-1]), float(tf), t_exact=times_[-1],
+        m, label, run_precision(spec), setting(spec), float(times_[-1]), float(tf), t_exact=times_[-1],
         times=[float(v) for v in times_], states=states, steps=int(st.steps),
         order=int(st.order) if st.order else None, build_time=build if m == "taylor" else None,
         run_time=float(min([walls[0] - build] + walls[1:])), core_time=float(st.run_time), status=sol.status,

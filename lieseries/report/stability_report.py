@@ -19,8 +19,9 @@ __all__ = ["write_stability_report", "stability_tables", "STABILITY_PLOTS"]
 STABILITY_PLOTS = ("overview", "error_growth", "drift", "divergence", "atlas")
 
 
-def _precision_style(precision: str, method: str):
-    """(marker, colour, family) of a run's precision, shared by the stability plots."""
+def _precision_style(precision, method: str):
+    """(marker, colour, family) of a run's precision (a Precision, or None), shared by the stability plots."""
+    precision = getattr(precision, "name", precision)
     if method.startswith("Lie"):
         return "*", "C4", "Lie series (mpmath)"
     if method.startswith("scipy"):

@@ -17,8 +17,9 @@ from .. import fields as F
 from ..fields import REQUIRED, SceneError, show
 from ..methods import method_label, methods_registry, normalize_method, scene_methods
 from ..models.kinds import initial_families, initial_family, model_kind, model_kinds
-from ..precision import binary_inputs, bits_to_dps
+from ..precision import MAX_SAMPLES, MIN_DPS, binary_inputs, bits_to_dps
 from ..studies import has_exact_solution, theoretical_radius
+from ..studies.convergence import MAX_STUDY_DPS
 from ..studies.drift import invariant_function
 from ..studies.plugin import studies_registry
 
@@ -80,12 +81,17 @@ _TOP_FIELDS = {
     "stability": (None, None),
 }
 _RUN_FIELDS = {
-    "t": (F.nonzero, REQUIRED),
+    "t": (F.time(), REQUIRED),
     "methods": (scene_methods(lists=False), REQUIRED),
-    "samples": (F.integer(2, 100_000), 101),
+    "samples": (F.count(2, MAX_SAMPLES), 101),
     "repeat": (F.integer(1, 100), 3),
-    "quick_t": (F.nonzero, None),
+    "quick_t": (F.time(), None),
 }
+
+
+def section_fields() -> dict:
+    """The scene's own tables' fields: {"run": {...}, "stability": {...}} (the other fields are the registries')."""
+    return {"run": dict(_RUN_FIELDS), "stability": _stability_fields()}
 
 
 def _statuses():
@@ -105,7 +111,7 @@ def _stability_fields() -> dict:
         "beyond": (F.positive, 1.5),
         "inside": (F.fraction01, 0.5),
         "orders": (F.orders, None),
-        "dps": (F.integer(15, 1000), 40),
+        "dps": (F.count(MIN_DPS, MAX_STUDY_DPS), 40),
         "invariants": (F.list_of(F.string, allow_scalar=False), None),
         "note": (F.string, ""),
     }

@@ -23,7 +23,7 @@ from ..methods.pricing import CostPart
 from ..formatting import MARKERS, fmt_num, fmt_sci, markdown_table, positive_or_nan, pyplot, save_figure
 from ..poisson import as_poisson_system
 from ..precision import thread_mp as mp
-from ..precision import to_fraction
+from ..precision import MAX_DPS, MAX_ORDER, MIN_DPS, check_count, to_fraction
 from .plugin import Study, register_study
 from .reference import (finite_or_none, max_difference, observable_names, observables, reference_solution,
                         theoretical_radius)
@@ -32,6 +32,10 @@ __all__ = ["ErrorVsOrder", "error_vs_order", "fit_geometric_rate", "orders_of", 
 
 #: Errors below FLOOR_FACTOR * 10^-dps are round-off and are left out of the fit.
 FLOOR_FACTOR = 100
+#: Digits the closed-form reference carries above the series' ``dps`` (so its errors are resolved): the study's
+#: ``dps`` is at most MAX_DPS - REFERENCE_DIGITS, the reference's own bound.
+REFERENCE_DIGITS = 10
+MAX_STUDY_DPS = MAX_DPS - REFERENCE_DIGITS
 
 
 @dataclass
@@ -142,11 +146,13 @@ def _check_orders(orders):
         raise TypeError(f"`orders` must be a sequence of non-negative integers; got {type(orders).__name__}")
     out = []
     for i, k in enumerate(orders):
-        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 0:
-            raise ValueError(f"`orders[{i}]` must be a non-negative integer; got {k!r}")
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k <= MAX_ORDER:
+            raise ValueError(f"`orders[{i}]` must be an integer in [0, {MAX_ORDER}] (a series order); got {k!r}")
         out.append(int(k))
     if not out:
         raise ValueError("`orders` must not be empty")
+    if max(out) < 1:
+        raise ValueError(f"`orders` must reach order 1 at least (the series is built at the largest); got {out}")
     return sorted(set(out))
 
 
@@ -179,9 +185,8 @@ def error_vs_order(system, y0, t, orders, dps: int = 60, reference=None, *, fit_
     """
     from ..lie.operator import lie_series
 
-    if isinstance(dps, bool) or not isinstance(dps, int) or dps < 10:
-        raise ValueError(f"`dps` must be an integer >= 10; got {dps!r}")
     orders = _check_orders(orders)
+    dps = check_count(dps, "dps", low=MIN_DPS, high=MAX_STUDY_DPS)
     tf = to_fraction(t, "t")
     ps = as_poisson_system(system)
     total = len(orders) + 2
@@ -193,7 +198,7 @@ def error_vs_order(system, y0, t, orders, dps: int = 60, reference=None, *, fit_
         raise RuntimeError(f"the Lie series has {len(coeffs)} coefficients; expected {max(orders) + 1}")
     if progress:
         progress(1, total, "reference")
-    ref = reference_solution(system, y0, tf, dps=dps + 10, reference=reference)
+    ref = reference_solution(system, y0, tf, dps=dps + REFERENCE_DIGITS, reference=reference)
     if progress:
         progress(2, total, "partial sums")
     errors = []
@@ -206,7 +211,7 @@ def error_vs_order(system, y0, t, orders, dps: int = 60, reference=None, *, fit_
             for k in range(N - 1, -1, -1):
                 ck = coeffs[k]
                 acc = [acc[i] * tm + ck[i] for i in range(n)]
-            errors.append(max_difference(observables(system, acc, dps + 10), ref.values, dps + 10))
+            errors.append(max_difference(observables(system, acc, dps + REFERENCE_DIGITS), ref.values, dps + REFERENCE_DIGITS))
             if progress:
                 progress(3 + done, total, f"order {N}")
     floor = FLOOR_FACTOR * 10.0 ** (-dps)
@@ -237,7 +242,7 @@ def orders_of(ev) -> list:
     """The orders of an ``error_vs_order`` table: ``orders``, or ``min_order .. max_order`` by ``step``."""
     if ev.get("orders") is not None:
         return sorted(set(int(o) for o in ev["orders"]))
-    top = ev.get("max_order") or 40
+    top = ev["max_order"] if ev.get("max_order") is not None else 40
     return list(range(ev.get("min_order", 1), top + 1, ev.get("step", 1)))
 
 
@@ -248,14 +253,14 @@ class ErrorVsOrderStudy(Study):
     title = "Error vs order"
     quick_doc = "error vs order up to half the largest order (at least 12) and at most 40 digits"
     fields = {
-        "t": (F.nonzero, None),
+        "t": (F.time(), None),
         "t_fraction": (F.fraction01, None),
         "orders": (F.orders, None),
-        "max_order": (F.integer(1, 10_000), None),
-        "min_order": (F.integer(0, 10_000), 1),
+        "max_order": (F.order, None),
+        "min_order": (F.integer(0, MAX_ORDER), 1),
         "step": (F.integer(1, 1000), 1),
-        "dps": (F.integer(15, 10_000), 60),
-        "fit_min_order": (F.integer(0, 10_000), None),
+        "dps": (F.count(MIN_DPS, MAX_STUDY_DPS), 60),
+        "fit_min_order": (F.integer(0, MAX_ORDER), None),
     }
     docs = {
         "t": ("number", "the time at which the truncated series is compared"),
@@ -276,6 +281,11 @@ class ErrorVsOrderStudy(Study):
                                    "`studies.error_vs_order.t`"))
         if ev["orders"] is not None and ev["max_order"] is not None:
             raise F.SceneError("`studies.error_vs_order` takes `orders` or `max_order`, not both")
+        try:  # the orders the study runs, as error_vs_order checks them
+            _check_orders(orders_of(ev))
+        except ValueError as err:
+            raise F.SceneError(f"`studies.error_vs_order` (min_order = {ev['min_order']}, max_order = "
+                               f"{ev['max_order']}, step = {ev['step']}): {err}") from None
         if ev["t_fraction"] is not None and all(theoretical_radius(model, y0) is None
                                                 for _path, _spec, model, y0 in models):
             raise F.SceneError("`studies.error_vs_order.t_fraction` needs a theoretical radius of convergence, "

@@ -26,10 +26,13 @@ from .. import fields as F
 from ..formatting import file_tag, fmt_sci, markdown_table, pyplot, save_figure
 from ..methods.pricing import CostPart
 from ..models.euler_poisson import EulerPoisson
-from ..precision import check_count, resolve_precision, to_fraction
+from ..precision import MAX_SAMPLES, MIN_DPS, check_count, check_time, resolve_precision, to_fraction
 from ..precision import thread_mp as mp
 from ..taylor import integrate
 from .plugin import Study, register_study
+
+#: Most digits of the map's closed-form reference and exact initial data (the API's and the scene's bound).
+MAX_MAP_DPS = 1000
 
 __all__ = ["DepartureMap", "departure_map", "plot_departure_map", "departure_map_table", "departure_map_reading",
            "DepartureMapStudy"]
@@ -140,17 +143,15 @@ def departure_map(
         raise ValueError(f"`grid` must be (n_theta, n_phi); got {grid!r}")
     n_theta = check_count(grid[0], "grid[0]", high=64)
     n_phi = check_count(grid[1], "grid[1]", high=128)
-    samples = check_count(samples, "samples", low=2, high=100_000)
-    Tf = to_fraction(T, "T")
-    if Tf <= 0:
-        raise ValueError(f"`T` must be positive; got {float(Tf)}")
+    samples = check_count(samples, "samples", low=2, high=MAX_SAMPLES)
+    Tf = check_time(T, "T", positive=True)
     thr = to_fraction(threshold, "threshold")
     if thr <= 0:
         raise ValueError(f"`threshold` must be positive; got {float(thr)}")
     precs = [resolve_precision(p, "precisions") for p in precisions]
     if not precs:
         raise ValueError("`precisions` must name at least one precision ('double', 'long double', 'quad', bits)")
-    dps = check_count(dps, "dps", low=15, high=1000)
+    dps = check_count(dps, "dps", low=MIN_DPS, high=MAX_MAP_DPS)
     ref_dps = max(dps, max(math.ceil(p.bits * math.log10(2)) for p in precs) + 10)
     body = EulerPoisson(inertia)
     I = [body.inertia_exact[i][i] for i in range(3)]
@@ -333,11 +334,11 @@ class DepartureMapStudy(Study):
     quick_doc = "the departure map on at most a 3 x 6 grid, over a tenth of the time with at most 20 output times"
     fields = {
         "grid": (_grid_field, [8, 16]),
-        "T": (F.positive, 100),
-        "samples": (F.integer(2, 100_000), 100),
+        "T": (F.time(positive=True), 100),
+        "samples": (F.count(2, MAX_SAMPLES), 100),
         "precisions": (F.list_of(F.precision, allow_scalar=False), ["double", "quad"]),
         "threshold": (F.positive, "1e-6"),
-        "dps": (F.integer(15, 1000), 30),
+        "dps": (F.count(MIN_DPS, MAX_MAP_DPS), 30),
     }
     docs = {
         "grid": ("[integer 1..64, integer 1..128]", "n_theta x n_phi directions of M0 on abs(M) = 1 (polar angle "

@@ -28,9 +28,13 @@ from ..formatting import file_tag, fmt_num, fmt_p, fmt_sci, markdown_table, posi
 from ..methods.pricing import CostPart
 from ..models.base import as_model, state_fractions
 from ..poisson import as_poisson_system
-from ..precision import check_count, resolve_precision, to_fraction
+from ..precision import MAX_SAMPLES, check_count, check_time, check_tolerance, resolve_precision, to_fraction
 from .plugin import Study, register_study
 from .reference import loglog_slope
+
+#: Fewest samples a drift fit uses, and the largest ensemble (the API's and the scene's bounds).
+MIN_SAMPLES = 6
+MAX_ENSEMBLE = 1000
 
 __all__ = [
     "Drift", "drift", "growth_exponent", "invariant_function", "growth_verdict", "DriftStudy"]
@@ -175,15 +179,13 @@ def drift(system, y0, t, precision="double", samples: int = 200, tol=None, *, en
     from ..taylor import integrate
 
     prec = resolve_precision(precision)
-    tf = to_fraction(t, "t")
-    if tf <= 0:
-        raise ValueError(f"`t` must be a positive final time; got {float(tf)}")
-    samples = check_count(samples, "samples", low=6, high=100_000)
-    ensemble = check_count(ensemble, "ensemble", low=1, high=1000)
+    tf = check_time(t, "t", positive=True)
+    samples = check_count(samples, "samples", low=MIN_SAMPLES, high=MAX_SAMPLES)
+    ensemble = check_count(ensemble, "ensemble", low=1, high=MAX_ENSEMBLE)
     seed = check_count(seed, "seed", low=0)
     pert = to_fraction(perturbation, "perturbation")
-    if not pert > 0:
-        raise ValueError(f"`perturbation` must be a positive number; got {perturbation!r}")
+    if not 0 < pert < 1:
+        raise ValueError(f"`perturbation` must be a number in (0, 1) (relative to max |y0|); got {perturbation!r}")
     perturbation = float(pert)
     ps = as_poisson_system(system)
     z0 = state_fractions(y0, ps.dimension, "y0")
@@ -263,13 +265,13 @@ class DriftStudy(Study):
     title = "Invariant drift"
     quick_doc = "drift over a tenth of the time, at most 60 samples and 4 ensemble members"
     fields = {
-        "t": (F.positive, F.REQUIRED),
+        "t": (F.time(positive=True), F.REQUIRED),
         "precision": (F.precision, "double"),
-        "samples": (F.integer(6, 100_000), 200),
+        "samples": (F.count(MIN_SAMPLES, MAX_SAMPLES), 200),
         "tol": (F.tolerance, None),
-        "ensemble": (F.integer(1, 1000), 1),
-        "perturbation": (F.positive, 1e-9),
-        "seed": (F.integer(0), 0),
+        "ensemble": (F.count(1, MAX_ENSEMBLE), 1),
+        "perturbation": (F.fraction01, 1e-9),
+        "seed": (F.count(0), 0),
         "first": (F.positive, None),
     }
     docs = {
@@ -278,7 +280,7 @@ class DriftStudy(Study):
         "samples": ("integer 6..100000", "log-spaced sample times"),
         "tol": ("number in (0, 1)", "heyoka's tolerance (default: epsilon)"),
         "ensemble": ("integer 1..1000", "runs from perturbed copies of the initial state"),
-        "perturbation": ("positive number", "their size, relative to max |y0|"),
+        "perturbation": ("number in (0, 1)", "their size, relative to max |y0|"),
         "seed": ("integer >= 0", "the seed of the perturbations"),
         "first": ("positive number", "the first sample time (default t / 1000)"),
     }
@@ -289,6 +291,14 @@ class DriftStudy(Study):
         dr["ensemble"] = min(dr["ensemble"], 4)
         if dr["first"] is not None:
             dr["first"] = min(float(to_fraction(dr["first"])), dr["t"] / 100)
+
+    def check(self, opts, run, models, where):
+        try:  # what drift() refuses of fields taken together
+            check_tolerance(opts["tol"], resolve_precision(opts["precision"]))
+        except ValueError as err:
+            raise F.SceneError(f"`studies.{self.name}`: {err}") from None
+        if opts["first"] is not None and not to_fraction(opts["first"]) < to_fraction(opts["t"]):
+            raise F.SceneError(f"`studies.{self.name}.first` must lie in (0, t); got {F.show(opts['first'])}")
 
     def cost(self, dr, ctx, pricer):
         parts = []
