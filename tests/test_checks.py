@@ -112,6 +112,9 @@ API = {
         lambda v: refuses(lambda: studies.error_vs_order(BODY, Y0, BAD, v, dps=MIN_DPS), "orders")),
     ("study", "error_vs_order", "max_order"): (INTS, _error_vs_order_orders("max_order")),
     ("study", "error_vs_order", "min_order"): (INTS, _error_vs_order_orders("min_order")),
+    ("study", "formulations", "radius_dps"): (
+        INTS, lambda v: refuses(lambda: studies.error_vs_order(BODY, Y0, BAD, [1, 2], dps=v), "dps")),
+    ("study", "formulations", "radius_max_order"): (INTS, _error_vs_order_orders("max_order")),
     ("study", "work_precision", "repeat"): (
         INTS, lambda v: refuses(lambda: studies.work_precision(BODY, Y0, BAD, repeat=v), "repeat")),
     ("study", "drift", "precision"): (PRECS, _drift("precision")),
@@ -168,6 +171,7 @@ NO_API = {
     ("study", "formulations", "chart"): "a chart name",
     ("study", "formulations", "dependent"): "names of dependent coordinates",
     ("study", "formulations", "samples"): "the study's output grid",
+    ("study", "formulations", "radius_t"): "the time of the radius measurement: any positive number",
 }
 # Model kinds and initial families: parse_scene builds every model and initial state with the model's own
 # constructor while it loads the scene, so their fields are checked by the API itself at load time (and every
@@ -200,7 +204,11 @@ def test_every_field_is_classified():
 
 
 #: The required fields of a study's table, given in every probe.
-STUDY_BASE = {"error_vs_order": {"t": "1/10"}, "drift": {"t": 1}, "work_precision": {"t": 1}}
+STUDY_BASE = {"error_vs_order": {"t": "1/10"}, "drift": {"t": 1}, "work_precision": {"t": 1},
+              "formulations": {"t": 1, "formulations": ["dirac"]}}
+#: The model a study's cross-field check sees (the formulations study compares a constrained system's forms).
+CIRCLE = ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2", ["x", "y"], ["x**2 + y**2 - 1"]).dirac()
+STUDY_MODEL = {"formulations": CIRCLE}
 
 
 def _scene_refuses(key, value) -> bool:
@@ -212,7 +220,7 @@ def _scene_refuses(key, value) -> bool:
             study = studies_registry()[owner]
             data = dict(STUDY_BASE.get(owner, {}), **{name: value})
             opts = F.table(data, f"studies.{owner}", study.fields)
-            study.check(opts, None, [("model", None, BODY, Y0)], "model")
+            study.check(opts, None, [("model", None, STUDY_MODEL.get(owner, BODY), Y0)], "model")
         else:
             F.table({name: value}, f"{kind}", section_fields()[owner])
     except F.SceneError:

@@ -120,7 +120,7 @@ def test_a_radius_time_beyond_the_chart_is_reported_not_claimed():
 
 def test_radius_fields_are_checked():
     with pytest.raises(SceneError, match="`studies.formulations.radius_max_order`"):
-        parse_scene(SCENE.replace("radius_max_order = 24", "radius_max_order = 2"))
+        parse_scene(SCENE.replace("radius_max_order = 24", "radius_max_order = 0"))
     with pytest.raises(SceneError, match="`studies.formulations.radius_t`"):
         parse_scene(SCENE.replace("radius_t = 1", "radius_t = -1"))
 

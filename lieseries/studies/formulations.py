@@ -41,9 +41,9 @@ from ..formatting import fmt_int, fmt_num, fmt_sci, markdown_table
 from ..methods import method_label, normalize_method, reference_dps, run_method, scene_methods
 from ..methods.pricing import CostPart
 from ..models.constrained import ConstrainedSystem
-from ..precision import dps_to_bits, to_fraction
+from ..precision import MIN_DPS, dps_to_bits, to_fraction
 from ..precision import thread_mp as mp
-from .convergence import error_vs_order, fit_geometric_rate
+from .convergence import MAX_STUDY_DPS, error_vs_order, fit_geometric_rate
 from .plugin import Study, register_study
 
 __all__ = ["FormulationRow", "FormulationComparison", "compare_formulations", "FormulationsStudy", "FORMULATIONS",
@@ -324,8 +324,8 @@ class FormulationsStudy(Study):
     fields = {"t": (F.positive, F.REQUIRED), "methods": (scene_methods(lists=False), None),
               "formulations": (_formulations_field, list(FORMULATIONS)), "chart": (_chart_field, None),
               "dependent": (F.list_of(F.string, allow_scalar=False), None), "samples": (F.integer(2, 1001), 11),
-              "radius_t": (F.positive, None), "radius_max_order": (F.integer(6, 200), 30),
-              "radius_dps": (F.integer(15, 1000), 40)}
+              "radius_t": (F.positive, None), "radius_max_order": (F.order, 30),
+              "radius_dps": (F.count(MIN_DPS, MAX_STUDY_DPS), 40)}
     docs = {"t": ("positive number", "the final time"),
             "methods": ("list of methods", "the methods run on each formulation (default: heyoka double and quad, "
                         "the Lie series at 30 digits)"),
@@ -336,8 +336,9 @@ class FormulationsStudy(Study):
             "samples": ("integer >= 2", "output times at which G, Phi and the energy are measured"),
             "radius_t": ("positive number", "measure the radius of convergence of each formulation's Lie series "
                          "from its error at this time (default: not measured)"),
-            "radius_max_order": ("integer 6..200", "the radius: orders 1..radius_max_order"),
-            "radius_dps": ("integer 15..1000", "the radius: digits of the series")}
+            "radius_max_order": ("integer", "the radius: orders 1..radius_max_order (a radius needs at least 6 "
+                                 "errors above the precision floor)"),
+            "radius_dps": ("integer", "the radius: digits of the series")}
     has_plot = False
     quick_doc = "a fifth of the time, 5 samples; the radius up to half the order (at least 12) at most 40 digits"
 
