@@ -1,5 +1,6 @@
 """The Lie-series operator and integrator against closed forms, heyoka at 256 bits and the matrix exponential."""
 
+import math
 from fractions import Fraction
 
 import heyoka as hy
@@ -323,3 +324,20 @@ def test_lie_integrate_beyond_a_float_mantissa_matches_the_closed_form(bigint, b
     sol = ls.lie_integrate(body, y0, t=Fraction(1, 1000), dps=350, order=120)
     assert sol.status == "success", sol.message
     assert rigid_error(sol.y[-1], Fraction(1, 1000), dps=380) < mp.mpf(10) ** -345
+
+
+def test_the_radius_of_a_series_whose_odd_coefficients_are_small_is_that_of_its_even_ones():
+    """The sphere's local chart z = sqrt(1 - x^2 - y^2) along the great circle from (0.6, 0, 0.8) with velocity
+    (0, 1, 0): p_y = 1/cos t, singular at t = pi/2 (where z = 0), its odd Taylor coefficients zero and the other
+    components entire. The radius is pi/2 (not an average over even and odd orders: 3.7 before), and the series
+    is not said to converge at t = 2."""
+    sphere = ls.ConstrainedSystem("(x_dot**2 + y_dot**2 + z_dot**2)/2", ["x", "y", "z"],
+                                  ["x**2 + y**2 + z**2 - 1"])
+    local = sphere.local({"z": "sqrt(1 - x**2 - y**2)"})
+    s = ls.lie_series(local, local.initial_state(("0.6", 0, "0.8"), (0, 1, 0)), order=30, dps=40)
+    assert abs(float(s.radius()) / (math.pi / 2) - 1) < 0.02
+    assert not s.converges(2.0) and s.converges(1.5)
+    ctx = mp.MPContext()  # the estimate at t = 1 is not below the true truncation error of p_y = sec t
+    ctx.dps = 40
+    err = abs(ctx.sec(1) - ctx.polyval(ctx.taylor(ctx.sec, 0, 30)[::-1], 1))
+    assert float(s.error_estimate(1)) >= 0.5 * float(err)

@@ -53,7 +53,7 @@ from .. import expr as _expr
 from ..expr import POINTWISE, RND
 from ..precision import check_dps, check_order, mp_context
 from ..precision import thread_mp as mp
-from .jets import DeadlineExceeded, jet_guard_bits, jet_plan, resolve_program
+from .jets import DeadlineExceeded, jet_guard_bits, jet_plan, radius_from_logs, resolve_program
 
 __all__ = ["backend", "set_backend", "fixed_taylor_coefficients", "FixedStepper", "FixedJets"]
 
@@ -1048,22 +1048,8 @@ def _estimate_radius(nrm):
     pts = [(k, ln(nrm[k])) for k in range(max(1, N // 2), N + 1) if nrm[k]]
     if len(pts) < 2:
         pts = [(k, ln(nrm[k])) for k in range(1, N + 1) if nrm[k]]
-    ctx = mp_context()
-    if not pts:
-        return ctx.inf
-    if len(pts) == 1:
-        k, lg = pts[0]
-        return ctx.exp(-lg / k)
-    n = len(pts)
-    kbar = sum(k for k, _ in pts) / n
-    lbar = sum(lg for _, lg in pts) / n
-    num = sum((k - kbar) * (lg - lbar) for k, lg in pts)
-    den = sum((k - kbar) ** 2 for k, _ in pts)
-    slope = num / den
-    if slope >= 0:  # not decaying: the root test on the last one
-        k, lg = pts[-1]
-        return ctx.exp(-lg / k)
-    return ctx.exp(-slope)
+    rho = radius_from_logs(pts)
+    return mp_context().inf if rho == math.inf else mp_context().mpf(rho)
 
 
 _LN2 = math.log(2)

@@ -35,6 +35,7 @@ compiled functions.
 
 from __future__ import annotations
 
+import math
 from time import perf_counter as _clock
 
 import mpmath
@@ -58,7 +59,39 @@ from .. import expr as _expr
 from ..precision import MAX_DPS, check_dps, check_order
 from ..expr import RND, rounded_mpf, Constant, Node, Program, eval_nodes, POINTWISE
 
-__all__ = ["taylor_coefficients", "taylor_coefficients_raw", "jet_guard_bits", "DeadlineExceeded"]
+__all__ = ["taylor_coefficients", "taylor_coefficients_raw", "jet_guard_bits", "DeadlineExceeded", "radius_from_logs"]
+
+
+def radius_from_logs(points) -> float:
+    """The radius of convergence that coefficient norms show: ``points`` are (k, ln ||c_k||) of the nonzero norms of
+    the upper half of the orders. The slope of log ||c_k|| against k is fitted by least squares to the vertices of
+    their upper hull (the coefficients' envelope: the root test is a limsup), after the hull's rising start; radius
+    = exp(-slope). A series whose coefficients alternate between the growth of a singularity and much smaller values
+    (an even function, 1/cos t: the odd orders come from other, entire components) is measured by the former, not
+    by an average of both, which put 1/cos's radius pi/2 at 3.7 and claimed convergence where the series diverges.
+    Coefficients that do not decay: the root test on the last one. ``inf`` for no points."""
+    pts = sorted(points)
+    if not pts:
+        return math.inf
+    hull = []
+    for p in pts:
+        while len(hull) >= 2 and ((hull[-1][0] - hull[-2][0]) * (p[1] - hull[-2][1])
+                                  - (hull[-1][1] - hull[-2][1]) * (p[0] - hull[-2][0])) >= 0:
+            hull.pop()
+        hull.append(p)
+    while len(hull) >= 2 and hull[1][1] >= hull[0][1]:  # the rising start (the envelope's first points)
+        hull.pop(0)
+    if len(hull) == 1:
+        k, lg = hull[-1]
+        return math.exp(min(-lg / k, 700.0)) if k > 0 else math.inf
+    n = len(hull)
+    kbar = sum(k for k, _ in hull) / n
+    lbar = sum(lg for _, lg in hull) / n
+    slope = sum((k - kbar) * (lg - lbar) for k, lg in hull) / sum((k - kbar) ** 2 for k, _ in hull)
+    if slope >= 0:
+        k, lg = pts[-1]
+        return math.exp(min(-lg / k, 700.0))
+    return math.exp(min(-slope, 700.0))
 
 
 #: Working digits above ``MAX_DPS`` that the engines may add as guard digits to a user's ``dps``.

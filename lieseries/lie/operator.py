@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..models.base import Model, state_fractions
+from .jets import radius_from_logs
 from ..poisson import as_poisson_system
 from ..precision import (
     check_dps,
@@ -67,29 +68,17 @@ def norms(coefficients):
 
 
 def estimate_radius(nrm) -> mp.mpf:
-    """Radius of convergence from coefficient norms: least-squares slope of log||c_k|| over the upper half.
+    """Radius of convergence from coefficient norms: the slope of log||c_k|| over the upper half of the orders, fitted
+    to the norms' upper envelope (:func:`lieseries.lie.jets.radius_from_logs`).
 
     Returns ``mp.inf`` when the coefficients vanish (a polynomial solution).
     """
     N = len(nrm) - 1
-    pts = [(k, mp.log(nrm[k])) for k in range(max(1, N // 2), N + 1) if nrm[k] > 0]
+    pts = [(k, float(mp.log(nrm[k]))) for k in range(max(1, N // 2), N + 1) if nrm[k] > 0]
     if len(pts) < 2:
-        pts = [(k, mp.log(nrm[k])) for k in range(1, N + 1) if nrm[k] > 0]
-    if not pts:
-        return mp.inf
-    if len(pts) == 1:
-        k, lg = pts[0]
-        return mp.exp(-lg / k)
-    kbar = mp.fsum(k for k, _ in pts) / len(pts)
-    lbar = mp.fsum(lg for _, lg in pts) / len(pts)
-    num = mp.fsum((k - kbar) * (lg - lbar) for k, lg in pts)
-    den = mp.fsum((k - kbar) ** 2 for k, _ in pts)
-    slope = num / den
-    if slope >= 0:
-        # coefficients not decaying: a radius below 1, from the root test on the last one
-        k, lg = pts[-1]
-        return mp.exp(-lg / k)
-    return mp.exp(-slope)
+        pts = [(k, float(mp.log(nrm[k]))) for k in range(1, N + 1) if nrm[k] > 0]
+    rho = radius_from_logs(pts)
+    return mp.inf if rho == float("inf") else mp.mpf(rho)
 
 
 def tail_estimate(nrm, t, rho) -> mp.mpf:
