@@ -207,8 +207,7 @@ def test_builtin_scene_quick_report_has_what_it_asks_for(name, tmp_path):
         # every heyoka run is at the accuracy of its precision against the exact solution
         for r in rows:
             if r.method == "taylor":
-                eps = ls.resolve_precision(r.precision if not r.precision.startswith("real")
-                                           else int(r.precision[4:])).eps
+                eps = r.precision.eps
                 assert r.error < 1e4 * eps, (r.label, r.error)
         # the numbers in the table are the ones computed
         assert f"{rows[0].error:.2e}" in md
