@@ -428,7 +428,9 @@ def test_a_part_that_cannot_be_priced_leaves_a_lower_bound_not_an_error(monkeypa
     def fails(*args, **kwargs):
         raise RuntimeError("calibration failed")
 
-    monkeypatch.setattr(cost, "_departure_parts", fails)  # noqa: PLC2701 (same-project test)
+    from lieseries.studies.plugin import study_plugin
+
+    monkeypatch.setattr(study_plugin("departure_map"), "cost", fails)  # the study prices itself
     est = cost.estimate_scene("departure-map", quick=True)
     assert est.lower_bound and est.summary().startswith("estimated at least ")
     assert any("not estimated (RuntimeError: calibration failed)" in p.what for p in est.parts)
