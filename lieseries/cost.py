@@ -18,12 +18,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .methods import normalize_method, reference_dps
+from .methods import normalize_method, reference_bits, reference_dps
 from .methods.pricing import (CALIBRATION_BUDGET, HEYOKA_BUILD_SECONDS, HEYOKA_STEP_SECONDS, CostPart, Pricer,
                               duration, heyoka_step_seconds)
 from .precision import to_fraction
 from .scenes import SceneError, effective_plan, load_scene
-from .studies import StudyContext, observables, reference_solutions, studies_registry
+from .studies import (NUMERICAL_REFERENCE_BITS, StudyContext, has_exact_solution, observables, reference_solutions,
+                      studies_registry)
 
 __all__ = ["CostPart", "SceneEstimate", "SceneTooLong", "estimate_scene", "check_scene_budget",
            "CALIBRATION_BUDGET", "HEYOKA_STEP_SECONDS", "PRINT_ABOVE", "heyoka_step_seconds"]
@@ -113,6 +114,14 @@ def _measurement_part(pricer, scene, runp, built):
         per += secs * (1 + len(specs))
         parts.append(CostPart("run.samples", f"{n_int * len(built)} output times measured at {dps} digits",
                               n_int * len(built), "output time", per, f"timed at {dps} digits"))
+    bits = reference_bits(specs, NUMERICAL_REFERENCE_BITS)
+    for mlabel, model in built:
+        if not has_exact_solution(model):  # measured against heyoka at `bits` run to t (and where runs stopped)
+            pricer.heyoka_builds += 1
+            secs, lower, basis = pricer.heyoka_run(model, scene.initial_state(model), t, bits, probe="double")
+            parts.append(CostPart("run.t", f"the reference (heyoka {bits} bits)" + (f" ({mlabel})" if len(built) > 1
+                                                                                  else ""), 1, "run", secs, basis,
+                                  lower))
     return parts
 
 

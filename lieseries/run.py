@@ -18,6 +18,7 @@ from .methods import (
     method_label,
     method_plugin,
     normalize_method,
+    reference_bits,
     reference_dps,
     run_atlas_method,
     run_method,
@@ -139,16 +140,6 @@ class _Null:
 REFERENCE_BITS = 256
 
 
-def _needed_bits(specs) -> int:
-    """Bits for references and conversions that stay far above every method of ``specs`` (scalar settings)."""
-    bits = REFERENCE_BITS
-    for s in specs:
-        b = method_plugin(s["method"]).bits(s)
-        if b is not None:
-            bits = max(bits, b + 64)
-    return bits
-
-
 def _invariants_of(model, states, digits: int):
     """model.invariants of a list of states in any number type (mpf states evaluated with ``digits``)."""
     if not states:
@@ -264,7 +255,7 @@ def _do_run(scene, runp, built, bar, notes):
     specs = [normalize_method(m, f"run.methods[{i}]") for i, m in enumerate(runp["methods"])]
     quick_of = _quick_labels(scene, runp)
     dps = reference_dps(specs)
-    bits = _needed_bits(specs)
+    bits = reference_bits(specs, REFERENCE_BITS)
     want_traj = "trajectory" in scene.plots
     rows, trajectories = [], {}
     total = len(built) * (len(specs) + 1)

@@ -34,7 +34,7 @@ measured in this one run on a shared machine: compare them with each other, not 
 from .builtin import clear_rhs_cache
 from .registry import (LIST_KEYS, METHODS, REPEAT_BUDGET, Method, MethodRun, RunRecord, best_of, default_methods,
                        expand_methods, method_label, method_plugin, methods_registry, normalize_method, precision_name,
-                       reference_dps, register_method, run_atlas_method, run_method, run_precision, scene_methods,
+                       reference_bits, reference_dps, register_method, run_atlas_method, run_method, run_precision, scene_methods,
                        setting, thin, unregister_method)
 
 __all__ = [
@@ -55,6 +55,7 @@ __all__ = [
     "normalize_method",
     "precision_name",
     "run_precision",
+    "reference_bits",
     "reference_dps",
     "run_method",
     "run_atlas_method",

@@ -153,13 +153,40 @@ class Pricer:
                 self._cache[key] = (steps / float(abs(reached)), False)
         return self._cache[key]
 
-    def heyoka_run(self, model, y0, t, precision, samples: int = 0):
+    def heyoka_run(self, model, y0, t, precision, samples: int = 0, probe: str = "lie"):
         """(seconds, lower bound?, basis) of a heyoka run from ``y0`` to ``t`` at ``precision`` with ``samples``
-        output times (the steps from a 15-digit Lie run over at most one time unit)."""
+        output times: the steps from a 15-digit Lie run over at most one time unit, or (``probe="double"``) from a
+        heyoka run in double to ``t`` bounded by the calibration budget (its steps follow the motion further: a
+        stiff start seen by a short Lie run overstates the steps of the whole run many times)."""
         t = to_fraction(t)
-        rate, lower = self.steps_per_time(model, y0, min(abs(t), Fraction(1)), 1 if t > 0 else -1)
-        secs = rate * float(abs(t)) * heyoka_step_seconds(precision, len(y0)) + samples * OUTPUT_SECONDS * len(y0)
-        return secs, lower, "model: steps from a 15-digit Lie run, heyoka's cost per step by precision"
+        rate, span, note = None, abs(t), ""
+        if probe == "double":
+            rate, stop = self._double_probe(model, y0, t)
+            lower = False
+            if stop is not None:  # a stiff motion: heyoka's runs stop there, and what is measured with them
+                span, lower = stop, True
+                note = f" (heyoka stops as stiff near t = {float(stop):.3g}: a run that goes further costs more)"
+        if rate is None:
+            rate, lower = self.steps_per_time(model, y0, min(abs(t), Fraction(1)), 1 if t > 0 else -1)
+        secs = rate * float(span) * heyoka_step_seconds(precision, len(y0)) + samples * OUTPUT_SECONDS * len(y0)
+        return secs, lower, (f"model: steps from a {'heyoka double' if probe == 'double' else '15-digit Lie'} run, "
+                             "heyoka's cost per step by precision" + note)
+
+    def _double_probe(self, model, y0, t):
+        """(steps per unit time, the time it stopped as stiff or None) of a heyoka run in double from ``y0``
+        towards ``t`` (bounded by the calibration budget; its compilation is not); (None, None) when it says
+        nothing."""
+        key = ("double probe", id(model), t)
+        if key not in self._cache:
+            try:
+                sol, _ = self.timed(lambda: integrate(model, y0, t=t, precision="double",
+                                                      max_time=CALIBRATION_BUDGET))
+                reached = abs(to_fraction(sol.t_reached))
+                rate = int(sol.stats.steps) / float(reached) if reached and sol.stats.steps else None
+                self._cache[key] = (rate, reached if sol.status == "step_collapse" and rate else None)
+            except Exception:  # the run itself will report its error
+                self._cache[key] = (None, None)
+        return self._cache[key]
 
     def span(self, model, y0, spec, t, n_out):
         """(seconds per output interval, lower bound?, basis, driven by the output times?) of the method

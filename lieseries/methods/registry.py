@@ -26,6 +26,7 @@ __all__ = [
     "methods_registry",
     "normalize_method",
     "precision_name",
+    "reference_bits",
     "reference_dps",
     "register_method",
     "run_precision",
@@ -311,6 +312,17 @@ def _digits_needed(spec) -> int:
 def reference_dps(specs) -> int:
     """Digits for a reference that resolves the errors of every run in ``specs``."""
     return max([30] + [_digits_needed(s) + 12 for s in specs])
+
+
+def reference_bits(specs, floor: int = 256) -> int:
+    """Bits for references and conversions that stay far above every method of ``specs`` (scalar settings): at
+    least ``floor``, and 64 above each method's own."""
+    bits = floor
+    for s in specs:
+        b = method_plugin(s["method"]).bits(s)
+        if b is not None:
+            bits = max(bits, b + 64)
+    return bits
 
 
 
