@@ -79,7 +79,7 @@ from mpmath.libmp import (
 )
 
 from . import cache
-from .precision import check_dps, to_fraction
+from .precision import check_dps, dps_to_bits, to_fraction
 
 __all__ = [
     "Program",
@@ -142,11 +142,6 @@ def rounded_mpf(prec, raw, ctx=None):
     """An mpf of context ``ctx`` (mpmath's global one by default) holding the raw value ``raw`` rounded to
     ``prec`` bits; no context's working precision is involved."""
     return (ctx or mpmath.mp).make_mpf(mpf_pos(raw, prec, RND))
-
-
-def dps_to_prec(dps):
-    """Binary precision mpmath uses for `dps` decimal digits."""
-    return libmp.dps_to_prec(dps)
 
 
 def _raw_to_fraction(raw, name):
@@ -491,7 +486,7 @@ class Program:
         """
         dps = check_dps(dps)
         # explicit precision: mpmath's global context is never touched
-        prec = libmp.dps_to_prec(dps)
+        prec = dps_to_bits(dps)
         wp = prec + EVAL_GUARD_BITS
         vr = convert_vector(values, self.nvars, wp, "values")
         pr = convert_vector(pars, self.npars, wp, "pars")

@@ -45,6 +45,7 @@ from . import cache
 from .models.base import Model
 from .poisson import as_poisson_system
 from .precision import (
+    VALIDATED_GUARD_BITS,
     check_count,
     check_dps,
     check_order,
@@ -65,8 +66,8 @@ __all__ = ["validated_integrate", "ball_taylor_coefficients", "centre_coefficien
 #: Operations of a vector field that the validated engine evaluates in ball arithmetic.
 SUPPORTED_OPS = ("add", "sub", "neg", "mul", "div", "powi", "pow", "sqrt", "exp", "log", "sin", "cos", "tan",
                  "atan", "sinh", "cosh", "tanh")
-#: Guard bits above the requested digits.
-GUARD_BITS = 32
+#: Guard bits above the requested digits (:data:`precision.VALIDATED_GUARD_BITS`).
+GUARD_BITS = VALIDATED_GUARD_BITS
 #: Each step's remainder bound, relative to the state's size, is at most this times 10^-dps.
 REMAINDER_FACTOR = 1e-4
 

@@ -10,12 +10,12 @@ import fractions
 import functools
 import numbers
 
-from ..precision import carried_bits, check_dps, dps_to_bits, export_mpf, mp_context, to_mpf, warn_if_coarse
+from ..precision import EXACT_GUARD_DIGITS, carried_bits, check_dps, dps_to_bits, export_mpf, mp_context, to_mpf, warn_if_coarse
 from ..precision import thread_mp as mp
 
 
-#: Guard digits added to the requested ``dps`` for all internal work.
-GUARD_DIGITS = 20
+#: Guard digits added to the requested ``dps`` for all internal work (:data:`precision.EXACT_GUARD_DIGITS`).
+GUARD_DIGITS = EXACT_GUARD_DIGITS
 
 #: Relative tolerance exponent used to classify the rigid-body regime: with
 #: ``dps`` requested digits, quantities below ``10**-(dps + CLASSIFY_DIGITS)``

@@ -51,7 +51,7 @@ from mpmath.libmp import (
 
 from .. import expr as _expr
 from ..expr import POINTWISE, RND
-from ..precision import check_dps, check_order, mp_context
+from ..precision import check_dps, check_order, dps_to_bits, mp_context
 from ..precision import thread_mp as mp
 from .jets import DeadlineExceeded, jet_guard_bits, jet_plan, radius_from_logs, resolve_program
 
@@ -1072,7 +1072,7 @@ class FixedStepper:
     def __init__(self, program, pars, order, dps):
         self.program = program
         self.order = order
-        self.prec = _expr.dps_to_prec(dps)
+        self.prec = dps_to_bits(dps)
         self.wp = self.prec + jet_guard_bits(order)
         self.pars_raw = _expr.convert_vector(pars, program.npars, self.wp, "pars")
         self.s = None
@@ -1134,7 +1134,7 @@ def fixed_taylor_coefficients(program_or_system, y0, pars, order, dps, time_scal
     program = resolve_program(program_or_system)
     order = check_order(order)
     dps = check_dps(dps)
-    prec = _expr.dps_to_prec(dps)
+    prec = dps_to_bits(dps)
     wp = prec + jet_guard_bits(order)
     y0r = _expr.convert_vector(y0, program.nvars, wp, "y0")
     pr = _expr.convert_vector(pars, program.npars, wp, "pars")

@@ -27,6 +27,7 @@ from ..models.base import Model, state_fractions
 from .jets import radius_from_logs
 from ..poisson import as_poisson_system
 from ..precision import (
+    LIE_GUARD_DIGITS,
     check_dps,
     check_order,
     data_bits,
@@ -39,8 +40,8 @@ from ..precision import (
 from ..precision import thread_mp as mp
 
 __all__ = ["LieSeries", "lie_series"]
-#: Guard digits carried above the requested precision inside the operator.
-GUARD_DIGITS = 10
+#: Guard digits carried above the requested precision inside the operator (:data:`precision.LIE_GUARD_DIGITS`).
+GUARD_DIGITS = LIE_GUARD_DIGITS
 
 
 def prepare(system, y0, argname="y0"):
