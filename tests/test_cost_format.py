@@ -11,3 +11,9 @@ def test_durations_below_a_second_print_without_exponent():
         assert part.describe() == f"100 output times at ~{text} each"
     est = SceneEstimate("s", parts=[CostPart("run.samples", "100 output times", 100, "time", 0.15, "measured")])
     assert est.summary() == "estimated 15 s: 100 output times at ~150 ms each (`run.samples`)"
+
+
+def test_a_part_bounded_below_reads_as_such():
+    part = CostPart("run.t", "the reference", 1, "run", 3.9, "timed", lower_bound=True)
+    assert part.describe() == "the reference at no less than 3.9 s each"  # it read "at at least 3.9 s"
+    assert SceneEstimate("s", parts=[part]).summary().startswith("estimated at least 3.9 s: ")

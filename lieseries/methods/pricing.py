@@ -62,7 +62,7 @@ class CostPart:
         return self.units * self.seconds_each
 
     def describe(self) -> str:
-        at = "at least " if self.lower_bound else "~"
+        at = "no less than " if self.lower_bound else "~"
         return f"{self.what} at {at}{duration(self.seconds_each)} each"
 
 
