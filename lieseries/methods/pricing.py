@@ -174,8 +174,8 @@ class Pricer:
 
     def _double_probe(self, model, y0, t):
         """(steps per unit time, the time it stopped as stiff or None) of a heyoka run in double from ``y0``
-        towards ``t`` (bounded by the calibration budget; its compilation is not); (None, None) when it says
-        nothing."""
+        towards ``t`` (bounded by the calibration budget; its compilation is not: once per structure, and the
+        scene's own run reuses it); (None, None) when it says nothing."""
         key = ("double probe", id(model), t)
         if key not in self._cache:
             try:
@@ -208,9 +208,9 @@ class Pricer:
             if steps_per_time * float(abs(t)) > STIFF_STEPS:
                 # a stiff run stops early (status step_collapse, after a few chunks of steps); a run that is
                 # merely long does not: which one, a short run in double says
-                steps = self._collapse_steps(model, y0, t)
-                if steps is not None:
-                    steps_per_time = steps / float(abs(t))
+                rate, stop = self._double_probe(model, y0, t)
+                if stop is not None:
+                    steps_per_time = rate * float(stop) / float(abs(t))  # the steps it takes before it stops
             per = steps_per_time * float(spacing) * step + OUTPUT_SECONDS * dim
             return (per, lower, "model: steps from a 15-digit Lie run, heyoka's cost per step by precision",
                     OUTPUT_SECONDS * dim > steps_per_time * float(spacing) * step)
@@ -220,20 +220,6 @@ class Pricer:
         per, lower, _, by_samples = self.span(model, y0, {"method": "lie", "dps": max(15, int(spec["dps"]))},
                                               t, n_out)
         return per, lower, "model: like a Lie run at its digits", by_samples
-
-    def _collapse_steps(self, model, y0, t):
-        """The steps after which a heyoka run to ``t`` stops as stiff (``step_collapse``), from a run in double
-        bounded by CALIBRATION_BUDGET (its compilation is not: once per structure, and the scene's own run reuses
-        it); None when the run is not stopped as stiff within the budget (it then takes all its steps)."""
-        key = ("collapse", id(model), t)
-        if key not in self._cache:
-            try:
-                sol, _ = self.timed(lambda: integrate(model, y0, t=t, precision="double",
-                                                      max_time=CALIBRATION_BUDGET))
-                self._cache[key] = int(sol.stats.steps) if sol.status == "step_collapse" else None
-            except Exception:  # the run itself will report its error
-                self._cache[key] = None
-        return self._cache[key]
 
     def _engine(self, model, y0, method, dps, order, times):
         """(seconds, time reached, steps) of a Lie / validated run over ``times`` bounded by CALIBRATION_BUDGET."""

@@ -281,18 +281,8 @@ class ConstrainedDirac(Model):
             raise ValueError(f"`q`: the constraint gradients dG/dq are dependent at this point (rank "
                              f"{numeric_rank(J)} < {len(cs.constraints)}): the surface is singular there; start elsewhere")
         vdot = sp.Matrix([sp.Rational(f.numerator, f.denominator) for f in vf])
-        pvals = list(M * vdot + cs.linear_term.xreplace(at))
-        p = []
-        irrational = False
-        for e in pvals:
-            val = exact_number(e, bits_to_dps(IRRATIONAL_BITS))
-            if not isinstance(val, Fraction):
-                irrational = True
-                val = to_fraction(val)
-            p.append(val)
-        if irrational and precision is None:
-            # stored with IRRATIONAL_BITS bits, and marked so: no estimate claims more
-            p = [BinaryFraction(v, IRRATIONAL_BITS, ("p (irrational at q)",)) for v in p]
+        # a state rounded to `precision` needs no mark: the rounding is the run's own
+        p = _exact_numbers(list(M * vdot + cs.linear_term.xreplace(at)), False, "p", mark=precision is None)
         return make_state(list(qf) + p, precision, inputs={"q": q, "qdot": qdot})
 
     def check_state(self, y, argname="y0"):
@@ -478,9 +468,10 @@ def _heyoka_tensor(conv, T):
     return tensor
 
 
-def _exact_numbers(exprs, marked):
+def _exact_numbers(exprs, marked, label, mark=True):
     """Sympy numbers as Fractions; irrational ones (or any, when ``marked`` inputs carried finite bits) stored with
-    IRRATIONAL_BITS bits and marked so."""
+    IRRATIONAL_BITS bits and, with ``mark``, marked so (the source ``"<label> (irrational at q)"``): no estimate
+    claims more."""
     out = []
     irrational = False
     for e in exprs:
@@ -489,8 +480,8 @@ def _exact_numbers(exprs, marked):
             irrational = True
             val = to_fraction(val)
         out.append(val)
-    if irrational or marked:
-        out = [BinaryFraction(v, IRRATIONAL_BITS, ("pi (irrational at q)",)) for v in out]
+    if mark and (irrational or marked):
+        out = [BinaryFraction(v, IRRATIONAL_BITS, (f"{label} (irrational at q)",)) for v in out]
     return out
 
 
@@ -580,7 +571,7 @@ class ConstrainedIntermediate(ConstrainedDirac):
                              "dependent there); start elsewhere or choose another frame")
         P = sp.Matrix([sp.Rational(f.numerator, f.denominator) for f in pv])
         marked = any(isinstance(f, BinaryFraction) for f in pv)
-        pis = _exact_numbers(list(Fq * P), marked)
+        pis = _exact_numbers(list(Fq * P), marked, "pi")
         return make_state(qv + pis, precision, inputs=given)
 
     def __repr__(self) -> str:
@@ -619,7 +610,6 @@ class ConstrainedLocal(ConstrainedDirac):
         self._sym_mass = Ml
         self._sym_linear = Al
         qdot = [tidy(e) for e in (J * xdot)]
-        names = [system.coordinates[i] for i in free] + [str(s) for s in psyms]
         qvars = hy.make_vars(*system.coordinates)
         qvars = qvars if isinstance(qvars, list) else [qvars]
         pvars = hy.make_vars(*[str(s) for s in psyms])
@@ -680,7 +670,6 @@ class ConstrainedLocal(ConstrainedDirac):
         (another branch: x3 = -0.8 where the chart is x3 = +sqrt(...)), and a point at or beyond its edge."""
         qf, vf, bits = self._surface_inputs(q, qdot)
         cs = self.system
-        n = self.n
         xf = [qf[i] for i in self.free]
         point = xf + [0] * len(self.free)
         got = self._eval(self._dependent_exprs, point)
@@ -705,7 +694,7 @@ class ConstrainedLocal(ConstrainedDirac):
         Ml = self._sym_mass.xreplace(at)
         Al = self._sym_linear.xreplace(at)
         xdot = sp.Matrix([sp.Rational(vf[i].numerator, vf[i].denominator) for i in self.free])
-        p = _exact_numbers(list(Ml * xdot + Al), False)
+        p = _exact_numbers(list(Ml * xdot + Al), False, "p")
         return make_state(xf + p, precision, inputs={"q": q, "qdot": qdot})
 
     def check_state(self, y, argname="y0"):
