@@ -250,6 +250,26 @@ def test_planar_pendulum_in_cartesian_coordinates_matches_the_closed_form(precis
         assert err < 500 * eps * t, (t, err)
 
 
+
+@pytest.mark.parametrize("g", ["sqrt(2)", "2*cosh(asinh(1))/2"])
+def test_irrational_constants_in_the_lagrangian_are_exact_at_every_precision(g):
+    """g = sqrt(2) written in the Lagrangian (or as a function of numbers that heyoka folds into one double when an
+    expression is built): the quad run and a 40-digit Lie run agree with the closed form to their own precision,
+    so the constant is evaluated at the run's precision, not rounded to the double 1.4142135623730951."""
+    cs = ls.ConstrainedSystem(f"(x_dot**2 + y_dot**2)/2 - {g}*y", ["x", "y"], ["x**2 + y**2 - 1"])
+    model = cs.dirac()
+    assert model.poisson.coarse_data() == {}
+    y0 = model.initial_state(q=("0.6", "-0.8"), qdot=(0, 0))
+    c = private_ctx(60)
+    ref = _pendulum_closed_form((1 - c.mpf("0.8")) / 2, c.sqrt(c.sqrt(2)), c.mpf(1), c)
+    quad = ls.integrate(model, y0, t=[1], precision="quad")
+    lie = ls.lie_integrate(model, y0, t=[1], dps=40)
+    assert quad.success and lie.success
+    for sol, tol in ((quad, 1e-31), (lie, 1e-37)):
+        row = model.configuration(sol)[-1]
+        err = max(abs(ctx_mpf(c, a) - b) for a, b in zip(row, ref))
+        assert err < tol, (g, err)
+
 # -- state helpers and exactness -------------------------------------------------------------------------------------
 def test_initial_state_is_exact_and_velocity_roundtrips(spherical_pendulum):
     model = spherical_pendulum.dirac()

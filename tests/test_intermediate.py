@@ -128,6 +128,22 @@ def test_sphere_local_chart_is_the_canonical_form_of_the_upper_half(sphere):
     assert sp.simplify(model._sym_hamiltonian - H) == 0
 
 
+
+def test_a_valid_chart_sympy_cannot_simplify_is_accepted_and_a_nearly_right_one_refused():
+    """The chart is checked by evaluating G at points where it is real, not by sympy.simplify: cosh(asinh(1)) is
+    sqrt(2), which simplify does not see, so this chart is the upper half; a chart off by 1e-30 is refused."""
+    pend = ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - y", ["x", "y"], ["x**2 + y**2 - r**2"],
+                                parameters={"r": "1/1000"})
+    odd = pend.local(chart={"y": "sqrt(r**2 - x**2)*cosh(asinh(1))/sqrt(2)"})
+    plain = pend.local(chart={"y": "sqrt(r**2 - x**2)"})
+    z = ("3/5000", "1/10")
+    assert sp.simplify(sp.sympify("x**2 + (sqrt(1 - x**2)*cosh(asinh(1))/sqrt(2))**2 - 1")) != 0
+    assert all(abs(a - b) < 1e-35 * abs(b) for a, b in zip(_field(odd, z), _field(plain, z), strict=True))
+    with pytest.raises(ValueError, match=r"`chart` does not solve the constraints: G1 = .* is -?[0-9.e-]+ \(not 0\)"):
+        pend.local(chart={"y": "sqrt(r**2 - x**2) + 10**-30"})
+    with pytest.raises(ValueError, match="`chart`: found no point where the chart is real"):
+        pend.local(chart={"y": "sqrt(-r**2 - x**2)"})
+
 # -- the great circle in all four formulations, by both engines -----------------------------------------------------
 X0, V0 = ("0.6", "0", "0.8"), ("0", "1", "0")
 FORMS = {

@@ -437,6 +437,46 @@ class ConstrainedSystem:
                 raise ValueError(f"`momenta` must be distinct; got {names}")
         return dep, F, names
 
+    def _check_chart(self, sol):
+        """Each G_alpha must vanish identically once the chart is substituted. A nonzero analytic residual vanishes
+        only on a thin set, so it is evaluated at pseudo-random rational points where the chart is real (at
+        ``RESIDUAL_DPS`` digits, relative to the size of G's terms there), at scales from 1e-3 to 1e3 so that
+        charts of small or large surfaces are sampled inside their domain; sympy's ``simplify`` is not asked to
+        prove the identity (it fails on true ones, e.g. nested radicals, and refused valid charts)."""
+        import random
+
+        vals = self.parameter_substitution()
+        free = [q for q in self.q_symbols if q not in sol]
+        chart = {s: e.xreplace(vals) for s, e in sol.items()}
+        terms = [[t.xreplace(chart) for t in sp.Add.make_args(g.xreplace(vals))] for g in self.constraints]
+        rng = random.Random(6151 + len(self.q_symbols))
+        checked = 0
+        for scale in (1, sp.Rational(1, 10), 10, sp.Rational(1, 100), 100, sp.Rational(1, 1000), 1000):
+            for _ in range(8):
+                pt = {q: sp.Rational(rng.randint(-999, 999), 1000) * scale for q in free}
+                try:
+                    for e in chart.values():
+                        exact_number(e.xreplace(pt), RESIDUAL_DPS)  # the chart must be real and finite here
+                    parts = [[exact_number(t.xreplace(pt), RESIDUAL_DPS) for t in ts] for ts in terms]
+                except (ValueError, TypeError, ZeroDivisionError):
+                    continue
+                with mp.workdps(RESIDUAL_DPS):
+                    for i, ps in enumerate(parts):
+                        res = mp.fsum(to_mp(v) for v in ps)
+                        size = mp.fsum(abs(to_mp(v)) for v in ps)
+                        if abs(res) > mp.mpf(10) ** (20 - RESIDUAL_DPS) * (size or 1):
+                            where = ", ".join(f"{q} = {pt[q]}" for q in free)
+                            raise ValueError(
+                                f"`chart` does not solve the constraints: G{i + 1} = {self.constraints[i]} is "
+                                f"{mp.nstr(res, 8)} (not 0) with it at {where}; give the dependent coordinates as "
+                                "the solution of G = 0 (e.g. x3 = sqrt(c**2 - x1**2 - x2**2))")
+                checked += 1
+                if checked == 4:
+                    return
+        raise ValueError("`chart`: found no point where the chart is real and finite (free coordinates sampled in "
+                         "boxes from 1e-3 to 1e3), so it cannot be checked to solve the constraints; check its "
+                         "expressions and the parameters' values")
+
     def _check_frame(self, F):
         """A user frame must be tangent to every level set of the constraints (G_alpha,A G_iA = 0, p9) and of full
         rank: checked exactly at pseudo-random rational points (numerically at 60 digits where irrational)."""
@@ -533,13 +573,7 @@ class ConstrainedSystem:
                 raise ValueError(f"`chart[{name!r}]` uses the dependent coordinates {used}: write each dependent "
                                  "coordinate as an expression of the free ones")
             sol[self.q_symbols[a]] = expr
-        vals = self.parameter_substitution()
-        for i, g in enumerate(self.constraints):
-            res = sp.simplify(g.xreplace(sol).xreplace(vals))
-            if res != 0:
-                raise ValueError(f"`chart` does not solve the constraints: G{i + 1} = {self.constraints[i]} becomes "
-                                 f"{res} (not 0) with it; give the dependent coordinates as the solution of "
-                                 "G = 0 (e.g. x3 = sqrt(c**2 - x1**2 - x2**2))")
+        self._check_chart(sol)
         edge_f = to_fraction(edge, "edge")
         if not 0 < edge_f < 1:
             raise ValueError(f"`edge` must lie in (0, 1) (a fraction of the largest possible |det D|); got {edge!r}")

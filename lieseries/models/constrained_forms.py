@@ -102,42 +102,67 @@ class _HeyokaConverter:
         self.constants = {}
 
     def __call__(self, expr):
-        expr = sp.sympify(expr)
-        repl = {}
-        for r in expr.atoms(sp.Rational):
-            if _dyadic(r):
-                continue
-            if r not in self.constants:
-                name = f"c{len(self.constants) + 1}"
-                while name in self.values:
-                    name = "_" + name
-                self.constants[r] = (len(self.names), name)
-                self.names.append(name)
-                self.values[name] = Fraction(int(r.p), int(r.q))
-                self.s_dict[sp.Symbol(f"__const_{name}")] = hy.par[len(self.names) - 1]
-            repl[r] = sp.Symbol(f"__const_{self.constants[r][1]}")
-        if repl:
-            expr = _replace_numbers(expr, repl)
+        expr = _numbers_as_parameters(sp.sympify(expr), self._parameter)
         return hy.from_sympy(expand_integer_powers(expr), s_dict=self.s_dict)
+
+    def _parameter(self, r):
+        """The runtime parameter standing for the rational number ``r`` (one per value)."""
+        if r not in self.constants:
+            name = f"c{len(self.constants) + 1}"
+            while name in self.values:
+                name = "_" + name
+            self.constants[r] = (len(self.names), name)
+            self.names.append(name)
+            self.values[name] = Fraction(int(r.p), int(r.q))
+            self.s_dict[sp.Symbol(f"__const_{name}")] = hy.par[len(self.names) - 1]
+        return sp.Symbol(f"__const_{self.constants[r][1]}")
+
+
+def _numbers_as_parameters(expr, parameter):
+    """``expr`` with the numbers heyoka would round to a double made runtime parameters (``parameter(r)`` gives the
+    symbol of the rational ``r``): a rational that is not a short binary number (1/3), and every rational inside a
+    number that is not rational (sqrt(2), cosh(asinh(1)), 2**(1/3)), which heyoka would fold into one double when
+    the expression is built; with its leaves as parameters it is evaluated at each run's precision instead. Short
+    binary exponents (the 1/2 of a square root) stay numbers; E becomes exp(1) with 1 a parameter. One pass over
+    the shared tree."""
+    numeric = {}
+    done = {}
+
+    def is_numeric(e):
+        r = numeric.get(e)
+        if r is None:
+            r = numeric[e] = (e.is_Number or isinstance(e, sp.NumberSymbol)) if e.is_Atom else all(
+                is_numeric(a) for a in e.args)
+        return r
+
+    def walk(e, inside):
+        key = (e, inside)
+        r = done.get(key)
+        if r is not None:
+            return r
+        if e.is_Rational:
+            r = parameter(e) if inside or not _dyadic(e) else e
+        elif e is sp.E:
+            r = sp.exp(parameter(sp.Integer(1)))
+        elif e.is_Atom:
+            r = e
+        else:
+            inside = inside or is_numeric(e)
+            if isinstance(e, sp.Pow):
+                keep = e.exp.is_Rational and _dyadic(e.exp)
+                r = sp.Pow(walk(e.base, inside), e.exp if keep else walk(e.exp, inside), evaluate=False)
+            else:
+                args = [walk(a, inside) for a in e.args]
+                r = e.func(*args, evaluate=False) if isinstance(e, (sp.Add, sp.Mul)) else e.func(*args)
+        done[key] = r
+        return r
+
+    return walk(expr, False)
 
 
 def _dyadic(r) -> bool:
     num, den = abs(int(r.p)), int(r.q)
     return den & (den - 1) == 0 and num < 2**53 and den <= 2**60
-
-
-def _replace_numbers(expr, repl):
-    """xreplace of numbers, also where sympy folds them into a Mul's coefficient or a power's exponent."""
-    if expr.is_Atom:
-        return repl.get(expr, expr)
-    args = [_replace_numbers(a, repl) for a in expr.args]
-    if isinstance(expr, sp.Mul):
-        return sp.Mul(*args, evaluate=False)
-    if isinstance(expr, sp.Add):
-        return sp.Add(*args, evaluate=False)
-    if isinstance(expr, sp.Pow):
-        return sp.Pow(*args, evaluate=False)
-    return expr.func(*args)
 
 
 #: Size (nodes of the sympy trees of the tensor and the Hamiltonian) above which a derived model is compiled by the
