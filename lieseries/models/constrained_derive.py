@@ -87,6 +87,8 @@ def _dirac_combination(bs, cs_, bz, n, k):
         for d in range(a):
             cf[a][d] = -cf[d][a]
     binv = _field_inverse(bf, K)
+    if binv is None:
+        raise ValueError("internal: the Dirac matrix {G, Phi} is singular")
     binvT = [list(r) for r in zip(*binv)]
     top = _field_mul(_field_mul(binvT, cf, K), binv, K)
     # Delta^-1 = [[b^-T c b^-1, -b^-T], [b^-1, 0]] over chi = (G, Phi)
@@ -114,13 +116,83 @@ def _field_mul(X, Y, K):
             for i in range(len(X))]
 
 
+def solve_linear(D, r):
+    """The solution x of D x = r (D a k x k sympy matrix, r k expressions) as reduced sympy expressions, in a field
+    of rational functions like the Dirac tensor (by sympy's LU and cancel where the field cannot hold the
+    entries); None when D is singular as a matrix of functions."""
+    from sympy.polys.fields import sfield
+
+    k = D.shape[0]
+    try:
+        K, els = sfield([sp.sympify(e) for e in list(D) + list(r)])
+    except Exception:  # sympy refuses some expressions as polynomial generators: the expression route then
+        K = None
+    if K is None or not (K.domain.is_ZZ or K.domain.is_QQ):
+        if sp.cancel(D.det(method="berkowitz")) == 0:
+            return None
+        return [sp.cancel(e) for e in D.LUsolve(sp.Matrix(r))]
+    inv = _field_inverse([els[i * k:(i + 1) * k] for i in range(k)], K)
+    if inv is None:
+        return None
+    rf = els[k * k:]
+    return [_field_expr(sum((inv[i][j] * rf[j] for j in range(k)), K.zero)) for i in range(k)]
+
+
+def substitute(exprs, f):
+    """``exprs`` (sympy expressions) with the symbols of ``f`` replaced by its expressions, each result reduced:
+    in one field of rational functions when the expressions are polynomials in those symbols over a denominator
+    free of them (the Dirac tensor and H_0 are, in the momenta), else by ``tidy`` of the substitution. The field
+    route groups each numerator's terms by their powers of the replaced symbols: a few field products per entry
+    instead of an expression-level cancel of the whole substituted entry."""
+    from sympy.polys.fields import sfield
+
+    keys = list(f)
+    exprs = [sp.sympify(e) for e in exprs]
+    try:
+        K, els = sfield(exprs + [sp.sympify(f[x]) for x in keys] + keys)
+    except Exception:
+        K = None
+    if K is None or not (K.domain.is_ZZ or K.domain.is_QQ):
+        return [tidy(e.xreplace(f)) if e != 0 else e for e in exprs]
+    m = len(exprs)
+    vals, gens = els[m:m + len(keys)], els[m + len(keys):]
+    idx = []
+    for g in gens:  # each replaced symbol must be a generator of the field's ring
+        num = g.numer
+        if g.denom != 1 or len(num) != 1 or sum(next(iter(num.itermonoms()))) != 1:
+            return [tidy(e.xreplace(f)) if e != 0 else e for e in exprs]
+        idx.append(next(iter(num.itermonoms())).index(1))
+    out = []
+    for e, x in zip(exprs, els[:m]):
+        if any(x.denom.degree(i) > 0 for i in idx):
+            out.append(tidy(e.xreplace(f)))
+            continue
+        buckets = {}
+        for monom, c in x.numer.items():
+            key = tuple(monom[i] for i in idx)
+            rest = list(monom)
+            for i in idx:
+                rest[i] = 0
+            buckets.setdefault(key, {})[tuple(rest)] = c
+        acc = K.zero
+        for key, terms in buckets.items():
+            term = K(x.numer.ring(terms))
+            for v, power in zip(vals, key):
+                if power:
+                    term *= v ** power
+            acc += term
+        out.append(_field_expr(acc / K(x.denom)))
+    return out
+
+
 def _field_inverse(B, K):
-    """Inverse of a small square matrix of field elements: the generic adjugate over the determinant."""
+    """Inverse of a small square matrix of field elements: the generic adjugate over the determinant (None when
+    it is singular)."""
     d = len(B)
     gen = sp.Matrix(d, d, lambda i, j: sp.Symbol(f"__k{i}_{j}"))
     det = _field_eval(gen.det(method="berkowitz"), gen, B, K)
     if not det:
-        raise ValueError("internal: the Dirac matrix {G, Phi} is singular")
+        return None
     adj = gen.adjugate(method="berkowitz")
     return [[_field_eval(adj[i, j], gen, B, K) / det for j in range(d)] for i in range(d)]
 
@@ -354,6 +426,8 @@ def _intermediate_in_field(F, M, A, U, pi, raw, n, d):
     MFt = [[dot(Mf[a], Ff[l]) for l in range(d)] for a in range(n)]  # (M F^T)_{a l}
     Kf = [[dot([Ff[i][a] for a in range(n)], [MFt[a][l] for a in range(n)]) for l in range(d)] for i in range(d)]
     Kinv = _field_inverse(Kf, K_)
+    if Kinv is None:
+        raise ValueError("internal: the kinetic matrix of the frame is singular")
     w = [pif[i] - dot(Ff[i], Af) for i in range(d)]
     a = [dot(Kinv[i], w) for i in range(d)]
     v = [dot([Ff[i][b] for i in range(d)], a) for b in range(n)]

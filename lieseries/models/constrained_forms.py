@@ -19,7 +19,7 @@ from ..precision import BinaryFraction, binary_inputs, bits_to_dps, data_bits, s
 from ..precision import thread_mp as mp
 from .base import Model, make_state
 from .constrained_checks import RESIDUAL_DPS, check_surface_residuals, residual_tolerance
-from .constrained_derive import exact_number, numeric_rank, symbolic_inverse, tidy
+from .constrained_derive import exact_number, numeric_rank, solve_linear, substitute, symbolic_inverse, tidy
 
 __all__ = ["ConstrainedDirac", "ConstrainedReduced", "ConstrainedIntermediate", "ConstrainedLocal"]
 
@@ -374,15 +374,16 @@ class ConstrainedReduced(ConstrainedDirac):
         self.free = tuple(free)
         # Phi = W (p - A), W = G_q M^-1: linear in p; solve for the dependent momenta
         pdep = [p[a] for a in dependent]
-        sol = sp.solve(d["Phi"], pdep, dict=True)
         W = sp.Matrix([[sp.diff(phi, p[a]) for a in range(n)] for phi in d["Phi"]])
         D = W[:, list(dependent)]
-        detD = sp.cancel(D.det(method="berkowitz"))
-        if not sol or detD == 0:
+        rest = {pa: 0 for pa in pdep}
+        sol = solve_linear(D, [-phi.xreplace(rest) for phi in d["Phi"]])  # D p_dep = -Phi(p_dep = 0)
+        detD = sp.cancel(D.det(method="berkowitz")) if sol is not None else 0
+        if detD == 0:
             raise ValueError(f"`dependent`: the constraints Phi = 0 cannot be solved for the momenta of "
                              f"{[system.coordinates[a] for a in dependent]} (the block of dPhi/dp is singular "
                              "everywhere); choose other coordinates")
-        f = {pa: sp.cancel(sol[0][pa]) for pa in pdep}
+        f = dict(zip(pdep, sol))
         idx = list(range(n)) + [n + i for i in free]
         names = list(system.coordinates) + [f"p_{system.coordinates[i]}" for i in free]
         z = hy.make_vars(*names)
@@ -392,16 +393,14 @@ class ConstrainedReduced(ConstrainedDirac):
         m = len(idx)
         tensor = [[0] * m for _ in range(m)]
         self._sym_tensor = sp.zeros(m, m)
-        for a in range(m):
-            for b in range(a + 1, m):
-                e = T[idx[a], idx[b]]
-                if e != 0:
-                    e = tidy(e.xreplace(f))
-                if e != 0:
-                    self._sym_tensor[a, b], self._sym_tensor[b, a] = e, -e
-                    tensor[a][b] = conv(e)
-                    tensor[b][a] = -tensor[a][b]
-        H0 = sp.cancel(d["H0"].xreplace(f))
+        pairs = [(a, b) for a in range(m) for b in range(a + 1, m) if T[idx[a], idx[b]] != 0]
+        entries = substitute([T[idx[a], idx[b]] for a, b in pairs] + [d["H0"]], f)
+        for (a, b), e in zip(pairs, entries):
+            if e != 0:
+                self._sym_tensor[a, b], self._sym_tensor[b, a] = e, -e
+                tensor[a][b] = conv(e)
+                tensor[b][a] = -tensor[a][b]
+        H0 = entries[-1]
         self._sym_hamiltonian = H0
         self.large_field = _large_field([self._sym_tensor, H0])
         self._sym_dependent = f
