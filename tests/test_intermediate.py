@@ -367,6 +367,80 @@ def test_rigid_body_run_agrees_with_the_closed_form(rigid, precision):
     assert all(abs(g) < 100 * eps for k, v in inv.items() if k.startswith("G") for g in v)
 
 
+def test_rigid_body_dirac_tensor_assembled_numerically_equals_the_definition_at_a_point():
+    """Six constraints: the Dirac tensor is assembled in heyoka (b = {G, Phi} factored L D L^T, no symbolic inverse).
+    At a rotation with rational entries and arbitrary momenta it equals the definition {z_i, z_j} - {z_i, chi_I}
+    (C^-1)_IJ {chi_J, z_j} with the 12 x 12 matrix C of canonical brackets evaluated there exactly and inverted by
+    sympy (no block formula), to 40 digits; G and Phi (declared as its Casimirs) are Casimirs there."""
+    cs, _frame = rigid_body_system()
+    d = cs.dirac_bracket()
+    assert d["tensor"] is None  # k = 6: the assembled route
+    model = cs.dirac()
+    q, p, chi = d["q"], d["p"], d["chi"]
+    n, m = len(q), len(chi)
+    z = q + p
+
+    def canonical(f, g):
+        return sum(sp.diff(f, q[a]) * sp.diff(g, p[a]) - sp.diff(f, p[a]) * sp.diff(g, q[a]) for a in range(n))
+
+    values = {sp.Symbol(f"g{i + 1}", real=True): sp.Rational(v) for i, v in enumerate(("5/2", "3/2", "1/2"))}
+    R = _rotation(*(Fraction(v) for v in (3, 1, -2, 1, 1)))
+    mom = [Fraction(v, 7) for v in (3, -5, 2, 9, -1, 4, -6, 8, 1)]
+    point = [x for row in R for x in row] + mom
+    at = {s: sp.Rational(v) for s, v in zip(z, point)}
+    C = sp.Matrix(m, m, lambda a, b: canonical(chi[a], chi[b]).xreplace(at).xreplace(values))
+    Z = sp.Matrix(2 * n, m, lambda i, a: canonical(z[i], chi[a]).xreplace(at).xreplace(values))
+    ref = -Z * C.inv() * (-Z.T)
+    for i in range(n):
+        ref[i, i + n] += 1
+        ref[i + n, i] -= 1
+    ps = model.poisson
+    got = compile_expressions(ps.variables, [e for row in ps.tensor for e in row], len(ps.parameter_values)
+                              ).evaluate(point, list(ps.parameter_values), 50)
+    c = private_ctx(50)
+
+    def num(v):  # an exact sympy rational or an mpf, in the private context
+        return ctx_mpf(c, Fraction(int(v.p), int(v.q))) if isinstance(v, sp.Basic) else ctx_mpf(c, v)
+
+    got = [num(v) for v in got]
+    tol = c.mpf(10) ** -40
+    for i in range(2 * n):
+        for j in range(2 * n):
+            r = num(ref[i, j])
+            assert abs(got[i * 2 * n + j] - r) <= tol * (1 + abs(r)), (i, j)
+    assert set(ps.casimirs) == {f"G{a}" for a in range(1, 7)} | {f"Phi{a}" for a in range(1, 7)}
+    for ch in chi:  # {chi, z_j} = sum_i dchi/dz_i T_ij = 0
+        grad = [sp.diff(ch, zi).xreplace(at).xreplace(values) for zi in z]
+        for j in range(2 * n):
+            assert abs(c.fsum(num(gi) * got[i * 2 * n + j] for i, gi in enumerate(grad) if gi != 0)) < tol, (ch, j)
+
+
+def test_reduced_form_of_six_constraints_is_refused_naming_the_other_forms():
+    cs, _frame = rigid_body_system()
+    with pytest.raises(ValueError, match=r"reduced\(\): a system with 6 constraints .* use dirac\(\) .* intermediate\(\)"):
+        cs.reduced()
+
+
+@pytest.mark.slow
+def test_rigid_body_dirac_run_agrees_with_the_closed_form():
+    """The Dirac form of the rigid body from R (18 variables, six constraints, assembled tensor) in double: R(t)
+    against ls.exact.euler_poisson within 100 eps at t = 1, 2; the constraints hold to 100 eps."""
+    cs, _frame = rigid_body_system()
+    model = cs.dirac()
+    y0 = model.initial_state(q=[1, 0, 0, 0, 1, 0, 0, 0, 1], qdot=[0, "-0.5", "0.1", "0.5", 0, -1, "-0.1", 1, 0])
+    ts = [1, 2]
+    sol = ls.integrate(model, y0, t=ts, precision="double")
+    assert sol.success
+    eps = float(resolve_precision("double").eps)
+    c = private_ctx(50)
+    for row, t in zip(sol.y, ts):
+        ex = ls.exact.euler_poisson(INERTIA, (1, "0.1", "0.5"), t, dps=50)
+        err = max(abs(ctx_mpf(c, a) - ctx_mpf(c, b)) for a, b in zip(row[:9], ex[:9]))
+        assert err < 100 * eps * t, (t, err)
+    inv = model.invariants(sol)
+    assert all(abs(g) < 100 * eps for k, v in inv.items() if k[0] in "GP" for g in v)
+
+
 # -- refusals --------------------------------------------------------------------------------------------------------
 def test_bad_intermediate_and_local_arguments_are_refused_naming_them(sphere):
     cases = [

@@ -51,7 +51,7 @@ import sympy as sp
 from ..precision import data_bits, to_fraction
 from ..precision import thread_mp as mp
 from .constrained_checks import RESIDUAL_DPS
-from .constrained_derive import derive_dirac, derive_intermediate, exact_number, memoized, numeric_rank, show_number, to_mp
+from .constrained_derive import SYMBOLIC_DIRAC_MAX_CONSTRAINTS, derive_dirac, derive_intermediate, exact_number, memoized, numeric_rank, show_number, to_mp
 from .constrained_forms import ConstrainedDirac, ConstrainedIntermediate, ConstrainedLocal, ConstrainedReduced
 
 __all__ = ["ConstrainedSystem", "ConstrainedDirac", "ConstrainedReduced", "ConstrainedIntermediate",
@@ -325,8 +325,10 @@ class ConstrainedSystem:
     # -- formulations --------------------------------------------------------------------------------------------
     def dirac_bracket(self):
         """The symbolic derivation (cached): ``dict`` with sympy ``q``, ``p`` (symbols), ``H0``, ``velocity``
-        (qdot(q, p)), ``chi`` (the 2k constraints G then Phi) and ``tensor`` (the 2n x 2n Dirac tensor
-        {z_i, z_j}_D, z = (q, p)), in the parameter symbols."""
+        (qdot(q, p)), ``chi`` (the 2k constraints G then Phi), ``b`` = {G, Phi}, ``c`` = {Phi, Phi}, ``bz`` =
+        {z_i, chi_I} and ``tensor`` (the 2n x 2n Dirac tensor {z_i, z_j}_D, z = (q, p)), in the parameter symbols.
+        With more than ``SYMBOLIC_DIRAC_MAX_CONSTRAINTS`` constraints ``tensor`` is None: the inverse of b as
+        rational functions is out of reach, and :meth:`dirac` assembles the tensor from b, c and bz instead."""
         if self._sym_dirac is None:
             self._sym_dirac = memoized(("dirac", self.memo_key()), lambda: derive_dirac(self))
         return self._sym_dirac
@@ -347,6 +349,12 @@ class ConstrainedSystem:
         ``"chart_edge"``) when det(D)^2 falls to ``edge``^2 det(W W^T), W = G_q M^-1 (for the sphere with x3
         dependent: |x3| = edge |x|). Cached per (dependent, edge)."""
         dep = self._dependent_indices(dependent)
+        if len(self.constraints) > SYMBOLIC_DIRAC_MAX_CONSTRAINTS:
+            raise ValueError(
+                f"reduced(): a system with {len(self.constraints)} constraints has no symbolic Dirac tensor to reduce "
+                f"(it is derived symbolically for at most {SYMBOLIC_DIRAC_MAX_CONSTRAINTS} constraints); use "
+                "dirac() (the tensor assembled numerically) or intermediate() (the paper's formalism, reduced by "
+                "construction)")
         edge_f = to_fraction(edge, "edge")
         if not 0 < edge_f < 1:
             raise ValueError(f"`edge` must lie in (0, 1) (a fraction of the largest possible |det D|); got {edge!r}")

@@ -260,6 +260,11 @@ def _dirac_combination_expr(bs, cs_, bz, n, k):
     return b, c, T
 
 
+#: Above this many constraints the Dirac tensor is not derived symbolically but assembled by the models from b = {G, Phi},
+#: c = {Phi, Phi} and {z, chi} (``tensor`` is None in :func:`derive_dirac`'s result).
+SYMBOLIC_DIRAC_MAX_CONSTRAINTS = 2
+
+
 def derive_dirac(cs):
     n = len(cs.q_symbols)
     k = len(cs.constraints)
@@ -279,9 +284,16 @@ def derive_dirac(cs):
     bz = [[canonical_bracket(zi, ch, q, p) for ch in chi] for zi in z]  # {z_i, chi_I}
     bs = [[canonical_bracket(G[a], Phi[c], q, p) for c in range(k)] for a in range(k)]
     cs_ = [[canonical_bracket(Phi[a], Phi[d], q, p) if a < d else 0 for d in range(k)] for a in range(k)]
+    out = {"q": q, "p": p, "H0": H0, "velocity": list(v), "chi": chi, "G": G, "Phi": Phi, "bz": bz}
+    if k > SYMBOLIC_DIRAC_MAX_CONSTRAINTS:
+        # b^-1 as rational functions is out of reach (R^T R = 1: a 6 x 6 matrix of quadratics in nine variables,
+        # its determinant of degree 12; 150 s were not enough): the models assemble the tensor from these pieces
+        c = sp.Matrix(k, k, lambda a, d: cs_[a][d] if a < d else (-cs_[d][a] if a > d else 0))
+        out.update(tensor=None, b=sp.Matrix(bs), c=c)
+        return out
     b, c, T = _dirac_combination(bs, cs_, bz, n, k)
-    return {"q": q, "p": p, "H0": H0, "velocity": list(v), "chi": chi, "G": G, "Phi": Phi, "tensor": T,
-            "b": b, "c": c}
+    out.update(tensor=T, b=b, c=c)
+    return out
 
 
 _MEMO: dict = {}

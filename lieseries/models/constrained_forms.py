@@ -85,6 +85,57 @@ def _assemble_intermediate(d, conv, z, n):
     return tensor, H, v
 
 
+def _assemble_dirac(d, conv, n, k):
+    """The Dirac tensor T_ij = {z_i, z_j} + {z_i, chi_I} Delta^-1_IJ {z_j, chi_J} (p8.7) assembled in heyoka from
+    b = {G, Phi} (symmetric, positive definite: G_q M^-1 G_q^T), c = {Phi, Phi} and {z, chi}, for systems with many
+    constraints whose symbolic inverse is out of reach. b^-1 = L^-T D^-1 L^-1 from b = L D L^T (no pivot is needed
+    where the constraints are independent), Delta^-1 = [[b^-1 c b^-1, -b^-1], [b^-1, 0]]; every piece shared, a
+    few thousand operations (compact mode)."""
+
+    def h(e):
+        return 0 if e == 0 else conv(e)
+
+    def dot(xs, ys):
+        terms = [x * y for x, y in zip(xs, ys) if not (_zero(x) or _zero(y))]
+        return hy.sum(terms) if terms else 0
+
+    b = [[h(d["b"][i, j]) for j in range(k)] for i in range(k)]
+    c = [[h(d["c"][i, j]) for j in range(k)] for i in range(k)]
+    zf = [[h(e) for e in row] for row in d["bz"]]
+    L = [[0] * k for _ in range(k)]
+    D = [0] * k
+    for j in range(k):
+        D[j] = b[j][j] - dot([L[j][m] for m in range(j)], [L[j][m] * D[m] for m in range(j)]) \
+            if j else b[j][j]
+        for i in range(j + 1, k):
+            num = b[i][j] - dot([L[i][m] for m in range(j)], [L[j][m] * D[m] for m in range(j)]) if j else b[i][j]
+            L[i][j] = 0 if _zero(num) else num / D[j]
+    Linv = [[1 if i == j else 0 for j in range(k)] for i in range(k)]
+    for i in range(k):
+        for j in range(i):
+            acc = dot([L[i][m] for m in range(j, i)], [Linv[m][j] for m in range(j, i)])
+            Linv[i][j] = 0 if _zero(acc) else -acc
+    invD = [1 / D[m] for m in range(k)]
+    binv = [[dot([Linv[m][i] * invD[m] for m in range(max(i, j), k) if not _zero(Linv[m][i])],
+                 [Linv[m][j] for m in range(max(i, j), k) if not _zero(Linv[m][i])]) for j in range(k)]
+            for i in range(k)]
+    cb = [[dot(c[i], [binv[m][j] for m in range(k)]) for j in range(k)] for i in range(k)]
+    top = [[dot(binv[i], [cb[m][j] for m in range(k)]) for j in range(k)] for i in range(k)]
+    dinv = [top[i] + [0 if _zero(x) else -x for x in binv[i]] for i in range(k)] + [binv[i] + [0] * k
+                                                                                  for i in range(k)]
+    Y = [[dot(dinv[I], zf[j]) for j in range(2 * n)] for I in range(2 * k)]  # (Delta^-1 {z_j, chi}^T)_I
+    tensor = [[0] * (2 * n) for _ in range(2 * n)]
+    for i in range(2 * n):
+        for j in range(i + 1, 2 * n):
+            corr = dot(zf[i], [Y[I][j] for I in range(2 * k)])
+            canon = 1 if (i < n and j == i + n) else 0
+            e = corr + canon if not _zero(corr) else canon
+            if not _zero(e):
+                tensor[i][j] = e
+                tensor[j][i] = -e
+    return tensor
+
+
 def _zero(x) -> bool:
     return isinstance(x, (int, float)) and x == 0
 
@@ -198,14 +249,18 @@ class ConstrainedDirac(Model):
         z = hy.make_vars(*names)
         conv = _HeyokaConverter(system, list(zip(d["q"] + d["p"], z)))
         T = d["tensor"]
-        self.large_field = _large_field([T, d["H0"]])
-        tensor = [[0] * (2 * n) for _ in range(2 * n)]
-        for i in range(2 * n):
-            for j in range(i + 1, 2 * n):
-                if T[i, j] != 0:
-                    e = conv(T[i, j])
-                    tensor[i][j] = e
-                    tensor[j][i] = -e
+        if T is None:
+            tensor = _assemble_dirac(d, conv, n, len(system.constraints))
+            self.large_field = True
+        else:
+            self.large_field = _large_field([T, d["H0"]])
+            tensor = [[0] * (2 * n) for _ in range(2 * n)]
+            for i in range(2 * n):
+                for j in range(i + 1, 2 * n):
+                    if T[i, j] != 0:
+                        e = conv(T[i, j])
+                        tensor[i][j] = e
+                        tensor[j][i] = -e
         H = conv(d["H0"])
         k = len(system.constraints)
         casimirs = {f"G{a + 1}": conv(d["G"][a]) for a in range(k)}
