@@ -507,7 +507,8 @@ class PoissonSystem:
                       if e is not None]
             named += [(f"extra_field[{i}]", e) for i, e in enumerate(self._extra or []) if e is not None]
             for where, e in named:
-                for c in sorted(hy.to_sympy(e).atoms(sympy.Float), key=float):
+                floats = {n for n in distinct_nodes(hy.to_sympy(e)) if isinstance(n, sympy.Float)}
+                for c in sorted(floats, key=float):
                     value = float(c)  # heyoka's constants are doubles: their exact binary values
                     if carried_bits(value) is not None:
                         self._coarse[f"the constant {value!r} in {where}"] = 53
@@ -712,20 +713,29 @@ def _is_big_power(e) -> bool:
     return e.is_Pow and e.exp.is_Integer and abs(int(e.exp)) >= 3
 
 
-def _scan(s):
-    """(whether the sympy expression ``s`` has an integer power with ``|n| >= 3``, its set of symbols), each
-    distinct subexpression visited once."""
-    seen, free, has_power = set(), set(), False
+def distinct_nodes(s):
+    """The distinct subexpressions of the sympy expression ``s``, each once. A field with shared subexpressions (a
+    derived rigid body's, from heyoka) is a small graph but a huge tree: sympy's own walks (``atoms``,
+    ``preorder_traversal``) visit the tree and take minutes where this takes milliseconds."""
+    seen = set()
     stack = [s]
     while stack:
         e = stack.pop()
         if e in seen:
             continue
         seen.add(e)
+        yield e
+        stack.extend(e.args)
+
+
+def _scan(s):
+    """(whether the sympy expression ``s`` has an integer power with ``|n| >= 3``, its set of symbols), each
+    distinct subexpression visited once."""
+    free, has_power = set(), False
+    for e in distinct_nodes(s):
         if e.is_Symbol:
             free.add(e)
         has_power = has_power or _is_big_power(e)
-        stack.extend(e.args)
     return has_power, free
 
 

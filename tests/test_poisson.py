@@ -291,3 +291,15 @@ def test_powers_as_products_keeps_parameters_and_refuses_to_round_a_constant():
     # a long double constant would be read back as a double: the expression is kept as it is
     ld = hy.expression(np.longdouble(1) / 3) * q**3
     assert str(powers_as_products(ld)) == str(ld)
+
+
+def test_coarse_constants_of_a_field_with_shared_subexpressions_are_found_by_walking_the_graph():
+    """A Hamiltonian built by 40 doublings (e_{k+1} = e_k * e_k + e_k, with 0.1 at the bottom) is a graph of ~80
+    nodes but a tree of ~2^40: the constant 0.1 (53 bits) is found, each distinct node visited once (a walk of the
+    tree, sympy's ``atoms``, never ends; a derived rigid body's quad run spent 9 minutes there)."""
+    q, p = hy.make_vars("q", "p")
+    e = q + 0.1
+    for _ in range(40):
+        e = e * e + e
+    ps = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], e + p * p)
+    assert ps.coarse_data() == {"the constant 0.1 in hamiltonian": 53}
