@@ -199,11 +199,20 @@ def test_builtin_heavy_top_scene_against_odefun_and_its_invariants():
 
         sol = mpmath.odefun(f, 0, [2, 1, 5, 0, mpmath.mpf(3) / 5, mpmath.mpf(4) / 5])
         ref = [float(c) for c in sol(1)]
+        ref_study = [float(c) for c in sol(mpmath.mpf(2) / 5)]  # the formulations study: t = 2/5 in quick mode
     for r, tol in zip(rows, (1e-13, 1e-14, 1e-14)):
         y = [float(c) for c in r.final_state]
         got = y[9:] + y[6:9]
         assert max(abs(a - b) for a, b in zip(got, ref)) < tol, (r.method, got, ref)
     assert res.run["rows"][1].error < 1e-30  # quad against the 256-bit reference run
+    # the same top derived from R (Dirac, 18 variables; intermediate, 12): Gamma = third row of R against odefun,
+    # the error against the 256-bit Dirac reference at each precision, the constraints kept
+    (_lab, comp), = res.studies["formulations"]
+    assert [(r.formulation, r.status, r.t) for r in comp.rows] == [
+        (f, "success", 0.4) for f in ("dirac", "intermediate") for _ in range(3)]
+    for r, tol in zip(comp.rows, (1e-14, 1e-31, 1e-29) * 2):
+        assert max(abs(a - b) for a, b in zip(r.q[6:9], ref_study[3:])) < 1e-14, (r.formulation, r.method)
+        assert r.error < tol and r.G < tol and r.Phi < 10 * tol, (r.formulation, r.method, r.error, r.G, r.Phi)
 
 
 @pytest.mark.slow
@@ -289,8 +298,12 @@ def test_formulations_study_refuses_a_model_without_constraints_and_local_withou
                   'omega = [1, 0, 5]\n[studies.formulations]\nt = 1\n')
     with pytest.raises(SceneError, match="`studies.formulations.chart` is required"):
         parse_scene(top)
+    with pytest.raises(SceneError, match=r"reduced\(\): a system with 6 constraints"):
+        parse_scene(top + 'formulations = ["dirac", "reduced"]\n')  # the top derived from R: no reduced form
+    damped = HEAD + ('[model]\nkind = "damped_euler_poisson"\ninertia = [1, 2, 3]\ndamping = 1\n[initial]\n'
+                     'omega = [1, 0, 5]\n[studies.formulations]\nt = 1\nformulations = ["dirac"]\n')
     with pytest.raises(SceneError, match="`model` is not one"):
-        parse_scene(top + 'formulations = ["dirac", "reduced"]\n')
+        parse_scene(damped)
     with pytest.raises(SceneError, match=r"`studies.formulations.formulations\[1\]` must be one of"):
         parse_scene(top + 'formulations = ["dirac", "chart"]\n')
 

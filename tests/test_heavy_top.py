@@ -204,6 +204,7 @@ def test_heavy_top_case_detection():
     assert not {"M2", "M3", "kovalevskaya"} & set(inv)
 
 
+@pytest.mark.slow  # 2 s; test_dirac_and_intermediate_forms_of_the_heavy_top_give_its_equations checks the library's
 def test_heavy_top_is_the_rigid_body_with_gravity_derived_by_constrained_system():
     """The nine entries of R with R^T R = 1, L = 1/2 tr(Rdot g Rdot^T) - mass g (R com)_3 and the frame R^-T E_k,
     derived by ConstrainedSystem's intermediate formalism: its vector field equals HeavyTop's (both brackets, 11.20
@@ -232,3 +233,63 @@ def test_heavy_top_is_the_rigid_body_with_gravity_derived_by_constrained_system(
             z = [e for row in R for e in row] + [Fraction(rng.randint(-900, 900), 100) for _ in range(3)]
             for x, y in zip(field(derived, z), field(top, z)):
                 assert abs(x - y) < 1e-44 * (1 + abs(y))
+
+
+@pytest.mark.slow  # 6 s: the fast test below checks a diagonal tensor
+def test_constrained_system_of_a_heavy_top_with_a_full_inertia_tensor_gives_its_equations():
+    """``HeavyTop.constrained_system()`` (the nine entries of R, R^T R = 1, J = tr(I)/2 - I, its frame R^-T E_k as
+    the default of ``intermediate()``): the intermediate field equals HeavyTop's hand-written one at rotations with
+    rational entries (50 digits), for an inertia tensor with products of inertia."""
+    import random
+
+    from test_intermediate import _rotation
+
+    inertia = [[3, "1/2", 0], ["1/2", 4, "-1/3"], [0, "-1/3", 5]]
+    top = ls.HeavyTop(inertia, com=("1/2", "-1/3", "1/4"), mass=2, g="9.81")
+    cs = top.constrained_system()
+    assert cs is top.constrained_system()
+    derived = cs.intermediate()
+    rng = random.Random(3)
+    for _ in range(2):
+        R = _rotation(None, *[Fraction(rng.randint(-9, 9)) for _ in range(4)])
+        z = [e for row in R for e in row] + [Fraction(rng.randint(-900, 900), 100) for _ in range(3)]
+        for x, y in zip(_field(derived, z), _field(top, z)):
+            assert abs(x - y) < 1e-44 * (1 + abs(y))
+
+
+def _field(model, z, rows=None):
+    from lieseries.expr import compile_expressions
+
+    ps = model.poisson
+    exprs = ps.vector_field if rows is None else ps.vector_field[:rows]
+    prog = compile_expressions(ps.variables, exprs, len(ps.parameter_values))
+    return prog.evaluate(list(z), list(ps.parameter_values), 50)
+
+
+def test_dirac_and_intermediate_forms_of_the_heavy_top_give_its_equations():
+    """The Dirac form of ``HeavyTop.constrained_system()`` (18 variables) at the point ``surface_point`` gives
+    (q = R, qdot = R hat(Omega), Omega = I^-1 M, exact): its field moves R as R hat(Omega), at 50 digits; its
+    intermediate form (the default frame R^-T E_k) has HeavyTop's hand-written field there."""
+    from test_intermediate import _rotation
+
+    top = ls.HeavyTop(**TOP)
+    R = _rotation(None, *(Fraction(v) for v in (3, 1, -2, 1)))
+    om = [Fraction(1), Fraction(-2, 3), Fraction(5, 2)]
+    q, qdot = top.surface_point(top.initial_state(omega=om, R0=R))
+    hat = [[0, -om[2], om[1]], [om[2], 0, -om[0]], [-om[1], om[0], 0]]
+    want = [sum(R[i][k] * hat[k][j] for k in range(3)) for i in range(3) for j in range(3)]
+    assert q == [e for row in R for e in row] and qdot == want
+    dirac = top.constrained_system().dirac()
+    c = private_ctx(50)
+    for x, w in zip(_field(dirac, list(dirac.initial_state(q, qdot).exact), rows=9), want):
+        assert abs(ctx_mpf(c, x) - ctx_mpf(c, w)) < c.mpf(10) ** -44
+    y0 = top.initial_state(omega=om, R0=R)
+    inter = top.constrained_system().intermediate()
+    assert list(inter.initial_state(q, qdot).exact) == list(y0.exact)  # pi = M in the frame R^-T E_k
+    for x, y in zip(_field(inter, list(y0.exact)), _field(top, list(y0.exact))):
+        assert abs(ctx_mpf(c, x) - ctx_mpf(c, y)) < c.mpf(10) ** -44 * (1 + abs(ctx_mpf(c, y)))
+
+
+def test_damped_body_has_no_constrained_system():
+    with pytest.raises(ValueError, match="dissipates energy"):
+        ls.DampedEulerPoisson((1, 2, 3), damping=1).constrained_system()

@@ -87,6 +87,10 @@ class ConstrainedSystem:
         Values of the other names in the expressions (int, str, Fraction kept exact; a float is binary data).
     name : str, optional
         A label for messages and reports.
+    frame, momenta : optional
+        The tangent frame (and the names of its momenta) :meth:`intermediate` uses when it is given neither
+        ``dependent`` nor ``frame``: the natural frame of a system whose charts are awkward (the rigid body's
+        R^-T E_k on R^T R = 1). Checked here, as :meth:`intermediate` checks a frame.
 
     Attributes
     ----------
@@ -108,7 +112,8 @@ class ConstrainedSystem:
     >>> y0 = model.initial_state(q=("3/5", "-4/5"), qdot=("4/5", "3/5"))
     """
 
-    def __init__(self, lagrangian, coordinates, constraints, *, parameters=None, name=None):
+    def __init__(self, lagrangian, coordinates, constraints, *, parameters=None, name=None, frame=None,
+                 momenta=None):
         self.coordinates = self._check_coordinates(coordinates)
         n = len(self.coordinates)
         self.velocities = tuple(f"{c}_dot" for c in self.coordinates)
@@ -139,6 +144,13 @@ class ConstrainedSystem:
         self._check_independent()
         self._dirac = None
         self._sym_dirac = None
+        self.default_frame = None
+        if frame is not None:
+            self._frame(None, frame, momenta)  # refused here, naming `frame` or `momenta`, if it is not a frame
+            self.default_frame = (frame, momenta)
+        elif momenta is not None:
+            raise ValueError("`momenta` names the momenta of `frame`; give `frame` too (or pass `momenta` to "
+                             "intermediate())")
 
     # -- input ---------------------------------------------------------------------------------------------------
     @staticmethod
@@ -532,8 +544,8 @@ class ConstrainedSystem:
         """The model on the intermediate submanifold in the paper's intermediate formalism (p9-p14.3): the n
         coordinates q^A and n - k momenta pi_i = G_iA(q) p_A, with G_i vector fields tangent to the surface.
 
-        ``frame=None``: the fields of p9 in the chart whose dependent coordinates are ``dependent`` (k names or
-        indices; default the last k): G_i has 1 in the free coordinate i, 0 in the other free ones, and solves
+        ``frame=None``: the system's own ``frame`` if it was given one and ``dependent`` is None; else the fields
+        of p9 in the chart whose dependent coordinates are ``dependent`` (k names or indices; default the last k): G_i has 1 in the free coordinate i, 0 in the other free ones, and solves
         dG_alpha/dq . G_i = 0 in the dependent ones. The chart ends where the block dG/dq_dependent is singular:
         runs stop (status ``"chart_edge"``) when det(dG/dq_dep)^2 falls to ``edge``^2 det(G_q G_q^T) (the
         sphere with x3 dependent: |x3| = edge |x|).
@@ -545,6 +557,9 @@ class ConstrainedSystem:
 
         Bracket: {q^A, q^B} = 0, {q^A, pi_i} = G_iA, {pi_i, pi_j} = -c_ij^D p_D with c_ij = [G_i, G_j] (p12.1,
         p20, p24); H'_0 = H_0 at p on Phi = 0 (p14.1). The G_alpha are Casimirs (``invariants``). Cached."""
+        if dependent is None and frame is None and self.default_frame is not None:
+            frame, own = self.default_frame
+            momenta = own if momenta is None else momenta
         dep, F, names = self._frame(dependent, frame, momenta)
         edge_f = to_fraction(edge, "edge")
         if not 0 < edge_f < 1:

@@ -280,10 +280,13 @@ def derive_dirac(cs):
     G = list(cs.constraints)
     Phi = [sp.expand(sum(sp.diff(g, q[a]) * v[a] for a in range(n))) for g in G]
     chi = G + Phi
-    z = q + p
-    bz = [[canonical_bracket(zi, ch, q, p) for ch in chi] for zi in z]  # {z_i, chi_I}
-    bs = [[canonical_bracket(G[a], Phi[c], q, p) for c in range(k)] for a in range(k)]
-    cs_ = [[canonical_bracket(Phi[a], Phi[d], q, p) if a < d else 0 for d in range(k)] for a in range(k)]
+    # each derivative once: dchi/dq and dchi/dp (G has no p); {q_a, chi} = dchi/dp_a, {p_a, chi} = -dchi/dq_a
+    dq = [[sp.diff(ch, qa) for qa in q] for ch in chi]
+    dp = [[0] * n for _ in G] + [[sp.diff(ph, pa) for pa in p] for ph in Phi]
+    bz = [[dp[I][a] for I in range(2 * k)] for a in range(n)] + [[-dq[I][a] for I in range(2 * k)] for a in range(n)]
+    bs = [[sp.expand(sum(dq[a][e] * dp[k + c][e] for e in range(n))) for c in range(k)] for a in range(k)]
+    cs_ = [[sp.expand(sum(dq[k + a][e] * dp[k + d][e] - dp[k + a][e] * dq[k + d][e] for e in range(n)))
+            if a < d else 0 for d in range(k)] for a in range(k)]
     out = {"q": q, "p": p, "H0": H0, "velocity": list(v), "chi": chi, "G": G, "Phi": Phi, "bz": bz}
     if k > SYMBOLIC_DIRAC_MAX_CONSTRAINTS:
         # b^-1 as rational functions is out of reach (R^T R = 1: a 6 x 6 matrix of quadratics in nine variables,

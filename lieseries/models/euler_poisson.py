@@ -32,6 +32,7 @@ from ..precision import (binary_inputs, data_bits, export_mpf, resolve_precision
                          to_fraction)
 from .. import fields as F
 from .base import Model, make_state
+from .constrained import ConstrainedSystem
 from .kinds import InitialFamily, ModelKind, register_initial_family, register_model_kind
 
 __all__ = ["EulerPoisson", "DampedEulerPoisson", "levi_civita"]
@@ -428,6 +429,64 @@ class EulerPoisson(Model):
                 res["det_R"].append(_det3(R))
         return export_mpf({k: v[0] for k, v in res.items()} if was_1d else res)
 
+    # -- the same body as a constrained system (the paper's derivation) -----------------------------------------
+    def potential_of_R(self) -> tuple:
+        """(U(R) as a string in R11..R33 and parameter names, {name: exact value}): the potential energy of the
+        body's configuration, for :meth:`constrained_system`. None for the free body."""
+        return "", {}
+
+    def constrained_system(self) -> ConstrainedSystem:
+        """The same body derived by the paper's method (section "Rotating asymmetric body"): the nine entries of
+        R with the six constraints R^T R = 1 and L = 1/2 tr(Rdot J Rdot^T) - U(R), J = tr(I)/2 - I (so that
+        I = tr(J) - J), and the frame R^-T E_k (3.7) with momenta M1, M2, M3, in which its ``intermediate()`` is
+        this model's equations (11.20). Its ``dirac()`` form (18 variables) is what the formulations study
+        compares with them; ``reduced()`` is not available (six constraints). Built once."""
+        cached = self.__dict__.get("constrained")
+        if cached is not None:
+            return cached
+        R = [[f"R{i + 1}{j + 1}" for j in range(3)] for i in range(3)]
+        tr = sum(self._I[i][i] for i in range(3))
+        J = [[(tr / 2 if i == j else 0) - self._I[i][j] for j in range(3)] for i in range(3)]
+        params = {}
+        terms = []
+        for i in range(3):
+            for j in range(i, 3):
+                if J[i][j] != 0:
+                    params[f"J{i + 1}{j + 1}"] = J[i][j]
+                    factor = f"J{i + 1}{j + 1}/2" if i == j else f"J{i + 1}{j + 1}"
+                    terms += [f"{factor}*{R[k][i]}_dot*{R[k][j]}_dot" for k in range(3)]
+        potential, extra = self.potential_of_R()
+        params.update(extra)
+        lagrangian = " + ".join(terms) + (f" - ({potential})" if potential else "")
+        constraints = [" + ".join(f"{R[k][i]}*{R[k][j]}" for k in range(3)) + (" - 1" if i == j else "")
+                       for i in range(3) for j in range(i, 3)]
+
+        def cofactor(a, b):  # of R, with its sign: (R^-T)_ab = cofactor(a, b) / det R
+            r = [x for x in range(3) if x != a]
+            c = [x for x in range(3) if x != b]
+            minor = f"{R[r[0]][c[0]]}*{R[r[1]][c[1]]} - {R[r[0]][c[1]]}*{R[r[1]][c[0]]}"
+            return f"({minor})" if (a + b) % 2 == 0 else f"(-({minor}))"
+
+        det = "(" + " + ".join(f"{R[0][b]}*{cofactor(0, b)}" for b in range(3)) + ")"
+        # (R^-T E_k)_ab = sum_i (R^-T)_ai (E_k)_ib with (E_k)_ib = -eps_kib
+        frame = [[" + ".join(f"{-levi_civita(k, i, b)}*{cofactor(a, i)}" for i in range(3) if levi_civita(k, i, b))
+                  for a in range(3) for b in range(3)] for k in range(3)]
+        frame = [[f"({e})/{det}" if e else "0" for e in row] for row in frame]
+        system = ConstrainedSystem(lagrangian, [e for row in R for e in row], constraints, parameters=params,
+                                   name=f"{self.poisson.name} from R", frame=frame, momenta=["M1", "M2", "M3"])
+        self.__dict__["constrained"] = system
+        return system
+
+    def surface_point(self, y) -> tuple:
+        """(q, qdot) of :meth:`constrained_system` at the state ``y``: q = R (row-major), qdot = R hat(Omega),
+        Omega = I^-1 M; exact Fractions from the state's exact value."""
+        z = self.check_state(y, "y")
+        R = [z[3 * i:3 * i + 3] for i in range(3)]
+        om = [sum(self._Iinv[i][j] * z[9 + j] for j in range(3)) for i in range(3)]
+        hat = [[0, -om[2], om[1]], [om[2], 0, -om[0]], [-om[1], om[0], 0]]
+        qdot = [sum(R[i][k] * hat[k][j] for k in range(3)) for i in range(3) for j in range(3)]
+        return [R[i][j] for i in range(3) for j in range(3)], qdot
+
     # -- how studies, runs and reports treat it ----------------------------------------------------------------
     closed_form = "free_rigid_body"
 
@@ -472,6 +531,12 @@ class DampedEulerPoisson(EulerPoisson):
             raise ValueError(f"`damping` must be >= 0 (a negative value pumps energy in); got {float(d)}")
         self.damping = d
         super().__init__(inertia, bracket)
+
+    def constrained_system(self):
+        """Refused: the damping torque dissipates energy, so the motion is not that of a Lagrangian with
+        constraints."""
+        raise ValueError("a damped rigid body has no constrained_system(): its internal torque dissipates energy, "
+                         "so it is not a Lagrangian system with constraints")
 
     def _build(self) -> PoissonSystem:
         base = super()._build()

@@ -81,6 +81,11 @@ class HeavyTop(EulerPoisson):
             name=f"heavy top ({self.bracket})", input_bits={**base.coarse_data(), **self._heavy_bits},
             parameter_sources=sources, jacobi=False)  # the bracket is EulerPoisson's, checked by its tests
 
+    def potential_of_R(self) -> tuple:
+        """mass g (R com)_3 = mass g (R31 com1 + R32 com2 + R33 com3), for the derived system."""
+        weight = {f"w{i + 1}": self.mass_exact * self.g_exact * c for i, c in enumerate(self._com) if c != 0}
+        return " + ".join(f"w{i[1:]}*R3{i[1:]}" for i in weight), weight
+
     @property
     def com_exact(self) -> list:
         """The centre of mass (body frame) as exact Fractions."""

@@ -1,7 +1,9 @@
 """The paper's comparison: one constrained system in its four Hamiltonian formulations, each run by each method.
 
 For a model derived by :class:`~lieseries.models.constrained.ConstrainedSystem` (the scene kind ``constrained``
-or a built-in model on it, such as ``spherical_pendulum``), ``[studies.formulations]`` runs
+or a built-in model on it, such as ``spherical_pendulum``), or a model that derives itself by it
+(``constrained_system()``: the rigid body and the heavy top from the nine entries of R, starting from the model's
+own R and R hat(Omega)), ``[studies.formulations]`` runs
 
 - ``dirac``: (q^A, p_A), 2n variables, the Dirac bracket (p8.7);
 - ``reduced``: (q^A, p_i), n + k variables, on Phi = 0 (p8.13);
@@ -130,8 +132,28 @@ class FormulationComparison:
 
 
 def _system_of(model):
+    """The ConstrainedSystem behind a scene's model: a formulation of one (``model.system``), or a built-in model
+    that derives itself by the paper's method (``model.constrained_system()``, the rigid body and the heavy top);
+    None otherwise."""
     system = getattr(model, "system", None)
-    return system if isinstance(system, ConstrainedSystem) else None
+    if isinstance(system, ConstrainedSystem):
+        return system
+    derive = getattr(model, "constrained_system", None)
+    if callable(derive):
+        try:
+            system = derive()
+        except ValueError:
+            return None
+        return system if isinstance(system, ConstrainedSystem) else None
+    return None
+
+
+def _start(model, ini, y0):
+    """(q, qdot) the comparison starts from: the scene's [initial] q, qdot, or the point of the model's own
+    initial state ``y0`` (a rigid body's R and R hat(Omega), exact)."""
+    if "q" in ini and "qdot" in ini:
+        return ini["q"], ini["qdot"]
+    return model.surface_point(y0)
 
 
 def _formulation(system, name, chart, dependent):
@@ -351,7 +373,8 @@ class FormulationsStudy(Study):
             system = _system_of(model)
             if system is None:
                 raise F.SceneError(f"`studies.formulations` compares the formulations of a constrained system; "
-                                   f"`{path}` is not one (use kind 'constrained' or a model derived from it)")
+                                   f"`{path}` is not one (use kind 'constrained', a model derived from it, or a "
+                                   "rigid body or heavy top, derived from R)")
             try:
                 for name in opts["formulations"]:
                     _formulation(system, name, opts["chart"], opts["dependent"])
@@ -380,10 +403,11 @@ class FormulationsStudy(Study):
         parts = []
         for _lab, model in ctx.built:
             system = _system_of(model)
+            q, qdot = _start(model, ini, ctx.initial_state(model))
             pricer.heyoka_builds += 1  # the reference
             for name in opts["formulations"]:
                 form = _formulation(system, name, opts["chart"], opts["dependent"])  # derived once, cached
-                y0 = form.initial_state(ini["q"], ini["qdot"])
+                y0 = form.initial_state(q, qdot)
                 if name == "dirac":
                     secs, lower, basis = pricer.heyoka_run(form, y0, opts["t"], bits, n_int)
                     parts.append(CostPart("studies.formulations.t", f"the reference (Dirac, heyoka {bits} bits)", 1,
@@ -407,15 +431,15 @@ class FormulationsStudy(Study):
         methods = self._methods(opts)
         out = []
         for i, (lab, model) in enumerate(ctx.built):
-            ini = ctx.scene.initial
             system = _system_of(model)
+            q, qdot = _start(model, ctx.scene.initial, ctx.initial_state(model))
             comp = compare_formulations(
-                system, ini["q"], ini["qdot"], opts["t"], methods, formulations=opts["formulations"],
+                system, q, qdot, opts["t"], methods, formulations=opts["formulations"],
                 chart=opts["chart"], dependent=opts["dependent"], samples=opts["samples"],
                 progress=ctx.model_progress(i, lab))
             if opts["radius_t"] is not None:
                 comp.radii = formulation_radii(
-                    system, ini["q"], ini["qdot"], opts["radius_t"], max_order=opts["radius_max_order"],
+                    system, q, qdot, opts["radius_t"], max_order=opts["radius_max_order"],
                     dps=opts["radius_dps"], formulations=opts["formulations"], chart=opts["chart"],
                     dependent=opts["dependent"], progress=ctx.model_progress(i, lab))
             out.append((lab, comp))
