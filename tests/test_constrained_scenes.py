@@ -302,8 +302,12 @@ def test_formulations_study_refuses_a_model_without_constraints_and_local_withou
         parse_scene(top + 'formulations = ["dirac", "reduced"]\n')  # the top derived from R: no reduced form
     damped = HEAD + ('[model]\nkind = "damped_euler_poisson"\ninertia = [1, 2, 3]\ndamping = 1\n[initial]\n'
                      'omega = [1, 0, 5]\n[studies.formulations]\nt = 1\nformulations = ["dirac"]\n')
-    with pytest.raises(SceneError, match="`model` is not one"):
+    with pytest.raises(SceneError, match="`model`: a damped rigid body has no constrained_system"):
         parse_scene(damped)
+    sphere = HEAD + ('[model]\nkind = "sphere"\n[initial]\nx = ["0.6", 0, "0.8"]\nv = [0, 1, 0]\n'
+                     '[studies.formulations]\nt = 1\nformulations = ["dirac"]\n')
+    with pytest.raises(SceneError, match="`model` is not one"):
+        parse_scene(sphere)
     with pytest.raises(SceneError, match=r"`studies.formulations.formulations\[1\]` must be one of"):
         parse_scene(top + 'formulations = ["dirac", "chart"]\n')
 

@@ -293,3 +293,9 @@ def test_dirac_and_intermediate_forms_of_the_heavy_top_give_its_equations():
 def test_damped_body_has_no_constrained_system():
     with pytest.raises(ValueError, match="dissipates energy"):
         ls.DampedEulerPoisson((1, 2, 3), damping=1).constrained_system()
+
+
+def test_a_flat_body_has_no_constrained_system_and_says_why():
+    """I = (1, 2, 3): I3 = I1 + I2, a flat body, J = tr(I)/2 - I has J33 = 0: L in R is singular."""
+    with pytest.raises(ValueError, match=r"`inertia`: the mass tensor J = tr\(I\)/2 - I of this body is not positive"):
+        ls.EulerPoisson((1, 2, 3)).constrained_system()

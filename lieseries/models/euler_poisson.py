@@ -447,6 +447,13 @@ class EulerPoisson(Model):
         R = [[f"R{i + 1}{j + 1}" for j in range(3)] for i in range(3)]
         tr = sum(self._I[i][i] for i in range(3))
         J = [[(tr / 2 if i == j else 0) - self._I[i][j] for j in range(3)] for i in range(3)]
+        minors = [J[0][0], J[0][0] * J[1][1] - J[0][1] * J[1][0], _det3(J)]
+        if any(m <= 0 for m in minors):
+            raise ValueError(
+                "`inertia`: the mass tensor J = tr(I)/2 - I of this body is not positive definite (principal "
+                f"moments {', '.join(f'{m:.6g}' for m in self.principal_moments)}: the largest is not below the sum of "
+                "the other two, a flat body or none at all), so its Lagrangian in R is singular and the paper's "
+                "derivation from R does not apply")
         params = {}
         terms = []
         for i in range(3):

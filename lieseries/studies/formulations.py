@@ -140,10 +140,7 @@ def _system_of(model):
         return system
     derive = getattr(model, "constrained_system", None)
     if callable(derive):
-        try:
-            system = derive()
-        except ValueError:
-            return None
+        system = derive()  # a ValueError says why this model has none (a damped body)
         return system if isinstance(system, ConstrainedSystem) else None
     return None
 
@@ -370,7 +367,11 @@ class FormulationsStudy(Study):
                                "`studies.formulations.formulations`: a table {dependent coordinate = \"expression of "
                                "the others\"}")
         for path, _spec, model, _y0 in models:
-            system = _system_of(model)
+            try:
+                system = _system_of(model)
+            except ValueError as err:
+                raise F.SceneError(f"`studies.formulations` compares the formulations of a constrained system; "
+                                   f"`{path}`: {err}") from None
             if system is None:
                 raise F.SceneError(f"`studies.formulations` compares the formulations of a constrained system; "
                                    f"`{path}` is not one (use kind 'constrained', a model derived from it, or a "
