@@ -32,6 +32,7 @@ or that has fewer than ``RADIUS_MIN_POINTS`` errors above the precision floor.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from fractions import Fraction
@@ -49,7 +50,8 @@ from .convergence import MAX_STUDY_DPS, error_vs_order, fit_geometric_rate
 from .plugin import Study, register_study
 
 __all__ = ["FormulationRow", "FormulationComparison", "compare_formulations", "FormulationsStudy", "FORMULATIONS",
-           "FormulationRadius", "formulation_radii", "radius_verdict", "RADIUS_AGREEMENT", "RADIUS_MIN_POINTS"]
+           "FormulationRadius", "formulation_radii", "radius_verdict", "radius_text", "RADIUS_AGREEMENT",
+           "RADIUS_MIN_POINTS", "RADIUS_DIGITS"]
 
 FORMULATIONS = ("dirac", "reduced", "intermediate", "local")
 
@@ -296,6 +298,25 @@ def radius_verdict(t, orders, errors, floor, fit_orders, slope):
     return f"geometric over {span} (t {where})", fit, fit, low, high
 
 
+#: Significant digits a fitted radius may show at most. The errors of a series truncated at order N go as
+#: N^a (t / rho)^N with an unknown a (the order of the singularity, alternating terms): over orders ~15-30 the
+#: fitted rate is tilted by ~a / (N ln 10) per order, a few per cent of rho (sec t: 1.577 for pi/2 = 1.5708, with
+#: both halves of the orders giving 1.595). Two digits are what such a fit carries.
+RADIUS_DIGITS = 2
+
+
+def radius_text(radius, low, high) -> str:
+    """The radius with the significant digits the fit carries: at most ``RADIUS_DIGITS``, fewer where the fits
+    over the two halves of the orders disagree in the second (1.1 and 1.4 give "1"). "none" without a radius."""
+    if radius is None:
+        return "none"
+    digits = RADIUS_DIGITS
+    if low is not None and high is not None and high != low:
+        spread = abs(high - low) / abs(radius)
+        digits = max(1, min(RADIUS_DIGITS, int(math.floor(-math.log10(spread)))))
+    return f"{radius:.{digits}g}"
+
+
 def formulation_radii(system, q, qdot, t, *, max_order: int = 30, dps: int = 40, formulations=FORMULATIONS,
                       chart=None, dependent=None, progress=None) -> list:
     """The radius of convergence of the Lie series of each formulation of ``system`` at (``q``, ``qdot``),
@@ -476,7 +497,7 @@ class FormulationsStudy(Study):
         rows = [[lab, r.formulation, fmt_int(r.dimension), fmt_num(r.t), str(r.dps),
                  f"{min(r.fit_orders)}-{max(r.fit_orders)}" if r.fit_orders else "", fmt_sci(r.radius_fit, 4),
                  fmt_sci(r.radius_low, 4), fmt_sci(r.radius_high, 4),
-                 fmt_sci(r.radius, 4) if r.radius is not None else "none", r.verdict]
+                 radius_text(r.radius, r.radius_low, r.radius_high), r.verdict]
                 for lab, c in items for r in c.radii]
         csvs.append(("formulations_radius.csv", h, rows))
         orders = sorted({o for _lab, c in items for r in c.radii for o in r.orders})
@@ -491,7 +512,10 @@ class FormulationsStudy(Study):
                 "least-squares slope of log10(error_N) over the upper half of the orders above the precision "
                 "floor (100 x 10^-dps) gives rho = t 10^(-slope). A radius is given only when the rate is steady: "
                 f"the fits over the lower and the upper half of those orders agree within a factor "
-                f"{RADIUS_AGREEMENT}. A rate that steepens is a series falling faster than geometrically (an entire "
+                f"{RADIUS_AGREEMENT}; the column 'radius' shows the {RADIUS_DIGITS} significant digits such a fit "
+                "carries (an unknown power of N in the errors, the order of the singularity, tilts the fitted rate "
+                "by a few per cent over these orders), fewer where the two halves disagree sooner. "
+                "A rate that steepens is a series falling faster than geometrically (an entire "
                 "series, or a singularity farther than these orders resolve): the column 'rho (all fitted orders)' "
                 "is then only the mean rate over the orders shown, not a radius. The formulations need not agree: "
                 "the same motion in other variables can have other singularities (a chart's momenta blow up where "
@@ -506,7 +530,7 @@ class FormulationsStudy(Study):
                        f"{fmt_sci(max((r.error or 0) for r in c.rows))}")
             if c.radii:
                 out.append(f"formulations ({lab}): Lie series radius " + ", ".join(
-                    f"{r.formulation} {fmt_sci(r.radius, 4) if r.radius is not None else 'none'}" for r in c.radii))
+                    f"{r.formulation} {radius_text(r.radius, r.radius_low, r.radius_high)}" for r in c.radii))
         return out
 
 
