@@ -142,14 +142,14 @@ def test_quick_mode_halves_the_radius_orders_but_never_raises_them():
     (lambda t: 1 / (1 - t / 2) ** 3, 2.0),          # a pole of order 3: coefficients ~ k^2 / 2^k, a slow tilt
 ])
 def test_the_radius_shows_only_digits_the_fits_agree_on(f, rho):
-    """The radius column keeps the significant digits on which the fits over the two halves of the orders agree;
-    the shown number is within one unit of its last digit of the closed form's rho (the last digit uncertain)."""
+    """The radius column keeps the two significant digits such a fit carries: the shown number is within one unit
+    of its last digit of the closed form's rho (the last digit uncertain)."""
     from lieseries.studies.formulations import radius_text
 
     orders, errors = _truncation_errors(f, 0.6 * rho, 40)
     _verdict_text, radius, _fit, low, high = _verdict(orders, errors, 0.6 * rho)
-    shown = radius_text(radius, low, high)
+    shown = radius_text(radius)
     digits = len(shown.replace(".", "").lstrip("0"))
     unit = 10.0 ** (math.floor(math.log10(float(shown))) - digits + 1)
     assert abs(float(shown) - rho) <= unit * (1 + 1e-9), (shown, rho, low, high)
-    assert radius_text(None, None, None) == "none"
+    assert radius_text(None) == "none"

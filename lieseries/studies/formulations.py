@@ -305,16 +305,11 @@ def radius_verdict(t, orders, errors, floor, fit_orders, slope):
 RADIUS_DIGITS = 2
 
 
-def radius_text(radius, low, high) -> str:
-    """The radius with the significant digits the fit carries: at most ``RADIUS_DIGITS``, fewer where the fits
-    over the two halves of the orders disagree in the second (1.1 and 1.4 give "1"). "none" without a radius."""
-    if radius is None:
-        return "none"
-    digits = RADIUS_DIGITS
-    if low is not None and high is not None and high != low:
-        spread = abs(high - low) / abs(radius)
-        digits = max(1, min(RADIUS_DIGITS, int(math.floor(-math.log10(spread)))))
-    return f"{radius:.{digits}g}"
+def radius_text(radius) -> str:
+    """The radius with the ``RADIUS_DIGITS`` significant digits such a fit carries; "none" without one. (Fewer
+    digits where the two halves of the orders disagree would round 0.352 and 0.349 to "0.4" and "0.3": the halves
+    are in their own columns, and a radius is given only when they agree within ``RADIUS_AGREEMENT``.)"""
+    return "none" if radius is None else f"{radius:.{RADIUS_DIGITS}g}"
 
 
 def formulation_radii(system, q, qdot, t, *, max_order: int = 30, dps: int = 40, formulations=FORMULATIONS,
@@ -497,7 +492,7 @@ class FormulationsStudy(Study):
         rows = [[lab, r.formulation, fmt_int(r.dimension), fmt_num(r.t), str(r.dps),
                  f"{min(r.fit_orders)}-{max(r.fit_orders)}" if r.fit_orders else "", fmt_sci(r.radius_fit, 4),
                  fmt_sci(r.radius_low, 4), fmt_sci(r.radius_high, 4),
-                 radius_text(r.radius, r.radius_low, r.radius_high), r.verdict]
+                 radius_text(r.radius), r.verdict]
                 for lab, c in items for r in c.radii]
         csvs.append(("formulations_radius.csv", h, rows))
         orders = sorted({o for _lab, c in items for r in c.radii for o in r.orders})
@@ -514,7 +509,7 @@ class FormulationsStudy(Study):
                 f"the fits over the lower and the upper half of those orders agree within a factor "
                 f"{RADIUS_AGREEMENT}; the column 'radius' shows the {RADIUS_DIGITS} significant digits such a fit "
                 "carries (an unknown power of N in the errors, the order of the singularity, tilts the fitted rate "
-                "by a few per cent over these orders), fewer where the two halves disagree sooner. "
+                "by a few per cent over these orders). "
                 "A rate that steepens is a series falling faster than geometrically (an entire "
                 "series, or a singularity farther than these orders resolve): the column 'rho (all fitted orders)' "
                 "is then only the mean rate over the orders shown, not a radius. The formulations need not agree: "
@@ -530,7 +525,7 @@ class FormulationsStudy(Study):
                        f"{fmt_sci(max((r.error or 0) for r in c.rows))}")
             if c.radii:
                 out.append(f"formulations ({lab}): Lie series radius " + ", ".join(
-                    f"{r.formulation} {radius_text(r.radius, r.radius_low, r.radius_high)}" for r in c.radii))
+                    f"{r.formulation} {radius_text(r.radius)}" for r in c.radii))
         return out
 
 
