@@ -298,7 +298,7 @@ def radius_verdict(t, orders, errors, floor, fit_orders, slope):
     return f"geometric over {span} (t {where})", fit, fit, low, high
 
 
-#: Significant digits a fitted radius may show at most. The errors of a series truncated at order N go as
+#: Significant digits a fitted radius shows. The errors of a series truncated at order N go as
 #: N^a (t / rho)^N with an unknown a (the order of the singularity, alternating terms): over orders ~15-30 the
 #: fitted rate is tilted by ~a / (N ln 10) per order, a few per cent of rho (sec t: 1.577 for pi/2 = 1.5708, with
 #: both halves of the orders giving 1.595). Two digits are what such a fit carries.
