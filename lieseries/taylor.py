@@ -817,33 +817,11 @@ def _execute_general(call, progress, started):
         engine = _Chunks(ta, call, event_info, first=first)
     elif direction != 0:
         ta, free = _checkout(template)
-        ta.time = t0_native
-        ta.state[:] = y0_native
-        if call.pars_native is not None:
-            ta.pars[:] = call.pars_native
-        if event_info or user_events:
-            ta.reset_cooldowns()
-        recorders = [ev.callback for ev in ta.nt_events] if user_events else []
-        for rec in recorders:
-            rec.sink, rec.t0 = [], t0_native
-        # this run's crossings: the lists, taken before the integrator goes back to the pool (another thread may
-        # check it out at once and give its recorders new lists)
-        sinks = [rec.sink for rec in recorders]
-        guard = None
-        if recorders:
-            nt = [e for e in user_events if not e[3]]
-            fn, uses_pars = _event_function(ps, prec, [e[1] for e in nt])
-            guard = _CrossingGuard(fn, uses_pars, [e[2] for e in nt], recorders, prec.bits)
-            guard.start(ta)
-        engine = _Chunks(ta, call, event_info, recorders, guard)
-        if user_events:
-            # the user's terminal events (after the model's in heyoka's order): a zero at t0 does not stop the run
-            n_user = sum(1 for e in user_events if e[3])
-            engine.user_terminal = frozenset(range(len(event_info) - n_user, len(event_info)))
-            if n_user:
-                # a stop where the expression does not change sign (a tangency) is not a crossing: go on
-                fn, uses_pars = _event_function(ps, prec, [e[1] for e in user_events if e[3]])
-                engine.terminal_check = (fn, uses_pars, len(event_info) - n_user, prec.bits)
+        try:
+            engine, sinks = _start(ta, call, event_info)
+        except BaseException:
+            _release(ta, free)
+            raise
     else:
         engine = _Chunks(None, call, event_info)
 
@@ -882,6 +860,41 @@ def _execute_general(call, progress, started):
                     y_reached=np.array(out.z, copy=True) if out.z is y0_native else out.z,
                     events=_event_records(user_events, sinks, engine, out, event_info, prec, ps.dimension)
                     if user_events else None)
+
+
+def _start(ta, call, event_info):
+    """The chunk engine of a new run on the integrator ``ta`` (set to the call's start), and the lists its
+    non-terminal events' crossings go to."""
+    ps, prec, user_events = call.ps, call.prec, call.user_events
+    t0_native = call.plan["t0_native"]
+    ta.time = t0_native
+    ta.state[:] = call.y0_native
+    if call.pars_native is not None:
+        ta.pars[:] = call.pars_native
+    if event_info or user_events:
+        ta.reset_cooldowns()
+    recorders = [ev.callback for ev in ta.nt_events] if user_events else []
+    for rec in recorders:
+        rec.sink, rec.t0 = [], t0_native
+    # this run's crossings: the lists, taken before the integrator goes back to the pool (another thread may
+    # check it out at once and give its recorders new lists)
+    sinks = [rec.sink for rec in recorders]
+    guard = None
+    if recorders:
+        nt = [e for e in user_events if not e[3]]
+        fn, uses_pars = _event_function(ps, prec, [e[1] for e in nt])
+        guard = _CrossingGuard(fn, uses_pars, [e[2] for e in nt], recorders, prec.bits)
+        guard.start(ta)
+    engine = _Chunks(ta, call, event_info, recorders, guard)
+    if user_events:
+        # the user's terminal events (after the model's in heyoka's order): a zero at t0 does not stop the run
+        n_user = sum(1 for e in user_events if e[3])
+        engine.user_terminal = frozenset(range(len(event_info) - n_user, len(event_info)))
+        if n_user:
+            # a stop where the expression does not change sign (a tangency) is not a crossing: go on
+            fn, uses_pars = _event_function(ps, prec, [e[1] for e in user_events if e[3]])
+            engine.terminal_check = (fn, uses_pars, len(event_info) - n_user, prec.bits)
+    return engine, sinks
 
 
 #: What a heyoka run that stopped early keeps (the end of the driver's messages of failures).
