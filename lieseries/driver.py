@@ -149,13 +149,14 @@ class Outcome:
 
 def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float | None = None, start=None,
           progress=None, kept: str = "", reached: str = "", atlas: bool = False, max_switches: int = 0,
-          guard=None) -> Outcome:
+          guard=None, reached_message: str | None = None) -> Outcome:
     """Run ``engine`` from ``(t0, z0)`` to the last of ``pending``, the output times as ``(time, label)`` pairs
     in time order (``time`` in the engine's numbers, ``label`` what the row is reported at).
 
     Rows at the times not after ``t0`` are the initial state. ``max_time`` is measured from ``start`` (a
     ``time.perf_counter()`` reading; default now). ``progress(fraction)`` is called after every step. ``kept``
-    says what the rows up to an early stop are worth (ends the messages of failures)."""
+    says what the rows up to an early stop are worth (ends the messages of failures); ``reached_message``, the
+    message of a run that reached its final time when the caller has it already (many runs to one time)."""
     start = _time.perf_counter() if start is None else start
     sgn = 1 if direction >= 0 else -1
     pending = list(pending)
@@ -233,7 +234,7 @@ def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float
             break
     out.t, out.z = t, z
     if out.status == "success":
-        out.message = run_message("success", t=t_end, detail=reached)
+        out.message = reached_message or run_message("success", t=t_end, detail=reached)
         if guard is not None and direction:
             guard(out)
     if atlas:

@@ -36,8 +36,9 @@ def run_scalar(ta0, event_info, Ynat, pars, ps, prec, tgrid, t0n, direction, cap
     t0_nat = prec.time(t0n)
     lead = int(tgrid[0] != t0n)  # propagate_grid starts at t0
     grid = None if simple else prec.array([t0n] * lead + list(tgrid))
-    pending = [(tj, j) for j, tj in enumerate(tgrid)]
-    index = {tj: j + lead for tj, j in reversed(pending)}  # a row's place in propagate_grid's answer
+    # the output times as heyoka's clock has them (tgrid holds their exact values), each with its row's index
+    pending = [(prec.time(tj), j) for j, tj in enumerate(tgrid)]
+    reached = run_message("success", t=tgrid[-1])
     counter = iter(range(k))
     lock = threading.Lock()
     handed = []
@@ -50,15 +51,16 @@ def run_scalar(ta0, event_info, Ynat, pars, ps, prec, tgrid, t0n, direction, cap
             ta.pars[:] = par_native[i]
         if event_info:
             ta.reset_cooldowns()
-        member = _Member(ta, prec.time(tgrid[-1]), grid, index, event_info, cap)
+        member = _Member(ta, pending[-1][0], grid, event_info, cap)
         try:
-            out = drive(member, t0n, Ynat[i], pending, direction=direction, max_steps=math.inf)
+            out = drive(member, t0_nat, Ynat[i], pending, direction=direction, max_steps=math.inf,
+                        reached_message=reached)
         except _HandOver:
             return False
         for j, y in zip(out.rows_t, out.rows_y):
             res.y[i, j] = y
         res.rows[i] = len(out.rows_t)
-        res.finish(i, out.status, out.message, out.t, out.z, out.steps)
+        res.finish(i, out.status, out.message, to_fraction(out.t), out.z, out.steps)
         return True
 
     def work(_):
@@ -91,15 +93,16 @@ class _HandOver(Exception):
 class _Member:
     """One member on the scalar integrator as the driver's engine: a chunk of steps per step (growing 4x from
     :data:`~lieseries.ensemble.batch.CHUNK_STEPS`) towards the final time, or one ``propagate_grid`` over the
-    output times; its times are exact (heyoka's clock read as a Fraction). What the batch would hand to a single
-    run raises :class:`_HandOver`."""
+    output times (the rows in their order: the first one the driver asks for is the grid's second). What the batch
+    would hand to a single run raises :class:`_HandOver`."""
 
     free_first_step = True
 
-    def __init__(self, ta, t_end, grid, index, event_info, cap):
-        self.ta, self.t_end, self.grid, self.index, self.event_info, self.cap = ta, t_end, grid, index, event_info, cap
+    def __init__(self, ta, t_end, grid, event_info, cap):
+        self.ta, self.t_end, self.grid, self.event_info, self.cap = ta, t_end, grid, event_info, cap
         self.chunk = CHUNK_STEPS
         self.steps = 0
+        self.next_row = 1  # propagate_grid's row 0 is t0 (the driver gives the row at t0 itself)
 
     def step(self, t, z, t_end):
         ta, cap = self.ta, self.cap
@@ -121,15 +124,20 @@ class _Member:
                     or self.steps + left / h > cap):
                 raise _HandOver
             self.chunk = min(4 * self.chunk, 1 << 20)
-        t_r = to_fraction(ta.time)
+        t_r = ta.time
         y_r = np.array(ta.state, copy=True)
         stop = None
         if isinstance(kind, int):
             status, msg = self.event_info[kind]
             note = f" (last step size {abs(float(ta.last_h)):.3g})"
             stop = Stop(status, message=run_message("event", t=t_r, note=note, detail=msg))
-        index = self.index
-        return StepResult(t_r, y_r, row=lambda tk: y_r if tk == t_r else rows[index[tk]], stop=stop, steps=nsteps)
+
+        def row(tk):
+            k = self.next_row
+            self.next_row += 1
+            return y_r if tk == t_r else rows[k]
+
+        return StepResult(t_r, y_r, row=row, stop=stop, steps=nsteps)
 
 
 def run_singles(single_run, systems, rows, t, opts, workers, progress, k, done0):
