@@ -27,7 +27,9 @@ one table (:data:`MESSAGES`) so that the same stop reads the same whatever the e
     The first step is taken whatever the budgets: a heyoka run's first chunk of steps (:mod:`lieseries.taylor`,
     whose step is one chunk of steps run inside heyoka), an atlas run's first segment (its rows).
 
-heyoka's ensemble paths (:mod:`lieseries.ensemble`) keep their own chunked loops over many lanes at once.
+An ensemble's scalar members run on it too (:mod:`lieseries.ensemble.threads`); heyoka's batch mode, many members
+in the lanes of one integrator, keeps its own chunked loop (:mod:`lieseries.ensemble.batch`), with this table's
+messages.
 """
 
 from __future__ import annotations
@@ -59,11 +61,11 @@ MESSAGES = {
     "chart_edge": "Stopped at {where}: {detail}.",
     "non_finite": "The step after {where} cannot be taken: {detail}. {kept}",
     "step_collapse": "The step size collapsed at {where}: {detail}.",
-    "step_collapse.taylor": ("The step size collapsed at {where}, from {h_first:.3g} earlier: {detail}, more than "
+    "step_collapse.taylor": ("The step size collapsed near {where}, from {h_first:.3g} earlier: {detail}, more than "
                              "the {allowed} steps allowed for it (pass `max_steps` to allow more). The solution is "
                              "singular or nearly so there, or it moves on a much faster time scale than before (a "
                              "fast rotation or oscillation); an explicit Taylor method cannot cross it efficiently."),
-    "step_collapse.stiff": ("Tiny steps: at {where} the state changes per step by at most {change:.1e} (relative to "
+    "step_collapse.stiff": ("Tiny steps: near {where} the state changes per step by at most {change:.1e} (relative to "
                             "its entries, the small ones measured against the largest). {detail}, more than the "
                             "{allowed} steps allowed for such a run (pass `max_steps` to allow more). Either the "
                             "problem is stiff (a fast decaying mode, e.g. strong damping: reduce it, or use an "

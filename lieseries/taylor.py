@@ -410,7 +410,8 @@ def _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events
     grid_native = [prec.time(g) for g in grid]
     plan = dict(
         grid=grid, direction=direction, t0f=t0f, tolf=tolf, grid_native=grid_native,
-        grid_exact=[to_fraction(g) for g in grid_native], t0_native=prec.time(t0f), reached=run_message("success", t=grid_native[-1]),
+        grid_exact=[to_fraction(g) for g in grid_native], t0_native=prec.time(t0f),
+        reached=run_message("success", t=grid_native[-1]),
         tol_float=float(tolf), sqrt_tol=math.sqrt(float(tolf)),
         build=build_integrator(system, prec, tolf, user_events=user_events, compact_mode=compact_mode,
                                high_accuracy=high_accuracy),
