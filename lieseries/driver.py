@@ -41,7 +41,8 @@ from typing import Any, Callable
 from .precision import short_decimal, to_fraction
 from .solution import STATUSES
 
-__all__ = ["MESSAGES", "Stop", "StepResult", "Outcome", "drive", "run_message", "format_time", "energy_guard"]
+__all__ = ["MESSAGES", "KEPT_ROWS", "Stop", "StepResult", "Outcome", "drive", "run_message", "format_time",
+           "energy_guard"]
 
 
 #: The message of every way a run ends, by reason (a status of :data:`lieseries.solution.STATUSES`, or a more
@@ -60,6 +61,10 @@ MESSAGES = {
     "event": "Stopped at {where}: {detail}.",
     "chart_edge": "Stopped at {where}: {detail}.",
     "non_finite": "The step after {where} cannot be taken: {detail}. {kept}",
+    "non_finite.taylor": ("The step after {where} cannot be taken: the state becomes non-finite (NaN or infinity) in "
+                          "it: the solution blows up or leaves the domain of the equations there, or a number of the "
+                          "step (a Taylor coefficient grows like rate^order) exceeds the range of the format -- "
+                          "rescale a state or rate of order 1e300 (the last finite state is kept). {kept}"),
     "step_collapse": "The step size collapsed at {where}: {detail}.",
     "step_collapse.taylor": ("The step size collapsed near {where}, from {h_first:.3g} earlier: {detail}, more than "
                              "the {allowed} steps allowed for it (pass `max_steps` to allow more). The solution is "
@@ -74,6 +79,10 @@ MESSAGES = {
                             "moments of inertia far apart): rescale time or shorten the run."),
     "validation_failed": "Validation failed at {where}: {detail}; {kept_lower}",
 }
+
+
+#: What the rows of a run that stopped early are worth, for an engine whose rows are plain values (``kept``).
+KEPT_ROWS = "The rows up to this time are kept."
 
 
 def format_time(t) -> str:

@@ -70,7 +70,7 @@ import heyoka as hy
 import numpy as np
 
 from . import cache
-from .driver import Stop, StepResult, drive, format_time, run_message
+from .driver import KEPT_ROWS, Stop, StepResult, drive, format_time, run_message
 from .energy import clear_energy_cache, energy_function, energy_quick, energy_verdict
 from .events import resolve_events
 from .models.base import ExactState, Model, state_fractions
@@ -836,7 +836,7 @@ def _execute_general(call, progress, started):
 
     try:
         out = drive(engine, t0_native, y0_native, [(g, g) for g in grid_native], direction=direction,
-                    max_steps=call.max_steps, max_time=call.max_time, progress=progress, kept=_KEPT,
+                    max_steps=call.max_steps, max_time=call.max_time, progress=progress, kept=KEPT_ROWS,
                     start=_time.perf_counter() - (started[2] if started is not None else 0.0), guard=energy)
     finally:
         if free is not None:
@@ -896,13 +896,6 @@ def _start(ta, call, event_info):
             fn, uses_pars = _event_function(ps, prec, [e[1] for e in user_events if e[3]])
             engine.terminal_check = (fn, uses_pars, len(event_info) - n_user, prec.bits)
     return engine, sinks
-
-
-#: What a heyoka run that stopped early keeps (the end of the driver's messages of failures).
-_KEPT = "The rows up to this time are kept."
-_NON_FINITE = ("the state becomes non-finite (NaN or infinity) in it: the solution blows up or leaves the domain of "
-               "the equations there, or a number of the step (a Taylor coefficient grows like rate^order) exceeds "
-               "the range of the format -- rescale a state or rate of order 1e300 (the last finite state is kept)")
 
 
 def _event_records(user_events, sinks, engine, out, event_info, prec, n) -> dict:
@@ -1065,7 +1058,7 @@ class _Chunks:
         if outcome == _OUTCOME.time_limit:
             return None
         if outcome == _OUTCOME.err_nf_state:
-            return Stop("non_finite", _NON_FINITE)
+            return Stop("non_finite", reason="non_finite.taylor")
         if self.user_terminal and self._at_user_event(outcome) and (self.t_at == self.t0 or self._touch(outcome)):
             return None  # the run starts on the event's surface, or touches it: go on (heyoka's cooldown)
         # a terminal event: heyoka reports event i as outcome i, or -(i + 1) when it stopped the run
