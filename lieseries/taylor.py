@@ -984,13 +984,17 @@ class _Chunks:
 
     def _result(self, before, stop):
         t, z = self.t_at, self.z_at
-        queue, dense = self.queue, self.dense
+        queue, dense, pending = self.queue, self.dense, self.pending
 
         def row(tk):
             if queue and queue[0][0] == tk:
                 y = queue.pop(0)[1]
                 return z if tk == t else y
             if tk == t:
+                # heyoka's time is double length: a chunk may end on tk's high part with a negative low part, short
+                # of tk for the step rows; the row is the state there, as at the run's end, and tk is taken
+                if pending and pending[0] == tk:
+                    pending.pop(0)
                 return z
             if dense:
                 return DenseOutput(self.c_outs, None).at_native(tk)
