@@ -605,31 +605,36 @@ def integrate(
             first_chunk=FIRST_CHUNK.get(prec.name, FIRST_CHUNK_REAL),
         )
         call.repeat_chunk = _repeat_chunk(prec, plan["build"][0], call.first_chunk)
-        # a plain run (no events of the user's, no dense output, no min_step; output times only in double): its
-        # first chunk takes the short path of _execute_plain
-        grid = plan["grid"]
-        one_time = len(grid) == 2 and plan["grid_native"][0] == plan["t0_native"]
-        call.plain = (not dense and not user_events and plan["direction"] != 0 and min_step is None
-                      and (one_time or prec.name == "double"))
-        if call.plain:  # (may still turn False below)
-            # output times: one propagate_grid over [t0, grid...] (heyoka's own grid, rows from each step's Taylor
-            # polynomial; _GridRows continues it exactly when the run is longer than the chunk)
-            rest = plan["grid_native"][1:] if plan["grid_native"][0] == plan["t0_native"] else plan["grid_native"]
-            call.grid = None if one_time else np.array([plan["t0_native"]] + list(rest), dtype=np.float64)
-            if call.grid is not None and not np.all(np.diff(call.grid) * plan["direction"] > 0):
-                # exact times that round to one double (0.1 and 0.1 + 1e-20, or two times within a double of t0):
-                # propagate_grid refuses them; the general path gives each its row
-                call.plain = False
-            call.t_out = _time_array(plan["grid_native"], prec)
-            call.t_out.setflags(write=False)
-            call.t_requested = tuple(grid)
-            call.t0_native, call.t_end_native = plan["t0_native"], plan["grid_native"][-1]
-            call.sqrt_tol, call.reached, call.t_exact = plan["sqrt_tol"], plan["reached"], plan["grid_exact"][-1]
-            call.budget = min(call.first_chunk, max_steps)  # the first chunk's steps
-            call.free = cache.free_copies(plan["build"][0])
+        _plain_setup(call)
         if key is not None and not warned:
             _CALLS.put(key, call)
     return _execute(call, progress)
+
+
+def _plain_setup(call) -> None:
+    """Whether a new call is plain (no events of the user's, no dense output, no min_step; output times only in
+    double), and what its short path (:func:`_execute_plain`) needs."""
+    plan, prec = call.plan, call.prec
+    grid = plan["grid"]
+    one_time = len(grid) == 2 and plan["grid_native"][0] == plan["t0_native"]
+    call.plain = (not call.dense and not call.user_events and plan["direction"] != 0 and call.min_step is None
+                  and (one_time or prec.name == "double"))
+    if call.plain:  # (may still turn False below)
+        # output times: one propagate_grid over [t0, grid...] (heyoka's own grid, rows from each step's Taylor
+        # polynomial; _GridRows continues it exactly when the run is longer than the chunk)
+        rest = plan["grid_native"][1:] if plan["grid_native"][0] == plan["t0_native"] else plan["grid_native"]
+        call.grid = None if one_time else np.array([plan["t0_native"]] + list(rest), dtype=np.float64)
+        if call.grid is not None and not np.all(np.diff(call.grid) * plan["direction"] > 0):
+            # exact times that round to one double (0.1 and 0.1 + 1e-20, or two times within a double of t0):
+            # propagate_grid refuses them; the general path gives each its row
+            call.plain = False
+        call.t_out = _time_array(plan["grid_native"], prec)
+        call.t_out.setflags(write=False)
+        call.t_requested = tuple(grid)
+        call.t0_native, call.t_end_native = plan["t0_native"], plan["grid_native"][-1]
+        call.sqrt_tol, call.reached, call.t_exact = plan["sqrt_tol"], plan["reached"], plan["grid_exact"][-1]
+        call.budget = min(call.first_chunk, call.max_steps)  # the first chunk's steps
+        call.free = cache.free_copies(plan["build"][0])
 
 
 class _Call:
