@@ -20,8 +20,16 @@ at the requested times (in time order, from each step's dense evaluator), progre
 energy guard of a run that reached its final time (:func:`energy_guard`), and every message a run ends with, from
 one table (:data:`MESSAGES`) so that the same stop reads the same whatever the engine.
 
-heyoka's runs (:mod:`lieseries.taylor`, :mod:`lieseries.ensemble`) keep their own chunked loops (a chunk of steps
-runs inside heyoka); across an atlas they run as the driver's steps.
+``explain(status, t)`` (optional)
+    A budget stop as the engine words it: a :class:`Stop` whose ``reason`` picks an entry of :data:`MESSAGES` with
+    the engine's own advice (a heyoka run says how many steps finishing would take).
+``free_first_step`` (optional, True)
+    The first step is taken whatever the budgets: a heyoka run's first chunk of steps (:mod:`lieseries.taylor`,
+    whose step is one chunk of steps run inside heyoka), an atlas run's first segment (its rows).
+
+An ensemble's scalar members run on it too (:mod:`lieseries.ensemble.threads`); heyoka's batch mode, many members
+in the lanes of one integrator, keeps its own chunked loop (:mod:`lieseries.ensemble.batch`), with this table's
+messages.
 """
 
 from __future__ import annotations
@@ -33,7 +41,8 @@ from typing import Any, Callable
 from .precision import short_decimal, to_fraction
 from .solution import STATUSES
 
-__all__ = ["MESSAGES", "Stop", "StepResult", "Outcome", "drive", "run_message", "format_time", "energy_guard"]
+__all__ = ["MESSAGES", "KEPT_ROWS", "Stop", "StepResult", "Outcome", "drive", "run_message", "format_time",
+           "energy_guard"]
 
 
 #: The message of every way a run ends, by reason (a status of :data:`lieseries.solution.STATUSES`, or a more
@@ -42,14 +51,38 @@ __all__ = ["MESSAGES", "Stop", "StepResult", "Outcome", "drive", "run_message", 
 MESSAGES = {
     "success": "Reached t = {t}{detail}.",
     "step_budget": "The step budget `max_steps` = {max_steps} ran out at {where}; raise `max_steps` to go on. {kept}",
+    # a heyoka run, which knows how many steps finishing would take at its current step size ({detail})
+    "step_budget.ahead": ("Stopped early at {where}: {detail}, more than the step budget `max_steps` = {max_steps} "
+                          "allows; raise `max_steps` to go on. {kept}"),
+    "step_budget.hopeless": ("Stopped early at {where}: {detail}, more than any step budget allows; shorten the time "
+                             "span or rescale time. {kept}"),
     "time_budget": ("The wall-time budget `max_time` = {max_time:g} s ran out at {where}; raise `max_time` to go on. "
                     "{kept}"),
     "event": "Stopped at {where}: {detail}.",
     "chart_edge": "Stopped at {where}: {detail}.",
     "non_finite": "The step after {where} cannot be taken: {detail}. {kept}",
+    "non_finite.taylor": ("The step after {where} cannot be taken: the state becomes non-finite (NaN or infinity) in "
+                          "it: the solution blows up or leaves the domain of the equations there, or a number of the "
+                          "step (a Taylor coefficient grows like rate^order) exceeds the range of the format -- "
+                          "rescale a state or rate of order 1e300 (the last finite state is kept). {kept}"),
     "step_collapse": "The step size collapsed at {where}: {detail}.",
+    "step_collapse.taylor": ("The step size collapsed near {where}, from {h_first:.3g} earlier: {detail}, more than "
+                             "the {allowed} steps allowed for it (pass `max_steps` to allow more). The solution is "
+                             "singular or nearly so there, or it moves on a much faster time scale than before (a "
+                             "fast rotation or oscillation); an explicit Taylor method cannot cross it efficiently."),
+    "step_collapse.stiff": ("Tiny steps: near {where} the state changes per step by at most {change:.1e} (relative to "
+                            "its entries, the small ones measured against the largest). {detail}, more than the "
+                            "{allowed} steps allowed for such a run (pass `max_steps` to allow more). Either the "
+                            "problem is stiff (a fast decaying mode, e.g. strong damping: reduce it, or use an "
+                            "implicit method for this part of the motion), or some variables move on a time scale "
+                            "far shorter than the run (a fast rotation or oscillation: a large angular velocity, or "
+                            "moments of inertia far apart): rescale time or shorten the run."),
     "validation_failed": "Validation failed at {where}: {detail}; {kept_lower}",
 }
+
+
+#: What the rows of a run that stopped early are worth, for an engine whose rows are plain values (``kept``).
+KEPT_ROWS = "The rows up to this time are kept."
 
 
 def format_time(t) -> str:
@@ -73,13 +106,21 @@ def run_message(reason: str, *, t=None, note: str = "", detail: str = "", kept: 
 class Stop(Exception):
     """Raised by an engine's step (or its dense evaluator) that cannot go on: the run ends with ``status`` at the
     time the step started. ``detail``: the cause, worded to follow "at t = ...: " in :data:`MESSAGES`;
-    ``message``: a whole message instead (rarely needed)."""
+    ``message``: a whole message instead (rarely needed); ``reason``: the entry of :data:`MESSAGES` (default: the
+    status), ``fields`` the values its wording needs beyond the usual ones."""
 
-    def __init__(self, status: str, detail: str = "", message: str | None = None, note: str = ""):
+    def __init__(self, status: str, detail: str = "", message: str | None = None, note: str = "",
+                 reason: str | None = None, fields: dict | None = None):
         if status not in STATUSES:  # pragma: no cover - programming error
             raise ValueError(f"unknown status {status!r}")
         super().__init__(status, detail)
         self.status, self.detail, self.message, self.note = status, detail, message, note
+        self.reason, self.fields = reason or status, fields or {}
+
+    def text(self, t, fields: dict) -> str:
+        """The message of this stop at time ``t``, from :data:`MESSAGES` unless the stop carries its own."""
+        return self.message or run_message(self.reason, t=t, note=self.note, detail=self.detail,
+                                           **{**fields, **self.fields})
 
 
 @dataclass
@@ -119,13 +160,14 @@ class Outcome:
 
 def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float | None = None, start=None,
           progress=None, kept: str = "", reached: str = "", atlas: bool = False, max_switches: int = 0,
-          guard=None) -> Outcome:
+          guard=None, reached_message: str | None = None) -> Outcome:
     """Run ``engine`` from ``(t0, z0)`` to the last of ``pending``, the output times as ``(time, label)`` pairs
     in time order (``time`` in the engine's numbers, ``label`` what the row is reported at).
 
     Rows at the times not after ``t0`` are the initial state. ``max_time`` is measured from ``start`` (a
     ``time.perf_counter()`` reading; default now). ``progress(fraction)`` is called after every step. ``kept``
-    says what the rows up to an early stop are worth (ends the messages of failures)."""
+    says what the rows up to an early stop are worth (ends the messages of failures); ``reached_message``, the
+    message of a run that reached its final time when the caller has it already (many runs to one time)."""
     start = _time.perf_counter() if start is None else start
     sgn = 1 if direction >= 0 else -1
     pending = list(pending)
@@ -152,16 +194,20 @@ def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float
     if not getattr(engine, "emits_rows", False):
         emit(t, None)
     fields = {"kept": kept, "max_time": max_time or 0, "max_steps": max_steps}
+    explain = getattr(engine, "explain", None)
     span = t_end - t0
     # an engine that emits its rows gives the row at t0 in its first step, which runs whatever the budgets (it
-    # bounds itself: an atlas segment gets the budgets as given)
-    budgets = not getattr(engine, "emits_rows", False)
+    # bounds itself: an atlas segment gets the budgets as given); so does a heyoka run's first chunk
+    budgets = not getattr(engine, "free_first_step", getattr(engine, "emits_rows", False))
     while direction and (t_end - t) * sgn > 0:
+        over = None
         if budgets and out.steps >= max_steps:
-            out.status, out.message = "step_budget", run_message("step_budget", t=t, max_steps=max_steps, kept=kept)
-            break
-        if budgets and max_time is not None and _time.perf_counter() - start > max_time:
-            out.status, out.message = "time_budget", run_message("time_budget", t=t, max_time=max_time, kept=kept)
+            over = "step_budget"
+        elif budgets and max_time is not None and _time.perf_counter() - start > max_time:
+            over = "time_budget"
+        if over is not None:
+            stop = explain(over, t) if explain is not None else Stop(over)
+            out.status, out.message = stop.status, stop.text(t, fields)
             break
         budgets = True
         try:
@@ -178,9 +224,7 @@ def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float
             if znew is not None:  # the chart was ending before the step: go on in the new one
                 z = znew
                 continue
-            out.status = stop.status
-            out.message = stop.message or run_message(stop.status, t=t, note=stop.note, detail=stop.detail,
-                                                      **fields)
+            out.status, out.message = stop.status, stop.text(t, fields)
             break
         out.steps += res.steps
         if res.error is not None:
@@ -193,17 +237,15 @@ def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float
             progress(float((t - t0) / span))
         if res.stop is not None:
             stop = res.stop if isinstance(res.stop, Stop) else Stop(res.stop[0], res.stop[1], note=res.stop[2])
-            status = stop.status
-            znew = switch(t, z) if status == "chart_edge" else None
+            znew = switch(t, z) if stop.status == "chart_edge" else None
             if znew is not None:  # the step crossed into the chart's edge: go on in the new chart
                 z = znew
                 continue
-            out.status = status
-            out.message = stop.message or run_message(status, t=t, note=stop.note, detail=stop.detail, **fields)
+            out.status, out.message = stop.status, stop.text(t, fields)
             break
     out.t, out.z = t, z
     if out.status == "success":
-        out.message = run_message("success", t=t_end, detail=reached)
+        out.message = reached_message or run_message("success", t=t_end, detail=reached)
         if guard is not None and direction:
             guard(out)
     if atlas:

@@ -11,7 +11,9 @@ Guards
 ------
 A run never hangs and never returns a silently wrong state, and pays no Python call per step for it: heyoka
 integrates in chunks of steps (the first of 64 steps in double; later ones sized so that a chunk takes about 0.1 s;
-a short run is a single chunk), and the checks run between chunks:
+a short run is a single chunk), and the checks run between chunks. A chunk is one step of the driver loop
+(:mod:`lieseries.driver`: :class:`_Chunks`), which owns the budgets, the output rows, the statuses and their
+messages (heyoka's advice in its table: how many steps finishing would take):
 
 - ``time_budget``: the wall-time budget ``max_time`` ran out (it bounds the integration, not the compilation of a
   new integrator, which happens once per structure and precision);
@@ -68,6 +70,7 @@ import heyoka as hy
 import numpy as np
 
 from . import cache
+from .driver import KEPT_ROWS, Stop, StepResult, drive, format_time, run_message
 from .energy import clear_energy_cache, energy_function, energy_quick, energy_verdict
 from .events import resolve_events
 from .models.base import ExactState, Model, state_fractions
@@ -407,7 +410,8 @@ def _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events
     grid_native = [prec.time(g) for g in grid]
     plan = dict(
         grid=grid, direction=direction, t0f=t0f, tolf=tolf, grid_native=grid_native,
-        grid_exact=[to_fraction(g) for g in grid_native], t0_native=prec.time(t0f), reached=_reached(grid_native[-1]),
+        grid_exact=[to_fraction(g) for g in grid_native], t0_native=prec.time(t0f),
+        reached=run_message("success", t=grid_native[-1]),
         tol_float=float(tolf), sqrt_tol=math.sqrt(float(tolf)),
         build=build_integrator(system, prec, tolf, user_events=user_events, compact_mode=compact_mode,
                                high_accuracy=high_accuracy),
@@ -601,31 +605,36 @@ def integrate(
             first_chunk=FIRST_CHUNK.get(prec.name, FIRST_CHUNK_REAL),
         )
         call.repeat_chunk = _repeat_chunk(prec, plan["build"][0], call.first_chunk)
-        # a plain run (no events of the user's, no dense output, no min_step; output times only in double): its
-        # first chunk takes the short path of _execute_plain
-        grid = plan["grid"]
-        one_time = len(grid) == 2 and plan["grid_native"][0] == plan["t0_native"]
-        call.plain = (not dense and not user_events and plan["direction"] != 0 and min_step is None
-                      and (one_time or prec.name == "double"))
-        if call.plain:  # (may still turn False below)
-            # output times: one propagate_grid over [t0, grid...] (heyoka's own grid, rows from each step's Taylor
-            # polynomial; _GridRows continues it exactly when the run is longer than the chunk)
-            rest = plan["grid_native"][1:] if plan["grid_native"][0] == plan["t0_native"] else plan["grid_native"]
-            call.grid = None if one_time else np.array([plan["t0_native"]] + list(rest), dtype=np.float64)
-            if call.grid is not None and not np.all(np.diff(call.grid) * plan["direction"] > 0):
-                # exact times that round to one double (0.1 and 0.1 + 1e-20, or two times within a double of t0):
-                # propagate_grid refuses them; the general path gives each its row
-                call.plain = False
-            call.t_out = _time_array(plan["grid_native"], prec)
-            call.t_out.setflags(write=False)
-            call.t_requested = tuple(grid)
-            call.t0_native, call.t_end_native = plan["t0_native"], plan["grid_native"][-1]
-            call.sqrt_tol, call.reached, call.t_exact = plan["sqrt_tol"], plan["reached"], plan["grid_exact"][-1]
-            call.budget = min(call.first_chunk, max_steps)  # the first chunk's steps
-            call.free = cache.free_copies(plan["build"][0])
+        _plain_setup(call)
         if key is not None and not warned:
             _CALLS.put(key, call)
     return _execute(call, progress)
+
+
+def _plain_setup(call) -> None:
+    """Whether a new call is plain (no events of the user's, no dense output, no min_step; output times only in
+    double), and what its short path (:func:`_execute_plain`) needs."""
+    plan, prec = call.plan, call.prec
+    grid = plan["grid"]
+    one_time = len(grid) == 2 and plan["grid_native"][0] == plan["t0_native"]
+    call.plain = (not call.dense and not call.user_events and plan["direction"] != 0 and call.min_step is None
+                  and (one_time or prec.name == "double"))
+    if call.plain:  # (may still turn False below)
+        # output times: one propagate_grid over [t0, grid...] (heyoka's own grid, rows from each step's Taylor
+        # polynomial; _GridRows continues it exactly when the run is longer than the chunk)
+        rest = plan["grid_native"][1:] if plan["grid_native"][0] == plan["t0_native"] else plan["grid_native"]
+        call.grid = None if one_time else np.array([plan["t0_native"]] + list(rest), dtype=np.float64)
+        if call.grid is not None and not np.all(np.diff(call.grid) * plan["direction"] > 0):
+            # exact times that round to one double (0.1 and 0.1 + 1e-20, or two times within a double of t0):
+            # propagate_grid refuses them; the general path gives each its row
+            call.plain = False
+        call.t_out = _time_array(plan["grid_native"], prec)
+        call.t_out.setflags(write=False)
+        call.t_requested = tuple(grid)
+        call.t0_native, call.t_end_native = plan["t0_native"], plan["grid_native"][-1]
+        call.sqrt_tol, call.reached, call.t_exact = plan["sqrt_tol"], plan["reached"], plan["grid_exact"][-1]
+        call.budget = min(call.first_chunk, call.max_steps)  # the first chunk's steps
+        call.free = cache.free_copies(plan["build"][0])
 
 
 class _Call:
@@ -721,7 +730,7 @@ def _execute_plain(call):
             ta.propagate_grid(grid, call.budget)
         run_time = _time.perf_counter() - tic
         t_end = ta.time
-        if grid is not None:  # as _Run._propagate answers: the rows last, the first standing for t0
+        if grid is not None:  # as _Chunks._propagate answers: the rows last, the first standing for t0
             res = (res[0], res[1], res[2], res[3], None, res[5])
         if res[0] == _TIME_LIMIT and t_end == call.t_end_native:
             y_end = state.copy()
@@ -753,7 +762,7 @@ def _succeeded(call) -> None:
 
 
 def _step_range(steps, lo, hi, t_end, t_start):
-    """(smallest, largest) step of a chunk of ``steps`` steps from heyoka's answer (as :meth:`_Run._account`)."""
+    """(smallest, largest) step of a chunk of ``steps`` steps from heyoka's answer (as :meth:`_Chunks._account`)."""
     if not steps:
         return math.inf, 0.0
     lo, hi = float(lo), float(hi)
@@ -792,11 +801,11 @@ def _plain_fields(call, y_end, steps, lo, hi, t_end, build, cached, run_time, ro
 
 
 def _execute_general(call, progress, started):
-    """Run a prepared call in full generality; ``started``: the first chunk :func:`_execute_plain` ran."""
+    """Run a prepared call in full generality on the driver loop (:func:`lieseries.driver.drive`), a chunk of steps
+    per driver step (:class:`_Chunks`); ``started``: the first chunk :func:`_execute_plain` ran."""
     ps, prec, plan, user_events = call.ps, call.prec, call.plan, call.user_events
     grid, direction = plan["grid"], plan["direction"]
     grid_native, t0_native, y0_native = plan["grid_native"], plan["t0_native"], call.y0_native
-    dense, max_steps = call.dense, call.max_steps
     template, build, cached, event_info = plan["build"]
     if started is not None:
         build, cached = started[3]
@@ -804,135 +813,118 @@ def _execute_general(call, progress, started):
         if plan.get("used"):
             build, cached = 0.0, True
         plan["used"] = True  # only the first run of a new integrator reports its build time
-    run_time = 0.0
-    if direction == 0:
-        run = _Run(ta=None, direction=0)
-        sinks = [[] for ev in user_events if not ev[3]]  # no step: no crossing
-        run.t_reached, run.y_reached = t0_native, y0_native
-    elif started is not None:
-        # a plain run's first chunk ran in _execute_plain (which returns the integrator to the pool)
-        sinks = []
-        ta, res, run_time = started[:3]
-        if ta is None:  # it reached the final time: only the energy check is left
-            run = _Run(None, direction)
-            run.outcome, run.t_reached, run.y_reached = res[0], started[4], started[5]
-            run.chunk_start = t0_native
-            run.account_first(res, started[4])
-            if call.grid is not None:
-                run.rows = list(_plain_rows(call, started[5], res[5]))
-        else:
-            run = _Run(ta, direction)
-            start = _time.perf_counter()
-            run.go(grid_native, t0_native, y0_native, dense, max_steps, call.max_time, call.min_step,
-                   stiff_steps=call.stiff_steps, first_chunk=call.first_chunk, progress=progress,
-                   first=(res, run_time))
-            run_time += _time.perf_counter() - start
-    else:
+    ta = free = None
+    sinks = [[] for ev in user_events if not ev[3]]  # no step: no crossing
+    if started is not None:
+        # a plain run's first chunk ran in _execute_plain (which returns the integrator to the pool); when it
+        # reached the final time (ta None) only the energy check is left
+        ta = started[0]
+        first = started[1:3] if ta is not None else (started[1], started[2], started[4], started[5])
+        engine = _Chunks(ta, call, event_info, first=first)
+    elif direction != 0:
         ta, free = _checkout(template)
         try:
-            ta.time = t0_native
-            ta.state[:] = y0_native
-            if call.pars_native is not None:
-                ta.pars[:] = call.pars_native
-            if event_info or user_events:
-                ta.reset_cooldowns()
-            recorders = [ev.callback for ev in ta.nt_events] if user_events else []
-            for rec in recorders:
-                rec.sink, rec.t0 = [], t0_native
-            # this run's crossings: the lists, taken before the integrator goes back to the pool (another thread
-            # may check it out at once and give its recorders new lists)
-            sinks = [rec.sink for rec in recorders]
-            guard = None
-            if recorders:
-                nt = [e for e in user_events if not e[3]]
-                fn, uses_pars = _event_function(ps, prec, [e[1] for e in nt])
-                guard = _CrossingGuard(fn, uses_pars, [e[2] for e in nt], recorders, prec.bits)
-            run = _Run(ta, direction, recorders, guard)
-            if user_events:
-                # the user's terminal events (after the model's in heyoka's order): a zero at t0 does not stop
-                # the run
-                n_user = sum(1 for e in user_events if e[3])
-                run.user_terminal = frozenset(range(len(event_info) - n_user, len(event_info)))
-                if n_user:
-                    # a stop where the expression does not change sign (a tangency) is not a crossing: go on
-                    fn, uses_pars = _event_function(ps, prec, [e[1] for e in user_events if e[3]])
-                    run.terminal_check = (fn, uses_pars, len(event_info) - n_user, prec.bits)
-            start = _time.perf_counter()
-            run.go(grid_native, t0_native, y0_native, dense, max_steps, call.max_time, call.min_step,
-                   stiff_steps=call.stiff_steps, first_chunk=call.first_chunk, progress=progress)
-            run_time = _time.perf_counter() - start
-        finally:
+            engine, sinks = _start(ta, call, event_info)
+        except BaseException:
             _release(ta, free)
-    stats = Stats(method="taylor (heyoka)", precision=prec.name, tol=plan["tol_float"], order=template.order,
-                  build_time=build, cached=cached, run_time=run_time, steps=run.steps, min_step=run.min_h,
-                  max_step=run.max_h,
-                  extra={"events_recovered": run.guard.recovered if run.guard else 0,
-                         "event_touches_dropped": (run.guard.touches if run.guard else 0) + run.touches}
-                  if user_events and direction != 0 else None)
-
-    # the exact value of the time reached (the exact grid's when the run got to the end)
-    t_reached = plan["grid_exact"][-1] if run.t_reached == grid_native[-1] else to_fraction(run.t_reached)
-    rows_t, rows_y = [], []
-    # heyoka's clock runs in the working precision ("0.1" is not a double): compare the rounded times, exactly,
-    # in that format
-    t_hit = run.t_reached
-    for k, tk in enumerate(grid_native):
-        if (direction > 0 and tk > t_hit) or (direction < 0 and tk < t_hit):
-            break
-        if tk == t0_native:
-            yk = y0_native
-        elif tk == t_hit:
-            yk = run.y_reached
-        elif run.rows is not None:
-            if k >= len(run.rows):
-                break
-            yk = run.rows[k]
-        else:
-            yk = run.dense_at(tk)
-        rows_t.append(tk)
-        rows_y.append(yk)
-    if run.reason is None and run.outcome == _OUTCOME.time_limit:
-        status, message = "success", plan["reached"]
+            raise
     else:
-        status, message = _status(run, event_info, t_reached, grid_native[-1], max_steps)
-    if status == "success" and direction != 0 and ps.is_hamiltonian:
-        if call.energy is None:
-            call.energy = energy_function(ps, prec, y0_native)
-        status, message = energy_verdict(call.energy, plan["sqrt_tol"], run.y_reached, run.steps, status, message)
+        engine = _Chunks(None, call, event_info)
+
+    def energy(out):
+        # the energy guard of a run that reached its final time (lieseries.energy)
+        if ps.is_hamiltonian:
+            if call.energy is None:
+                call.energy = energy_function(ps, prec, y0_native)
+            out.status, out.message = energy_verdict(call.energy, plan["sqrt_tol"], out.z, out.steps, out.status,
+                                                     out.message)
+
+    try:
+        out = drive(engine, t0_native, y0_native, [(g, g) for g in grid_native], direction=direction,
+                    max_steps=call.max_steps, max_time=call.max_time, progress=progress, kept=KEPT_ROWS,
+                    start=_time.perf_counter() - (started[2] if started is not None else 0.0), guard=energy)
+    finally:
+        if free is not None:
+            _release(ta, free)
+    status = out.status
+    stats = Stats(method="taylor (heyoka)", precision=prec.name, tol=plan["tol_float"], order=template.order,
+                  build_time=build, cached=cached, run_time=out.run_time, steps=out.steps, min_step=engine.min_h,
+                  max_step=engine.max_h,
+                  extra={"events_recovered": engine.guard.recovered if engine.guard else 0,
+                         "event_touches_dropped": (engine.guard.touches if engine.guard else 0) + engine.touches}
+                  if user_events and direction != 0 else None)
     if status == "success" and call.first_chunk < call.repeat_chunk:
         _succeeded(call)
+    # the exact value of the time reached (the exact grid's when the run got to the end)
+    t_reached = plan["grid_exact"][-1] if out.t == grid_native[-1] else to_fraction(out.t)
     # np.array copies the rows (the run's own arrays, y0's read-only cache)
+    rows_y = out.rows_y
     y = np.array(rows_y, dtype=call.dtype) if rows_y else np.empty((0, ps.dimension), dtype=call.dtype)
-    tarr = _time_array(rows_t, prec) if prec.is_real else np.array(rows_t, dtype=call.dtype)
-    dense_fn = DenseOutput(run.c_outs, prec) if run.c_outs else None
-    return Solution(tarr, y, stats, status, message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
-                    y_reached=np.array(run.y_reached, copy=True) if run.y_reached is y0_native else run.y_reached,
-                    events=_event_records(user_events, sinks, run, status, event_info, prec, ps.dimension)
+    tarr = _time_array(out.rows_t, prec) if prec.is_real else np.array(out.rows_t, dtype=call.dtype)
+    dense_fn = DenseOutput(engine.c_outs, prec) if engine.c_outs else None
+    return Solution(tarr, y, stats, status, out.message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
+                    y_reached=np.array(out.z, copy=True) if out.z is y0_native else out.z,
+                    events=_event_records(user_events, sinks, engine, out, event_info, prec, ps.dimension)
                     if user_events else None)
 
 
-def _event_records(user_events, sinks, run, status, event_info, prec, n) -> dict:
+def _start(ta, call, event_info):
+    """The chunk engine of a new run on the integrator ``ta`` (set to the call's start), and the lists its
+    non-terminal events' crossings go to."""
+    ps, prec, user_events = call.ps, call.prec, call.user_events
+    t0_native = call.plan["t0_native"]
+    ta.time = t0_native
+    ta.state[:] = call.y0_native
+    if call.pars_native is not None:
+        ta.pars[:] = call.pars_native
+    if event_info or user_events:
+        ta.reset_cooldowns()
+    recorders = [ev.callback for ev in ta.nt_events] if user_events else []
+    for rec in recorders:
+        rec.sink, rec.t0 = [], t0_native
+    # this run's crossings: the lists, taken before the integrator goes back to the pool (another thread may
+    # check it out at once and give its recorders new lists)
+    sinks = [rec.sink for rec in recorders]
+    guard = None
+    if recorders:
+        nt = [e for e in user_events if not e[3]]
+        fn, uses_pars = _event_function(ps, prec, [e[1] for e in nt])
+        guard = _CrossingGuard(fn, uses_pars, [e[2] for e in nt], recorders, prec.bits)
+        guard.start(ta)
+    engine = _Chunks(ta, call, event_info, recorders, guard)
+    if user_events:
+        # the user's terminal events (after the model's in heyoka's order): a zero at t0 does not stop the run
+        n_user = sum(1 for e in user_events if e[3])
+        engine.user_terminal = frozenset(range(len(event_info) - n_user, len(event_info)))
+        if n_user:
+            # a stop where the expression does not change sign (a tangency) is not a crossing: go on
+            fn, uses_pars = _event_function(ps, prec, [e[1] for e in user_events if e[3]])
+            engine.terminal_check = (fn, uses_pars, len(event_info) - n_user, prec.bits)
+    return engine, sinks
+
+
+def _event_records(user_events, sinks, engine, out, event_info, prec, n) -> dict:
     """``{name: {"t": times, "y": states}}`` from the recorders' lists (non-terminal events, in order) and the stop
     (terminal)."""
-    out = {}
+    result = {}
     rec_iter = iter(sinks)
     fired = None
-    if status == "event" and run.outcome is not None:
-        idx = int(run.outcome.value)
+    if out.status == "event" and engine.outcome is not None:
+        idx = int(engine.outcome.value)
         idx = -idx - 1 if idx < 0 else idx
         fired = event_info[idx][1] if 0 <= idx < len(event_info) else None
     for name, _expr, _direction, terminal in user_events:
         if terminal:
             hit = fired == f"the event {name!r} fired"
-            times, states = ([run.t_reached], [run.y_reached]) if hit else ([], [])
+            times, states = ([out.t], [out.z]) if hit else ([], [])
         else:
             sink = next(rec_iter)
             times, states = [t for t, _ in sink], [y for _, y in sink]
-        out[name] = {
+        result[name] = {
             "t": _time_array(times, prec),
             "y": np.stack(states) if states else np.empty((0, n), dtype=prec.numpy_dtype),
         }
-    return out
+    return result
 
 
 def _time_array(natives, prec: Precision) -> np.ndarray:
@@ -944,115 +936,195 @@ def _time_array(natives, prec: Precision) -> np.ndarray:
     return np.array(natives, dtype=prec.numpy_dtype)
 
 
-class _Run:
-    """One integration from the integrator's current time and state, in chunks of steps (module docstring)."""
+class _Chunks:
+    """The step of a heyoka run for the driver loop (:func:`lieseries.driver.drive`): a chunk of steps run inside
+    heyoka (module docstring), and before it, when the last chunk used up its steps, the checks that need more than
+    heyoka's answer: ``min_step``, then one probe step that measures the step size and the change it makes (a
+    collapsing or stiff run, a budget that cannot suffice). The integrator holds the time and state; ``t_at`` and
+    ``z_at`` are where the last chunk (or probe) ended."""
 
-    steps = 0
-    min_h, max_h = math.inf, 0.0
-    outcome = reason = rows = None
-    change = h_last = math.nan
-    stiff_steps = 0
-    t_reached = y_reached = None
-    user_terminal = frozenset()
-    terminal_check = None
-    touches = 0
-    chunk_start = None
+    free_first_step = True  # a run is at least one chunk: the budgets are read between chunks
 
-    def __init__(self, ta, direction, recorders=(), guard=None):
-        self.ta = ta
-        self.direction = direction
-        self.recorders = recorders
-        self.guard = guard
-        self.c_outs = []  # the other attributes start at the class's values
+    def __init__(self, ta, call, event_info, recorders=(), guard=None, first=None):
+        plan = call.plan
+        self.ta, self.direction, self.event_info = ta, plan["direction"], event_info
+        self.recorders, self.guard, self.dense = recorders, guard, call.dense
+        self.max_steps, self.stiff_steps, self.min_step = call.max_steps, call.stiff_steps, call.min_step
+        self.chunk = call.first_chunk
+        # (heyoka's answer, seconds) of a first chunk already run from t0; with the time and state it reached
+        # when the integrator has gone back to the pool
+        self.first = first
+        grid = plan["grid_native"]
+        self.t0, self.t_end = plan["t0_native"], grid[-1]
+        self.t_at, self.z_at = self.t0, call.y0_native
+        self.steps, self.min_h, self.max_h = 0, math.inf, 0.0
+        self.outcome = None
+        self.change = self.h_last = math.nan
+        self.between = False  # the last chunk used up its steps: the checks run before the next one
+        self.user_terminal, self.terminal_check, self.touches = frozenset(), None, 0
+        self.c_outs = []  # heyoka's continuous outputs, one per chunk (dense)
+        self.queue = []  # (time, row) at the output times the steps so far covered, not yet taken by the driver
+        self.chunk_start = self.t0
+        # the output times after t0 whose rows come from the steps (None: only t0 and the final time); the driver
+        # gives the rows at t0 (y0)
+        self.pending = None
+        if not self.dense and not (len(grid) == 2 and grid[0] == self.t0):
+            self.pending = [g for g in grid if g != self.t0]
 
-    def go(self, grid, t0, y0, dense, max_steps, max_time, min_step, *, stiff_steps, first_chunk, progress,
-           first=None):
-        """Integrate from ``t0``, ``y0`` (the integrator's current time and state) to the end of ``grid``.
-        ``first``: (heyoka's answer, seconds) of a first chunk of ``first_chunk`` steps already run from there
-        (a plain run: one final time, no events, no dense output)."""
-        ta = self.ta
-        self.t_reached, self.y_reached = t0, y0
-        self.stiff_steps = stiff_steps
-        t_end = grid[-1]
-        use_grid = not dense and not (len(grid) == 2 and grid[0] == t0)
-        if use_grid:
-            self.rows = []
-            pending = list(grid)
-            if pending[0] == t0:
-                pending.pop(0)
-                self.rows.append(np.array(y0, copy=True))
-        chunk = first_chunk
-        start = _time.perf_counter() - (first[1] if first is not None else 0.0)
-        if self.guard is not None:
-            self.guard.start(ta)
-        while True:
-            budget = min(chunk, max_steps - self.steps)
-            t_chunk, y_chunk = self.t_reached, self.y_reached  # where this chunk starts
-            marks = [len(r.sink) for r in self.recorders] if self.recorders else ()
-            tic = _time.perf_counter()
-            if use_grid and not pending:
-                self.outcome = _OUTCOME.time_limit
-                self.t_reached, self.y_reached = ta.time, np.array(ta.state, copy=True)
-                return
-            if first is not None:
-                (res, elapsed), first = first, None
-                self.chunk_start = t0
-            else:
-                res = self._propagate(t_end, pending if use_grid else None, dense, budget, None)
-                elapsed = _time.perf_counter() - tic
-            outcome = res[0]
-            if outcome == _OUTCOME.err_nf_state:
-                # run the failed chunk again, keeping a copy of every accepted state
-                ta.time, ta.state[:] = t_chunk, y_chunk
-                for rec, mark in zip(self.recorders, marks):
-                    del rec.sink[mark:]  # the chunk runs again: its crossings are recorded again
-                if self.guard is not None:
-                    self.guard.start(ta)
-                keeper = _Keeper(ta)
-                res = self._propagate(t_end, pending if use_grid else None, dense, budget, keeper)
-                self._account(res, pending if use_grid else None, dense)
-                self.outcome = res[0]
-                self.t_reached, self.y_reached = keeper.t, keeper.state
-                return
-            self._account(res, pending if use_grid else None, dense)
-            self.outcome = outcome
-            self.t_reached, self.y_reached = ta.time, np.array(ta.state, copy=True)
-            if self.user_terminal and self._at_user_event(outcome) and (ta.time == t0 or self._touch(outcome)):
-                continue  # the run starts on the event's surface, or touches it: go on (heyoka's cooldown)
+    def step(self, t, z, t_end):
+        before = self.steps
+        self.t_at, self.z_at = t, z
+        if self.between:
+            self.between = False
+            if self.min_step is not None and self.min_h < self.min_step:
+                raise Stop("step_collapse", f"a step of {self.min_h:.3g} was taken, below `min_step` = "
+                           f"{self.min_step:.3g}", note=self._note())
+            outcome = self._probe(t_end)
             if outcome != _OUTCOME.step_limit:
-                return
-            # between chunks: budgets, then one single step to measure the step size and the change it makes
-            if self.steps >= max_steps:
-                self.reason = "step_budget"
-                return
-            if max_time is not None and _time.perf_counter() - start > max_time:
-                self.reason = "time_budget"
-                return
-            if min_step is not None and self.min_h < min_step:
-                self.reason = "step_collapse"
-                return
-            if self._probe(t_end, pending if use_grid else None, dense):
-                if self.user_terminal and self._at_user_event(self.outcome) and self._touch(self.outcome):
-                    continue
-                return
-            h = self.h_last
-            h_first = self.max_h  # the largest step of the run so far
-            left = abs(float(t_end) - float(ta.time))
-            need = left / h if h > 0 else math.inf
-            if need > stiff_steps and h < 1e-2 * h_first:
-                self.reason = "step_collapse"  # shrinking towards a singularity
-                return
-            if need > stiff_steps and self.change < STIFF_CHANGE and h < 1e-2 * left:
-                self.reason = "stiff"  # tiny steps over which no component changes: stability-limited
-                return
-            if need > max_steps - self.steps:
-                self.reason = "step_collapse" if h < 1e-2 * h_first else "step_budget"
-                return
-            if progress is not None:
-                span = abs(float(t_end) - float(t0))
-                progress(min(1.0, abs(float(ta.time) - float(t0)) / span) if span else 1.0)
+                return self._result(before, self._end(outcome))
+            stop = self._too_slow(t_end)
+            if stop is not None:
+                return self._result(before, stop)
+        return self._result(before, self._end(self._chunk(t_end)))
+
+    def _result(self, before, stop):
+        t, z = self.t_at, self.z_at
+        queue, dense, pending = self.queue, self.dense, self.pending
+
+        def row(tk):
+            if queue and queue[0][0] == tk:
+                y = queue.pop(0)[1]
+                return z if tk == t else y
+            if tk == t:
+                # heyoka's time is double length: a chunk may end on tk's high part with a negative low part, short
+                # of tk for the step rows; the row is the state there, as at the run's end, and tk is taken
+                if pending and pending[0] == tk:
+                    pending.pop(0)
+                return z
+            if dense:
+                return DenseOutput(self.c_outs, None).at_native(tk)
+            raise RuntimeError(f"no row at t = {format_time(tk)} in a heyoka chunk")  # pragma: no cover
+
+        return StepResult(t, z, row=row, stop=stop, steps=self.steps - before)
+
+    def _chunk(self, t_end):
+        """Run one chunk of steps (or take the one already run) and return heyoka's outcome."""
+        ta = self.ta
+        budget = min(self.chunk, self.max_steps - self.steps)
+        marks = [len(r.sink) for r in self.recorders]
+        if self.first is not None:
+            (res, elapsed, *reached), self.first = self.first, None
+            self.chunk_start = self.t0
+        else:
+            tic = _time.perf_counter()
+            res = self._propagate(t_end, budget, None)
+            elapsed = _time.perf_counter() - tic
+            reached = ()
+        if res[0] == _OUTCOME.err_nf_state:
+            # run the failed chunk again, keeping a copy of every accepted state
+            ta.time, ta.state[:] = self.t_at, self.z_at
+            for rec, mark in zip(self.recorders, marks):
+                del rec.sink[mark:]  # the chunk runs again: its crossings are recorded again
+            if self.guard is not None:
+                self.guard.start(ta)
+            keeper = _Keeper(ta)
+            res = self._propagate(t_end, budget, keeper)
+            self._account(res, ta.time)
+            self.t_at, self.z_at = keeper.t, keeper.state
+            return res[0]
+        if reached:  # a plain run's first chunk that reached the final time
+            self._account(res, reached[0])
+            self.t_at, self.z_at = reached
+            return res[0]
+        self._account(res, ta.time)
+        self.t_at, self.z_at = ta.time, np.array(ta.state, copy=True)
+        if res[0] == _OUTCOME.step_limit:  # the next chunk: about CHUNK_SECONDS of work
             per_step = elapsed / max(int(res[3]), 1)
-            chunk = int(min(4 * chunk, max(16, CHUNK_SECONDS / max(per_step, 1e-9)), 1 << 20))
+            self.chunk = int(min(4 * self.chunk, max(16, CHUNK_SECONDS / max(per_step, 1e-9)), 1 << 20))
+        return res[0]
+
+    def _probe(self, t_end):
+        """Take one step as part of the run; record its size and the relative change it made."""
+        ta = self.ta
+        before_t, before = self.t_at, self.z_at
+        res = self._propagate(t_end, 1, None)
+        if res[0] == _OUTCOME.err_nf_state:
+            self.steps += int(res[3])
+            return res[0]
+        self._account(res, ta.time)
+        # heyoka's own step size: the difference of the times reads 0 once the step is below the time's ulp
+        self.h_last = abs(float(ta.last_h)) if _finite(ta.last_h) else abs(float(ta.time) - float(before_t))
+        self.change = _relative_change(ta.state, before)
+        self.t_at, self.z_at = ta.time, np.array(ta.state, copy=True)
+        return res[0]
+
+    def _end(self, outcome):
+        """How the chunk (or probe) with ``outcome`` ended the step: None to go on, or a :class:`Stop`."""
+        self.outcome = outcome
+        if outcome == _OUTCOME.step_limit:
+            self.between = True
+            return None
+        if outcome == _OUTCOME.time_limit:
+            return None
+        if outcome == _OUTCOME.err_nf_state:
+            return Stop("non_finite", reason="non_finite.taylor")
+        if self.user_terminal and self._at_user_event(outcome) and (self.t_at == self.t0 or self._touch(outcome)):
+            return None  # the run starts on the event's surface, or touches it: go on (heyoka's cooldown)
+        # a terminal event: heyoka reports event i as outcome i, or -(i + 1) when it stopped the run
+        where = self._note()
+        idx = int(outcome.value) if outcome not in _NOT_EVENTS else None
+        info = self.event_info
+        if idx is not None and -len(info) <= idx < 0:
+            idx = -idx - 1
+        if idx is not None and 0 <= idx < len(info):
+            status, msg = info[idx]
+            return Stop(status, message=run_message("event", t=self.t_at, note=where, detail=msg))
+        return Stop("event", message=run_message("event", t=self.t_at, note=where,
+                                                 detail=f"heyoka stopped with outcome {outcome}"))
+
+    def _too_slow(self, t_end):
+        """After a probe: a Stop when finishing at this step size is out of reach (module docstring)."""
+        h = self.h_last
+        h_first = self.max_h  # the largest step of the run so far
+        left = abs(float(t_end) - float(self.t_at))
+        need = left / h if h > 0 else math.inf
+        if need > self.stiff_steps and h < 1e-2 * h_first:
+            return self._collapse("step_collapse.taylor")  # shrinking towards a singularity
+        if need > self.stiff_steps and self.change < STIFF_CHANGE and h < 1e-2 * left:
+            return self._collapse("step_collapse.stiff")  # tiny steps over which no component changes
+        if need > self.max_steps - self.steps:
+            return self._collapse("step_collapse.taylor") if h < 1e-2 * h_first else self.explain("step_budget")
+        return None
+
+    def explain(self, status, t=None):
+        """A budget stop at the last chunk's end, with the steps finishing would take (:data:`MESSAGES`)."""
+        if status != "step_budget":
+            return Stop(status, note=self._note())
+        need, hopeless = self._need()
+        return Stop(status, need, note=self._note(), reason="step_budget.hopeless" if hopeless else "step_budget.ahead")
+
+    def _collapse(self, reason):
+        need, _ = self._need()
+        return Stop("step_collapse", need, note=self._note(), reason=reason,
+                    fields={"h_first": self.max_h, "allowed": self.stiff_steps, "change": self.change})
+
+    def _note(self) -> str:
+        last = self.ta.last_h if self.ta is not None else math.nan
+        return f" (last step size {abs(float(last)) if _finite(last) else math.nan:.3g})"
+
+    def _need(self):
+        """The time left and the steps it takes at the last step size (exactly: the time left may be beyond the
+        double range, t = 1e400 in quad), and whether that is beyond any step budget."""
+        left = abs(to_fraction(self.t_end) - to_fraction(self.t_at))
+        hh = self.h_last
+        if hh != hh:
+            last = self.ta.last_h if self.ta is not None else math.nan
+            hh = abs(float(last)) if _finite(last) else math.nan
+        if not 0 < hh < math.inf:
+            return f"{short_decimal(left)} time units remain", False
+        steps = left / Fraction(hh)
+        return (f"{short_decimal(left)} time units remain, about {short_decimal(steps)} steps at this step size",
+                steps > 10**15)
 
     def _at_user_event(self, outcome) -> bool:
         if outcome in _NOT_EVENTS:
@@ -1083,63 +1155,38 @@ class _Run:
             return True
         return False
 
-    def _probe(self, t_end, pending, dense) -> bool:
-        """Take one step as part of the run; record its size and the relative change it made.
-        True when that step ended the run (an event, a non-finite state, the final time)."""
-        ta = self.ta
-        before_t, before = ta.time, np.array(ta.state, copy=True)
-        res = self._propagate(t_end, pending, dense, 1, None)
-        self.outcome = res[0]
-        if res[0] == _OUTCOME.err_nf_state:
-            self.steps += int(res[3])
-            self.t_reached, self.y_reached = before_t, before
-            return True
-        self._account(res, pending, dense)
-        # heyoka's own step size: the difference of the times reads 0 once the step is below the time's ulp
-        self.h_last = abs(float(ta.last_h)) if _finite(ta.last_h) else abs(float(ta.time) - float(before_t))
-        self.change = _relative_change(ta.state, before)
-        self.t_reached, self.y_reached = ta.time, np.array(ta.state, copy=True)
-        return res[0] != _OUTCOME.step_limit
-
-    def _propagate(self, t_end, pending, dense, budget, callback):
+    def _propagate(self, t_end, budget, callback):
         ta = self.ta
         self.chunk_start = ta.time
         if self.guard is not None:
             callback = self.guard if callback is None else _Both(self.guard, callback)
-        if pending is not None:
+        if self.pending is not None:
             # Not propagate_grid: it needs the current time as its first grid point, and heyoka's time is double
             # length (ta.time is its high part), so each chunk would first step back by the low part and the
             # result would depend on where the chunks (sized by wall time) end. propagate_until continues exactly;
             # a step callback takes the rows from each step's Taylor polynomial, as propagate_grid does (rows[0]
             # stands for the chunk's start, as in propagate_grid's answer).
-            rows = _GridRows(pending, self.direction)
+            rows = _GridRows(self.pending, self.direction)
             res = ta.propagate_until(t_end, max_steps=budget, write_tc=True,
                                      callback=rows if callback is None else _Both(rows, callback))
             return (res[0], res[1], res[2], res[3], None, rows.rows)
-        return ta.propagate_until(t_end, max_steps=budget, c_output=dense, callback=callback)
+        return ta.propagate_until(t_end, max_steps=budget, c_output=self.dense, callback=callback)
 
-    def account_first(self, res, t_end):
-        """The steps of a plain run's single chunk from ``self.chunk_start`` to ``t_end`` (:func:`_execute_plain`)."""
-        self.steps = int(res[3])
-        self.min_h, self.max_h = _step_range(self.steps, res[1], res[2], t_end, self.chunk_start)
-
-    def _account(self, res, pending, dense):
-        self.steps += int(res[3])
-        if int(res[3]):
-            lo, hi = float(res[1]), float(res[2])
-            if not lo <= hi:  # heyoka leaves out a step cut short at the final time: the chunk's mean step
-                lo = hi = abs(float(self.ta.time) - float(self.chunk_start)) / int(res[3])
+    def _account(self, res, t_end):
+        """The steps, step sizes and output rows of a chunk from ``self.chunk_start`` to ``t_end``."""
+        n = int(res[3])
+        self.steps += n
+        if n:
+            lo, hi = _step_range(n, res[1], res[2], t_end, self.chunk_start)
             self.min_h = min(self.min_h, lo)
             self.max_h = max(self.max_h, hi)
+        pending = self.pending
         if pending is not None:
             out = res[-1][1:]  # the first row is the chunk's start
-            self.rows.extend(np.array(r, copy=True) for r in out)
+            self.queue.extend(zip(pending[:len(out)], (np.array(r, copy=True) for r in out)))
             del pending[: len(out)]
-        elif dense and res[4] is not None:
+        elif self.dense and res[4] is not None:
             self.c_outs.append(res[4])
-
-    def dense_at(self, t):
-        return DenseOutput(self.c_outs, None).at_native(t)
 
 
 class _GridRows:
@@ -1208,79 +1255,6 @@ def _finite(v) -> bool:
         return bool(np.isfinite(float(v)))
     except (TypeError, ValueError, OverflowError):
         return False
-
-
-def _t(t) -> str:
-    """A time of any format to 17 digits, beyond the double range too (t = 2e2001 in quad)."""
-    f = to_fraction(t)
-    try:
-        return f"{float(f):.17g}"
-    except OverflowError:
-        return short_decimal(f)
-
-
-def _reached(t_end) -> str:
-    return f"Reached t = {_t(t_end)}."
-
-
-def _status(run, event_info, t_reached, t_end, max_steps):
-    if run.direction == 0:
-        return "success", f"Nothing to integrate: t equals t0 = {_t(t_reached)}."
-    if run.reason is None and run.outcome == _OUTCOME.time_limit:
-        return "success", _reached(t_end)
-    ta = run.ta
-    h = abs(float(ta.last_h)) if _finite(ta.last_h) else float("nan")
-    where = f"t = {_t(t_reached)} (last step size {h:.3g})"
-    # exactly: the time left may be beyond the double range (t = 1e400 in quad)
-    left = abs(to_fraction(t_end) - to_fraction(run.t_reached))
-    hh = run.h_last if run.h_last == run.h_last else h
-    need = (f"{short_decimal(left)} time units remain, about {short_decimal(left / Fraction(hh))} steps at this "
-            "step size") if 0 < hh < math.inf else f"{short_decimal(left)} time units remain"
-    # more steps than any budget could allow: the advice is the time span, not max_steps
-    hopeless = 0 < hh < math.inf and left / Fraction(hh) > 10**15
-    outcome = run.outcome
-    if run.reason == "time_budget":
-        return "time_budget", f"The wall-time budget ran out at {where}; raise `max_time` or lower the accuracy."
-    if run.reason == "step_collapse":
-        return "step_collapse", (
-            f"The step size collapsed near {where}, from {run.max_h:.3g} earlier: {need}, more than the "
-            f"{run.stiff_steps} steps allowed for it (pass `max_steps` to allow more). The solution is singular "
-            "or nearly so there, or it moves on a much faster time scale than before (a fast rotation or "
-            "oscillation); an explicit Taylor method cannot cross it efficiently."
-        )
-    if run.reason == "stiff":
-        return "step_collapse", (
-            f"Tiny steps: near {where} the state changes per step by at most {run.change:.1e} (relative to its "
-            f"entries, the small ones measured against the largest). {need}, more than the {run.stiff_steps} "
-            "steps allowed for such a run (pass `max_steps` to allow more). Either the problem is stiff (a fast "
-            "decaying mode, e.g. strong damping: reduce it, or use an implicit method for this part of the "
-            "motion), or some variables move on a time scale far shorter than the run (a fast rotation or "
-            "oscillation: a large angular velocity, or moments of inertia far apart): rescale time or shorten "
-            "the run."
-        )
-    if run.reason == "step_budget" or outcome == _OUTCOME.step_limit:
-        return "step_budget", (
-            f"Stopped early at {where}: {need}, more than the budget max_steps = {max_steps}. "
-            + ("That is beyond any step budget: shorten the time span or rescale time." if hopeless
-               else "Raise `max_steps`.")
-        )
-    if outcome == _OUTCOME.time_limit:
-        return "success", _reached(t_end)
-    if outcome == _OUTCOME.err_nf_state:
-        return "non_finite", (
-            f"The state became non-finite (NaN or infinity) in the step after t = {_t(t_reached)}: the "
-            "solution blows up or leaves the domain of the equations there, or a number of the step (a Taylor "
-            "coefficient grows like rate^order) exceeds the range of the format -- rescale a state or rate of "
-            "order 1e300. The last finite state is kept."
-        )
-    # a terminal event: heyoka reports event i as outcome i, or -(i + 1) when it stopped the run
-    idx = int(outcome.value)
-    if -len(event_info) <= idx < 0:
-        idx = -idx - 1
-    if 0 <= idx < len(event_info):
-        status, msg = event_info[idx]
-        return status, f"Stopped at {where}: {msg}."
-    return "event", f"Stopped at {where} with heyoka outcome {outcome}."
 
 
 class DenseOutput:

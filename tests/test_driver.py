@@ -68,6 +68,31 @@ def test_time_budget_is_read_between_steps():
     assert "`max_time` = 0.5 s" in out.message and "t = 0" in out.message
 
 
+class Explaining(Exponential):
+    """An engine that words its budget stops (as a heyoka run does: the steps finishing would take) and whose first
+    step is taken whatever the budgets (a heyoka run's first chunk)."""
+
+    free_first_step = True
+
+    def explain(self, status, t):
+        return Stop(status, f"{2 - t:g} time units remain", note=" (last step size 0.25)",
+                    reason=f"{status}.ahead" if status == "step_budget" else None)
+
+
+def test_an_engine_words_its_budget_stops_from_the_table_and_may_take_its_first_step_free():
+    out = drive(Explaining(h=0.25), 0.0, 1.0, _grid([0, 2]), direction=1, max_steps=3)
+    assert out.status == "step_budget" and out.steps == 3 and out.t == 0.75
+    assert out.message == ("Stopped early at t = 0.75 (last step size 0.25): 1.25 time units remain, more than the "
+                           "step budget `max_steps` = 3 allows; raise `max_steps` to go on.")
+    assert out.message == run_message("step_budget.ahead", t=0.75, note=" (last step size 0.25)",
+                                      detail="1.25 time units remain", max_steps=3)
+    # a spent wall-time budget: the first step is still taken, the stop comes after it, with the engine's note
+    engine = Explaining(h=0.25)
+    out = drive(engine, 0.0, 1.0, _grid([0, 2]), direction=1, max_steps=100, max_time=0.5, start=-1e9)
+    assert out.status == "time_budget" and engine.calls == 1 and out.t == 0.25
+    assert "ran out at t = 0.25 (last step size 0.25)" in out.message
+
+
 def test_a_failing_step_stops_where_it_started_with_the_table_message():
     out = drive(Exponential(fail_at=0.5), 0.0, 1.0, _grid([0, 0.6, 1]), direction=1, max_steps=100,
                 kept="The rows up to this time are kept.")
@@ -85,8 +110,10 @@ def test_a_terminal_condition_ends_the_run_after_its_step():
 
 
 def test_the_message_table_covers_every_status_a_step_can_end_with():
-    assert set(MESSAGES) <= set(STATUSES)
-    assert set(STATUSES) - set(MESSAGES) == {"divergent", "invariant_drift"}  # set by the engines' own checks
+    # a key is a status, or "status.reason": an engine's own wording of it (heyoka's advice on its step size)
+    statuses = {key.split(".")[0] for key in MESSAGES}
+    assert statuses <= set(STATUSES)
+    assert set(STATUSES) - statuses == {"divergent", "invariant_drift"}  # set by the engines' own checks
     # times beyond the double range are written, not overflowed
     assert "~1e400" in run_message("step_budget", t=Fraction(10) ** 400, max_steps=5)
 

@@ -10,6 +10,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from .. import cache
+from ..driver import run_message
 from ..precision import to_fraction
 from .result import TIME_LIMIT, outcome_kind
 
@@ -44,7 +45,8 @@ def _record_lane(res, i, lane, kind, ta, out, Ynat, tgrid, t0n, direction, simpl
     else:
         status, msg = event_info[kind]
         h = abs(float(ta.last_h[lane]))
-        res.finish(i, status, f"Stopped at t = {float(t_r):.17g} (last step size {h:.3g}): {msg}.", t_r, y_r, nsteps)
+        res.finish(i, status, run_message("event", t=t_r, note=f" (last step size {h:.3g})", detail=msg), t_r, y_r,
+                   nsteps)
 
 
 def _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, event_info, cap, t_end, success_msg):
@@ -126,7 +128,7 @@ def run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, 
         lead = tgrid[0] != t0n
         times = [float(t0n)] * lead + [float(g) for g in tgrid]
         grid = np.repeat(np.array(times), B).reshape(-1, B)
-    success_msg = f"Reached t = {float(tgrid[-1]):.17g}."
+    success_msg = run_message("success", t=tgrid[-1])
     n_batches = -(-k // B)
     counter = iter(range(n_batches))
     lock = threading.Lock()

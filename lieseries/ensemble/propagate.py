@@ -10,6 +10,7 @@ import time as _time
 
 import numpy as np
 
+from ..driver import run_message
 from ..energy import drift_message, energy_check, energy_drift
 from ..solution import EnsembleSolution
 from .batch import BATCH_STEPS, run_batches
@@ -136,7 +137,7 @@ def _run_path(plan, res, progress) -> PathRun:
         for i in range(k):
             res.rows[i] = len(plan.grid)
             res.y[i, :] = plan.Ynat[i]
-            res.finish(i, "success", f"Reached t = {float(plan.t0f):.17g}.", plan.t0n, plan.Ynat[i], 0)
+            res.finish(i, "success", run_message("success", t=plan.t0f), plan.t0n, plan.Ynat[i], 0)
         return PathRun("none", 1)
     if plan.atlas and plan.pars is not None:  # per-member parameters across an atlas: single runs
         return PathRun("single", 1, handed=range(k))

@@ -4,12 +4,14 @@ batch), one after another or over threads."""
 
 from __future__ import annotations
 
+import math
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from .. import cache
+from ..driver import Stop, StepResult, drive, run_message
 from ..precision import to_fraction
 from .batch import CHUNK_STEPS, over_threads
 from .result import outcome_kind
@@ -18,7 +20,8 @@ __all__ = ["run_scalar", "run_singles"]
 
 
 def run_scalar(ta0, event_info, Ynat, pars, ps, prec, tgrid, t0n, direction, cap, n_threads, res, progress):
-    """Every member with the scalar integrator ``ta0`` (a private copy per thread); return the members to hand over.
+    """Every member with the scalar integrator ``ta0`` (a private copy per thread) on the driver loop
+    (:func:`lieseries.driver.drive`, :class:`_Member`); return the members to hand over.
 
     The same decisions as a batch lane: finished or stopped by a terminal event is recorded; non-finite, or more
     than ``cap`` steps ahead at the current step size (checked between chunks of steps), goes to a single run.
@@ -31,61 +34,33 @@ def run_scalar(ta0, event_info, Ynat, pars, ps, prec, tgrid, t0n, direction, cap
             if pars is not None else [prec.array(ps.parameter_values)] * k
     simple = len(tgrid) == 2 and tgrid[0] == t0n
     t0_nat = prec.time(t0n)
-    t_end = prec.time(tgrid[-1])
-    if not simple:
-        lead = tgrid[0] != t0n
-        grid = prec.array([t0n] * lead + list(tgrid))
-    success_msg = f"Reached t = {float(tgrid[-1]):.17g}."
+    lead = int(tgrid[0] != t0n)  # propagate_grid starts at t0
+    grid = None if simple else prec.array([t0n] * lead + list(tgrid))
+    # the output times as heyoka's clock has them (tgrid holds their exact values), each with its row's index
+    pending = [(prec.time(tj), j) for j, tj in enumerate(tgrid)]
+    reached = run_message("success", t=tgrid[-1])
     counter = iter(range(k))
     lock = threading.Lock()
     handed = []
     done = [0]
-    n_events = len(event_info)
 
     def one(ta, i):
         ta.time = t0_nat
         ta.state[:] = Ynat[i]
         if npar:
             ta.pars[:] = par_native[i]
-        if n_events:
+        if event_info:
             ta.reset_cooldowns()
-        steps = 0
-        out = None
-        if simple:
-            chunk = CHUNK_STEPS
-            while True:
-                outcome, _hmin, _hmax, nsteps = ta.propagate_until(t_end, max_steps=min(cap - steps, chunk))[:4]
-                steps += nsteps
-                kind = outcome_kind(outcome, n_events)
-                if kind != "interrupted":
-                    break
-                h = abs(float(ta.last_h))
-                left = abs(float(t_end) - float(ta.time))
-                if not str(outcome).endswith("step_limit") or steps >= cap or not h > 0 or steps + left / h > cap:
-                    return False
-                chunk = min(4 * chunk, 1 << 20)
-        else:
-            r = ta.propagate_grid(grid, max_steps=cap)
-            outcome, steps, out = r[0], int(r[3]), r[-1][int(lead):]
-            kind = outcome_kind(outcome, n_events)
-        if kind in ("interrupted", "non_finite"):
+        member = _Member(ta, pending[-1][0], grid, event_info, cap)
+        try:
+            out = drive(member, t0_nat, Ynat[i], pending, direction=direction, max_steps=math.inf,
+                        reached_message=reached)
+        except _HandOver:
             return False
-        t_r = to_fraction(ta.time)
-        y_r = np.array(ta.state, copy=True)
-        m = 0
-        for j, tj in enumerate(tgrid):
-            if (tj - t0n) * direction > (t_r - t0n) * direction:
-                break
-            res.y[i, j] = Ynat[i] if tj == t0n else (y_r if tj == t_r else out[j])
-            m = j + 1
-        res.rows[i] = m
-        if kind == "done":
-            res.finish(i, "success", success_msg, t_r, y_r, steps)
-        else:
-            status, msg = event_info[kind]
-            h = abs(float(ta.last_h))
-            res.finish(i, status, f"Stopped at t = {float(t_r):.17g} (last step size {h:.3g}): {msg}.", t_r, y_r,
-                       steps)
+        for j, y in zip(out.rows_t, out.rows_y):
+            res.y[i, j] = y
+        res.rows[i] = len(out.rows_t)
+        res.finish(i, out.status, out.message, to_fraction(out.t), out.z, out.steps)
         return True
 
     def work(_):
@@ -109,6 +84,60 @@ def run_scalar(ta0, event_info, Ynat, pars, ps, prec, tgrid, t0n, direction, cap
 
     over_threads(work, n_threads)
     return sorted(handed)
+
+
+class _HandOver(Exception):
+    """The member goes to a single run, which decides it (non-finite, or too many steps ahead)."""
+
+
+class _Member:
+    """One member on the scalar integrator as the driver's engine: a chunk of steps per step (growing 4x from
+    :data:`~lieseries.ensemble.batch.CHUNK_STEPS`) towards the final time, or one ``propagate_grid`` over the
+    output times (the rows in their order: the first one the driver asks for is the grid's second). What the batch
+    would hand to a single run raises :class:`_HandOver`."""
+
+    free_first_step = True
+
+    def __init__(self, ta, t_end, grid, event_info, cap):
+        self.ta, self.t_end, self.grid, self.event_info, self.cap = ta, t_end, grid, event_info, cap
+        self.chunk = CHUNK_STEPS
+        self.steps = 0
+        self.next_row = 1  # propagate_grid's row 0 is t0 (the driver gives the row at t0 itself)
+
+    def step(self, t, z, t_end):
+        ta, cap = self.ta, self.cap
+        rows = None
+        if self.grid is None:
+            outcome, _hmin, _hmax, nsteps = ta.propagate_until(self.t_end, max_steps=min(cap - self.steps,
+                                                                                        self.chunk))[:4]
+        else:
+            r = ta.propagate_grid(self.grid, max_steps=cap)
+            outcome, nsteps, rows = r[0], int(r[3]), r[-1]
+        self.steps += nsteps
+        kind = outcome_kind(outcome, len(self.event_info))
+        if kind == "non_finite" or (kind == "interrupted" and self.grid is not None):
+            raise _HandOver
+        if kind == "interrupted":
+            h = abs(float(ta.last_h))
+            left = abs(float(self.t_end) - float(ta.time))
+            if (not str(outcome).endswith("step_limit") or self.steps >= cap or not h > 0
+                    or self.steps + left / h > cap):
+                raise _HandOver
+            self.chunk = min(4 * self.chunk, 1 << 20)
+        t_r = ta.time
+        y_r = np.array(ta.state, copy=True)
+        stop = None
+        if isinstance(kind, int):
+            status, msg = self.event_info[kind]
+            note = f" (last step size {abs(float(ta.last_h)):.3g})"
+            stop = Stop(status, message=run_message("event", t=t_r, note=note, detail=msg))
+
+        def row(tk):
+            k = self.next_row
+            self.next_row += 1
+            return y_r if tk == t_r else rows[k]
+
+        return StepResult(t_r, y_r, row=row, stop=stop, steps=nsteps)
 
 
 def run_singles(single_run, systems, rows, t, opts, workers, progress, k, done0):
