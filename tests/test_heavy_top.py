@@ -299,3 +299,9 @@ def test_a_flat_body_has_no_constrained_system_and_says_why():
     """I = (1, 2, 3): I3 = I1 + I2, a flat body, J = tr(I)/2 - I has J33 = 0: L in R is singular."""
     with pytest.raises(ValueError, match=r"`inertia`: the mass tensor J = tr\(I\)/2 - I of this body is not positive"):
         ls.EulerPoisson((1, 2, 3)).constrained_system()
+
+
+def test_a_chart_frame_for_six_constraints_is_refused_naming_frame():
+    cs = ls.HeavyTop(**TOP).constrained_system()
+    with pytest.raises(ValueError, match=r"intermediate\(\): the frame of a chart .* give `frame=`"):
+        cs.intermediate(dependent=["R11", "R21", "R22", "R31", "R32", "R33"])

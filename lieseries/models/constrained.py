@@ -545,7 +545,8 @@ class ConstrainedSystem:
         coordinates q^A and n - k momenta pi_i = G_iA(q) p_A, with G_i vector fields tangent to the surface.
 
         ``frame=None``: the system's own ``frame`` if it was given one and ``dependent`` is None; else the fields
-        of p9 in the chart whose dependent coordinates are ``dependent`` (k names or indices; default the last k): G_i has 1 in the free coordinate i, 0 in the other free ones, and solves
+        of p9 in the chart whose dependent coordinates are ``dependent`` (k names or indices; default the last k;
+        refused for more than two constraints, whose chart frame is out of symbolic reach): G_i has 1 in the free coordinate i, 0 in the other free ones, and solves
         dG_alpha/dq . G_i = 0 in the dependent ones. The chart ends where the block dG/dq_dependent is singular:
         runs stop (status ``"chart_edge"``) when det(dG/dq_dep)^2 falls to ``edge``^2 det(G_q G_q^T) (the
         sphere with x3 dependent: |x3| = edge |x|).
@@ -560,6 +561,13 @@ class ConstrainedSystem:
         if dependent is None and frame is None and self.default_frame is not None:
             frame, own = self.default_frame
             momenta = own if momenta is None else momenta
+        if frame is None and len(self.constraints) > SYMBOLIC_DIRAC_MAX_CONSTRAINTS:
+            raise ValueError(
+                f"intermediate(): the frame of a chart is derived symbolically for at most "
+                f"{SYMBOLIC_DIRAC_MAX_CONSTRAINTS} constraints (it inverts the block dG/dq of the dependent "
+                f"coordinates; with {len(self.constraints)} constraints that ran for more than ten minutes on the "
+                "rigid body); give `frame=` (your own tangent vector fields, assembled numerically), e.g. "
+                "R^-T E_k for R^T R = 1, which EulerPoisson.constrained_system() uses")
         dep, F, names = self._frame(dependent, frame, momenta)
         edge_f = to_fraction(edge, "edge")
         if not 0 < edge_f < 1:
