@@ -918,33 +918,59 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
 class FixedJets:
     """One expansion: scaled integer coefficients and what a Lie step needs from them.
 
-    ``norms`` are the max-norms of the coefficient vectors (mpf, 64 bits, rounded up); :meth:`horner` evaluates
-    the polynomial at ``|t| <= 2**s`` in integers; ``coefficients`` is a lazily converted sequence of the
-    coefficient vectors (mpf at ``prec`` bits), for dense output and events; ``rho`` (set by
-    :class:`FixedStepper`) is :func:`~lieseries.lie.operator.estimate_radius` of the norms.
+    ``norms`` are the max-norms of the coefficient vectors (mpf, 64 bits, rounded up; computed when first read);
+    :meth:`log2_norm`, :meth:`log2_column` and :meth:`log2_scales` give the same magnitudes as base-2 logarithms
+    in floating point (what a step-size rule reads: a few digits, of numbers of any size); :meth:`horner`
+    evaluates the polynomial at ``|t| <= 2**s`` in integers; ``coefficients`` is a lazily converted sequence of
+    the coefficient vectors (mpf at ``prec`` bits), for dense output and events; ``rho`` and ``log2_rho`` (set by
+    :class:`FixedStepper`) are :func:`~lieseries.lie.operator.estimate_radius` of the norms and its logarithm.
     """
 
     def __init__(self, M, U, s, prec):
         self.M, self.U, self.s, self.prec = M, U, s, prec
         self.max_step = mp_context().ldexp(1, s)
         self.rho = None
+        self.log2_rho = None
         self.stepper = None
-        make = mp_context().make_mpf
-        # per order, the largest |M| of the variables sharing an exponent, then across exponents
-        by_u = {}
-        for Mi, ui in zip(M, U):
-            by_u.setdefault(ui, []).append(list(map(abs, Mi)))
-        cols = [(u, list(map(max, *ms)) if len(ms) > 1 else ms[0]) for u, ms in by_u.items()]
-        nrm = []
-        for k in range(len(M[0])):
-            bm, bu = 0, None
-            for u, col in cols:
-                m = col[k]
-                if m and (bu is None or _gt(m, u, bm, bu)):
-                    bm, bu = m, u
-            nrm.append(make(from_man_exp(bm, bu - s * k, 64, "u") if bu is not None else fzero))
-        self.norms = nrm
+        self._norms = None
         self.coefficients = _LazyCoefficients(M, U, s, prec)
+
+    @property
+    def norms(self):
+        if self._norms is None:
+            make = mp_context().make_mpf
+            M, U, s = self.M, self.U, self.s
+            # per order, the largest |M| of the variables sharing an exponent, then across exponents
+            by_u = {}
+            for Mi, ui in zip(M, U):
+                by_u.setdefault(ui, []).append(list(map(abs, Mi)))
+            cols = [(u, list(map(max, *ms)) if len(ms) > 1 else ms[0]) for u, ms in by_u.items()]
+            nrm = []
+            for k in range(len(M[0])):
+                bm, bu = 0, None
+                for u, col in cols:
+                    m = col[k]
+                    if m and (bu is None or _gt(m, u, bm, bu)):
+                        bm, bu = m, u
+                nrm.append(make(from_man_exp(bm, bu - s * k, 64, "u") if bu is not None else fzero))
+            self._norms = nrm
+        return self._norms
+
+    def log2_norm(self, k):
+        """log2 ||c_k|| (max norm), ``-inf`` for a zero vector."""
+        best = -math.inf
+        for Mi, ui in zip(self.M, self.U):
+            m = Mi[k]
+            if m:
+                x = _lg(m) + ui
+                if x > best:
+                    best = x
+        return best - self.s * k
+
+    def log2_column(self, k):
+        """log2 |c_{k,i}| of every variable i (``-inf`` for zero)."""
+        sk = self.s * k
+        return [_lg(Mi[k]) + (ui - sk) if Mi[k] else -math.inf for Mi, ui in zip(self.M, self.U)]
 
     def horner(self, t):
         """sum_k c_k t^k as mpf at ``prec`` bits (``t`` an mpf with |t| <= ``max_step``); a
@@ -961,26 +987,28 @@ class FixedJets:
         tm = -_Z(tm) if sg else _Z(tm)
         sh = self.s - te  # t / sigma = tm * 2**-sh
         out = []
+        prec = self.prec
         for Mi, ui in zip(self.M, self.U):
             acc = Mi[-1]
-            for k in range(len(Mi) - 2, -1, -1):
-                acc = _sh(acc * tm, sh) + Mi[k]
-            out.append(make(_raw(acc, ui, self.prec)))
+            if sh > 0:
+                half = 1 << (sh - 1)
+                for k in range(len(Mi) - 2, -1, -1):
+                    acc = ((acc * tm + half) >> sh) + Mi[k]
+            else:
+                for k in range(len(Mi) - 2, -1, -1):
+                    acc = _sh(acc * tm, sh) + Mi[k]
+            out.append(make(_raw(acc, ui, prec)))
         return out
-
 
     def column(self, k):
         """|c_{k,i}| of every variable i, as mpf (64 bits, rounded up): what a per-component step rule reads."""
         make = mp_context().make_mpf
         return [make(from_man_exp(abs(Mi[k]), ui - self.s * k, 64, "u")) for Mi, ui in zip(self.M, self.U)]
 
-    def component_scales(self, h):
-        """Each variable's size over a step of length ``|h| <= max_step``: max(1, sum_k |c_{k,i}| |h|^k) (absolute
-        below 1), summed in integers, as mpf."""
-        make = mp_context().make_mpf
+    def _abs_horner(self, h):
+        """(sum_k |M_{k,i}| (|h| / sigma)^k, U_i) for every variable i, in integers."""
         if abs(h) > self.max_step:
             raise RuntimeError(f"a step of {mp.nstr(h, 5)} beyond the jets' time scale {mp.nstr(self.max_step, 5)}")
-        one = mp_context().mpf(1)
         sg, tm, te, _ = abs(h)._mpf_
         out = []
         for Mi, ui in zip(self.M, self.U):
@@ -989,10 +1017,34 @@ class FixedJets:
             else:
                 tmz, sh = _Z(tm), self.s - te
                 acc = abs(Mi[-1])
-                for k in range(len(Mi) - 2, -1, -1):
-                    acc = _sh(acc * tmz, sh) + abs(Mi[k])
-            out.append(max(one, make(from_man_exp(acc, ui, 64, "u")) if acc else one))
+                if sh > 0:
+                    half = 1 << (sh - 1)
+                    for k in range(len(Mi) - 2, -1, -1):
+                        acc = ((acc * tmz + half) >> sh) + abs(Mi[k])
+                else:
+                    for k in range(len(Mi) - 2, -1, -1):
+                        acc = _sh(acc * tmz, sh) + abs(Mi[k])
+            out.append((acc, ui))
         return out
+
+    def component_scales(self, h):
+        """Each variable's size over a step of length ``|h| <= max_step``: max(1, sum_k |c_{k,i}| |h|^k) (absolute
+        below 1), summed in integers, as mpf."""
+        make = mp_context().make_mpf
+        one = mp_context().mpf(1)
+        return [max(one, make(from_man_exp(acc, ui, 64, "u")) if acc else one) for acc, ui in self._abs_horner(h)]
+
+    def log2_scales(self, h):
+        """log2 of :meth:`component_scales` (each >= 0), in floating point."""
+        return [max(0.0, _lg(acc) + ui) if acc else 0.0 for acc, ui in self._abs_horner(h)]
+
+
+def _lg(m):
+    """log2 |m| of a nonzero big integer, in floating point."""
+    b = _bitlen(m)
+    if b > 1000:
+        return math.log2(abs(m) >> (b - 64)) + (b - 64)
+    return math.log2(abs(m))
 
 
 def _gt(m1, u1, m2, u2):
@@ -1036,20 +1088,19 @@ class _LazyCoefficients(list):
 # Public entry points
 # --------------------------------------------------------------------------
 
-def _estimate_radius(nrm):
-    """:func:`lieseries.lie.operator.estimate_radius` of the norms, in floating point (the radius steers the
-    step and enters the error estimate as h / rho: a few digits are all it carries)."""
-    N = len(nrm) - 1
-
-    def ln(x):
-        _, m, e, bc = x._mpf_
-        return math.log(m) + e * _LN2
-
-    pts = [(k, ln(nrm[k])) for k in range(max(1, N // 2), N + 1) if nrm[k]]
+def _estimate_radius(jets):
+    """:func:`lieseries.lie.operator.estimate_radius` of the norms of ``jets``, in floating point (the radius steers
+    the step and enters the error estimate as h / rho: a few digits are all it carries): (rho as mpf, log2 rho)."""
+    N = len(jets.M[0]) - 1
+    lg = {k: jets.log2_norm(k) for k in range(max(1, N // 2), N + 1)}
+    pts = [(k, x * _LN2) for k, x in lg.items() if x != -math.inf]
     if len(pts) < 2:
-        pts = [(k, ln(nrm[k])) for k in range(1, N + 1) if nrm[k]]
+        lg.update((k, jets.log2_norm(k)) for k in range(1, max(1, N // 2)))
+        pts = [(k, x * _LN2) for k, x in lg.items() if x != -math.inf]
     rho = radius_from_logs(pts)
-    return mp_context().inf if rho == math.inf else mp_context().mpf(rho)
+    if rho == math.inf:
+        return mp_context().inf, math.inf
+    return mp_context().mpf(rho), (math.log2(rho) if rho > 0 else -math.inf)
 
 
 _LN2 = math.log(2)
@@ -1093,7 +1144,7 @@ class FixedStepper:
         zr = _expr.convert_vector(z, self.program.nvars, self.wp, "z")
         if self.s is None:  # a short expansion to find the time scale
             M, U = expand(self.program, zr, self.pars_raw, min(self.order, 12), self.wp, 0, deadline)
-            rho = _estimate_radius(FixedJets(M, U, 0, self.prec).norms)
+            rho = _estimate_radius(FixedJets(M, U, 0, self.prec))[0]
             self.s = _ceil_log2(span) if rho == mp.inf else _floor_log2(rho) - 2
         elif self.h_last:
             s = _ceil_log2(self.h_last) + 1
@@ -1104,7 +1155,8 @@ class FixedStepper:
             M, U = expand(self.program, zr, self.pars_raw, self.order, self.wp, self.s, deadline)
             self.expansions += 1
             jets = FixedJets(M, U, self.s, self.prec)
-            jets.rho = self.last_rho = _estimate_radius(jets.norms)
+            jets.rho, jets.log2_rho = _estimate_radius(jets)
+            self.last_rho = jets.rho
             jets.stepper = self
             if jets.rho == mp.inf and span > jets.max_step:  # a polynomial: one step may reach the end
                 self.s = _ceil_log2(span)
