@@ -313,6 +313,7 @@ def _mk_sop(run, out, prods, lins, offset, state=None):
                 terms.append((A, B, None if cm == 1 else (-1 if cm == -1 else cm), x - x0))
             st.update(fin=uo - x0 if state is None else x0 + run.s - U[state],
                       off=_to_int(offset, x0) if offset is not None else 0)
+            step.terms, step.fin = terms, st["fin"]
         tot = st["off"] if k == 0 else 0
         dv = run.dv
         for A, B, cm, d in terms:
@@ -327,54 +328,67 @@ def _mk_sop(run, out, prods, lins, offset, state=None):
             C.append(_sh(tot, st["fin"]))
         else:  # appended after the order's last step: every step of order k sees k + 1 state coefficients
             nxt[state] = _divr(tot, k + 1, st["fin"])
+    step.kind, step.C, step.state = "sop", C, state
     return step
 
 
-def _mk_dots(run, pivot, partners, keys):
+class _Dots:
     """Several Cauchy products sharing one operand in one dot product: the partners' coefficients are packed
     into one integer per order (fields of W bits, W above the bits any of the products can reach, checked at
     every order) and the products' k-th coefficients are read back from the fields of one sum."""
-    J, dv = run.J, run.dv
-    A = J[pivot]
-    Bs = [J[b] for b in partners]
-    rBs = Bs[::-1]
-    P = []
-    dot = _Cauchy(A, P, run.F >= PAIR_BITS)
-    W = ba = bb = 0
-    mask = full = half = 0
 
-    def step(k):
-        nonlocal W, ba, bb, mask, full, half
-        x = A[k].bit_length()
-        if x > ba:
-            ba = x
-        x = max(map(_bitlen, [B[k] for B in Bs]))
-        if x > bb:
-            bb = x
-        need = ba + bb + (k + 1).bit_length() + 2
-        if need > W:
-            W = need + 32
-            full, half = 1 << W, 1 << (W - 1)
-            mask = full - 1
-            P[:] = []
-            for j in range(k):
-                v = 0
-                for B in rBs:
-                    v = (v << W) + B[j]
-                P.append(v)
-            dot.reset(P, k)
+    kind = "dots"
+
+    def __init__(self, run, pivot, partners, keys):
+        self.dv = run.dv
+        self.A = run.J[pivot]
+        self.Bs = [run.J[b] for b in partners]
+        self.rBs = self.Bs[::-1]
+        self.keys = keys
+        self.P = []
+        self.dot = _Cauchy(self.A, self.P, run.F >= PAIR_BITS)
+        self.W = self.ba = self.bb = 0
+        self.mask = self.full = self.half = 0
+
+    def repack(self, k, need):
+        """Widen the fields to hold ``need`` bits: the packed partners of orders < k again; the new
+        (W, mask, full, half)."""
+        W = self.W = need + 32
+        self.full, self.half = 1 << W, 1 << (W - 1)
+        self.mask = self.full - 1
+        P = self.P
+        P[:] = []
+        for j in range(k):
+            v = 0
+            for B in self.rBs:
+                v = (v << W) + B[j]
+            P.append(v)
+        self.dot.reset(P, k)
+        return W, self.mask, self.full, self.half
+
+    def __call__(self, k):
+        x = self.A[k].bit_length()
+        if x > self.ba:
+            self.ba = x
+        x = max(map(_bitlen, [B[k] for B in self.Bs]))
+        if x > self.bb:
+            self.bb = x
+        need = self.ba + self.bb + (k + 1).bit_length() + 2
+        if need > self.W:
+            self.repack(k, need)
+        W = self.W
         v = 0
-        for B in rBs:
+        for B in self.rBs:
             v = (v << W) + B[k]
-        P.append(v)
-        D = dot(k)
-        for key in keys:
+        self.P.append(v)
+        D = self.dot(k)
+        mask, full, half, dv = self.mask, self.full, self.half, self.dv
+        for key in self.keys:
             r = D & mask
             if r >= half:
                 r -= full
             dv[key] = r
             D = (D - r) >> W
-    return step
 
 
 def _cprod(cv, slots):
@@ -799,6 +813,139 @@ def _state_exponents(y0_raw):
     return [fallback if e is None else e for e in es]
 
 
+# --------------------------------------------------------------------------
+# The orders k >= 1 as one generated function
+# --------------------------------------------------------------------------
+
+_LOOPS = {}  # the structure of an expansion's orders -> its generated function
+
+
+def _order_loop(steps, deferred, rest):
+    """(run, env): ``run(k0, order, deadline, env)`` computes the orders k0..order-1 of an expansion whose order 0
+    the steps have computed (it fixed every exponent, shift and constant).  The ``sop`` and ``dots`` steps are
+    written out as straight-line Python over local variables (the same integer operations as their step
+    functions, without their per-term loops and lookups), the other steps are called; the function is generated
+    once per structure (the instructions, which shifts are zero, the signs of the final roundings) and cached."""
+    sig, names, env = [], [], []
+
+    def bind(name, value):
+        names.append(name)
+        env.append(value)
+
+    for j, st in enumerate(steps):
+        kind = getattr(st, "kind", None)
+        if kind == "dots":
+            bind(f"o{j}", st)
+            bind(f"a{j}", st.A)
+            bind(f"p{j}", st.P)
+            for m, B in enumerate(st.Bs):
+                bind(f"b{j}_{m}", B)
+            paired = st.dot.paired
+            if paired:
+                bind(f"c{j}", st.dot)
+            sig.append(("d", len(st.Bs), paired, tuple(st.keys)))
+        elif kind == "sop":
+            tsig = []
+            for m, (A, B, cm, d) in enumerate(st.terms):
+                if B is not None:
+                    src = "call"
+                    bind(f"t{j}_{m}", B)
+                elif A.__class__ is int:
+                    src = A  # a dot product's key
+                else:
+                    src = "jet"
+                    bind(f"t{j}_{m}", A)
+                if cm is not None and cm != -1:
+                    bind(f"cm{j}_{m}", cm)
+                if d:
+                    bind(f"d{j}_{m}", d)
+                tsig.append((src, None if cm is None else (-1 if cm == -1 else 0), bool(d)))
+            fin = st.fin
+            if st.state is None:
+                bind(f"C{j}", st.C)
+                if fin > 0:
+                    bind(f"fin{j}", fin)
+                    bind(f"hf{j}", 1 << (fin - 1))
+                else:
+                    bind(f"nf{j}", -fin)
+            elif fin >= 0:
+                bind(f"fin{j}", fin + 1)
+            else:
+                bind(f"nf{j}", -fin)
+            sig.append(("s", st.state, fin > 0 if st.state is None else fin >= 0, tuple(tsig)))
+        else:
+            bind(f"g{j}", st)
+            sig.append(("g",))
+    for zi, i in deferred:
+        bind(f"z{i}", zi)
+    if rest is not None:
+        bind("rest", rest)
+    key = (tuple(sig), tuple(i for _, i in deferred), rest is not None)
+    fn = _LOOPS.get(key)
+    if fn is None:
+        fn = _LOOPS[key] = _generate(key, names)
+    return fn, env
+
+
+def _generate(key, names):
+    sig, deferred, rest = key
+    head = ["def run(k0, order, deadline, env):", f"    ({', '.join(names)},) = env"]
+    body = []
+    for j, st in enumerate(sig):
+        if st[0] == "dots" or st[0] == "d":
+            _, n, paired, keys = st
+            head.append(f"    W{j}, mask{j}, full{j}, half{j}, ba{j}, bb{j} = o{j}.W, o{j}.mask, o{j}.full, o{j}.half, "
+                        f"o{j}.ba, o{j}.bb")
+            body += [f"x = a{j}[k].bit_length()",
+                     f"if x > ba{j}: ba{j} = x",
+                     f"x = max({', '.join(f'b{j}_{m}[k].bit_length()' for m in range(n))})" if n > 1 else
+                     f"x = b{j}_0[k].bit_length()",
+                     f"if x > bb{j}: bb{j} = x",
+                     f"need = ba{j} + bb{j} + k1.bit_length() + 2",
+                     f"if need > W{j}: W{j}, mask{j}, full{j}, half{j} = o{j}.repack(k, need)"]
+            e = f"b{j}_{n - 1}[k]"
+            for m in range(n - 2, -1, -1):
+                e = f"(({e}) << W{j}) + b{j}_{m}[k]"
+            body.append(f"p{j}.append({e})")
+            body.append(f"D = c{j}(k)" if paired else f"D = sum(map(_mul, a{j}, reversed(p{j})))")
+            for key_ in keys[:-1]:
+                body += [f"r = D & mask{j}", f"if r >= half{j}: r -= full{j}", f"dv{key_} = r", f"D = (D - r) >> W{j}"]
+            body.append(f"dv{keys[-1]} = D")  # the top field: what is left is exactly its signed value
+        elif st[0] == "s":
+            _, state, pos, terms = st
+            parts = []
+            for m, (src, cm, shifted) in enumerate(terms):
+                v = f"t{j}_{m}(k)" if src == "call" else (f"t{j}_{m}[k]" if src == "jet" else f"dv{src}")
+                neg = cm == -1
+                if cm == 0:
+                    v = f"({v} * cm{j}_{m})"
+                if shifted:
+                    v = f"({v} << d{j}_{m})"
+                parts.append(("- " if neg else "+ ") + v)
+            tot = " ".join(parts)
+            tot = tot[2:] if tot.startswith("+ ") else "-" + tot[2:]
+            body.append(f"tot = {tot}")
+            if state is None:
+                body.append(f"C{j}.append((tot + hf{j}) >> fin{j})" if pos else f"C{j}.append(tot << nf{j})")
+            elif pos:  # round(tot 2**fin / (k + 1))
+                body.append(f"nx{state} = ((tot << fin{j}) + k1) // k2")
+            else:
+                body += [f"dd = k1 << nf{j}", f"nx{state} = ((tot << 1) + dd) // (dd << 1)"]
+        else:
+            body.append(f"g{j}(k)")
+    body += [f"z{i}.append(nx{i})" for i in deferred]
+    if rest:
+        body.append("rest(k)")
+    src = "\n".join(head + ["    for k in range(k0, order):",
+                             "        if deadline is not None and _clock() > deadline:",
+                             "            raise DeadlineExceeded(k)",
+                             "        k1 = k + 1",
+                             "        k2 = k1 << 1"] + ["        " + line for line in body]) + "\n"
+    scope = {"_clock": _clock, "DeadlineExceeded": DeadlineExceeded, "_mul": _mul}
+    exec(compile(src, "<lieseries.lie.fixed orders>", "exec"), scope)
+    return scope["run"]
+
+
 def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
     """Fixed-point jets of the state: (M, U) with ``c_{i,k} = M[i][k] * 2**(U[i] - s*k)``.
 
@@ -839,7 +986,7 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
     run.s = s
     for kind, out, args, extra in instrs:
         if kind == "dots":
-            steps.append(_mk_dots(run, args[0], args[1], extra))
+            steps.append(_Dots(run, args[0], args[1], extra))
             continue
         if kind in ("lin", "sop"):
             offset = None
@@ -891,13 +1038,8 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
             srcs.append((J[i], i, None, cv[o]))
         else:
             srcs.append((J[i], i, o, None))
-    for k in range(order):
-        if deadline is not None and k and _clock() > deadline:
-            raise DeadlineExceeded(k)
-        for st in steps:
-            st(k)
-        for zi, i in deferred:
-            zi.append(nxt[i])
+
+    def rest(k):  # the outputs not fused into their sop
         k1 = k + 1
         for zi, i, o, c in srcs:
             if o is not None:
@@ -908,6 +1050,16 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
                 zi.append(-m if cs else m)
             else:
                 zi.append(_Z(0))
+
+    if order:  # order 0 sets every jet's exponent and the constants of the later orders
+        for st in steps:
+            st(0)
+        for zi, i in deferred:
+            zi.append(nxt[i])
+        rest(0)
+    if order > 1:
+        run_orders, env = _order_loop(steps, deferred, rest if srcs else None)
+        run_orders(1, order, deadline, env)
     return [J[i] for i in range(nvars)], [U[i] for i in range(nvars)]
 
 
