@@ -37,6 +37,7 @@ from operator import add as _add
 from operator import mul as _mul
 from time import perf_counter as _clock
 
+import numpy as np
 from mpmath.libmp import (
     fone,
     fzero,
@@ -1123,6 +1124,16 @@ class FixedJets:
                     best = x
         return best - self.s * k
 
+    def log2_norms(self, k0, k1):
+        """[log2 ||c_k|| for k0 <= k < k1] (``-inf`` for zero vectors), in numpy when the integers fit in doubles."""
+        try:
+            a = np.array([[float(m) for m in Mi[k0:k1]] for Mi in self.M])
+        except OverflowError:  # integers beyond the double range
+            return [self.log2_norm(k) for k in range(k0, k1)]
+        with np.errstate(divide="ignore"):
+            lg = np.log2(np.abs(a)) + np.array(self.U, dtype=float)[:, None]
+        return (lg.max(axis=0) - self.s * np.arange(k0, k1)).tolist()
+
     def log2_column(self, k):
         """log2 |c_{k,i}| of every variable i (``-inf`` for zero)."""
         sk = self.s * k
@@ -1248,7 +1259,8 @@ def _estimate_radius(jets):
     """:func:`lieseries.lie.operator.estimate_radius` of the norms of ``jets``, in floating point (the radius steers
     the step and enters the error estimate as h / rho: a few digits are all it carries): (rho as mpf, log2 rho)."""
     N = len(jets.M[0]) - 1
-    lg = {k: jets.log2_norm(k) for k in range(max(1, N // 2), N + 1)}
+    k0 = max(1, N // 2)
+    lg = dict(zip(range(k0, N + 1), jets.log2_norms(k0, N + 1)))
     pts = [(k, x * _LN2) for k, x in lg.items() if x != -math.inf]
     if len(pts) < 2:
         lg.update((k, jets.log2_norm(k)) for k in range(1, max(1, N // 2)))
