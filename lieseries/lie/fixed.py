@@ -188,6 +188,20 @@ class _Cauchy:
 # Step builders: each returns step(k) appending coefficient k of its jet(s)
 # --------------------------------------------------------------------------
 
+class _Once:
+    """f(k) computed once for each k (f called for k = 0, 1, 2, ... in turn)."""
+
+    __slots__ = ("f", "k", "v")
+
+    def __init__(self, f):
+        self.f, self.k, self.v = f, -1, None
+
+    def __call__(self, k):
+        if k != self.k:
+            self.k, self.v = k, self.f(k)
+        return self.v
+
+
 class _Run:
     """The state of one expansion: jets J (lists of integers), exponents U, working bits F."""
 
@@ -196,6 +210,16 @@ class _Run:
         self.U = [None] * nslots
         self.D = {}
         self.F = F
+        self.products = {}
+
+    def product(self, a, b):
+        """sum_{j<=k} a_j b_{k-j} as a function of k (:class:`_Cauchy`), one per pair of slots: a product that
+        several sum-of-products steps read is computed once per order."""
+        key = (a, b) if a <= b else (b, a)
+        f = self.products.get(key)
+        if f is None:
+            f = self.products[key] = _Once(_Cauchy(self.J[a], self.J[b], self.F >= PAIR_BITS))
+        return f
 
     def dj(self, s):
         """The jet j * a_j of slot s (extended on demand)."""
@@ -293,7 +317,7 @@ def _mk_sop(run, out, prods, lins, offset, state=None):
                 x = U[a] + U[b] + ce
                 xs.append(x)
                 noms.append(x + F + cbc)
-                raw_terms.append((J[a], _Cauchy(J[a], J[b], F >= PAIR_BITS) if key is None else key,
+                raw_terms.append((J[a], run.product(a, b) if key is None else key,
                                   -cm if ng else cm, x))
             for a, c, ng in lins:
                 cm, ce, cbc = const(c)
