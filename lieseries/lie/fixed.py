@@ -1164,13 +1164,18 @@ class FixedJets:
         return [_lg(Mi[k]) + (ui - sk) if Mi[k] else -math.inf for Mi, ui in zip(self.M, self.U)]
 
     def horner(self, t):
-        """sum_k c_k t^k as mpf at ``prec`` bits (``t`` an mpf with |t| <= ``max_step``); a
+        """sum_k c_k t^k as mpf at ``prec`` bits (``t`` an mpf with |t| <= ``max_step``): the step to ``t``; a
         :class:`FixedStepper`'s next time scale follows this step."""
+        out = self.evaluate(t)
+        if self.stepper is not None:
+            self.stepper.h_last = abs(t)
+        return out
+
+    def evaluate(self, t):
+        """sum_k c_k t^k as mpf at ``prec`` bits (``t`` an mpf with |t| <= ``max_step``), in integers."""
         make = mp_context().make_mpf
         if abs(t) > self.max_step:
             raise RuntimeError(f"a step of {mp.nstr(t, 5)} beyond the jets' time scale {mp.nstr(self.max_step, 5)}")
-        if self.stepper is not None:
-            self.stepper.h_last = abs(t)
         raw = t._mpf_
         sg, tm, te, _ = raw
         if not tm:

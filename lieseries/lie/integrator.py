@@ -313,7 +313,8 @@ class _LieEngine:
         else:
             hit = _check_events(self.events, znew)
             end = None if hit is None else (hit[0], hit[1], " (end of the step that crossed it)")
-        return StepResult(tnew, znew, h=h, row=lambda tk: horner(coeffs, tk - tcur), error=err, stop=end)
+        # output times inside the step: the step's polynomial evaluated in integers, as the step's end
+        return StepResult(tnew, znew, h=h, row=lambda tk: jet.evaluate(tk - tcur), error=err, stop=end)
 
 
 def _log2(x):
