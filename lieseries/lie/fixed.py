@@ -1114,6 +1114,7 @@ class FixedJets:
         self.log2_rho = None
         self.stepper = None
         self._norms = None
+        self._abs = None
         self.coefficients = _LazyCoefficients(M, U, s, prec)
 
     @property
@@ -1148,14 +1149,22 @@ class FixedJets:
                     best = x
         return best - self.s * k
 
+    def _floats(self):
+        """|M| as a float matrix (variables x orders), or None when an integer is beyond the double range."""
+        if self._abs is None:
+            try:
+                self._abs = np.abs(np.array([[float(m) for m in Mi] for Mi in self.M]))
+            except OverflowError:
+                self._abs = False
+        return self._abs if self._abs is not False else None
+
     def log2_norms(self, k0, k1):
         """[log2 ||c_k|| for k0 <= k < k1] (``-inf`` for zero vectors), in numpy when the integers fit in doubles."""
-        try:
-            a = np.array([[float(m) for m in Mi[k0:k1]] for Mi in self.M])
-        except OverflowError:  # integers beyond the double range
+        a = self._floats()
+        if a is None:
             return [self.log2_norm(k) for k in range(k0, k1)]
         with np.errstate(divide="ignore"):
-            lg = np.log2(np.abs(a)) + np.array(self.U, dtype=float)[:, None]
+            lg = np.log2(a[:, k0:k1]) + np.array(self.U, dtype=float)[:, None]
         return (lg.max(axis=0) - self.s * np.arange(k0, k1)).tolist()
 
     def log2_column(self, k):
@@ -1231,7 +1240,18 @@ class FixedJets:
         return [max(one, make(from_man_exp(acc, ui, 64, "u")) if acc else one) for acc, ui in self._abs_horner(h)]
 
     def log2_scales(self, h):
-        """log2 of :meth:`component_scales` (each >= 0), in floating point."""
+        """log2 of :meth:`component_scales` (each >= 0), in floating point (the sums too, in numpy, when the
+        integers fit in doubles)."""
+        a = self._floats()
+        if a is not None:
+            if abs(h) > self.max_step:
+                raise RuntimeError(f"a step of {mp.nstr(h, 5)} beyond the jets' time scale "
+                                   f"{mp.nstr(self.max_step, 5)}")
+            x = float(abs(h) / self.max_step)  # <= 1
+            with np.errstate(divide="ignore", under="ignore", over="ignore"):
+                lg = np.log2(a @ (x ** np.arange(a.shape[1]))) + np.array(self.U, dtype=float)
+            if not (lg == np.inf).any():  # (a sum beyond the double range: in integers)
+                return np.maximum(lg, 0.0).tolist()
         return [max(0.0, _lg(acc) + ui) if acc else 0.0 for acc, ui in self._abs_horner(h)]
 
 
