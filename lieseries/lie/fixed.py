@@ -24,6 +24,14 @@ Scaling (why fixed point loses nothing)
   factor of a few powers of two, well inside the :func:`~lieseries.lie.jets.jet_guard_bits` the working
   precision carries (tests/test_fixed_jets.py checks every instruction against the mpf jets at twice the digits).
 
+Execution
+---------
+Order 0 runs the step functions of the plan's instructions, which fix every exponent, shift and constant; the
+orders k >= 1 run as one generated Python function (:func:`_order_loop`, cached per structure) that writes the
+sums of products and the packed dot products out over local variables and calls the other steps.  Products
+sharing an operand are packed into one dot product up to :data:`_GMP_GROUP_BITS` (gmpy2) or
+:data:`_INT_GROUP_BITS` (Python ints) working bits, and computed separately, each once per order, above.
+
 Big integers are gmpy2's ``mpz`` when gmpy2 imports, Python ``int`` otherwise; the environment variable
 ``LIESERIES_BIGINT=int`` (or :func:`set_backend`) forces Python ints.
 """
@@ -913,6 +921,8 @@ def _order_loop(steps, deferred, rest):
     key = (tuple(sig), tuple(i for _, i in deferred), rest is not None)
     fn = _LOOPS.get(key)
     if fn is None:
+        if len(_LOOPS) >= 256:  # a process that meets many systems: start again
+            _LOOPS.clear()
         fn = _LOOPS[key] = _generate(key, names)
     return fn, env
 
