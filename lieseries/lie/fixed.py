@@ -986,27 +986,20 @@ def _generate(key, names):
     return scope["run"]
 
 
-def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
-    """Fixed-point jets of the state: (M, U) with ``c_{i,k} = M[i][k] * 2**(U[i] - s*k)``.
+_PREPARED = weakref.WeakKeyDictionary()  # jet plan -> {(grouped, wp, parameters): prepared instructions}
 
-    ``wp`` is the working precision in bits (guard bits included), ``s`` the time scale exponent, ``deadline`` an
-    optional :func:`time.perf_counter` value checked after every order (:class:`DeadlineExceeded`).
-    """
-    plan = jet_plan(program)
+
+def _prepared(plan, grouped, wp, pars_raw):
+    """(instructions, number of dot-product keys, outputs fused into their state's step, constant values) of a
+    plan at ``wp`` bits for the parameters ``pars_raw``: the fused and grouped instructions with their constants
+    (offsets of lin/sop steps, the exact constant factors of their terms) evaluated, once per plan, precision and
+    parameters."""
+    by_plan = _PREPARED.setdefault(plan, {})
+    key = (grouped, wp, tuple(pars_raw))
+    got = by_plan.get(key)
+    if got is not None:
+        return got
     cv = plan.constant_values(pars_raw, wp)
-    run = _Run(plan.nslots, wp)
-    J, U = run.J, run.U
-    nvars = program.nvars
-    is_const = plan.is_const
-    for i, e in enumerate(_state_exponents(y0_raw)):
-        U[i] = e - wp
-        J[i] = [_to_int(y0_raw[i], U[i])]
-    for x in range(nvars, plan.nslots):
-        if not is_const[x]:
-            J[x] = []
-    steps = []
-    # packed dot products pay off with Python ints up to about 100 digits, with gmpy2 up to about 300
-    grouped = wp <= (_GMP_GROUP_BITS if _Z is not int else _INT_GROUP_BITS)
     cache = _FUSED.setdefault(plan, {})
     fused = cache.get(grouped)
     if fused is None:
@@ -1020,25 +1013,56 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
         to_state = {o: i for i, o in enumerate(plan.outputs) if uses[o] == 1}
         fused = cache[grouped] = (instrs, nkeys, to_state)
     instrs, nkeys, to_state = fused
-    run.dv = [None] * nkeys
-    run.nxt = [None] * nvars
-    run.s = s
-    for kind, out, args, extra in instrs:
-        if kind == "dots":
-            steps.append(_Dots(run, args[0], args[1], extra))
-            continue
+    out = []
+    for kind, o, args, extra in instrs:
         if kind in ("lin", "sop"):
             offset = None
             if extra:
                 offset = fzero
                 for x, ng in extra:
                     offset = (mpf_sub if ng else mpf_add)(offset, cv[x], 2 * wp, RND)
-            if kind == "lin":
-                steps.append(_mk_lin(run, out, args, offset))
-            else:
-                prods = [(a, b, _cprod(cv, cs), ng, key) for a, b, cs, ng, key in args[0]]
-                lins = [(a, _cprod(cv, cs), ng) for a, cs, ng in args[1]]
-                steps.append(_mk_sop(run, out, prods, lins, offset, to_state.get(out)))
+            if kind == "sop":
+                args = ([(a, b, _cprod(cv, cs), ng, k) for a, b, cs, ng, k in args[0]],
+                        [(a, _cprod(cv, cs), ng) for a, cs, ng in args[1]])
+            extra = offset
+        out.append((kind, o, args, extra))
+    if len(by_plan) >= 16:  # a plan run with many parameter sets or precisions: start again
+        by_plan.clear()
+    got = by_plan[key] = (out, nkeys, to_state, cv)
+    return got
+
+
+def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
+    """Fixed-point jets of the state: (M, U) with ``c_{i,k} = M[i][k] * 2**(U[i] - s*k)``.
+
+    ``wp`` is the working precision in bits (guard bits included), ``s`` the time scale exponent, ``deadline`` an
+    optional :func:`time.perf_counter` value checked after every order (:class:`DeadlineExceeded`).
+    """
+    plan = jet_plan(program)
+    # packed dot products pay off with Python ints up to about 100 digits, with gmpy2 up to about 300
+    grouped = wp <= (_GMP_GROUP_BITS if _Z is not int else _INT_GROUP_BITS)
+    instrs, nkeys, to_state, cv = _prepared(plan, grouped, wp, pars_raw)
+    run = _Run(plan.nslots, wp)
+    J, U = run.J, run.U
+    nvars = program.nvars
+    is_const = plan.is_const
+    for i, e in enumerate(_state_exponents(y0_raw)):
+        U[i] = e - wp
+        J[i] = [_to_int(y0_raw[i], U[i])]
+    for x in range(nvars, plan.nslots):
+        if not is_const[x]:
+            J[x] = []
+    steps = []
+    run.dv = [None] * nkeys
+    run.nxt = [None] * nvars
+    run.s = s
+    for kind, out, args, extra in instrs:
+        if kind == "dots":
+            steps.append(_Dots(run, args[0], args[1], extra))
+        elif kind == "lin":
+            steps.append(_mk_lin(run, out, args, extra))
+        elif kind == "sop":
+            steps.append(_mk_sop(run, out, args[0], args[1], extra, to_state.get(out)))
         elif kind == "scale":
             steps.append(_mk_scale(run, out, args[0], cv[extra]))
         elif kind == "mul":
