@@ -863,7 +863,7 @@ def _order_loop(steps, deferred, rest):
     the steps have computed (it fixed every exponent, shift and constant).  The ``sop`` and ``dots`` steps are
     written out as straight-line Python over local variables (the same integer operations as their step
     functions, without their per-term loops and lookups), the other steps are called; the function is generated
-    once per structure (the instructions, which shifts are zero, the signs of the final roundings) and cached."""
+    once per structure (the instructions and which constant factors are -1, 1 or other) and cached."""
     sig, names, env = [], [], []
 
     def bind(name, value):
@@ -895,22 +895,20 @@ def _order_loop(steps, deferred, rest):
                     bind(f"t{j}_{m}", A)
                 if cm is not None and cm != -1:
                     bind(f"cm{j}_{m}", cm)
-                if d:
-                    bind(f"d{j}_{m}", d)
-                tsig.append((src, None if cm is None else (-1 if cm == -1 else 0), bool(d)))
+                bind(f"d{j}_{m}", d)
+                # (cm depends on the constants only; the shifts and the final rounding's direction depend on the
+                # state's exponents and are variables, so that one function serves every step)
+                tsig.append((src, None if cm is None else (-1 if cm == -1 else 0)))
             fin = st.fin
             if st.state is None:
                 bind(f"C{j}", st.C)
-                if fin > 0:
-                    bind(f"fin{j}", fin)
-                    bind(f"hf{j}", 1 << (fin - 1))
-                else:
-                    bind(f"nf{j}", -fin)
-            elif fin >= 0:
-                bind(f"fin{j}", fin + 1)
+                bind(f"fin{j}", max(fin, 0))
+                bind(f"hf{j}", 1 << (fin - 1) if fin > 0 else 0)
             else:
-                bind(f"nf{j}", -fin)
-            sig.append(("s", st.state, fin > 0 if st.state is None else fin >= 0, tuple(tsig)))
+                bind(f"fin{j}", fin + 1 if fin >= 0 else 0)
+            bind(f"fp{j}", fin > 0 if st.state is None else fin >= 0)
+            bind(f"nf{j}", max(-fin, 0))
+            sig.append(("s", st.state, tuple(tsig)))
         else:
             bind(f"g{j}", st)
             sig.append(("g",))
@@ -952,25 +950,21 @@ def _generate(key, names):
                 body += [f"r = D & mask{j}", f"if r >= half{j}: r -= full{j}", f"dv{key_} = r", f"D = (D - r) >> W{j}"]
             body.append(f"dv{keys[-1]} = D")  # the top field: what is left is exactly its signed value
         elif st[0] == "s":
-            _, state, pos, terms = st
+            _, state, terms = st
             parts = []
-            for m, (src, cm, shifted) in enumerate(terms):
+            for m, (src, cm) in enumerate(terms):
                 v = f"t{j}_{m}(k)" if src == "call" else (f"t{j}_{m}[k]" if src == "jet" else f"dv{src}")
-                neg = cm == -1
                 if cm == 0:
                     v = f"({v} * cm{j}_{m})"
-                if shifted:
-                    v = f"({v} << d{j}_{m})"
-                parts.append(("- " if neg else "+ ") + v)
+                parts.append(("- " if cm == -1 else "+ ") + f"({v} << d{j}_{m})")
             tot = " ".join(parts)
             tot = tot[2:] if tot.startswith("+ ") else "-" + tot[2:]
             body.append(f"tot = {tot}")
-            if state is None:
-                body.append(f"C{j}.append((tot + hf{j}) >> fin{j})" if pos else f"C{j}.append(tot << nf{j})")
-            elif pos:  # round(tot 2**fin / (k + 1))
-                body.append(f"nx{state} = ((tot << fin{j}) + k1) // k2")
-            else:
-                body += [f"dd = k1 << nf{j}", f"nx{state} = ((tot << 1) + dd) // (dd << 1)"]
+            if state is None:  # round(tot / 2**fin)
+                body += [f"if fp{j}: C{j}.append((tot + hf{j}) >> fin{j})", f"else: C{j}.append(tot << nf{j})"]
+            else:  # round(tot 2**fin / (k + 1))
+                body += [f"if fp{j}: nx{state} = ((tot << fin{j}) + k1) // k2",
+                         f"else: dd = k1 << nf{j}; nx{state} = ((tot << 1) + dd) // (dd << 1)"]
         else:
             body.append(f"g{j}(k)")
     body += [f"z{i}.append(nx{i})" for i in deferred]
