@@ -1128,9 +1128,10 @@ class FixedJets:
     """One expansion: scaled integer coefficients and what a Lie step needs from them.
 
     ``norms`` are the max-norms of the coefficient vectors (mpf, 64 bits, rounded up; computed when first read);
-    :meth:`log2_norm`, :meth:`log2_column` and :meth:`log2_scales` give the same magnitudes as base-2 logarithms
-    in floating point (what a step-size rule reads: a few digits, of numbers of any size); :meth:`horner`
-    evaluates the polynomial at ``|t| <= 2**s`` in integers; ``coefficients`` is a lazily converted sequence of
+    :meth:`log2_norm` (:meth:`log2_norms`), :meth:`log2_column` and :meth:`log2_scales` give magnitudes as base-2
+    logarithms in floating point (what a step-size rule reads: a few digits, of numbers of any size);
+    :meth:`evaluate` evaluates the polynomial at ``|t| <= 2**s`` in integers, :meth:`horner` too, as the step
+    the next time scale follows; ``coefficients`` is a lazily converted sequence of
     the coefficient vectors (mpf at ``prec`` bits), for dense output and events; ``rho`` and ``log2_rho`` (set by
     :class:`FixedStepper`) are :func:`~lieseries.lie.operator.estimate_radius` of the norms and its logarithm.
     """
@@ -1233,11 +1234,6 @@ class FixedJets:
             out.append(make(_raw(acc, ui, prec)))
         return out
 
-    def column(self, k):
-        """|c_{k,i}| of every variable i, as mpf (64 bits, rounded up): what a per-component step rule reads."""
-        make = mp_context().make_mpf
-        return [make(from_man_exp(abs(Mi[k]), ui - self.s * k, 64, "u")) for Mi, ui in zip(self.M, self.U)]
-
     def _abs_horner(self, h):
         """(sum_k |M_{k,i}| (|h| / sigma)^k, U_i) for every variable i, in integers."""
         if abs(h) > self.max_step:
@@ -1260,16 +1256,10 @@ class FixedJets:
             out.append((acc, ui))
         return out
 
-    def component_scales(self, h):
-        """Each variable's size over a step of length ``|h| <= max_step``: max(1, sum_k |c_{k,i}| |h|^k) (absolute
-        below 1), summed in integers, as mpf."""
-        make = mp_context().make_mpf
-        one = mp_context().mpf(1)
-        return [max(one, make(from_man_exp(acc, ui, 64, "u")) if acc else one) for acc, ui in self._abs_horner(h)]
-
     def log2_scales(self, h):
-        """log2 of :meth:`component_scales` (each >= 0), in floating point (the sums too, in numpy, when the
-        integers fit in doubles)."""
+        """log2 of each variable's size over a step of length ``|h| <= max_step``: max(1, sum_k |c_{k,i}| |h|^k)
+        (absolute below 1), each >= 0, in floating point (the sums in numpy when the integers fit in doubles, else
+        in integers)."""
         a = self._floats()
         if a is not None:
             if abs(h) > self.max_step:
