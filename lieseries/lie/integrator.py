@@ -59,7 +59,6 @@ from .operator import (
     coarse_bits,
     horner,
     prepare,
-    tail_estimate,
 )
 
 __all__ = ["lie_integrate", "default_order"]
