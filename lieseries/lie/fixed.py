@@ -381,7 +381,7 @@ class _Dots:
         self.P = []
         self.dot = _Cauchy(self.A, self.P, run.F >= PAIR_BITS)
         self.W = self.ba = self.bb = 0
-        self.mask = self.full = self.half = 0
+        self.mask = self.full = self.half = self.bias = 0
 
     def repack(self, k, need):
         """Widen the fields to hold ``need`` bits: the packed partners of orders < k again; the new
@@ -389,6 +389,10 @@ class _Dots:
         W = self.W = need + 32
         self.full, self.half = 1 << W, 1 << (W - 1)
         self.mask = self.full - 1
+        # half a field added to every field but the top one makes them all non-negative (no borrows between
+        # fields): field m of D + bias, less half, is the m-th sum of products, and what lies above the last but
+        # one field is the last (the order loop's way of reading them)
+        self.bias = sum(self.half << (m * W) for m in range(len(self.Bs) - 1))
         P = self.P
         P[:] = []
         for j in range(k):
@@ -397,7 +401,7 @@ class _Dots:
                 v = (v << W) + B[j]
             P.append(v)
         self.dot.reset(P, k)
-        return W, self.mask, self.full, self.half
+        return W, self.mask, self.half, self.bias
 
     def __call__(self, k):
         x = self.A[k].bit_length()
@@ -932,7 +936,7 @@ def _generate(key, names):
     for j, st in enumerate(sig):
         if st[0] == "dots" or st[0] == "d":
             _, n, paired, keys = st
-            head.append(f"    W{j}, mask{j}, full{j}, half{j}, ba{j}, bb{j} = o{j}.W, o{j}.mask, o{j}.full, o{j}.half, "
+            head.append(f"    W{j}, mask{j}, half{j}, bias{j}, ba{j}, bb{j} = o{j}.W, o{j}.mask, o{j}.half, o{j}.bias, "
                         f"o{j}.ba, o{j}.bb")
             body += [f"x = a{j}[k].bit_length()",
                      f"if x > ba{j}: ba{j} = x",
@@ -940,15 +944,19 @@ def _generate(key, names):
                      f"x = b{j}_0[k].bit_length()",
                      f"if x > bb{j}: bb{j} = x",
                      f"need = ba{j} + bb{j} + k1.bit_length() + 2",
-                     f"if need > W{j}: W{j}, mask{j}, full{j}, half{j} = o{j}.repack(k, need)"]
+                     f"if need > W{j}: W{j}, mask{j}, half{j}, bias{j} = o{j}.repack(k, need)"]
             e = f"b{j}_{n - 1}[k]"
             for m in range(n - 2, -1, -1):
                 e = f"(({e}) << W{j}) + b{j}_{m}[k]"
             body.append(f"p{j}.append({e})")
             body.append(f"D = c{j}(k)" if paired else f"D = sum(map(_mul, a{j}, reversed(p{j})))")
-            for key_ in keys[:-1]:
-                body += [f"r = D & mask{j}", f"if r >= half{j}: r -= full{j}", f"dv{key_} = r", f"D = (D - r) >> W{j}"]
-            body.append(f"dv{keys[-1]} = D")  # the top field: what is left is exactly its signed value
+            if n == 1:
+                body.append(f"dv{keys[0]} = D")
+            else:  # the fields of D + bias (_Dots.repack)
+                at = ["E", f"(E >> W{j})"] + [f"(E >> {m} * W{j})" for m in range(2, n)]
+                body.append(f"E = D + bias{j}")
+                body += [f"dv{key_} = ({e} & mask{j}) - half{j}" for key_, e in zip(keys[:-1], at)]
+                body.append(f"dv{keys[-1]} = E >> " + (f"W{j}" if n == 2 else f"{n - 1} * W{j}"))
         elif st[0] == "s":
             _, state, terms = st
             parts = []
