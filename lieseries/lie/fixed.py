@@ -24,6 +24,14 @@ Scaling (why fixed point loses nothing)
   factor of a few powers of two, well inside the :func:`~lieseries.lie.jets.jet_guard_bits` the working
   precision carries (tests/test_fixed_jets.py checks every instruction against the mpf jets at twice the digits).
 
+Execution
+---------
+Order 0 runs the step functions of the plan's instructions, which fix every exponent, shift and constant; the
+orders k >= 1 run as one generated Python function (:func:`_order_loop`, cached per structure) that writes the
+sums of products and the packed dot products out over local variables and calls the other steps.  Products
+sharing an operand are packed into one dot product up to :data:`_GMP_GROUP_BITS` (gmpy2) or
+:data:`_INT_GROUP_BITS` (Python ints) working bits, and computed separately, each once per order, above.
+
 Big integers are gmpy2's ``mpz`` when gmpy2 imports, Python ``int`` otherwise; the environment variable
 ``LIESERIES_BIGINT=int`` (or :func:`set_backend`) forces Python ints.
 """
@@ -37,6 +45,7 @@ from operator import add as _add
 from operator import mul as _mul
 from time import perf_counter as _clock
 
+import numpy as np
 from mpmath.libmp import (
     fone,
     fzero,
@@ -187,6 +196,20 @@ class _Cauchy:
 # Step builders: each returns step(k) appending coefficient k of its jet(s)
 # --------------------------------------------------------------------------
 
+class _Once:
+    """f(k) computed once for each k (f called for k = 0, 1, 2, ... in turn)."""
+
+    __slots__ = ("f", "k", "v")
+
+    def __init__(self, f):
+        self.f, self.k, self.v = f, -1, None
+
+    def __call__(self, k):
+        if k != self.k:
+            self.k, self.v = k, self.f(k)
+        return self.v
+
+
 class _Run:
     """The state of one expansion: jets J (lists of integers), exponents U, working bits F."""
 
@@ -195,6 +218,16 @@ class _Run:
         self.U = [None] * nslots
         self.D = {}
         self.F = F
+        self.products = {}
+
+    def product(self, a, b):
+        """sum_{j<=k} a_j b_{k-j} as a function of k (:class:`_Cauchy`), one per pair of slots: a product that
+        several sum-of-products steps read is computed once per order."""
+        key = (a, b) if a <= b else (b, a)
+        f = self.products.get(key)
+        if f is None:
+            f = self.products[key] = _Once(_Cauchy(self.J[a], self.J[b], self.F >= PAIR_BITS))
+        return f
 
     def dj(self, s):
         """The jet j * a_j of slot s (extended on demand)."""
@@ -292,7 +325,7 @@ def _mk_sop(run, out, prods, lins, offset, state=None):
                 x = U[a] + U[b] + ce
                 xs.append(x)
                 noms.append(x + F + cbc)
-                raw_terms.append((J[a], _Cauchy(J[a], J[b], F >= PAIR_BITS) if key is None else key,
+                raw_terms.append((J[a], run.product(a, b) if key is None else key,
                                   -cm if ng else cm, x))
             for a, c, ng in lins:
                 cm, ce, cbc = const(c)
@@ -313,6 +346,7 @@ def _mk_sop(run, out, prods, lins, offset, state=None):
                 terms.append((A, B, None if cm == 1 else (-1 if cm == -1 else cm), x - x0))
             st.update(fin=uo - x0 if state is None else x0 + run.s - U[state],
                       off=_to_int(offset, x0) if offset is not None else 0)
+            step.terms, step.fin = terms, st["fin"]
         tot = st["off"] if k == 0 else 0
         dv = run.dv
         for A, B, cm, d in terms:
@@ -327,54 +361,71 @@ def _mk_sop(run, out, prods, lins, offset, state=None):
             C.append(_sh(tot, st["fin"]))
         else:  # appended after the order's last step: every step of order k sees k + 1 state coefficients
             nxt[state] = _divr(tot, k + 1, st["fin"])
+    step.kind, step.C, step.state = "sop", C, state
     return step
 
 
-def _mk_dots(run, pivot, partners, keys):
+class _Dots:
     """Several Cauchy products sharing one operand in one dot product: the partners' coefficients are packed
     into one integer per order (fields of W bits, W above the bits any of the products can reach, checked at
     every order) and the products' k-th coefficients are read back from the fields of one sum."""
-    J, dv = run.J, run.dv
-    A = J[pivot]
-    Bs = [J[b] for b in partners]
-    rBs = Bs[::-1]
-    P = []
-    dot = _Cauchy(A, P, run.F >= PAIR_BITS)
-    W = ba = bb = 0
-    mask = full = half = 0
 
-    def step(k):
-        nonlocal W, ba, bb, mask, full, half
-        x = A[k].bit_length()
-        if x > ba:
-            ba = x
-        x = max(map(_bitlen, [B[k] for B in Bs]))
-        if x > bb:
-            bb = x
-        need = ba + bb + (k + 1).bit_length() + 2
-        if need > W:
-            W = need + 32
-            full, half = 1 << W, 1 << (W - 1)
-            mask = full - 1
-            P[:] = []
-            for j in range(k):
-                v = 0
-                for B in rBs:
-                    v = (v << W) + B[j]
-                P.append(v)
-            dot.reset(P, k)
+    kind = "dots"
+
+    def __init__(self, run, pivot, partners, keys):
+        self.dv = run.dv
+        self.A = run.J[pivot]
+        self.Bs = [run.J[b] for b in partners]
+        self.rBs = self.Bs[::-1]
+        self.keys = keys
+        self.P = []
+        self.dot = _Cauchy(self.A, self.P, run.F >= PAIR_BITS)
+        self.W = self.ba = self.bb = 0
+        self.mask = self.full = self.half = self.bias = 0
+
+    def repack(self, k, need):
+        """Widen the fields to hold ``need`` bits: the packed partners of orders < k again; the new
+        (W, mask, full, half)."""
+        W = self.W = need + 32
+        self.full, self.half = 1 << W, 1 << (W - 1)
+        self.mask = self.full - 1
+        # half a field added to every field but the top one makes them all non-negative (no borrows between
+        # fields): field m of D + bias, less half, is the m-th sum of products, and what lies above the last but
+        # one field is the last (the order loop's way of reading them)
+        self.bias = sum(self.half << (m * W) for m in range(len(self.Bs) - 1))
+        P = self.P
+        P[:] = []
+        for j in range(k):
+            v = 0
+            for B in self.rBs:
+                v = (v << W) + B[j]
+            P.append(v)
+        self.dot.reset(P, k)
+        return W, self.mask, self.half, self.bias
+
+    def __call__(self, k):
+        x = self.A[k].bit_length()
+        if x > self.ba:
+            self.ba = x
+        x = max(map(_bitlen, [B[k] for B in self.Bs]))
+        if x > self.bb:
+            self.bb = x
+        need = self.ba + self.bb + (k + 1).bit_length() + 2
+        if need > self.W:
+            self.repack(k, need)
+        W = self.W
         v = 0
-        for B in rBs:
+        for B in self.rBs:
             v = (v << W) + B[k]
-        P.append(v)
-        D = dot(k)
-        for key in keys:
+        self.P.append(v)
+        D = self.dot(k)
+        mask, full, half, dv = self.mask, self.full, self.half, self.dv
+        for key in self.keys:
             r = D & mask
             if r >= half:
                 r -= full
             dv[key] = r
             D = (D - r) >> W
-    return step
 
 
 def _cprod(cv, slots):
@@ -399,7 +450,12 @@ def _arg_slots(ins):
     return list(args)
 
 
+#: Working precisions (bits) up to which products sharing an operand are packed into one dot product
+#: (:func:`_group`), with Python ints and with gmpy2: above them a packed product, half of whose bits are the
+#: fields' headroom, costs more than the separate products it replaces (gmpy2: 1.7 against 1.3 us per term
+#: at 800 bits, 18 against 10 at 3500 bits, 7 partners).
 _INT_GROUP_BITS = 400
+_GMP_GROUP_BITS = 1000
 
 
 def _group(instrs, enabled=True):
@@ -799,28 +855,153 @@ def _state_exponents(y0_raw):
     return [fallback if e is None else e for e in es]
 
 
-def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
-    """Fixed-point jets of the state: (M, U) with ``c_{i,k} = M[i][k] * 2**(U[i] - s*k)``.
+# --------------------------------------------------------------------------
+# The orders k >= 1 as one generated function
+# --------------------------------------------------------------------------
 
-    ``wp`` is the working precision in bits (guard bits included), ``s`` the time scale exponent, ``deadline`` an
-    optional :func:`time.perf_counter` value checked after every order (:class:`DeadlineExceeded`).
-    """
-    plan = jet_plan(program)
+_LOOPS = {}  # the structure of an expansion's orders -> its generated function
+
+
+def _order_loop(steps, deferred, rest):
+    """(run, env): ``run(k0, order, deadline, env)`` computes the orders k0..order-1 of an expansion whose order 0
+    the steps have computed (it fixed every exponent, shift and constant).  The ``sop`` and ``dots`` steps are
+    written out as straight-line Python over local variables (the same integer operations as their step
+    functions, without their per-term loops and lookups), the other steps are called; the function is generated
+    once per structure (the instructions and which constant factors are -1, 1 or other) and cached."""
+    sig, names, env = [], [], []
+
+    def bind(name, value):
+        names.append(name)
+        env.append(value)
+
+    for j, st in enumerate(steps):
+        kind = getattr(st, "kind", None)
+        if kind == "dots":
+            bind(f"o{j}", st)
+            bind(f"a{j}", st.A)
+            bind(f"p{j}", st.P)
+            for m, B in enumerate(st.Bs):
+                bind(f"b{j}_{m}", B)
+            paired = st.dot.paired
+            if paired:
+                bind(f"c{j}", st.dot)
+            sig.append(("d", len(st.Bs), paired, tuple(st.keys)))
+        elif kind == "sop":
+            tsig = []
+            for m, (A, B, cm, d) in enumerate(st.terms):
+                if B is not None:
+                    src = "call"
+                    bind(f"t{j}_{m}", B)
+                elif A.__class__ is int:
+                    src = A  # a dot product's key
+                else:
+                    src = "jet"
+                    bind(f"t{j}_{m}", A)
+                if cm is not None and cm != -1:
+                    bind(f"cm{j}_{m}", cm)
+                bind(f"d{j}_{m}", d)
+                # (cm depends on the constants only; the shifts and the final rounding's direction depend on the
+                # state's exponents and are variables, so that one function serves every step)
+                tsig.append((src, None if cm is None else (-1 if cm == -1 else 0)))
+            fin = st.fin
+            if st.state is None:
+                bind(f"C{j}", st.C)
+                bind(f"fin{j}", max(fin, 0))
+                bind(f"hf{j}", 1 << (fin - 1) if fin > 0 else 0)
+            else:
+                bind(f"fin{j}", fin + 1 if fin >= 0 else 0)
+            bind(f"fp{j}", fin > 0 if st.state is None else fin >= 0)
+            bind(f"nf{j}", max(-fin, 0))
+            sig.append(("s", st.state, tuple(tsig)))
+        else:
+            bind(f"g{j}", st)
+            sig.append(("g",))
+    for zi, i in deferred:
+        bind(f"z{i}", zi)
+    if rest is not None:
+        bind("rest", rest)
+    key = (tuple(sig), tuple(i for _, i in deferred), rest is not None)
+    fn = _LOOPS.get(key)
+    if fn is None:
+        if len(_LOOPS) >= 256:  # a process that meets many systems: start again
+            _LOOPS.clear()
+        fn = _LOOPS[key] = _generate(key, names)
+    return fn, env
+
+
+def _generate(key, names):
+    sig, deferred, rest = key
+    head = ["def run(k0, order, deadline, env):", f"    ({', '.join(names)},) = env"]
+    body = []
+    for j, st in enumerate(sig):
+        if st[0] == "dots" or st[0] == "d":
+            _, n, paired, keys = st
+            head.append(f"    W{j}, mask{j}, half{j}, bias{j}, ba{j}, bb{j} = o{j}.W, o{j}.mask, o{j}.half, o{j}.bias, "
+                        f"o{j}.ba, o{j}.bb")
+            body += [f"x = a{j}[k].bit_length()",
+                     f"if x > ba{j}: ba{j} = x",
+                     f"x = max({', '.join(f'b{j}_{m}[k].bit_length()' for m in range(n))})" if n > 1 else
+                     f"x = b{j}_0[k].bit_length()",
+                     f"if x > bb{j}: bb{j} = x",
+                     f"need = ba{j} + bb{j} + k1.bit_length() + 2",
+                     f"if need > W{j}: W{j}, mask{j}, half{j}, bias{j} = o{j}.repack(k, need)"]
+            e = f"b{j}_{n - 1}[k]"
+            for m in range(n - 2, -1, -1):
+                e = f"(({e}) << W{j}) + b{j}_{m}[k]"
+            body.append(f"p{j}.append({e})")
+            body.append(f"D = c{j}(k)" if paired else f"D = sum(map(_mul, a{j}, reversed(p{j})))")
+            if n == 1:
+                body.append(f"dv{keys[0]} = D")
+            else:  # the fields of D + bias (_Dots.repack)
+                at = ["E", f"(E >> W{j})"] + [f"(E >> {m} * W{j})" for m in range(2, n)]
+                body.append(f"E = D + bias{j}")
+                body += [f"dv{key_} = ({e} & mask{j}) - half{j}" for key_, e in zip(keys[:-1], at)]
+                body.append(f"dv{keys[-1]} = E >> " + (f"W{j}" if n == 2 else f"{n - 1} * W{j}"))
+        elif st[0] == "s":
+            _, state, terms = st
+            parts = []
+            for m, (src, cm) in enumerate(terms):
+                v = f"t{j}_{m}(k)" if src == "call" else (f"t{j}_{m}[k]" if src == "jet" else f"dv{src}")
+                if cm == 0:
+                    v = f"({v} * cm{j}_{m})"
+                parts.append(("- " if cm == -1 else "+ ") + f"({v} << d{j}_{m})")
+            tot = " ".join(parts)
+            tot = tot[2:] if tot.startswith("+ ") else "-" + tot[2:]
+            body.append(f"tot = {tot}")
+            if state is None:  # round(tot / 2**fin)
+                body += [f"if fp{j}: C{j}.append((tot + hf{j}) >> fin{j})", f"else: C{j}.append(tot << nf{j})"]
+            else:  # round(tot 2**fin / (k + 1))
+                body += [f"if fp{j}: nx{state} = ((tot << fin{j}) + k1) // k2",
+                         f"else: dd = k1 << nf{j}; nx{state} = ((tot << 1) + dd) // (dd << 1)"]
+        else:
+            body.append(f"g{j}(k)")
+    body += [f"z{i}.append(nx{i})" for i in deferred]
+    if rest:
+        body.append("rest(k)")
+    src = "\n".join(head + ["    for k in range(k0, order):",
+                             "        if deadline is not None and _clock() > deadline:",
+                             "            raise DeadlineExceeded(k)",
+                             "        k1 = k + 1",
+                             "        k2 = k1 << 1"] + ["        " + line for line in body]) + "\n"
+    scope = {"_clock": _clock, "DeadlineExceeded": DeadlineExceeded, "_mul": _mul}
+    exec(compile(src, "<lieseries.lie.fixed orders>", "exec"), scope)
+    return scope["run"]
+
+
+_PREPARED = weakref.WeakKeyDictionary()  # jet plan -> {(grouped, wp, parameters): prepared instructions}
+
+
+def _prepared(plan, grouped, wp, pars_raw):
+    """(instructions, number of dot-product keys, outputs fused into their state's step, constant values) of a
+    plan at ``wp`` bits for the parameters ``pars_raw``: the fused and grouped instructions with their constants
+    (offsets of lin/sop steps, the exact constant factors of their terms) evaluated, once per plan, precision and
+    parameters."""
+    by_plan = _PREPARED.setdefault(plan, {})
+    key = (grouped, wp, tuple(pars_raw))
+    got = by_plan.get(key)
+    if got is not None:
+        return got
     cv = plan.constant_values(pars_raw, wp)
-    run = _Run(plan.nslots, wp)
-    J, U = run.J, run.U
-    nvars = program.nvars
-    is_const = plan.is_const
-    for i, e in enumerate(_state_exponents(y0_raw)):
-        U[i] = e - wp
-        J[i] = [_to_int(y0_raw[i], U[i])]
-    for x in range(nvars, plan.nslots):
-        if not is_const[x]:
-            J[x] = []
-    steps = []
-    # packed dot products pay off with gmpy2 at every precision, with Python ints (Karatsuba on the packed
-    # integers) only up to about 100 digits
-    grouped = _Z is not int or wp <= _INT_GROUP_BITS
     cache = _FUSED.setdefault(plan, {})
     fused = cache.get(grouped)
     if fused is None:
@@ -834,25 +1015,56 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
         to_state = {o: i for i, o in enumerate(plan.outputs) if uses[o] == 1}
         fused = cache[grouped] = (instrs, nkeys, to_state)
     instrs, nkeys, to_state = fused
-    run.dv = [None] * nkeys
-    run.nxt = [None] * nvars
-    run.s = s
-    for kind, out, args, extra in instrs:
-        if kind == "dots":
-            steps.append(_mk_dots(run, args[0], args[1], extra))
-            continue
+    out = []
+    for kind, o, args, extra in instrs:
         if kind in ("lin", "sop"):
             offset = None
             if extra:
                 offset = fzero
                 for x, ng in extra:
                     offset = (mpf_sub if ng else mpf_add)(offset, cv[x], 2 * wp, RND)
-            if kind == "lin":
-                steps.append(_mk_lin(run, out, args, offset))
-            else:
-                prods = [(a, b, _cprod(cv, cs), ng, key) for a, b, cs, ng, key in args[0]]
-                lins = [(a, _cprod(cv, cs), ng) for a, cs, ng in args[1]]
-                steps.append(_mk_sop(run, out, prods, lins, offset, to_state.get(out)))
+            if kind == "sop":
+                args = ([(a, b, _cprod(cv, cs), ng, k) for a, b, cs, ng, k in args[0]],
+                        [(a, _cprod(cv, cs), ng) for a, cs, ng in args[1]])
+            extra = offset
+        out.append((kind, o, args, extra))
+    if len(by_plan) >= 16:  # a plan run with many parameter sets or precisions: start again
+        by_plan.clear()
+    got = by_plan[key] = (out, nkeys, to_state, cv)
+    return got
+
+
+def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
+    """Fixed-point jets of the state: (M, U) with ``c_{i,k} = M[i][k] * 2**(U[i] - s*k)``.
+
+    ``wp`` is the working precision in bits (guard bits included), ``s`` the time scale exponent, ``deadline`` an
+    optional :func:`time.perf_counter` value checked after every order (:class:`DeadlineExceeded`).
+    """
+    plan = jet_plan(program)
+    # packed dot products pay off with Python ints up to about 100 digits, with gmpy2 up to about 300
+    grouped = wp <= (_GMP_GROUP_BITS if _Z is not int else _INT_GROUP_BITS)
+    instrs, nkeys, to_state, cv = _prepared(plan, grouped, wp, pars_raw)
+    run = _Run(plan.nslots, wp)
+    J, U = run.J, run.U
+    nvars = program.nvars
+    is_const = plan.is_const
+    for i, e in enumerate(_state_exponents(y0_raw)):
+        U[i] = e - wp
+        J[i] = [_to_int(y0_raw[i], U[i])]
+    for x in range(nvars, plan.nslots):
+        if not is_const[x]:
+            J[x] = []
+    steps = []
+    run.dv = [None] * nkeys
+    run.nxt = [None] * nvars
+    run.s = s
+    for kind, out, args, extra in instrs:
+        if kind == "dots":
+            steps.append(_Dots(run, args[0], args[1], extra))
+        elif kind == "lin":
+            steps.append(_mk_lin(run, out, args, extra))
+        elif kind == "sop":
+            steps.append(_mk_sop(run, out, args[0], args[1], extra, to_state.get(out)))
         elif kind == "scale":
             steps.append(_mk_scale(run, out, args[0], cv[extra]))
         elif kind == "mul":
@@ -891,13 +1103,8 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
             srcs.append((J[i], i, None, cv[o]))
         else:
             srcs.append((J[i], i, o, None))
-    for k in range(order):
-        if deadline is not None and k and _clock() > deadline:
-            raise DeadlineExceeded(k)
-        for st in steps:
-            st(k)
-        for zi, i in deferred:
-            zi.append(nxt[i])
+
+    def rest(k):  # the outputs not fused into their sop
         k1 = k + 1
         for zi, i, o, c in srcs:
             if o is not None:
@@ -908,6 +1115,16 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
                 zi.append(-m if cs else m)
             else:
                 zi.append(_Z(0))
+
+    if order:  # order 0 sets every jet's exponent and the constants of the later orders
+        for st in steps:
+            st(0)
+        for zi, i in deferred:
+            zi.append(nxt[i])
+        rest(0)
+    if order > 1:
+        run_orders, env = _order_loop(steps, deferred, rest if srcs else None)
+        run_orders(1, order, deadline, env)
     return [J[i] for i in range(nvars)], [U[i] for i in range(nvars)]
 
 
@@ -918,42 +1135,93 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
 class FixedJets:
     """One expansion: scaled integer coefficients and what a Lie step needs from them.
 
-    ``norms`` are the max-norms of the coefficient vectors (mpf, 64 bits, rounded up); :meth:`horner` evaluates
-    the polynomial at ``|t| <= 2**s`` in integers; ``coefficients`` is a lazily converted sequence of the
-    coefficient vectors (mpf at ``prec`` bits), for dense output and events; ``rho`` (set by
-    :class:`FixedStepper`) is :func:`~lieseries.lie.operator.estimate_radius` of the norms.
+    ``norms`` are the max-norms of the coefficient vectors (mpf, 64 bits, rounded up; computed when first read);
+    :meth:`log2_norm` (:meth:`log2_norms`), :meth:`log2_column` and :meth:`log2_scales` give magnitudes as base-2
+    logarithms in floating point (what a step-size rule reads: a few digits, of numbers of any size);
+    :meth:`evaluate` evaluates the polynomial at ``|t| <= 2**s`` in integers, :meth:`horner` too, as the step
+    the next time scale follows; ``coefficients`` is a lazily converted sequence of
+    the coefficient vectors (mpf at ``prec`` bits), for dense output and events; ``rho`` and ``log2_rho`` (set by
+    :class:`FixedStepper`) are :func:`~lieseries.lie.operator.estimate_radius` of the norms and its logarithm.
     """
 
     def __init__(self, M, U, s, prec):
         self.M, self.U, self.s, self.prec = M, U, s, prec
         self.max_step = mp_context().ldexp(1, s)
         self.rho = None
+        self.log2_rho = None
         self.stepper = None
-        make = mp_context().make_mpf
-        # per order, the largest |M| of the variables sharing an exponent, then across exponents
-        by_u = {}
-        for Mi, ui in zip(M, U):
-            by_u.setdefault(ui, []).append(list(map(abs, Mi)))
-        cols = [(u, list(map(max, *ms)) if len(ms) > 1 else ms[0]) for u, ms in by_u.items()]
-        nrm = []
-        for k in range(len(M[0])):
-            bm, bu = 0, None
-            for u, col in cols:
-                m = col[k]
-                if m and (bu is None or _gt(m, u, bm, bu)):
-                    bm, bu = m, u
-            nrm.append(make(from_man_exp(bm, bu - s * k, 64, "u") if bu is not None else fzero))
-        self.norms = nrm
+        self._norms = None
+        self._abs = None
         self.coefficients = _LazyCoefficients(M, U, s, prec)
 
+    @property
+    def norms(self):
+        if self._norms is None:
+            make = mp_context().make_mpf
+            M, U, s = self.M, self.U, self.s
+            # per order, the largest |M| of the variables sharing an exponent, then across exponents
+            by_u = {}
+            for Mi, ui in zip(M, U):
+                by_u.setdefault(ui, []).append(list(map(abs, Mi)))
+            cols = [(u, list(map(max, *ms)) if len(ms) > 1 else ms[0]) for u, ms in by_u.items()]
+            nrm = []
+            for k in range(len(M[0])):
+                bm, bu = 0, None
+                for u, col in cols:
+                    m = col[k]
+                    if m and (bu is None or _gt(m, u, bm, bu)):
+                        bm, bu = m, u
+                nrm.append(make(from_man_exp(bm, bu - s * k, 64, "u") if bu is not None else fzero))
+            self._norms = nrm
+        return self._norms
+
+    def log2_norm(self, k):
+        """log2 ||c_k|| (max norm), ``-inf`` for a zero vector."""
+        best = -math.inf
+        for Mi, ui in zip(self.M, self.U):
+            m = Mi[k]
+            if m:
+                x = _lg(m) + ui
+                if x > best:
+                    best = x
+        return best - self.s * k
+
+    def _floats(self):
+        """|M| as a float matrix (variables x orders), or None when an integer is beyond the double range."""
+        if self._abs is None:
+            try:
+                self._abs = np.abs(np.array([[float(m) for m in Mi] for Mi in self.M]))
+            except OverflowError:
+                self._abs = False
+        return self._abs if self._abs is not False else None
+
+    def log2_norms(self, k0, k1):
+        """[log2 ||c_k|| for k0 <= k < k1] (``-inf`` for zero vectors), in numpy when the integers fit in doubles."""
+        a = self._floats()
+        if a is None:
+            return [self.log2_norm(k) for k in range(k0, k1)]
+        with np.errstate(divide="ignore"):
+            lg = np.log2(a[:, k0:k1]) + np.array(self.U, dtype=float)[:, None]
+        return (lg.max(axis=0) - self.s * np.arange(k0, k1)).tolist()
+
+    def log2_column(self, k):
+        """log2 |c_{k,i}| of every variable i (``-inf`` for zero)."""
+        sk = self.s * k
+        return [_lg(Mi[k]) + (ui - sk) if Mi[k] else -math.inf for Mi, ui in zip(self.M, self.U)]
+
     def horner(self, t):
-        """sum_k c_k t^k as mpf at ``prec`` bits (``t`` an mpf with |t| <= ``max_step``); a
+        """sum_k c_k t^k as mpf at ``prec`` bits (``t`` an mpf with |t| <= ``max_step``): the step to ``t``; a
         :class:`FixedStepper`'s next time scale follows this step."""
+        out = self.evaluate(t)
+        if self.stepper is not None:
+            self.stepper.h_last = abs(t)
+        return out
+
+    def evaluate(self, t):
+        """sum_k c_k t^k as mpf at ``prec`` bits (``t`` an mpf with |t| <= ``max_step``), in integers."""
         make = mp_context().make_mpf
         if abs(t) > self.max_step:
             raise RuntimeError(f"a step of {mp.nstr(t, 5)} beyond the jets' time scale {mp.nstr(self.max_step, 5)}")
-        if self.stepper is not None:
-            self.stepper.h_last = abs(t)
         raw = t._mpf_
         sg, tm, te, _ = raw
         if not tm:
@@ -961,26 +1229,23 @@ class FixedJets:
         tm = -_Z(tm) if sg else _Z(tm)
         sh = self.s - te  # t / sigma = tm * 2**-sh
         out = []
+        prec = self.prec
         for Mi, ui in zip(self.M, self.U):
             acc = Mi[-1]
-            for k in range(len(Mi) - 2, -1, -1):
-                acc = _sh(acc * tm, sh) + Mi[k]
-            out.append(make(_raw(acc, ui, self.prec)))
+            if sh > 0:
+                half = 1 << (sh - 1)
+                for k in range(len(Mi) - 2, -1, -1):
+                    acc = ((acc * tm + half) >> sh) + Mi[k]
+            else:
+                for k in range(len(Mi) - 2, -1, -1):
+                    acc = _sh(acc * tm, sh) + Mi[k]
+            out.append(make(_raw(acc, ui, prec)))
         return out
 
-
-    def column(self, k):
-        """|c_{k,i}| of every variable i, as mpf (64 bits, rounded up): what a per-component step rule reads."""
-        make = mp_context().make_mpf
-        return [make(from_man_exp(abs(Mi[k]), ui - self.s * k, 64, "u")) for Mi, ui in zip(self.M, self.U)]
-
-    def component_scales(self, h):
-        """Each variable's size over a step of length ``|h| <= max_step``: max(1, sum_k |c_{k,i}| |h|^k) (absolute
-        below 1), summed in integers, as mpf."""
-        make = mp_context().make_mpf
+    def _abs_horner(self, h):
+        """(sum_k |M_{k,i}| (|h| / sigma)^k, U_i) for every variable i, in integers."""
         if abs(h) > self.max_step:
             raise RuntimeError(f"a step of {mp.nstr(h, 5)} beyond the jets' time scale {mp.nstr(self.max_step, 5)}")
-        one = mp_context().mpf(1)
         sg, tm, te, _ = abs(h)._mpf_
         out = []
         for Mi, ui in zip(self.M, self.U):
@@ -989,10 +1254,39 @@ class FixedJets:
             else:
                 tmz, sh = _Z(tm), self.s - te
                 acc = abs(Mi[-1])
-                for k in range(len(Mi) - 2, -1, -1):
-                    acc = _sh(acc * tmz, sh) + abs(Mi[k])
-            out.append(max(one, make(from_man_exp(acc, ui, 64, "u")) if acc else one))
+                if sh > 0:
+                    half = 1 << (sh - 1)
+                    for k in range(len(Mi) - 2, -1, -1):
+                        acc = ((acc * tmz + half) >> sh) + abs(Mi[k])
+                else:
+                    for k in range(len(Mi) - 2, -1, -1):
+                        acc = _sh(acc * tmz, sh) + abs(Mi[k])
+            out.append((acc, ui))
         return out
+
+    def log2_scales(self, h):
+        """log2 of each variable's size over a step of length ``|h| <= max_step``: max(1, sum_k |c_{k,i}| |h|^k)
+        (absolute below 1), each >= 0, in floating point (the sums in numpy when the integers fit in doubles, else
+        in integers)."""
+        a = self._floats()
+        if a is not None:
+            if abs(h) > self.max_step:
+                raise RuntimeError(f"a step of {mp.nstr(h, 5)} beyond the jets' time scale "
+                                   f"{mp.nstr(self.max_step, 5)}")
+            x = float(abs(h) / self.max_step)  # <= 1
+            with np.errstate(divide="ignore", under="ignore", over="ignore"):
+                lg = np.log2(a @ (x ** np.arange(a.shape[1]))) + np.array(self.U, dtype=float)
+            if not (lg == np.inf).any():  # (a sum beyond the double range: in integers)
+                return np.maximum(lg, 0.0).tolist()
+        return [max(0.0, _lg(acc) + ui) if acc else 0.0 for acc, ui in self._abs_horner(h)]
+
+
+def _lg(m):
+    """log2 |m| of a nonzero big integer, in floating point."""
+    b = _bitlen(m)
+    if b > 1000:
+        return math.log2(abs(m) >> (b - 64)) + (b - 64)
+    return math.log2(abs(m))
 
 
 def _gt(m1, u1, m2, u2):
@@ -1036,20 +1330,20 @@ class _LazyCoefficients(list):
 # Public entry points
 # --------------------------------------------------------------------------
 
-def _estimate_radius(nrm):
-    """:func:`lieseries.lie.operator.estimate_radius` of the norms, in floating point (the radius steers the
-    step and enters the error estimate as h / rho: a few digits are all it carries)."""
-    N = len(nrm) - 1
-
-    def ln(x):
-        _, m, e, bc = x._mpf_
-        return math.log(m) + e * _LN2
-
-    pts = [(k, ln(nrm[k])) for k in range(max(1, N // 2), N + 1) if nrm[k]]
+def _estimate_radius(jets):
+    """:func:`lieseries.lie.operator.estimate_radius` of the norms of ``jets``, in floating point (the radius steers
+    the step and enters the error estimate as h / rho: a few digits are all it carries): (rho as mpf, log2 rho)."""
+    N = len(jets.M[0]) - 1
+    k0 = max(1, N // 2)
+    lg = dict(zip(range(k0, N + 1), jets.log2_norms(k0, N + 1)))
+    pts = [(k, x * _LN2) for k, x in lg.items() if x != -math.inf]
     if len(pts) < 2:
-        pts = [(k, ln(nrm[k])) for k in range(1, N + 1) if nrm[k]]
+        lg.update((k, jets.log2_norm(k)) for k in range(1, max(1, N // 2)))
+        pts = [(k, x * _LN2) for k, x in lg.items() if x != -math.inf]
     rho = radius_from_logs(pts)
-    return mp_context().inf if rho == math.inf else mp_context().mpf(rho)
+    if rho == math.inf:
+        return mp_context().inf, math.inf
+    return mp_context().mpf(rho), (math.log2(rho) if rho > 0 else -math.inf)
 
 
 _LN2 = math.log(2)
@@ -1093,7 +1387,7 @@ class FixedStepper:
         zr = _expr.convert_vector(z, self.program.nvars, self.wp, "z")
         if self.s is None:  # a short expansion to find the time scale
             M, U = expand(self.program, zr, self.pars_raw, min(self.order, 12), self.wp, 0, deadline)
-            rho = _estimate_radius(FixedJets(M, U, 0, self.prec).norms)
+            rho = _estimate_radius(FixedJets(M, U, 0, self.prec))[0]
             self.s = _ceil_log2(span) if rho == mp.inf else _floor_log2(rho) - 2
         elif self.h_last:
             s = _ceil_log2(self.h_last) + 1
@@ -1104,7 +1398,8 @@ class FixedStepper:
             M, U = expand(self.program, zr, self.pars_raw, self.order, self.wp, self.s, deadline)
             self.expansions += 1
             jets = FixedJets(M, U, self.s, self.prec)
-            jets.rho = self.last_rho = _estimate_radius(jets.norms)
+            jets.rho, jets.log2_rho = _estimate_radius(jets)
+            self.last_rho = jets.rho
             jets.stepper = self
             if jets.rho == mp.inf and span > jets.max_step:  # a polynomial: one step may reach the end
                 self.s = _ceil_log2(span)

@@ -59,7 +59,6 @@ from .operator import (
     coarse_bits,
     horner,
     prepare,
-    tail_estimate,
 )
 
 __all__ = ["lie_integrate", "default_order"]
@@ -219,7 +218,10 @@ class _LieEngine:
 
     def __init__(self, stepper, N, N_auto, tolm, wdps, bits, sgn, events, user, deadline, dense):
         self.stepper, self.N, self.N_auto, self.tolm, self.wdps = stepper, N, N_auto, tolm, wdps
-        self.floor = mp.mpf(2) ** (-bits) if bits is not None else mp.mpf(0)
+        # every estimate is at least the data's own relative uncertainty (a float: 0 below its range)
+        self.floor = math.ldexp(1.0, -bits) if bits is not None else 0.0
+        self.log2_tol = _log2(tolm)
+        self.collapse = mp.mpf(10) ** (-wdps + 2)  # a step below |t| * collapse has collapsed
         self.sgn, self.events, self.user, self.deadline = sgn, events, user, deadline
         self.segments = [] if dense else None
         self.max_ratio = None  # the largest step over the estimated radius of convergence
@@ -229,48 +231,68 @@ class _LieEngine:
         from .jets import DeadlineExceeded
 
         N, tolm, sgn = self.N, self.tolm, self.sgn
+        span = abs(tend - tcur)
         try:
-            jet = self.stepper.expand(z, abs(tend - tcur), deadline=self.deadline)
+            jet = self.stepper.expand(z, span, deadline=self.deadline)
         except DeadlineExceeded:  # the budget ran out inside the step's expansion
             raise Stop("time_budget", note=" (inside a step's expansion)") from None
         except (ValueError, ZeroDivisionError, OverflowError) as exc:
             raise Stop("non_finite", f"the series coefficients cannot be computed ({exc}): the state has left the "
                        "domain of the equations (or the vector field is singular there)") from None
-        coeffs, nrm = jet.coefficients, jet.norms
-        if not all(mp.isfinite(c) for c in nrm):
-            raise Stop("non_finite", "the series coefficients are non-finite: the vector field is singular at "
-                       "this state")
-        rho = jet.rho  # estimate_radius(nrm), computed once by the stepper
-        tol_abs = tolm * max(mp.mpf(1), nrm[0])
-        h = mp.inf
+        # the step rule reads magnitudes only: base-2 logarithms in floating point (a few digits of numbers of any
+        # size); the step itself is an exact mpf (a 53-bit mantissa, or the exact time left)
+        rho, lrho = jet.rho, jet.log2_rho  # estimate_radius of the norms, computed once by the stepper
+        ltol = self.log2_tol
+        lnorm0 = jet.log2_norm(0)
+        ltol_abs = ltol + max(0.0, lnorm0)  # tol * max(1, ||c_0||)
+        lh = math.inf
         for k in (N - 1, N):
-            if k >= 1 and nrm[k] > 0:
-                h = min(h, _kth_root(tol_abs / nrm[k], k))
-        h = min(h, rho / 2)
-        if h == mp.inf:  # polynomial solution of degree < N - 1: one step reaches the end
-            h = abs(tend - tcur)
-        h = min(h, abs(tend - tcur), jet.max_step)  # the jets hold what steps up to max_step need
+            if k >= 1:
+                lk = jet.log2_norm(k)
+                if lk != -math.inf:
+                    lh = min(lh, (ltol_abs - lk) / k)
+        lh = min(lh, lrho - 1)  # rho / 2
+        h = span if lh == math.inf else min(_pow2(lh), span)  # a polynomial of degree < N - 1: one step to the end
+        h = min(h, jet.max_step)  # the jets hold what steps up to max_step need
         # per component: the tolerance is relative to the component's own size over the step (absolute below
         # 1), not to the largest component -- a momentum of size 1 beside positions of size 1e6 would keep
         # only tol * 1e6 of its digits, and its error grows into the positions over the run
-        scales = jet.component_scales(h)
-        last = {k: jet.column(k) for k in (N - 1, N) if k >= 1}
+        lscales = jet.log2_scales(h)
+        last = {k: jet.log2_column(k) for k in (N - 1, N) if k >= 1}
+        lmin = math.inf
         for k, col in last.items():
-            for c, sc in zip(col, scales):
-                if c != 0:
-                    h = min(h, _kth_root(tolm * sc / c, k))
-        if h <= abs(tcur) * mp.mpf(10) ** (-self.wdps + 2) or h == 0:
+            for lc, lsc in zip(col, lscales):
+                if lc != -math.inf:
+                    lmin = min(lmin, (ltol + lsc - lc) / k)
+        if lmin < _log2(h):
+            h = _pow2(lmin)
+        if h <= abs(tcur) * self.collapse or h == 0:
             raise Stop("step_collapse", f"it fell to {mp.nstr(h, 3)}, and the series' radius of convergence there "
                        f"is ~{mp.nstr(rho, 3)}: the solution is singular nearby")
+        lh = _log2(h)
         hs = h * sgn
-        pad = [mp.mpf(0)] * (N - 1)  # tail_estimate reads the last two orders
-        err = max(max(tail_estimate(pad + [last[N - 1][i] if N >= 2 else mp.mpf(0), last[N][i]], h, rho) / sc
-                      for i, sc in enumerate(scales)), self.floor)
+        # the geometric-tail estimate (operator.tail_estimate) of the last two orders, per component, relative to
+        # its size over the step; the largest
+        lq = lh - lrho if lrho != math.inf else None
+        lerr = -math.inf
+        for i, lsc in enumerate(lscales):
+            la_last = last[N][i] + N * lh
+            la_prev = last[N - 1][i] + (N - 1) * lh if N >= 2 else -math.inf
+            if lq is None:
+                lnxt = la_last
+            else:
+                lnxt = max(la_prev + lq, la_last) + lq
+            lerr = max(lerr, lnxt - lsc)
+        if lerr != -math.inf and lq is not None:
+            lerr -= math.log2(1 - 2.0 ** lq)
+        err = max(2.0 ** lerr if lerr < 1024 else math.inf, self.floor)
         if self.first and self.N_auto is not None and N < self.N_auto:
-            _warn_slow_order(N, self.N_auto, nrm, tol_abs, rho, abs(tend - tcur))
+            nrm = jet.norms
+            _warn_slow_order(N, self.N_auto, nrm, tolm * max(mp.mpf(1), nrm[0]), rho, span)
         self.first = False
         znew = jet.horner(hs)
-        tnew = tcur + hs if abs(tend - tcur) != h else tend
+        tnew = tcur + hs if span != h else tend
+        coeffs = jet.coefficients
         try:
             stop = self.user.step(coeffs, tcur, hs, sgn) if self.user is not None else None
         except (ValueError, ZeroDivisionError, OverflowError) as exc:
@@ -280,27 +302,34 @@ class _LieEngine:
             hs = stop - tcur
             h = abs(hs)
             znew, tnew = horner(coeffs, hs), stop
+            lh = _log2(h) if h else -math.inf
         if self.segments is not None:
             self.segments.append((tcur, tnew, coeffs))
-        ratio = float(h / rho) if rho != mp.inf else 0.0
+        ratio = 2.0 ** (lh - lrho) if lrho != math.inf else 0.0
         self.max_ratio = ratio if self.max_ratio is None else max(self.max_ratio, ratio)
         if stop is not None:
             end = ("event", self.user.fired, "")
         else:
             hit = _check_events(self.events, znew)
             end = None if hit is None else (hit[0], hit[1], " (end of the step that crossed it)")
-        return StepResult(tnew, znew, h=h, row=lambda tk: horner(coeffs, tk - tcur), error=float(err), stop=end)
+        # output times inside the step: the step's polynomial evaluated in integers, as the step's end
+        return StepResult(tnew, znew, h=h, row=lambda tk: jet.evaluate(tk - tcur), error=err, stop=end)
 
 
-_LN2 = math.log(2)
-
-
-def _kth_root(x, k):
-    """x^(1/k) for a positive mpf x of any size, to about 15 digits (a step length: the step taken is exactly
-    the number returned), from the logarithm of x's mantissa and exponent in floating point."""
+def _log2(x):
+    """log2 |x| of a nonzero mpf, in floating point (``-inf`` for zero)."""
     _, man, exp, bc = x._mpf_
-    shift = max(bc - 64, 0)  # the leading 64 bits of a mantissa of any length (a float holds ~1024 bits at most)
-    r = (math.log(int(man >> shift)) + (exp + shift) * _LN2) / (k * _LN2)  # log2 of the root
+    if not man:
+        return -math.inf
+    shift = max(bc - 64, 0)  # the leading 64 bits of a mantissa of any length
+    return math.log2(int(man >> shift)) + exp + shift
+
+
+def _pow2(r):
+    """2**r as an mpf with a 53-bit mantissa, for a float r of any size (a step length: the step taken is exactly
+    the number returned)."""
+    if r == -math.inf:
+        return mp.mpf(0)
     n = math.floor(r)
     return mp.ldexp(mp.mpf(2.0 ** (r - n)), n)
 
