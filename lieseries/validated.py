@@ -34,6 +34,7 @@ import copyreg
 import functools
 import math
 import threading
+import weakref
 import time as _time
 from contextlib import contextmanager
 from fractions import Fraction
@@ -209,6 +210,57 @@ def _constant(c, flint):
 
 
 def _evaluate(prog, values, pars, consts, one):
+    """The program's outputs on ``values`` (balls or ball series), ``pars`` and the constant balls ``consts``
+    (pairs (slot, ball) in the order of ``prog.constants``), by its straight-line Python function (the same
+    operations in the same order as :func:`_interpret`, without its dispatch). An operation singular on its
+    argument raises :class:`_Singular`, named by the interpreter."""
+    run = _COMPILED.get(prog)
+    if run is None:
+        run = _COMPILED[prog] = _compile(prog)
+    try:
+        return run(values, pars, consts, one)
+    except (ValueError, ZeroDivisionError) as e:
+        _interpret(prog, values, pars, consts, one)  # raises _Singular with the operation's name
+        raise _Singular("?", e) from None  # pragma: no cover - the interpreter fails on the same operation
+
+
+#: Straight-line functions of programs (:func:`_compile`), per program object.
+_COMPILED: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_INLINE = {"add": " + ", "mul": " * "}
+
+
+def _compile(prog):
+    """``run(values, pars, consts, one)``: the program as one Python function of local variables (slot i is
+    ``v<i>``); arithmetic written out, other operations through :func:`_apply_op`."""
+    lines = ["def run(x, p, c, one):"]
+    if prog.nvars:
+        lines.append("    " + "".join(f"v{i}, " for i in range(prog.nvars)) + "= x")
+    if prog.npars:
+        lines.append("    " + "".join(f"v{prog.nvars + j}, " for j in range(prog.npars)) + "= p")
+    for k, (slot, _) in enumerate(prog.constants):
+        lines.append(f"    v{slot} = c[{k}][1]")
+    for op, out, args, data in prog.nodes:
+        a = [f"v{i}" for i in args]
+        if op in _INLINE:
+            expr = a[0]
+            for x in a[1:]:
+                expr = f"({expr}{_INLINE[op]}{x})"
+        elif op == "sub":
+            expr = f"{a[0]} - {a[1]}"
+        elif op == "div":
+            expr = f"{a[0]} / {a[1]}"
+        elif op == "neg":
+            expr = f"-{a[0]}"
+        else:
+            expr = f"apply_op({op!r}, [{', '.join(a)}], data[{out}], one)"
+        lines.append(f"    v{out} = {expr}")
+    lines.append("    return [" + ", ".join(f"v{o}" for o in prog.outputs) + "]")
+    namespace = {"apply_op": _apply_op, "data": {n.out: n.data for n in prog.nodes}}
+    exec(compile("\n".join(lines), f"<validated program {len(prog.nodes)} nodes>", "exec"), namespace)
+    return namespace["run"]
+
+
+def _interpret(prog, values, pars, consts, one):
     vals = [None] * prog.nslots
     vals[: prog.nvars] = values
     vals[prog.nvars: prog.nvars + prog.npars] = pars
