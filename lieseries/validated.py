@@ -313,37 +313,68 @@ def _taylor(prog, z0, pars, consts, order, flint, *, bits=None, deadline=None):
 
 
 def _centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadline=None):
-    """The Taylor polynomial of order ``order`` of the flow from the point m, as exact binary balls (radius 0).
+    """The Taylor polynomial of order ``order`` of the flow from the point m, as a :class:`_Centre` of exact
+    binary balls (radius 0), and the jets it came from (None after the fallback).
 
     Nothing about these coefficients needs proving: the remainder bound (:func:`_defect`) holds for any
     polynomial p with p(0) = m, and only its size depends on p being close to the flow. They come from the Lie
     engine's fixed-point jets (``stepper``, a :class:`~lieseries.lie.fixed.FixedStepper` of the chart's field:
-    integers ``M`` with c_k = M * 2^(u - s k), taken into Arb exactly), or from Picard iteration on Arb series when
-    the jets fail. ``span``: the time left (the stepper's time scale covers it when the solution is a polynomial).
-    Past ``deadline`` (a perf_counter value) both stop with :class:`~lieseries.lie.jets.DeadlineExceeded`."""
+    integers ``M`` with c_k = M * 2^(u - s k), taken into Arb exactly in the time sigma = 2^-s tau, where all
+    orders have about the same size), or from Picard iteration on Arb series when the jets fail (s = 0).
+    ``span``: the time left (the stepper's time scale covers it when the solution is a polynomial). Past
+    ``deadline`` (a perf_counter value) both stop with :class:`~lieseries.lie.jets.DeadlineExceeded`."""
     arb = flint.arb
     try:
         jets = stepper.expand([mpmath.make_mpf(mpmath.libmp.from_man_exp(*(int(q) for q in v.mid().man_exp())))
                                for v in m], span, deadline)
-        rows = _exact_rows(jets.M, jets.U, jets.s, order, flint)
+        rows, s = _exact_rows(jets.M, jets.U, order, flint), jets.s
     except (ZeroDivisionError, ValueError, ArithmeticError):
-        jets = None
+        jets, s = None, 0
         rows = [[arb(c.mid()) for c in row] for row in _taylor(prog, m, pars, consts, order, flint,
                                                                 deadline=deadline)]
-    return [[mi] + row[1:] for mi, row in zip(m, rows)], jets
+    return _Centre([[mi] + row[1:] for mi, row in zip(m, rows)], s, flint), jets
 
 
-def _exact_rows(M, U, s, order, flint):
-    """The polynomials sum_k M[i][k] 2^(U[i] - s k) tau^k as rows of exact arbs (integers into series, scaled by
-    2^U[i] and composed with 2^-s tau in C: exact, at a precision above every mantissa)."""
+class _Centre:
+    """The centre polynomials p_i(tau) = sum_k rows[i][k] sigma^k in the scaled time sigma = 2^-s tau (exact
+    balls; rows[i][0] is the centre itself)."""
+
+    def __init__(self, rows, s, flint):
+        self.rows, self.s, self.flint = rows, s, flint
+        self.down = flint.arb(2) ** -s  # sigma per unit of tau (exact)
+        self.polys = [flint.arb_poly(row) for row in rows]
+
+    def sigma(self, tau):
+        """The scaled time of the ball ``tau`` (exactly: a power of two)."""
+        return tau * self.down
+
+    def at(self, tau):
+        """p(tau) for a ball ``tau``: an enclosure of the polynomials' range over it."""
+        x = self.sigma(tau)
+        return [p(x) for p in self.polys]
+
+    def unscaled(self):
+        """The coefficients c_k of p in tau, exactly: ``out[i][k]``."""
+        flint = self.flint
+        saved = flint.ctx.prec
+        flint.ctx.prec = max(64, max(c.mid().man_exp()[0].bit_length() for row in self.rows for c in row)
+                             + 64 + abs(self.s) * len(self.rows[0]))
+        try:
+            return [[c * flint.arb(2) ** (-self.s * k) for k, c in enumerate(row)] for row in self.rows]
+        finally:
+            flint.ctx.prec = saved
+
+
+def _exact_rows(M, U, order, flint):
+    """The coefficients M[i][k] 2^U[i] as rows of exact arbs, padded to ``order`` + 1 (integers into series and
+    scaled by 2^U[i] at a precision above every mantissa: exact)."""
     arb, arb_series = flint.arb, flint.arb_series
     saved = flint.ctx.prec
     flint.ctx.prec = max(64, max(c.bit_length() for Mi in M for c in Mi) + 64)
     try:
-        x = arb_series([0, arb(2) ** -s], prec=order + 1)
         rows = []
         for Mi, u in zip(M, U):
-            row = (arb_series([int(c) for c in Mi], prec=order + 1) * arb(2) ** u)(x).coeffs()
+            row = (arb_series([int(c) for c in Mi], prec=order + 1) * arb(2) ** u).coeffs()
             rows.append(row + [arb(0)] * (order + 1 - len(row)))
     finally:
         flint.ctx.prec = saved
@@ -377,25 +408,38 @@ def _field_series(prog, polys, pars, consts, length, flint, base=None):
 DEFECT_EXTRA = 8
 
 
-def _defect_coefficients(prog, P, pars, consts, flint):
-    """Coefficients g_0..g_{N+EXTRA-1} at the step's start of the defect g = f(p) - p' of the centre polynomial
-    p = ``P`` (order N): balls around ~0 below N (rounding of the jets), the field's own terms from N on."""
+def _defect_coefficients(prog, centre, pars, consts, flint):
+    """Coefficients g_0..g_{N+EXTRA-1} in the scaled time sigma = 2^-s tau, at the step's start, of the defect
+    g = f(p) - dp/dtau of the :class:`_Centre` p (order N): balls around ~0 below N (rounding of the jets), the
+    field's own terms from N on (dp/dtau = 2^-s dp/dsigma)."""
+    P, down = centre.rows, centre.down
     N = len(P[0]) - 1
     F = _field_series(prog, P, pars, consts, N + DEFECT_EXTRA, flint)
-    return [[F[i][k] - (k + 1) * P[i][k + 1] if k < N else F[i][k] for k in range(N + DEFECT_EXTRA)]
+    return [[F[i][k] - (k + 1) * P[i][k + 1] * down if k < N else F[i][k] for k in range(N + DEFECT_EXTRA)]
             for i in range(len(P))]
 
 
-def _defect(g, top, tau):
+def _defect_terms(g, flint):
+    """Per component, the upper bounds |g_k| / (k + 1) that :func:`_defect` sums (at 64 bits: upper bounds)."""
+    saved = flint.ctx.prec
+    flint.ctx.prec = 64
+    try:
+        return [[(abs(x) / (k + 1)).upper() for k, x in enumerate(gi)] for gi in g]
+    finally:
+        flint.ctx.prec = saved
+
+
+def _defect(terms, top, tau):
     """Per component, an upper bound of int_0^|tau| |g_i(s)| ds: sum_k |g_k| tau^(k+1) / (k+1) over the
-    coefficients ``g`` at the step's start, plus the Lagrange term |top_i| tau^(L+1) / (L+1) with ``top`` the
-    L-th coefficient of g over the whole step (L = len(g[i]))."""
+    coefficients g at the step's start (``terms``: upper bounds of |g_k| / (k+1), :func:`_defect_terms`), plus the
+    Lagrange term |top_i| tau^(L+1) / (L+1) with ``top`` the L-th coefficient of g over the whole step
+    (L = len(terms[i])). In the scaled time: sigma and g's coefficients in sigma give the bound divided by 2^s."""
     ta = abs(tau)
     out = []
-    for gi, ti in zip(g, top):
+    for gi, ti in zip(terms, top):
         acc = abs(ti) / (len(gi) + 1)
         for k in range(len(gi) - 1, -1, -1):  # Horner in tau
-            acc = acc * ta + abs(gi[k]) / (k + 1)
+            acc = acc * ta + gi[k]
         out.append((acc * ta).upper())
     return out
 
@@ -504,7 +548,7 @@ def _enclosure_box(P, flint):
     return [arb(p.mid(), p.rad() * 1.25 + (abs(p.mid()) + p.rad() + 1) * arb(2) ** -30) for p in P]
 
 
-def _prove_step(prog, jprog, CZ, P, g, pars, consts, jconsts, span, flint, majorant=None):
+def _prove_step(prog, jprog, CZ, centre, terms, pars, consts, jconsts, span, flint, majorant=None):
     """(``tail``, the box B that holds every solution over the step, the coefficients from B through c_{K+1}) for
     a step over ``span`` (the ball [0, h]), or None when the step is not proved. ``tail(tau)``: per component, an
     upper bound of |phi_tau(m) - p(tau)| for the centre's solution, |tau| <= h.
@@ -515,8 +559,9 @@ def _prove_step(prog, jprog, CZ, P, g, pars, consts, jconsts, span, flint, major
     the step and stays in B. B is wide, so its coefficients are computed at 64 bits (outward rounding keeps them
     rigorous).
 
-    The centre's solution x from m = p(0) and the centre polynomial p = ``P`` differ by e = x - p with
-    e' = g + A(s) e, g = f(p) - p' the defect (coefficients ``g`` at the step's start) and A(s) a mean of Df
+    The centre's solution x from m = p(0) and the centre polynomial p (``centre``, a :class:`_Centre`) differ by
+    e = x - p with e' = g + A(s) e, g = f(p) - p' the defect (its coefficients in the centre's scaled time at the
+    step's start, as ``terms`` from :func:`_defect_terms`) and A(s) a mean of Df
     over the segment from p(s) to x(s), inside the box R = B united with the range of p over the step. So
     |e(tau)| <= exp(|tau| L) G(tau) componentwise, L = |Df(R)| entrywise and G the integral of |g| over the step
     bounded by :func:`_defect` with the Lagrange term taken over the whole step (from a majorant series in
@@ -524,7 +569,8 @@ def _prove_step(prog, jprog, CZ, P, g, pars, consts, jconsts, span, flint, major
     parameters) is given and the field is a polynomial; else by ball series at 64 bits)."""
     arb, arb_mat = flint.arb, flint.arb_mat
     K = len(CZ[0]) - 1
-    n = len(P)
+    n = len(centre.rows)
+    Lg = len(terms[0])  # the order of the Lagrange term
     Pz = _horner(CZ, span)
     B = _enclosure_box(Pz, flint)
     saved = flint.ctx.prec
@@ -535,10 +581,14 @@ def _prove_step(prog, jprog, CZ, P, g, pars, consts, jconsts, span, flint, major
             return None
         if not all(b.contains(p + d[K + 1] * span ** (K + 1)) for b, p, d in zip(B, Pz, D)):
             return None
-        top = None if majorant is None else _lagrange_majorant(prog, P, *majorant, len(g[0]), flint)
-        if top is None:
-            top = [row[-1] for row in _field_series(prog, P, pars, consts, len(g[0]) + 1, flint, base=span)]
-        R = [b.union(p) for b, p in zip(B, _horner(P, span))]
+        top = None if majorant is None else _lagrange_majorant(prog, centre.rows, *majorant, Lg, flint)
+        if top is None:  # coefficient Lg in sigma, over the step in sigma
+            top = [row[-1] for row in _field_series(prog, centre.rows, pars, consts, Lg + 1, flint,
+                                                    base=centre.sigma(span))]
+        else:  # coefficient Lg in tau, times 2^(s Lg): in sigma
+            up = arb(2) ** (centre.s * Lg)
+            top = [(t * up).upper() for t in top]
+        R = [b.union(p) for b, p in zip(B, centre.at(span))]
         vals = _evaluate(jprog, R, pars, jconsts, arb(1))
         L = arb_mat([[abs(v if isinstance(v, arb) else arb(v)).upper() for v in vals[i * n:(i + 1) * n]]
                      for i in range(n)])
@@ -549,12 +599,14 @@ def _prove_step(prog, jprog, CZ, P, g, pars, consts, jconsts, span, flint, major
     if not all(t.is_finite() for t in top) or not all(L[i, j].is_finite() for i in range(n) for j in range(n)):
         return None
 
+    back = arb(2) ** centre.s  # the bound in sigma, in tau
+
     def tail(tau):
-        G = _defect(g, top, tau)
         saved = flint.ctx.prec
         flint.ctx.prec = 64
         try:
-            E = (L * abs(tau)).exp() * arb_mat([[x] for x in G])
+            G = _defect(terms, top, centre.sigma(tau))
+            E = (L * abs(tau)).exp() * arb_mat([[x * back] for x in G])
             return [E[i, 0].upper() for i in range(n)]
         finally:
             flint.ctx.prec = saved
@@ -866,7 +918,7 @@ def centre_coefficients(system, y0, order: int, dps: int = 30, step=None) -> lis
             if not stepper.h_last > 0:
                 raise ValueError(f"`step` must be a positive step length; got {step!r}")
             stepper.s = 0  # not a first expansion: the time scale follows the step
-        return _centre_polynomial(stepper, prog, z, pars, consts, order, flint, mpmath.mpf(1))[0]
+        return _centre_polynomial(stepper, prog, z, pars, consts, order, flint, mpmath.mpf(1))[0].unscaled()
 
 
 def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = None, t0=0, max_steps: int = 100_000,
@@ -1027,7 +1079,7 @@ class _ValidatedEngine:
         try:
             C, jets = _centre_polynomial(self.stepper, prog, self.m, pars, consts, N, flint,
                                          mpmath.mpf(float(abs(t_end - tcur))), self.deadline)  # centre
-            g = _defect_coefficients(prog, C, pars, consts, flint)
+            g = _defect_coefficients(prog, C, pars, consts, flint)  # in the centre's scaled time
             CZ = _taylor(prog, z, pars, consts, BOX_ORDER, flint, bits=64)  # from the whole enclosure
         except DeadlineExceeded:
             raise Stop("time_budget", note=" (inside a step)") from None
@@ -1037,7 +1089,8 @@ class _ValidatedEngine:
                        f"({e}): the solution is at or near a singularity of the field (widest ball "
                        f"{max(float(zi.rad()) for zi in z):.3g})") from None
         left = abs(t_end - tcur)
-        h_f = min(_step_estimate(g, N, tol, flint), float(left))
+        h_f = min(_step_estimate(g, N, tol * C.down, flint) * 2.0 ** C.s, float(left))
+        terms = _defect_terms(g, flint)
         proved = None
         event_hit = None
         h_event_start = h_f
@@ -1052,7 +1105,7 @@ class _ValidatedEngine:
             hs = h * direction
             hb = arb(flint.fmpq(hs.numerator, hs.denominator))
             span = hb / 2 + arb(0, abs(hb) / 2)  # the ball [0, h] (or [h, 0])
-            got = _prove_step(prog, jprog, CZ, C, g, pars, consts, jconsts, span, flint,
+            got = _prove_step(prog, jprog, CZ, C, terms, pars, consts, jconsts, span, flint,
                               majorant=(jets, h, self.ps.parameter_values) if jets is not None else None)
             tail, B, D = got if got is not None else (None, None, None)
             hit = (_event_in(self.events, B, pars, self.ev_consts, arb(1)) if self.events and got is not None
@@ -1092,7 +1145,7 @@ class _ValidatedEngine:
             their difference."""
             ta = arb(flint.fmpq(tau.numerator, tau.denominator))
             bounds = bounds_h if tau == hs else tail(ta)  # the step's own end: bounded when it was proved
-            out = [p + arb(0, e) for p, e in zip(_horner(C, ta), bounds)]
+            out = [p + arb(0, e) for p, e in zip(C.at(ta), bounds)]
             return out, max(float(e) for e in bounds), ta
 
         def whole(phi, JA):

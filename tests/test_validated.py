@@ -430,7 +430,8 @@ def test_lagrange_majorant_bounds_the_shifted_coefficient_at_every_point_of_the_
         z = V._initial_balls(body, body.initial_state(omega=RIGID_OMEGA), ps.dimension, fl)
         _, prog, pars, consts, *_ = V._chart_context(body, fl)
         stepper = V._jet_stepper(ps, order, dps)
-        C, jets = V._centre_polynomial(stepper, prog, [fl.arb(v.mid()) for v in z], pars, consts, order, fl, 10)
+        centre, jets = V._centre_polynomial(stepper, prog, [fl.arb(v.mid()) for v in z], pars, consts, order, fl, 10)
+        C = centre.unscaled()
         L = order + V.DEFECT_EXTRA
         for h in (Fraction(3, 8), Fraction(-7, 8), Fraction(1, 1000)):
             bound = V._lagrange_majorant(prog, C, jets, h, ps.parameter_values, L, fl)
