@@ -312,6 +312,55 @@ def _taylor(prog, z0, pars, consts, order, flint, *, bits=None, deadline=None):
     return coeffs
 
 
+def _taylor_checked(prog, z0, guess, pars, consts, order, flint, *, bits=64, tries=3):
+    """The ball Taylor coefficients of :func:`_taylor` (c_0..c_order from the balls z0), proved from a guess in
+    one evaluation of the field instead of ``order``.
+
+    ``guess[i]``: balls Y_1..Y_{order-1} for component i. The (k-1)-th coefficient of f(z) depends only on
+    c_0..c_{k-1}, so with W_k = [f(z0 + Y_1 tau + ...)]_{k-1} / k: when every W_k (k < order) lies in Y_k, induction
+    on k gives c_k(z) in W_k for every z in z0 (c_0 = z in z0; c_0..c_{k-1} in Y_0..Y_{k-1} puts
+    c_k = [f(c)]_{k-1} / k in W_k, inside Y_k), and c_order in W_order. When the check fails, the guess is widened
+    to cover W (twice its width) and checked again, ``tries`` times in all; then Picard iteration (:func:`_taylor`)."""
+    arb, arb_series = flint.arb, flint.arb_series
+    saved = flint.ctx.prec
+    flint.ctx.prec = bits
+    try:
+        one = arb_series([arb(1)], prec=order)
+        Y = guess
+        for _ in range(tries):
+            f = _evaluate(prog, [arb_series([z] + y, prec=order) for z, y in zip(z0, Y)], pars, consts, one)
+            W = []
+            for fi in f:
+                got = list(fi.coeffs()) if isinstance(fi, arb_series) else [fi if isinstance(fi, arb) else arb(fi)]
+                got = got[:order] + [arb(0)] * (order - len(got))
+                W.append([got[k] / (k + 1) for k in range(order)])
+            if all(y.contains(w) for Yi, Wi in zip(Y, W) for y, w in zip(Yi, Wi)):
+                return [[z] + Wi for z, Wi in zip(z0, W)]
+            Y = [[_widened(y.union(w)) for y, w in zip(Yi, Wi)] for Yi, Wi in zip(Y, W)]
+    finally:
+        flint.ctx.prec = saved
+    return _taylor(prog, z0, pars, consts, order, flint, bits=bits)
+
+
+def _norm_bound(jprog, z, pars, consts, flint):
+    """||Df(z)||_inf (an upper bound at 64 bits; at least 1/4), from the Jacobian program ``jprog``."""
+    arb = flint.arb
+    n = len(z)
+    saved = flint.ctx.prec
+    flint.ctx.prec = 64
+    try:
+        vals = _evaluate(jprog, z, pars, consts, arb(1))
+        return max([arb(0.25)] + [sum((abs(arb(v)).upper() for v in vals[i * n:(i + 1) * n]), arb(0)).upper()
+                                  for i in range(n)])
+    finally:
+        flint.ctx.prec = saved
+
+
+def _widened(x):
+    """The ball x with twice its radius (and at least 2^-60 of its midpoint)."""
+    return type(x)(x.mid(), 2 * x.rad() + abs(x.mid()) * 2.0**-60)
+
+
 def _centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadline=None):
     """The Taylor polynomial of order ``order`` of the flow from the point m, as a :class:`_Centre` of exact
     binary balls (radius 0), and the jets it came from (None after the fallback).
@@ -352,6 +401,30 @@ class _Centre:
         """p(tau) for a ball ``tau``: an enclosure of the polynomials' range over it."""
         x = self.sigma(tau)
         return [p(x) for p in self.polys]
+
+    def guess(self, order, width, lip):
+        """Balls around the coefficients c_1..c_{order-1} in tau of the polynomials (at 64 bits): a guess of the
+        coefficients from a box of radius ``width`` around the centre (:func:`_taylor_checked`), ``lip`` about
+        the norm of the field's Jacobian there. A change d of the first k coefficients moves c_k by about
+        lip d_{k-1} / k, so radii r_k = (2^-52 |z| + width) (4 lip)^k / k! (2^-52: far above the rounding at
+        64 bits) leave room for what the field's evaluation carries from order to order (its leading part
+        r_k / 4). Beyond the polynomial's order the guess is centred at 0."""
+        flint = self.flint
+        arb = flint.arb
+        saved = flint.ctx.prec
+        flint.ctx.prec = 64
+        try:
+            size = max(abs(row[0]).upper() for row in self.rows)
+            r = size * 2.0**-52 + width
+            out = [[] for _ in self.rows]
+            for k in range(1, order):
+                r = (r * (4 * lip) / k).upper()
+                ck = self.down ** k
+                for row, o in zip(self.rows, out):  # beyond the polynomial's order: around 0
+                    o.append(arb((row[k] * ck).mid() if k < len(row) else 0, r))
+            return out
+        finally:
+            flint.ctx.prec = saved
 
     def unscaled(self):
         """The coefficients c_k of p in tau, exactly: ``out[i][k]``."""
@@ -576,7 +649,13 @@ def _prove_step(prog, jprog, CZ, centre, terms, pars, consts, jconsts, span, fli
     saved = flint.ctx.prec
     flint.ctx.prec = 64
     try:
-        D = _taylor(prog, B, pars, consts, K + 1, flint)
+        R = [b.union(p) for b, p in zip(B, centre.at(span))]
+        vals = _evaluate(jprog, R, pars, jconsts, arb(1))
+        L = arb_mat([[abs(v if isinstance(v, arb) else arb(v)).upper() for v in vals[i * n:(i + 1) * n]]
+                     for i in range(n)])
+        if not all(L[i, j].is_finite() for i in range(n) for j in range(n)):
+            return None
+        D = _taylor(prog, B, pars, consts, K + 1, flint)  # B is wide: Picard iteration
         if not all(d[K + 1].is_finite() for d in D):
             return None
         if not all(b.contains(p + d[K + 1] * span ** (K + 1)) for b, p, d in zip(B, Pz, D)):
@@ -588,15 +667,11 @@ def _prove_step(prog, jprog, CZ, centre, terms, pars, consts, jconsts, span, fli
         else:  # coefficient Lg in tau, times 2^(s Lg): in sigma
             up = arb(2) ** (centre.s * Lg)
             top = [(t * up).upper() for t in top]
-        R = [b.union(p) for b, p in zip(B, centre.at(span))]
-        vals = _evaluate(jprog, R, pars, jconsts, arb(1))
-        L = arb_mat([[abs(v if isinstance(v, arb) else arb(v)).upper() for v in vals[i * n:(i + 1) * n]]
-                     for i in range(n)])
     except (ZeroDivisionError, ValueError):
         return None
     finally:
         flint.ctx.prec = saved
-    if not all(t.is_finite() for t in top) or not all(L[i, j].is_finite() for i in range(n) for j in range(n)):
+    if not all(t.is_finite() for t in top):
         return None
 
     back = arb(2) ** centre.s  # the bound in sigma, in tau
@@ -1080,7 +1155,9 @@ class _ValidatedEngine:
             C, jets = _centre_polynomial(self.stepper, prog, self.m, pars, consts, N, flint,
                                          mpmath.mpf(float(abs(t_end - tcur))), self.deadline)  # centre
             g = _defect_coefficients(prog, C, pars, consts, flint)  # in the centre's scaled time
-            CZ = _taylor(prog, z, pars, consts, BOX_ORDER, flint, bits=64)  # from the whole enclosure
+            # from the whole set (checked from a guess around the centre polynomial)
+            guess = C.guess(BOX_ORDER, max(zi.rad() for zi in z), _norm_bound(jprog, self.m, pars, jconsts, flint))
+            CZ = _taylor_checked(prog, z, guess, pars, consts, BOX_ORDER, flint)
         except DeadlineExceeded:
             raise Stop("time_budget", note=" (inside a step)") from None
         except _Singular as e:
