@@ -563,7 +563,7 @@ def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
         T = _PASCAL.get(N)
         if T is None:
             T = _PASCAL[N] = np.array([[math.comb(k, j) for k in range(N + 1)] for j in range(N + 1)], dtype=float)
-        vals = [None] * prog.nslots
+        vals = [None] * prog.nslots  # series (arrays of L + 1) or constants (floats)
 
         def series(v):
             out = np.zeros(L + 1)
@@ -571,9 +571,7 @@ def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
             return np.maximum(out, MAJORANT_FLOOR)
 
         def scalar(x):
-            out = np.full(L + 1, MAJORANT_FLOOR)
-            out[0] = max(abs(x) * up, MAJORANT_FLOOR)
-            return out
+            return max(abs(x) * up, MAJORANT_FLOOR)
 
         for i, (Mi, u) in enumerate(zip(jets.M, jets.U)):
             a = np.array([math.ldexp(float(abs(c)), u) for c in Mi]) * hpow * up
@@ -592,20 +590,36 @@ def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
         for node in prog.nodes:
             a = [vals[x] for x in node.args]
             if node.op in ("add", "sub"):
-                v = a[0]
-                for x in a[1:]:
-                    v = v + x
+                # a constant c is the series (|c|, 0, 0, ...): it adds to the first coefficient only
+                c = sum(x for x in a if isinstance(x, float))
+                s = [x for x in a if not isinstance(x, float)]
+                if not s:
+                    v = c
+                else:
+                    v = s[0].copy()
+                    for x in s[1:]:
+                        v += x
+                    v[0] += c
             elif node.op == "neg":
                 v = a[0]
-            else:
+            else:  # products: the constant factors multiply, the series convolve
                 factors = a if node.op == "mul" else [a[0]] * int(node.data)
-                v = scalar(1.0)
+                c, v = 1.0, None
                 for x in factors:
-                    v = np.convolve(v, x)[: L + 1]
+                    if isinstance(x, float):
+                        c *= x
+                    else:
+                        v = x if v is None else np.convolve(v, x)[: L + 1]
+                v = c if v is None else v * c
+            if isinstance(v, float):
+                if not math.isfinite(v):
+                    return None
+                vals[node.out] = max(v * up, MAJORANT_FLOOR)
+                continue
             if not np.all(np.isfinite(v)):
                 return None
             vals[node.out] = np.maximum(v * up, MAJORANT_FLOOR)
-        tops = [float(vals[o][L]) * 1.01 for o in prog.outputs]
+        tops = [MAJORANT_FLOOR if isinstance(vals[o], float) else float(vals[o][L]) * 1.01 for o in prog.outputs]
     except (OverflowError, ValueError):
         return None
     if not all(math.isfinite(t) for t in tops):
