@@ -7,8 +7,9 @@ user gives uncertainties). The argument is in ``docs/theory.md`` ("Certified enc
 states is carried in Lohner's form m + A r (a centre point, an orthogonal matrix, a box around 0), and each step
 
 1. computes the Taylor polynomial p of order N of the flow from m (the Lie engine's fixed-point jets, as exact
-   binary numbers: nothing about them needs proving), and the coefficients up to order 12 from the whole box Z = m + A r as balls,
-   by Picard iteration on Arb power series (``arb_series``);
+   binary numbers: nothing about them needs proving), and the coefficients up to order 12 from the whole box
+   Z = m + A r as balls, proved from a guess around p's in one evaluation of the field on Arb power series
+   (``arb_series``; Picard iteration when the guess fails);
 2. finds an a priori enclosure by the high-order enclosure theorem: a box B around the polynomials from Z over
    [0, h] such that sum_{j<=12} c_j(Z) [0, h]^j + c_13(B) [0, h]^13 lies inside B -- then every solution from Z
    exists on [0, h] and stays in B;
@@ -710,8 +711,9 @@ _JACOBIANS = cache.region("validated.jacobians", 64)
 #: a double's width, the final ball narrows from 1.2e-14 to 9.4e-15 for 17% more time).
 JACOBIAN_TERMS = 10
 #: Fewer terms when their tail bound is below this (relative to the identity: the Jacobian multiplies the set's
-#: spread only: a width of 2^-40 in it widens the rigid body's balls at 50 digits by a part in 10^9).
-JACOBIAN_EPS = 2.0**-40
+#: spread only; its width comes mostly from the range of Df over each piece: the rigid body's widest final ball at
+#: 50 digits, T = 10, is 6.5599e-53 with a tail below 2^-30 as below 2^-40, with two matrix products fewer a piece).
+JACOBIAN_EPS = 2.0**-30
 JACOBIAN_PIECES = 8
 #: More pieces, up to MAX_JACOBIAN_PIECES, when |Df| |tau| over the step exceeds JACOBIAN_MU per piece.
 JACOBIAN_MU = 1.0
@@ -745,8 +747,9 @@ def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECE
     d phi / dy solves V' = Df(z(t)) V, so over piece i it is multiplied by a matrix of the Peano-Baker series
     sum_j (dt Df(B_i))^j / j!, truncated after K terms (the fewest whose tail bound is below JACOBIAN_EPS, at most
     JACOBIAN_TERMS) with the tail bounded entrywise by
-    mu^(K+1) / (K+1)! / (1 - mu / (K+2)), mu an upper bound of |dt| ||Df(B_i)||_inf (docs/theory.md). Computed at
-    64 bits: the Jacobian multiplies the enclosure's tiny spread only."""
+    mu^(K+1) / (K+1)! / (1 - mu / (K+2)), mu an upper bound of |dt| ||Df||_inf over every solution on the piece:
+    the same for all pieces, from Df over the whole step's box (docs/theory.md). Computed at 64 bits: the Jacobian
+    multiplies the enclosure's tiny spread only."""
     arb, arb_mat = flint.arb, flint.arb_mat
     n = len(CZ)
     K = len(CZ[0]) - 1
@@ -767,8 +770,25 @@ def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECE
         if not norm.is_finite():
             return None
         pieces = max(pieces, min(MAX_JACOBIAN_PIECES, math.ceil(float(norm.upper()) / JACOBIAN_MU)))
-        J = eye
         dt = tau / pieces
+        # every solution over a piece lies in the whole step's box: the same mu bounds every piece
+        mu = (norm / pieces).upper()
+        if not mu < JACOBIAN_TERMS + 2:
+            return None
+        # the fewest terms whose tail bound is below JACOBIAN_EPS (at most JACOBIAN_TERMS)
+        mu_f = float(mu.upper())
+        terms, term = JACOBIAN_TERMS, mu_f  # term: mu^(j+1) / (j+1)!
+        for j in range(1, JACOBIAN_TERMS):
+            term *= mu_f / (j + 1)
+            if term / (1 - mu_f / (j + 2)) < JACOBIAN_EPS:
+                terms = j
+                break
+        fact = arb(1)
+        for j in range(2, terms + 2):
+            fact *= j
+        eps = (mu ** (terms + 1) / fact / (1 - mu / (terms + 2))).upper()
+        tail = arb_mat([[arb(0, eps)] * n for _ in range(n)])
+        J = eye
         for piece in range(pieces):
             lo, hi = dt * piece, dt * (piece + 1)
             seg = (lo + hi) / 2 + arb(0, abs(hi - lo) / 2)
@@ -777,30 +797,14 @@ def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECE
                 vals = _evaluate(jprog, Bi, pars, consts, arb(1))
             except _Singular:
                 return None
-            M = arb_mat([[(v if isinstance(v, arb) else arb(v)) * dt for v in vals[i * n:(i + 1) * n]]
-                         for i in range(n)])
-            if not all(M[i, j].is_finite() for i in range(n) for j in range(n)):
-                return None
-            mu = max(sum((abs(M[i, j]).upper() for j in range(n)), arb(0)) for i in range(n)).upper()
-            if not mu < JACOBIAN_TERMS + 2:
-                return None
-            # the fewest terms whose tail bound is below JACOBIAN_EPS (at most JACOBIAN_TERMS)
-            mu_f = float(mu.upper())
-            terms, term = JACOBIAN_TERMS, mu_f  # term: mu^(j+1) / (j+1)!
-            for j in range(1, JACOBIAN_TERMS):
-                term *= mu_f / (j + 1)
-                if term / (1 - mu_f / (j + 2)) < JACOBIAN_EPS:
-                    terms = j
-                    break
+            M = arb_mat([vals[i * n:(i + 1) * n] for i in range(n)]) * dt
             S, T = eye, eye
             for j in range(1, terms + 1):
                 T = T * M / j
                 S = S + T
-            fact = arb(1)
-            for j in range(2, terms + 2):
-                fact *= j
-            eps = (mu ** (terms + 1) / fact / (1 - mu / (terms + 2))).upper()
-            J = (S + arb_mat([[arb(0, eps)] * n for _ in range(n)])) * J
+            J = (S + tail) * J
+        if not all(J[i, j].is_finite() for i in range(n) for j in range(n)):
+            return None
         return J
     finally:
         flint.ctx.prec = saved
