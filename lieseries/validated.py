@@ -444,7 +444,7 @@ def _exact_rows(M, U, order, flint):
     scaled by 2^U[i] at a precision above every mantissa: exact)."""
     arb, arb_series = flint.arb, flint.arb_series
     saved = flint.ctx.prec
-    flint.ctx.prec = max(64, max(c.bit_length() for Mi in M for c in Mi) + 64)
+    flint.ctx.prec = max(64, max(int(max(map(abs, Mi))).bit_length() for Mi in M) + 64)
     try:
         rows = []
         for Mi, u in zip(M, U):
@@ -486,11 +486,17 @@ def _defect_coefficients(prog, centre, pars, consts, flint):
     """Coefficients g_0..g_{N+EXTRA-1} in the scaled time sigma = 2^-s tau, at the step's start, of the defect
     g = f(p) - dp/dtau of the :class:`_Centre` p (order N): balls around ~0 below N (rounding of the jets), the
     field's own terms from N on (dp/dtau = 2^-s dp/dsigma)."""
+    arb, arb_series = flint.arb, flint.arb_series
     P, down = centre.rows, centre.down
-    N = len(P[0]) - 1
-    F = _field_series(prog, P, pars, consts, N + DEFECT_EXTRA, flint)
-    return [[F[i][k] - (k + 1) * P[i][k + 1] * down if k < N else F[i][k] for k in range(N + DEFECT_EXTRA)]
-            for i in range(len(P))]
+    L = len(P[0]) - 1 + DEFECT_EXTRA
+    F = _evaluate(prog, [arb_series(row, prec=L) for row in P], pars, consts, arb_series([arb(1)], prec=L))
+    out = []
+    for fi, row in zip(F, P):
+        if not isinstance(fi, arb_series):  # a constant component of the field
+            fi = arb_series([fi if isinstance(fi, arb) else arb(fi)], prec=L)
+        got = list((fi - arb_series(row, prec=L + 1).derivative() * down).coeffs())
+        out.append(got[:L] + [arb(0)] * (L - len(got)))
+    return out
 
 
 def _defect_terms(g, flint):
@@ -548,7 +554,7 @@ def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
     nonnegative series. Everything is nonnegative, so floating point errs by a relative 2^-52 per operation and
     term (a few parts in 10^12 here; the result is raised by 1%), underflow is kept off by a floor that only
     raises values, and overflow gives None. The bound of order L in tau is the one in u divided by |h|^L."""
-    if jets is None or max(c.bit_length() for Mi in jets.M for c in Mi) > MAJORANT_MAX_BITS:
+    if jets is None or max(int(max(map(abs, Mi))).bit_length() for Mi in jets.M) > MAJORANT_MAX_BITS:
         return None
     hq = abs(Fraction(h))
     if hq == 0:
@@ -575,7 +581,7 @@ def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
             return max(abs(x) * up, MAJORANT_FLOOR)
 
         for i, (Mi, u) in enumerate(zip(jets.M, jets.U)):
-            a = np.array([math.ldexp(float(abs(c)), u) for c in Mi]) * hpow * up
+            a = np.ldexp(np.abs(np.fromiter(map(float, Mi), float, len(Mi))), u) * hpow * up
             a[0] = abs(float(P[i][0].mid())) * up  # the centre itself (the jets hold it rounded)
             vals[i] = series(T @ a * up)
         for j, q in enumerate(par_values):
