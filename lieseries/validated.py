@@ -618,14 +618,8 @@ def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
                     else:
                         v = x if v is None else np.convolve(v, x)[: L + 1]
                 v = c if v is None else v * c
-            if isinstance(v, float):
-                if not math.isfinite(v):
-                    return None
-                vals[node.out] = max(v * up, MAJORANT_FLOOR)
-                continue
-            if not np.all(np.isfinite(v)):
-                return None
-            vals[node.out] = np.maximum(v * up, MAJORANT_FLOOR)
+            # an overflow (inf, or nan from inf * 0) reaches the outputs it feeds: checked there
+            vals[node.out] = max(v * up, MAJORANT_FLOOR) if isinstance(v, float) else np.maximum(v * up, MAJORANT_FLOOR)
         tops = [MAJORANT_FLOOR if isinstance(vals[o], float) else float(vals[o][L]) * 1.01 for o in prog.outputs]
     except (OverflowError, ValueError):
         return None
