@@ -509,19 +509,13 @@ def _defect_terms(g, flint):
         flint.ctx.prec = saved
 
 
-def _defect(terms, top, tau):
-    """Per component, an upper bound of int_0^|tau| |g_i(s)| ds: sum_k |g_k| tau^(k+1) / (k+1) over the
-    coefficients g at the step's start (``terms``: upper bounds of |g_k| / (k+1), :func:`_defect_terms`), plus the
-    Lagrange term |top_i| tau^(L+1) / (L+1) with ``top`` the L-th coefficient of g over the whole step
-    (L = len(terms[i])). In the scaled time: sigma and g's coefficients in sigma give the bound divided by 2^s."""
-    ta = abs(tau)
-    out = []
-    for gi, ti in zip(terms, top):
-        acc = abs(ti) / (len(gi) + 1)
-        for k in range(len(gi) - 1, -1, -1):  # Horner in tau
-            acc = acc * ta + gi[k]
-        out.append((acc * ta).upper())
-    return out
+def _defect(terms, top, flint):
+    """Per component, the polynomial d_i(t) = sum_k |g_k| t^k / (k+1) + |top_i| t^L / (L+1) (``terms``: upper
+    bounds of |g_k| / (k+1) of the coefficients g at the step's start, :func:`_defect_terms`; ``top``: the L-th
+    coefficient of g over the whole step, L = len(terms[i])): |tau| d_i(|tau|) bounds int_0^|tau| |g_i(s)| ds
+    (nonnegative coefficients: its value at a point is tight). In the scaled time: sigma and g's coefficients in
+    sigma give the bound divided by 2^s."""
+    return [flint.arb_poly(gi + [(abs(ti) / (len(gi) + 1)).upper()]) for gi, ti in zip(terms, top)]
 
 
 def _horner(C, tau):
@@ -690,13 +684,19 @@ def _prove_step(prog, jprog, CZ, centre, terms, pars, consts, jconsts, span, fli
         return None
 
     back = arb(2) ** centre.s  # the bound in sigma, in tau
+    saved = flint.ctx.prec
+    flint.ctx.prec = 64
+    try:
+        defect = _defect(terms, top, flint)
+    finally:
+        flint.ctx.prec = saved
 
     def tail(tau):
         saved = flint.ctx.prec
         flint.ctx.prec = 64
         try:
-            G = _defect(terms, top, centre.sigma(tau))
-            E = (L * abs(tau)).exp() * arb_mat([[x * back] for x in G])
+            x = abs(centre.sigma(tau))
+            E = (L * abs(tau)).exp() * arb_mat([[(d(x) * x).upper() * back] for d in defect])
             return [E[i, 0].upper() for i in range(n)]
         finally:
             flint.ctx.prec = saved
