@@ -283,8 +283,9 @@ def _taylor(prog, z0, pars, consts, order, flint, *, bits=None, deadline=None):
     """Ball Taylor coefficients c_0..c_order of the flow from the balls z0: out[i][j] for component i, order j.
 
     Picard iteration on Arb power series, one coefficient per iteration: the (m-1)-th coefficient of f(z) depends
-    only on c_0..c_{m-1}, so iteration m evaluates f on the series known so far (length m) and appends
-    c_m = f_{m-1} / m, keeping the earlier coefficients. ``bits``: the precision to work at (default: the
+    only on c_0..c_{m-1}, so iteration m evaluates f on the series known so far (length m) and takes
+    z = z0 + integral of f(z), of length m + 1 (its coefficient m is c_m = f_{m-1} / m; the earlier ones enclose
+    c_0..c_{m-1} again, from the same balls). ``bits``: the precision to work at (default: the
     current one); a lower precision only widens the balls, it never makes them wrong. ``deadline``: a
     perf_counter value after which :class:`~lieseries.lie.jets.DeadlineExceeded` is raised (checked every order).
     """
@@ -294,20 +295,19 @@ def _taylor(prog, z0, pars, consts, order, flint, *, bits=None, deadline=None):
         raise AssertionError("the series cap must exceed the order")  # pragma: no cover - set by the driver
     saved = flint.ctx.prec
     flint.ctx.prec = saved if bits is None else bits
-    coeffs = [[c] for c in z0]
     try:
+        start = [arb_series([c], prec=order + 1) for c in z0]  # a sum's length is its shorter term's
+        z = [arb_series([c], prec=1) for c in z0]
         for m in range(1, order + 1):
             if deadline is not None and _time.perf_counter() > deadline:
                 raise DeadlineExceeded(m - 1)
-            one = arb_series([arb(1)], prec=m)
-            f = _evaluate(prog, [arb_series(cs, prec=m) for cs in coeffs], pars, consts, one)
-            for cs, fi in zip(coeffs, f):
-                if isinstance(fi, arb_series):
-                    got = fi.coeffs()
-                    fk = got[m - 1] if len(got) >= m else arb(0)
-                else:  # a constant component of the field
-                    fk = fi if m == 1 else arb(0)
-                cs.append(fk / m)
+            f = _evaluate(prog, z, pars, consts, arb_series([arb(1)], prec=m))
+            z = [s + (fi if isinstance(fi, arb_series) else arb_series([fi], prec=m)).integral()
+                 for s, fi in zip(start, f)]  # a constant component: a series of its own
+        coeffs = []
+        for c, zi in zip(z0, z):
+            got = list(zi.coeffs())
+            coeffs.append([c] + got[1:order + 1] + [arb(0)] * (order + 1 - max(len(got), 1)))
     finally:
         flint.ctx.prec = saved
     return coeffs
