@@ -451,3 +451,44 @@ def test_lagrange_majorant_bounds_the_shifted_coefficient_at_every_point_of_the_
         s = ls.Sphere(atlas=False)
         sprog = s.poisson.program
         assert V._lagrange_majorant(sprog, C, jets, Fraction(1, 4), s.poisson.parameter_values, L, fl) is None
+
+
+def test_ball_taylor_coefficients_contain_those_from_every_point_of_the_box(monkeypatch):
+    # Picard iteration and the one-evaluation check from a guess around the centre polynomial (which must succeed
+    # here, without falling back to Picard) enclose the Taylor coefficients from points of a box, computed at
+    # 90 digits
+    from lieseries import validated as V
+
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    ps = body.poisson
+    y0 = body.initial_state(omega=RIGID_OMEGA)
+    order, dps = 14, 30
+    ctx = mp.MPContext()
+    ctx.dps = 90
+
+    def reference(point):  # reference[k][i]: coefficient k of component i
+        return ls.lie.taylor_coefficients(ps.program, point, list(ps.parameter_values), order, 90, ctx=ctx)
+
+    centre = [to_fraction(v) for v in y0.exact]
+    got = V.ball_taylor_coefficients(body, y0, order, dps)
+    assert all(inside(got[i][k], c) for k, cs in enumerate(reference(centre)) for i, c in enumerate(cs))
+    delta = Fraction(1, 10**20)
+    points = [centre, [c + delta for c in centre], [c - delta for c in centre]]
+    points += [[c + (delta if j == i else 0) for j, c in enumerate(centre)] for i in range(0, len(centre), 3)]
+    with V._working_precision(V.dps_to_bits(dps) + V.GUARD_BITS, cap=order + 20) as fl:
+        z = [fl.arb(fl.fmpq(c.numerator, c.denominator)) + fl.arb(0, fl.arb(fl.fmpq(1, 10**20))) for c in centre]
+        m = [fl.arb(v.mid()) for v in z]
+        _, prog, pars, consts, _, _, jprog, jconsts = V._chart_context(body, fl)
+        C, _ = V._centre_polynomial(V._jet_stepper(ps, 40, dps), prog, m, pars, consts, 40, fl, 10)
+        guess = C.guess(order, max(v.rad() for v in z), V._norm_bound(jprog, m, pars, jconsts, fl))
+        picard = V._taylor(prog, z, pars, consts, order, fl, bits=64)
+        with monkeypatch.context() as mpatch:
+            mpatch.setattr(V, "_taylor", lambda *a, **k: pytest.fail("the guess was not proved"))
+            checked = V._taylor_checked(prog, z, guess, pars, consts, order, fl)
+        for balls in (picard, checked):
+            assert all(len(row) == order + 1 for row in balls)
+            for point in points:
+                ref = reference(point)
+                assert all(inside(balls[i][k], ref[k][i]) for k in range(order + 1) for i in range(len(centre)))
+            # not vacuous: 64-bit balls
+            assert max(float(b.rad()) for row in balls for b in row) < 1e-10
