@@ -321,23 +321,32 @@ def _taylor_checked(prog, z0, guess, pars, consts, order, flint, *, bits=64, tri
     c_0..c_{k-1}, so with W_k = [f(z0 + Y_1 tau + ...)]_{k-1} / k: when every W_k (k < order) lies in Y_k, induction
     on k gives c_k(z) in W_k for every z in z0 (c_0 = z in z0; c_0..c_{k-1} in Y_0..Y_{k-1} puts
     c_k = [f(c)]_{k-1} / k in W_k, inside Y_k), and c_order in W_order. When the check fails, the guess is widened
-    to cover W (twice its width) and checked again, ``tries`` times in all; then Picard iteration (:func:`_taylor`)."""
+    to cover W (2^k times, order k) and checked again, ``tries`` times in all (after a widened guess, the
+    coefficients are evaluated once more from W, which holds them, and intersected with W); then Picard iteration
+    (:func:`_taylor`)."""
     arb, arb_series = flint.arb, flint.arb_series
     saved = flint.ctx.prec
     flint.ctx.prec = bits
     try:
         one = arb_series([arb(1)], prec=order)
-        Y = guess
-        for _ in range(tries):
+
+        def step(Y):  # W from Y
             f = _evaluate(prog, [arb_series([z] + y, prec=order) for z, y in zip(z0, Y)], pars, consts, one)
             W = []
             for fi in f:
                 got = list(fi.coeffs()) if isinstance(fi, arb_series) else [fi if isinstance(fi, arb) else arb(fi)]
                 got = got[:order] + [arb(0)] * (order - len(got))
                 W.append([got[k] / (k + 1) for k in range(order)])
+            return W
+
+        Y = guess
+        for attempt in range(tries):
+            W = step(Y)
             if all(y.contains(w) for Yi, Wi in zip(Y, W) for y, w in zip(Yi, Wi)):
+                if attempt:  # a widened guess: W (which holds the coefficients) once more, and the common part
+                    W = [[w.intersection(v) for w, v in zip(Wi, Vi)] for Wi, Vi in zip(W, step([Wi[:-1] for Wi in W]))]
                 return [[z] + Wi for z, Wi in zip(z0, W)]
-            Y = [[_widened(y.union(w)) for y, w in zip(Yi, Wi)] for Yi, Wi in zip(Y, W)]
+            Y = [[_widened(y.union(w), k) for k, (y, w) in enumerate(zip(Yi, Wi), 1)] for Yi, Wi in zip(Y, W)]
     finally:
         flint.ctx.prec = saved
     return _taylor(prog, z0, pars, consts, order, flint, bits=bits)
@@ -357,9 +366,10 @@ def _norm_bound(jprog, z, pars, consts, flint):
         flint.ctx.prec = saved
 
 
-def _widened(x):
-    """The ball x with twice its radius (and at least 2^-60 of its midpoint)."""
-    return type(x)(x.mid(), 2 * x.rad() + abs(x.mid()) * 2.0**-60)
+def _widened(x, k):
+    """The ball x (a guess of order k) with 2^k times its radius (and at least 2^-60 of its midpoint): the
+    widths an order carries to the next grow by half as much again, so the next check has room."""
+    return type(x)(x.mid(), (x.rad() + abs(x.mid()) * 2.0**-60) * 2.0**k)
 
 
 def _centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadline=None):
@@ -409,7 +419,8 @@ class _Centre:
         the norm of the field's Jacobian there. A change d of the first k coefficients moves c_k by about
         lip d_{k-1} / k, so radii r_k = (2^-52 |z| + width) (4 lip)^k / k! (2^-52: far above the rounding at
         64 bits) leave room for what the field's evaluation carries from order to order (its leading part
-        r_k / 4). Beyond the polynomial's order the guess is centred at 0."""
+        r_k / 4; where the coefficients grow faster, as near the sphere's chart edges, the check's retries widen
+        the guess). Beyond the polynomial's order the guess is centred at 0."""
         flint = self.flint
         arb = flint.arb
         saved = flint.ctx.prec

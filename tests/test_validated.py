@@ -485,7 +485,10 @@ def test_ball_taylor_coefficients_contain_those_from_every_point_of_the_box(monk
         with monkeypatch.context() as mpatch:
             mpatch.setattr(V, "_taylor", lambda *a, **k: pytest.fail("the guess was not proved"))
             checked = V._taylor_checked(prog, z, guess, pars, consts, order, fl)
-        for balls in (picard, checked):
+            # a guess of points (radius 0) fails the check: proved after widening, then evaluated once more
+            retried = V._taylor_checked(prog, z, [[fl.arb(b.mid()) for b in row] for row in guess], pars, consts,
+                                        order, fl)
+        for balls in (picard, checked, retried):
             assert all(len(row) == order + 1 for row in balls)
             for point in points:
                 ref = reference(point)
