@@ -344,7 +344,8 @@ def _taylor_checked(prog, z0, guess, pars, consts, order, flint, *, bits=64, tri
             W = step(Y)
             if all(y.contains(w) for Yi, Wi in zip(Y, W) for y, w in zip(Yi, Wi)):
                 if attempt:  # a widened guess: W (which holds the coefficients) once more, and the common part
-                    W = [[w.intersection(v) for w, v in zip(Wi, Vi)] for Wi, Vi in zip(W, step([Wi[:-1] for Wi in W]))]
+                    V = step([Wi[:-1] for Wi in W])
+                    W = [[w.intersection(v) for w, v in zip(Wi, Vi)] for Wi, Vi in zip(W, V)]
                 return [[z] + Wi for z, Wi in zip(z0, W)]
             Y = [[_widened(y.union(w), k) for k, (y, w) in enumerate(zip(Yi, Wi), 1)] for Yi, Wi in zip(Y, W)]
     finally:
@@ -367,8 +368,9 @@ def _norm_bound(jprog, z, pars, consts, flint):
 
 
 def _widened(x, k):
-    """The ball x (a guess of order k) with 2^k times its radius (and at least 2^-60 of its midpoint): the
-    widths an order carries to the next grow by half as much again, so the next check has room."""
+    """The ball x (a guess of order k) with 2^k times its radius (and at least 2^-60 of its midpoint): widening
+    every order alike would leave the ratio of what the orders below pass on to order k unchanged; growing with k,
+    the widening halves it at every retry."""
     return type(x)(x.mid(), (x.rad() + abs(x.mid()) * 2.0**-60) * 2.0**k)
 
 
@@ -379,8 +381,8 @@ def _centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadl
     Nothing about these coefficients needs proving: the remainder bound (:func:`_defect`) holds for any
     polynomial p with p(0) = m, and only its size depends on p being close to the flow. They come from the Lie
     engine's fixed-point jets (``stepper``, a :class:`~lieseries.lie.fixed.FixedStepper` of the chart's field:
-    integers ``M`` with c_k = M * 2^(u - s k), taken into Arb exactly in the time sigma = 2^-s tau, where all
-    orders have about the same size), or from Picard iteration on Arb series when the jets fail (s = 0).
+    integers ``M`` with c_k = M * 2^(u - s k), taken into Arb exactly as the coefficients in the jets' scaled time
+    sigma = 2^-s tau: no composition), or from Picard iteration on Arb series when the jets fail (s = 0).
     ``span``: the time left (the stepper's time scale covers it when the solution is a polynomial). Past
     ``deadline`` (a perf_counter value) both stop with :class:`~lieseries.lie.jets.DeadlineExceeded`."""
     arb = flint.arb
@@ -624,7 +626,8 @@ def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
                         v = x if v is None else np.convolve(v, x)[: L + 1]
                 v = c if v is None else v * c
             # an overflow (inf, or nan from inf * 0) reaches the outputs it feeds: checked there
-            vals[node.out] = max(v * up, MAJORANT_FLOOR) if isinstance(v, float) else np.maximum(v * up, MAJORANT_FLOOR)
+            vals[node.out] = (max(v * up, MAJORANT_FLOOR) if isinstance(v, float)
+                              else np.maximum(v * up, MAJORANT_FLOOR))
         tops = [MAJORANT_FLOOR if isinstance(vals[o], float) else float(vals[o][L]) * 1.01 for o in prog.outputs]
     except (OverflowError, ValueError):
         return None
