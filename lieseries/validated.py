@@ -7,8 +7,9 @@ user gives uncertainties). The argument is in ``docs/theory.md`` ("Certified enc
 states is carried in Lohner's form m + A r (a centre point, an orthogonal matrix, a box around 0), and each step
 
 1. computes the Taylor polynomial p of order N of the flow from m (the Lie engine's fixed-point jets, as exact
-   binary numbers: nothing about them needs proving), and the coefficients up to order 12 from the whole box Z = m + A r as balls,
-   by Picard iteration on Arb power series (``arb_series``);
+   binary numbers: nothing about them needs proving), and the coefficients up to order 12 from the whole box
+   Z = m + A r as balls, proved from a guess around p's in one evaluation of the field on Arb power series
+   (``arb_series``; Picard iteration when the guess fails);
 2. finds an a priori enclosure by the high-order enclosure theorem: a box B around the polynomials from Z over
    [0, h] such that sum_{j<=12} c_j(Z) [0, h]^j + c_13(B) [0, h]^13 lies inside B -- then every solution from Z
    exists on [0, h] and stays in B;
@@ -34,6 +35,7 @@ import copyreg
 import functools
 import math
 import threading
+import weakref
 import time as _time
 from contextlib import contextmanager
 from fractions import Fraction
@@ -209,6 +211,57 @@ def _constant(c, flint):
 
 
 def _evaluate(prog, values, pars, consts, one):
+    """The program's outputs on ``values`` (balls or ball series), ``pars`` and the constant balls ``consts``
+    (pairs (slot, ball) in the order of ``prog.constants``), by its straight-line Python function (the same
+    operations in the same order as :func:`_interpret`, without its dispatch). An operation singular on its
+    argument raises :class:`_Singular`, named by the interpreter."""
+    run = _COMPILED.get(prog)
+    if run is None:
+        run = _COMPILED[prog] = _compile(prog)
+    try:
+        return run(values, pars, consts, one)
+    except (ValueError, ZeroDivisionError) as e:
+        _interpret(prog, values, pars, consts, one)  # raises _Singular with the operation's name
+        raise _Singular("?", e) from None  # pragma: no cover - the interpreter fails on the same operation
+
+
+#: Straight-line functions of programs (:func:`_compile`), per program object.
+_COMPILED: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_INLINE = {"add": " + ", "mul": " * "}
+
+
+def _compile(prog):
+    """``run(values, pars, consts, one)``: the program as one Python function of local variables (slot i is
+    ``v<i>``); arithmetic written out, other operations through :func:`_apply_op`."""
+    lines = ["def run(x, p, c, one):"]
+    if prog.nvars:
+        lines.append("    " + "".join(f"v{i}, " for i in range(prog.nvars)) + "= x")
+    if prog.npars:
+        lines.append("    " + "".join(f"v{prog.nvars + j}, " for j in range(prog.npars)) + "= p")
+    for k, (slot, _) in enumerate(prog.constants):
+        lines.append(f"    v{slot} = c[{k}][1]")
+    for op, out, args, data in prog.nodes:
+        a = [f"v{i}" for i in args]
+        if op in _INLINE:
+            expr = a[0]
+            for x in a[1:]:
+                expr = f"({expr}{_INLINE[op]}{x})"
+        elif op == "sub":
+            expr = f"{a[0]} - {a[1]}"
+        elif op == "div":
+            expr = f"{a[0]} / {a[1]}"
+        elif op == "neg":
+            expr = f"-{a[0]}"
+        else:
+            expr = f"apply_op({op!r}, [{', '.join(a)}], data[{out}], one)"
+        lines.append(f"    v{out} = {expr}")
+    lines.append("    return [" + ", ".join(f"v{o}" for o in prog.outputs) + "]")
+    namespace = {"apply_op": _apply_op, "data": {n.out: n.data for n in prog.nodes}}
+    exec(compile("\n".join(lines), f"<validated program {len(prog.nodes)} nodes>", "exec"), namespace)
+    return namespace["run"]
+
+
+def _interpret(prog, values, pars, consts, one):
     vals = [None] * prog.nslots
     vals[: prog.nvars] = values
     vals[prog.nvars: prog.nvars + prog.npars] = pars
@@ -230,8 +283,9 @@ def _taylor(prog, z0, pars, consts, order, flint, *, bits=None, deadline=None):
     """Ball Taylor coefficients c_0..c_order of the flow from the balls z0: out[i][j] for component i, order j.
 
     Picard iteration on Arb power series, one coefficient per iteration: the (m-1)-th coefficient of f(z) depends
-    only on c_0..c_{m-1}, so iteration m evaluates f on the series known so far (length m) and appends
-    c_m = f_{m-1} / m, keeping the earlier coefficients. ``bits``: the precision to work at (default: the
+    only on c_0..c_{m-1}, so iteration m evaluates f on the series known so far (length m) and takes
+    z = z0 + integral of f(z), of length m + 1 (its coefficient m is c_m = f_{m-1} / m; the earlier ones enclose
+    c_0..c_{m-1} again, from the same balls). ``bits``: the precision to work at (default: the
     current one); a lower precision only widens the balls, it never makes them wrong. ``deadline``: a
     perf_counter value after which :class:`~lieseries.lie.jets.DeadlineExceeded` is raised (checked every order).
     """
@@ -241,57 +295,173 @@ def _taylor(prog, z0, pars, consts, order, flint, *, bits=None, deadline=None):
         raise AssertionError("the series cap must exceed the order")  # pragma: no cover - set by the driver
     saved = flint.ctx.prec
     flint.ctx.prec = saved if bits is None else bits
-    coeffs = [[c] for c in z0]
     try:
+        start = [arb_series([c], prec=order + 1) for c in z0]  # a sum's length is its shorter term's
+        z = [arb_series([c], prec=1) for c in z0]
         for m in range(1, order + 1):
             if deadline is not None and _time.perf_counter() > deadline:
                 raise DeadlineExceeded(m - 1)
-            one = arb_series([arb(1)], prec=m)
-            f = _evaluate(prog, [arb_series(cs, prec=m) for cs in coeffs], pars, consts, one)
-            for cs, fi in zip(coeffs, f):
-                if isinstance(fi, arb_series):
-                    got = fi.coeffs()
-                    fk = got[m - 1] if len(got) >= m else arb(0)
-                else:  # a constant component of the field
-                    fk = fi if m == 1 else arb(0)
-                cs.append(fk / m)
+            f = _evaluate(prog, z, pars, consts, arb_series([arb(1)], prec=m))
+            z = [s + (fi if isinstance(fi, arb_series) else arb_series([fi], prec=m)).integral()
+                 for s, fi in zip(start, f)]  # a constant component: a series of its own
+        coeffs = []
+        for c, zi in zip(z0, z):
+            got = list(zi.coeffs())
+            coeffs.append([c] + got[1:order + 1] + [arb(0)] * (order + 1 - max(len(got), 1)))
     finally:
         flint.ctx.prec = saved
     return coeffs
 
 
+def _taylor_checked(prog, z0, guess, pars, consts, order, flint, *, bits=64, tries=3):
+    """The ball Taylor coefficients of :func:`_taylor` (c_0..c_order from the balls z0), proved from a guess in
+    one evaluation of the field instead of ``order``.
+
+    ``guess[i]``: balls Y_1..Y_{order-1} for component i. The (k-1)-th coefficient of f(z) depends only on
+    c_0..c_{k-1}, so with W_k = [f(z0 + Y_1 tau + ...)]_{k-1} / k: when every W_k (k < order) lies in Y_k, induction
+    on k gives c_k(z) in W_k for every z in z0 (c_0 = z in z0; c_0..c_{k-1} in Y_0..Y_{k-1} puts
+    c_k = [f(c)]_{k-1} / k in W_k, inside Y_k), and c_order in W_order. When the check fails, the guess is widened
+    to cover W (2^k times, order k) and checked again, ``tries`` times in all (after a widened guess, the
+    coefficients are evaluated once more from W, which holds them, and intersected with W); then Picard iteration
+    (:func:`_taylor`)."""
+    arb, arb_series = flint.arb, flint.arb_series
+    saved = flint.ctx.prec
+    flint.ctx.prec = bits
+    try:
+        one = arb_series([arb(1)], prec=order)
+
+        def step(Y):  # W from Y
+            f = _evaluate(prog, [arb_series([z] + y, prec=order) for z, y in zip(z0, Y)], pars, consts, one)
+            W = []
+            for fi in f:
+                got = list(fi.coeffs()) if isinstance(fi, arb_series) else [fi if isinstance(fi, arb) else arb(fi)]
+                got = got[:order] + [arb(0)] * (order - len(got))
+                W.append([got[k] / (k + 1) for k in range(order)])
+            return W
+
+        Y = guess
+        for attempt in range(tries):
+            W = step(Y)
+            if all(y.contains(w) for Yi, Wi in zip(Y, W) for y, w in zip(Yi, Wi)):
+                if attempt:  # a widened guess: W (which holds the coefficients) once more, and the common part
+                    V = step([Wi[:-1] for Wi in W])
+                    W = [[w.intersection(v) for w, v in zip(Wi, Vi)] for Wi, Vi in zip(W, V)]
+                return [[z] + Wi for z, Wi in zip(z0, W)]
+            Y = [[_widened(y.union(w), k) for k, (y, w) in enumerate(zip(Yi, Wi), 1)] for Yi, Wi in zip(Y, W)]
+    finally:
+        flint.ctx.prec = saved
+    return _taylor(prog, z0, pars, consts, order, flint, bits=bits)
+
+
+def _norm_bound(jprog, z, pars, consts, flint):
+    """||Df(z)||_inf (an upper bound at 64 bits; at least 1/4), from the Jacobian program ``jprog``."""
+    arb = flint.arb
+    n = len(z)
+    saved = flint.ctx.prec
+    flint.ctx.prec = 64
+    try:
+        vals = _evaluate(jprog, z, pars, consts, arb(1))
+        return max([arb(0.25)] + [sum((abs(arb(v)).upper() for v in vals[i * n:(i + 1) * n]), arb(0)).upper()
+                                  for i in range(n)])
+    finally:
+        flint.ctx.prec = saved
+
+
+def _widened(x, k):
+    """The ball x (a guess of order k) with 2^k times its radius (and at least 2^-60 of its midpoint): widening
+    every order alike would leave the ratio of what the orders below pass on to order k unchanged; growing with k,
+    the widening halves it at every retry."""
+    return type(x)(x.mid(), (x.rad() + abs(x.mid()) * 2.0**-60) * 2.0**k)
+
+
 def _centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadline=None):
-    """The Taylor polynomial of order ``order`` of the flow from the point m, as exact binary balls (radius 0).
+    """The Taylor polynomial of order ``order`` of the flow from the point m, as a :class:`_Centre` of exact
+    binary balls (radius 0), and the jets it came from (None after the fallback).
 
     Nothing about these coefficients needs proving: the remainder bound (:func:`_defect`) holds for any
     polynomial p with p(0) = m, and only its size depends on p being close to the flow. They come from the Lie
     engine's fixed-point jets (``stepper``, a :class:`~lieseries.lie.fixed.FixedStepper` of the chart's field:
-    integers ``M`` with c_k = M * 2^(u - s k), taken into Arb exactly), or from Picard iteration on Arb series when
-    the jets fail. ``span``: the time left (the stepper's time scale covers it when the solution is a polynomial).
-    Past ``deadline`` (a perf_counter value) both stop with :class:`~lieseries.lie.jets.DeadlineExceeded`."""
+    integers ``M`` with c_k = M * 2^(u - s k), taken into Arb exactly as the coefficients in the jets' scaled time
+    sigma = 2^-s tau: no composition), or from Picard iteration on Arb series when the jets fail (s = 0).
+    ``span``: the time left (the stepper's time scale covers it when the solution is a polynomial). Past
+    ``deadline`` (a perf_counter value) both stop with :class:`~lieseries.lie.jets.DeadlineExceeded`."""
     arb = flint.arb
     try:
         jets = stepper.expand([mpmath.make_mpf(mpmath.libmp.from_man_exp(*(int(q) for q in v.mid().man_exp())))
                                for v in m], span, deadline)
-        rows = _exact_rows(jets.M, jets.U, jets.s, order, flint)
+        rows, s = _exact_rows(jets.M, jets.U, order, flint), jets.s
     except (ZeroDivisionError, ValueError, ArithmeticError):
-        jets = None
+        jets, s = None, 0
         rows = [[arb(c.mid()) for c in row] for row in _taylor(prog, m, pars, consts, order, flint,
                                                                 deadline=deadline)]
-    return [[mi] + row[1:] for mi, row in zip(m, rows)], jets
+    return _Centre([[mi] + row[1:] for mi, row in zip(m, rows)], s, flint), jets
 
 
-def _exact_rows(M, U, s, order, flint):
-    """The polynomials sum_k M[i][k] 2^(U[i] - s k) tau^k as rows of exact arbs (integers into series, scaled by
-    2^U[i] and composed with 2^-s tau in C: exact, at a precision above every mantissa)."""
+class _Centre:
+    """The centre polynomials p_i(tau) = sum_k rows[i][k] sigma^k in the scaled time sigma = 2^-s tau (exact
+    balls; rows[i][0] is the centre itself)."""
+
+    def __init__(self, rows, s, flint):
+        self.rows, self.s, self.flint = rows, s, flint
+        self.down = flint.arb(2) ** -s  # sigma per unit of tau (exact)
+        self.polys = [flint.arb_poly(row) for row in rows]
+
+    def sigma(self, tau):
+        """The scaled time of the ball ``tau`` (exactly: a power of two)."""
+        return tau * self.down
+
+    def at(self, tau):
+        """p(tau) for a ball ``tau``: an enclosure of the polynomials' range over it."""
+        x = self.sigma(tau)
+        return [p(x) for p in self.polys]
+
+    def guess(self, order, width, lip):
+        """Balls around the coefficients c_1..c_{order-1} in tau of the polynomials (at 64 bits): a guess of the
+        coefficients from a box of radius ``width`` around the centre (:func:`_taylor_checked`), ``lip`` about
+        the norm of the field's Jacobian there. A change d of the first k coefficients moves c_k by about
+        lip d_{k-1} / k, so radii r_k = (2^-52 |z| + width) (4 lip)^k / k! (2^-52: far above the rounding at
+        64 bits) leave room for what the field's evaluation carries from order to order (its leading part
+        r_k / 4; where the coefficients grow faster, as near the sphere's chart edges, the check's retries widen
+        the guess). Beyond the polynomial's order the guess is centred at 0."""
+        flint = self.flint
+        arb = flint.arb
+        saved = flint.ctx.prec
+        flint.ctx.prec = 64
+        try:
+            size = max(abs(row[0]).upper() for row in self.rows)
+            r = size * 2.0**-52 + width
+            out = [[] for _ in self.rows]
+            for k in range(1, order):
+                r = (r * (4 * lip) / k).upper()
+                ck = self.down ** k
+                for row, o in zip(self.rows, out):  # beyond the polynomial's order: around 0
+                    o.append(arb((row[k] * ck).mid() if k < len(row) else 0, r))
+            return out
+        finally:
+            flint.ctx.prec = saved
+
+    def unscaled(self):
+        """The coefficients c_k of p in tau, exactly: ``out[i][k]``."""
+        flint = self.flint
+        saved = flint.ctx.prec
+        flint.ctx.prec = max(64, max(c.mid().man_exp()[0].bit_length() for row in self.rows for c in row)
+                             + 64 + abs(self.s) * len(self.rows[0]))
+        try:
+            return [[c * flint.arb(2) ** (-self.s * k) for k, c in enumerate(row)] for row in self.rows]
+        finally:
+            flint.ctx.prec = saved
+
+
+def _exact_rows(M, U, order, flint):
+    """The coefficients M[i][k] 2^U[i] as rows of exact arbs, padded to ``order`` + 1 (integers into series and
+    scaled by 2^U[i] at a precision above every mantissa: exact)."""
     arb, arb_series = flint.arb, flint.arb_series
     saved = flint.ctx.prec
-    flint.ctx.prec = max(64, max(c.bit_length() for Mi in M for c in Mi) + 64)
+    flint.ctx.prec = max(64, max(int(max(map(abs, Mi))).bit_length() for Mi in M) + 64)
     try:
-        x = arb_series([0, arb(2) ** -s], prec=order + 1)
         rows = []
         for Mi, u in zip(M, U):
-            row = (arb_series([int(c) for c in Mi], prec=order + 1) * arb(2) ** u)(x).coeffs()
+            row = (arb_series([int(c) for c in Mi], prec=order + 1) * arb(2) ** u).coeffs()
             rows.append(row + [arb(0)] * (order + 1 - len(row)))
     finally:
         flint.ctx.prec = saved
@@ -325,27 +495,40 @@ def _field_series(prog, polys, pars, consts, length, flint, base=None):
 DEFECT_EXTRA = 8
 
 
-def _defect_coefficients(prog, P, pars, consts, flint):
-    """Coefficients g_0..g_{N+EXTRA-1} at the step's start of the defect g = f(p) - p' of the centre polynomial
-    p = ``P`` (order N): balls around ~0 below N (rounding of the jets), the field's own terms from N on."""
-    N = len(P[0]) - 1
-    F = _field_series(prog, P, pars, consts, N + DEFECT_EXTRA, flint)
-    return [[F[i][k] - (k + 1) * P[i][k + 1] if k < N else F[i][k] for k in range(N + DEFECT_EXTRA)]
-            for i in range(len(P))]
-
-
-def _defect(g, top, tau):
-    """Per component, an upper bound of int_0^|tau| |g_i(s)| ds: sum_k |g_k| tau^(k+1) / (k+1) over the
-    coefficients ``g`` at the step's start, plus the Lagrange term |top_i| tau^(L+1) / (L+1) with ``top`` the
-    L-th coefficient of g over the whole step (L = len(g[i]))."""
-    ta = abs(tau)
+def _defect_coefficients(prog, centre, pars, consts, flint):
+    """Coefficients g_0..g_{N+EXTRA-1} in the scaled time sigma = 2^-s tau, at the step's start, of the defect
+    g = f(p) - dp/dtau of the :class:`_Centre` p (order N): balls around ~0 below N (rounding of the jets), the
+    field's own terms from N on (dp/dtau = 2^-s dp/dsigma)."""
+    arb, arb_series = flint.arb, flint.arb_series
+    P, down = centre.rows, centre.down
+    L = len(P[0]) - 1 + DEFECT_EXTRA
+    F = _evaluate(prog, [arb_series(row, prec=L) for row in P], pars, consts, arb_series([arb(1)], prec=L))
     out = []
-    for gi, ti in zip(g, top):
-        acc = abs(ti) / (len(gi) + 1)
-        for k in range(len(gi) - 1, -1, -1):  # Horner in tau
-            acc = acc * ta + abs(gi[k]) / (k + 1)
-        out.append((acc * ta).upper())
+    for fi, row in zip(F, P):
+        if not isinstance(fi, arb_series):  # a constant component of the field
+            fi = arb_series([fi if isinstance(fi, arb) else arb(fi)], prec=L)
+        got = list((fi - arb_series(row, prec=L + 1).derivative() * down).coeffs())
+        out.append(got[:L] + [arb(0)] * (L - len(got)))
     return out
+
+
+def _defect_terms(g, flint):
+    """Per component, the upper bounds |g_k| / (k + 1) that :func:`_defect` sums (at 64 bits: upper bounds)."""
+    saved = flint.ctx.prec
+    flint.ctx.prec = 64
+    try:
+        return [[(abs(x) / (k + 1)).upper() for k, x in enumerate(gi)] for gi in g]
+    finally:
+        flint.ctx.prec = saved
+
+
+def _defect(terms, top, flint):
+    """Per component, the polynomial d_i(t) = sum_k |g_k| t^k / (k+1) + |top_i| t^L / (L+1) (``terms``: upper
+    bounds of |g_k| / (k+1) of the coefficients g at the step's start, :func:`_defect_terms`; ``top``: the L-th
+    coefficient of g over the whole step, L = len(terms[i])): |tau| d_i(|tau|) bounds int_0^|tau| |g_i(s)| ds
+    (nonnegative coefficients: its value at a point is tight). In the scaled time: sigma and g's coefficients in
+    sigma give the bound divided by 2^s."""
+    return [flint.arb_poly(gi + [(abs(ti) / (len(gi) + 1)).upper()]) for gi, ti in zip(terms, top)]
 
 
 def _horner(C, tau):
@@ -378,7 +561,7 @@ def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
     nonnegative series. Everything is nonnegative, so floating point errs by a relative 2^-52 per operation and
     term (a few parts in 10^12 here; the result is raised by 1%), underflow is kept off by a floor that only
     raises values, and overflow gives None. The bound of order L in tau is the one in u divided by |h|^L."""
-    if jets is None or max(c.bit_length() for Mi in jets.M for c in Mi) > MAJORANT_MAX_BITS:
+    if jets is None or max(int(max(map(abs, Mi))).bit_length() for Mi in jets.M) > MAJORANT_MAX_BITS:
         return None
     hq = abs(Fraction(h))
     if hq == 0:
@@ -394,7 +577,7 @@ def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
         T = _PASCAL.get(N)
         if T is None:
             T = _PASCAL[N] = np.array([[math.comb(k, j) for k in range(N + 1)] for j in range(N + 1)], dtype=float)
-        vals = [None] * prog.nslots
+        vals = [None] * prog.nslots  # series (arrays of L + 1) or constants (floats)
 
         def series(v):
             out = np.zeros(L + 1)
@@ -402,12 +585,10 @@ def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
             return np.maximum(out, MAJORANT_FLOOR)
 
         def scalar(x):
-            out = np.full(L + 1, MAJORANT_FLOOR)
-            out[0] = max(abs(x) * up, MAJORANT_FLOOR)
-            return out
+            return max(abs(x) * up, MAJORANT_FLOOR)
 
         for i, (Mi, u) in enumerate(zip(jets.M, jets.U)):
-            a = np.array([math.ldexp(float(abs(c)), u) for c in Mi]) * hpow * up
+            a = np.ldexp(np.abs(np.fromiter(map(float, Mi), float, len(Mi))), u) * hpow * up
             a[0] = abs(float(P[i][0].mid())) * up  # the centre itself (the jets hold it rounded)
             vals[i] = series(T @ a * up)
         for j, q in enumerate(par_values):
@@ -423,20 +604,31 @@ def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
         for node in prog.nodes:
             a = [vals[x] for x in node.args]
             if node.op in ("add", "sub"):
-                v = a[0]
-                for x in a[1:]:
-                    v = v + x
+                # a constant c is the series (|c|, 0, 0, ...): it adds to the first coefficient only
+                c = sum(x for x in a if isinstance(x, float))
+                s = [x for x in a if not isinstance(x, float)]
+                if not s:
+                    v = c
+                else:
+                    v = s[0].copy()
+                    for x in s[1:]:
+                        v += x
+                    v[0] += c
             elif node.op == "neg":
                 v = a[0]
-            else:
+            else:  # products: the constant factors multiply, the series convolve
                 factors = a if node.op == "mul" else [a[0]] * int(node.data)
-                v = scalar(1.0)
+                c, v = 1.0, None
                 for x in factors:
-                    v = np.convolve(v, x)[: L + 1]
-            if not np.all(np.isfinite(v)):
-                return None
-            vals[node.out] = np.maximum(v * up, MAJORANT_FLOOR)
-        tops = [float(vals[o][L]) * 1.01 for o in prog.outputs]
+                    if isinstance(x, float):
+                        c *= x
+                    else:
+                        v = x if v is None else np.convolve(v, x)[: L + 1]
+                v = c if v is None else v * c
+            # an overflow (inf, or nan from inf * 0) reaches the outputs it feeds: checked there
+            vals[node.out] = (max(v * up, MAJORANT_FLOOR) if isinstance(v, float)
+                              else np.maximum(v * up, MAJORANT_FLOOR))
+        tops = [MAJORANT_FLOOR if isinstance(vals[o], float) else float(vals[o][L]) * 1.01 for o in prog.outputs]
     except (OverflowError, ValueError):
         return None
     if not all(math.isfinite(t) for t in tops):
@@ -452,7 +644,7 @@ def _enclosure_box(P, flint):
     return [arb(p.mid(), p.rad() * 1.25 + (abs(p.mid()) + p.rad() + 1) * arb(2) ** -30) for p in P]
 
 
-def _prove_step(prog, jprog, CZ, P, g, pars, consts, jconsts, span, flint, majorant=None):
+def _prove_step(prog, jprog, CZ, centre, terms, pars, consts, jconsts, span, flint, majorant=None):
     """(``tail``, the box B that holds every solution over the step, the coefficients from B through c_{K+1}) for
     a step over ``span`` (the ball [0, h]), or None when the step is not proved. ``tail(tau)``: per component, an
     upper bound of |phi_tau(m) - p(tau)| for the centre's solution, |tau| <= h.
@@ -463,8 +655,9 @@ def _prove_step(prog, jprog, CZ, P, g, pars, consts, jconsts, span, flint, major
     the step and stays in B. B is wide, so its coefficients are computed at 64 bits (outward rounding keeps them
     rigorous).
 
-    The centre's solution x from m = p(0) and the centre polynomial p = ``P`` differ by e = x - p with
-    e' = g + A(s) e, g = f(p) - p' the defect (coefficients ``g`` at the step's start) and A(s) a mean of Df
+    The centre's solution x from m = p(0) and the centre polynomial p (``centre``, a :class:`_Centre`) differ by
+    e = x - p with e' = g + A(s) e, g = f(p) - p' the defect (its coefficients in the centre's scaled time at the
+    step's start, as ``terms`` from :func:`_defect_terms`) and A(s) a mean of Df
     over the segment from p(s) to x(s), inside the box R = B united with the range of p over the step. So
     |e(tau)| <= exp(|tau| L) G(tau) componentwise, L = |Df(R)| entrywise and G the integral of |g| over the step
     bounded by :func:`_defect` with the Lagrange term taken over the whole step (from a majorant series in
@@ -472,42 +665,81 @@ def _prove_step(prog, jprog, CZ, P, g, pars, consts, jconsts, span, flint, major
     parameters) is given and the field is a polynomial; else by ball series at 64 bits)."""
     arb, arb_mat = flint.arb, flint.arb_mat
     K = len(CZ[0]) - 1
-    n = len(P)
+    n = len(centre.rows)
+    Lg = len(terms[0])  # the order of the Lagrange term
     Pz = _horner(CZ, span)
     B = _enclosure_box(Pz, flint)
     saved = flint.ctx.prec
     flint.ctx.prec = 64
     try:
-        D = _taylor(prog, B, pars, consts, K + 1, flint)
+        R = [b.union(p) for b, p in zip(B, centre.at(span))]
+        vals = _evaluate(jprog, R, pars, jconsts, arb(1))
+        L = arb_mat([[abs(v if isinstance(v, arb) else arb(v)).upper() for v in vals[i * n:(i + 1) * n]]
+                     for i in range(n)])
+        if not all(L[i, j].is_finite() for i in range(n) for j in range(n)):
+            return None
+        D = _taylor(prog, B, pars, consts, K + 1, flint)  # B is wide: Picard iteration
         if not all(d[K + 1].is_finite() for d in D):
             return None
         if not all(b.contains(p + d[K + 1] * span ** (K + 1)) for b, p, d in zip(B, Pz, D)):
             return None
-        top = None if majorant is None else _lagrange_majorant(prog, P, *majorant, len(g[0]), flint)
-        if top is None:
-            top = [row[-1] for row in _field_series(prog, P, pars, consts, len(g[0]) + 1, flint, base=span)]
-        R = [b.union(p) for b, p in zip(B, _horner(P, span))]
-        vals = _evaluate(jprog, R, pars, jconsts, arb(1))
-        L = arb_mat([[abs(v if isinstance(v, arb) else arb(v)).upper() for v in vals[i * n:(i + 1) * n]]
-                     for i in range(n)])
+        top = None if majorant is None else _lagrange_majorant(prog, centre.rows, *majorant, Lg, flint)
+        if top is None:  # coefficient Lg in sigma, over the step in sigma
+            top = [row[-1] for row in _field_series(prog, centre.rows, pars, consts, Lg + 1, flint,
+                                                    base=centre.sigma(span))]
+        else:  # coefficient Lg in tau, times 2^(s Lg): in sigma
+            up = arb(2) ** (centre.s * Lg)
+            top = [(t * up).upper() for t in top]
     except (ZeroDivisionError, ValueError):
         return None
     finally:
         flint.ctx.prec = saved
-    if not all(t.is_finite() for t in top) or not all(L[i, j].is_finite() for i in range(n) for j in range(n)):
+    if not all(t.is_finite() for t in top):
         return None
 
+    back = arb(2) ** centre.s  # the bound in sigma, in tau
+    saved = flint.ctx.prec
+    flint.ctx.prec = 64
+    try:
+        defect = _defect(terms, top, flint)
+    finally:
+        flint.ctx.prec = saved
+
     def tail(tau):
-        G = _defect(g, top, tau)
         saved = flint.ctx.prec
         flint.ctx.prec = 64
         try:
-            E = (L * abs(tau)).exp() * arb_mat([[x] for x in G])
+            x = abs(centre.sigma(tau))
+            E = _exp_times(L * abs(tau), arb_mat([[(d(x) * x).upper() * back] for d in defect]), flint)
             return [E[i, 0].upper() for i in range(n)]
         finally:
             flint.ctx.prec = saved
 
     return tail, B, D
+
+
+def _exp_times(M, g, flint):
+    """exp(M) g for a matrix M and a column g with nonnegative entries (balls of exact values): the series
+    sum_j M^j g / j! by matrix-vector products, its tail bounded entrywise by mu^(j+1) / (j+1)! / (1 - mu / (j+2))
+    ||g||_inf (mu = ||M||_inf: every entry of M^i g is at most mu^i ||g||_inf), stopped below 2^-40 of ||g||_inf
+    (a bound, not a tight value: cheaper than the matrix exponential, which it uses when mu >= 16)."""
+    arb, arb_mat = flint.arb, flint.arb_mat
+    n = g.nrows()
+    mu = max([arb(0)] + [sum((M[i, j] for j in range(n)), arb(0)).upper() for i in range(n)])
+    if not mu < 16:  # a long series: Arb's matrix exponential (scaling and squaring)
+        return M.exp() * g
+    size = max([arb(0)] + [g[i, 0].upper() for i in range(n)])
+    S = T = g
+    j, rest = 0, size  # rest: mu^(j+1) / (j+1)! ||g||, the first term left out
+    while True:
+        rest = (rest * mu / (j + 1)).upper()
+        if mu < j + 2 and rest / (1 - mu / (j + 2)) <= size * 2.0**-40:
+            break
+        j += 1
+        T = M * T / j
+        S = S + T
+    tail = (rest / (1 - mu / (j + 2))).upper()
+    return S + arb_mat([[arb(0, tail)] for _ in range(n)])
 
 
 _JACOBIANS = cache.region("validated.jacobians", 64)
@@ -517,8 +749,9 @@ _JACOBIANS = cache.region("validated.jacobians", 64)
 #: a double's width, the final ball narrows from 1.2e-14 to 9.4e-15 for 17% more time).
 JACOBIAN_TERMS = 10
 #: Fewer terms when their tail bound is below this (relative to the identity: the Jacobian multiplies the set's
-#: spread only: a width of 2^-40 in it widens the rigid body's balls at 50 digits by a part in 10^9).
-JACOBIAN_EPS = 2.0**-40
+#: spread only; its width comes mostly from the range of Df over each piece: the rigid body's widest final ball at
+#: 50 digits, T = 10, is 6.5599e-53 with a tail below 2^-30 as below 2^-40, with two matrix products fewer a piece).
+JACOBIAN_EPS = 2.0**-30
 JACOBIAN_PIECES = 8
 #: More pieces, up to MAX_JACOBIAN_PIECES, when |Df| |tau| over the step exceeds JACOBIAN_MU per piece.
 JACOBIAN_MU = 1.0
@@ -548,12 +781,14 @@ def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECE
 
     ``CZ``: Taylor coefficients c_0..c_K from Z, ``D``: those from the a priori box B (through c_{K+1}). The step is
     cut into ``pieces`` pieces; over piece i every solution lies in B_i = sum_j c_j(Z) T_i^j +
-    c_{K+1}(B) T_i^(K+1) (T_i the piece's time interval; Taylor's theorem), much narrower than B.
+    c_{K+1}(B) T_i^(K+1) (T_i the piece's time interval; Taylor's theorem), much narrower than B; the polynomial
+    part is evaluated in mean-value form about the piece's middle time (narrower than Horner's scheme on T_i).
     d phi / dy solves V' = Df(z(t)) V, so over piece i it is multiplied by a matrix of the Peano-Baker series
     sum_j (dt Df(B_i))^j / j!, truncated after K terms (the fewest whose tail bound is below JACOBIAN_EPS, at most
     JACOBIAN_TERMS) with the tail bounded entrywise by
-    mu^(K+1) / (K+1)! / (1 - mu / (K+2)), mu an upper bound of |dt| ||Df(B_i)||_inf (docs/theory.md). Computed at
-    64 bits: the Jacobian multiplies the enclosure's tiny spread only."""
+    mu^(K+1) / (K+1)! / (1 - mu / (K+2)), mu an upper bound of |dt| ||Df||_inf over every solution on the piece:
+    the same for all pieces, from Df over the whole step's box (docs/theory.md). Computed at 64 bits: the Jacobian
+    multiplies the enclosure's tiny spread only."""
     arb, arb_mat = flint.arb, flint.arb_mat
     n = len(CZ)
     K = len(CZ[0]) - 1
@@ -563,10 +798,20 @@ def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECE
     try:
         # a badly scaled field (|Df| |tau| large: a fast oscillation in a slow state) needs more pieces: the
         # series of each piece converges like mu^j / j!, and mu near JACOBIAN_TERMS makes the enclosure explode
-        span = tau / 2 + arb(0, abs(tau) / 2)
+        polys = [flint.arb_poly(cz) for cz in CZ]
+        slopes = [p.derivative() for p in polys]
+
+        def box(lo, hi):
+            """Every solution from Z over the times between lo and hi: the polynomials in mean-value form (the
+            range of q_y over the interval lies in q_y(centre) + q_y'(interval) (interval - centre) for each
+            polynomial q_y with coefficients in CZ) plus the remainder term."""
+            centre = (lo + hi) / 2
+            seg = centre + arb(0, abs(hi - lo) / 2)
+            return [p(centre) + dp(seg) * (seg - centre) + d[K + 1] * seg ** (K + 1)
+                    for p, dp, d in zip(polys, slopes, D)]
+
         try:
-            whole = _evaluate(jprog, [_horner([cz], span)[0] + d[K + 1] * span ** (K + 1) for cz, d in zip(CZ, D)],
-                              pars, consts, arb(1))
+            whole = _evaluate(jprog, box(arb(0), tau), pars, consts, arb(1))
         except _Singular:
             return None
         norm = max(sum((abs(v if isinstance(v, arb) else arb(v)).upper() for v in whole[i * n:(i + 1) * n]),
@@ -574,40 +819,38 @@ def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECE
         if not norm.is_finite():
             return None
         pieces = max(pieces, min(MAX_JACOBIAN_PIECES, math.ceil(float(norm.upper()) / JACOBIAN_MU)))
-        J = eye
         dt = tau / pieces
+        # every solution over a piece lies in the whole step's box: the same mu bounds every piece
+        mu = (norm / pieces).upper()
+        if not mu < JACOBIAN_TERMS + 2:
+            return None
+        # the fewest terms whose tail bound is below JACOBIAN_EPS (at most JACOBIAN_TERMS)
+        mu_f = float(mu.upper())
+        terms, term = JACOBIAN_TERMS, mu_f  # term: mu^(j+1) / (j+1)!
+        for j in range(1, JACOBIAN_TERMS):
+            term *= mu_f / (j + 1)
+            if term / (1 - mu_f / (j + 2)) < JACOBIAN_EPS:
+                terms = j
+                break
+        fact = arb(1)
+        for j in range(2, terms + 2):
+            fact *= j
+        eps = (mu ** (terms + 1) / fact / (1 - mu / (terms + 2))).upper()
+        tail = arb_mat([[arb(0, eps)] * n for _ in range(n)])
+        J = eye
         for piece in range(pieces):
-            lo, hi = dt * piece, dt * (piece + 1)
-            seg = (lo + hi) / 2 + arb(0, abs(hi - lo) / 2)
-            Bi = [_horner([cz], seg)[0] + d[K + 1] * seg ** (K + 1) for cz, d in zip(CZ, D)]
             try:
-                vals = _evaluate(jprog, Bi, pars, consts, arb(1))
+                vals = _evaluate(jprog, box(dt * piece, dt * (piece + 1)), pars, consts, arb(1))
             except _Singular:
                 return None
-            M = arb_mat([[(v if isinstance(v, arb) else arb(v)) * dt for v in vals[i * n:(i + 1) * n]]
-                         for i in range(n)])
-            if not all(M[i, j].is_finite() for i in range(n) for j in range(n)):
-                return None
-            mu = max(sum((abs(M[i, j]).upper() for j in range(n)), arb(0)) for i in range(n)).upper()
-            if not mu < JACOBIAN_TERMS + 2:
-                return None
-            # the fewest terms whose tail bound is below JACOBIAN_EPS (at most JACOBIAN_TERMS)
-            mu_f = float(mu.upper())
-            terms, term = JACOBIAN_TERMS, mu_f  # term: mu^(j+1) / (j+1)!
-            for j in range(1, JACOBIAN_TERMS):
-                term *= mu_f / (j + 1)
-                if term / (1 - mu_f / (j + 2)) < JACOBIAN_EPS:
-                    terms = j
-                    break
+            M = arb_mat([vals[i * n:(i + 1) * n] for i in range(n)]) * dt
             S, T = eye, eye
             for j in range(1, terms + 1):
                 T = T * M / j
                 S = S + T
-            fact = arb(1)
-            for j in range(2, terms + 2):
-                fact *= j
-            eps = (mu ** (terms + 1) / fact / (1 - mu / (terms + 2))).upper()
-            J = (S + arb_mat([[arb(0, eps)] * n for _ in range(n)])) * J
+            J = (S + tail) * J
+        if not all(J[i, j].is_finite() for i in range(n) for j in range(n)):
+            return None
         return J
     finally:
         flint.ctx.prec = saved
@@ -814,7 +1057,7 @@ def centre_coefficients(system, y0, order: int, dps: int = 30, step=None) -> lis
             if not stepper.h_last > 0:
                 raise ValueError(f"`step` must be a positive step length; got {step!r}")
             stepper.s = 0  # not a first expansion: the time scale follows the step
-        return _centre_polynomial(stepper, prog, z, pars, consts, order, flint, mpmath.mpf(1))[0]
+        return _centre_polynomial(stepper, prog, z, pars, consts, order, flint, mpmath.mpf(1))[0].unscaled()
 
 
 def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = None, t0=0, max_steps: int = 100_000,
@@ -975,8 +1218,10 @@ class _ValidatedEngine:
         try:
             C, jets = _centre_polynomial(self.stepper, prog, self.m, pars, consts, N, flint,
                                          mpmath.mpf(float(abs(t_end - tcur))), self.deadline)  # centre
-            g = _defect_coefficients(prog, C, pars, consts, flint)
-            CZ = _taylor(prog, z, pars, consts, BOX_ORDER, flint, bits=64)  # from the whole enclosure
+            g = _defect_coefficients(prog, C, pars, consts, flint)  # in the centre's scaled time
+            # from the whole set (checked from a guess around the centre polynomial)
+            guess = C.guess(BOX_ORDER, max(zi.rad() for zi in z), _norm_bound(jprog, self.m, pars, jconsts, flint))
+            CZ = _taylor_checked(prog, z, guess, pars, consts, BOX_ORDER, flint)
         except DeadlineExceeded:
             raise Stop("time_budget", note=" (inside a step)") from None
         except _Singular as e:
@@ -985,7 +1230,8 @@ class _ValidatedEngine:
                        f"({e}): the solution is at or near a singularity of the field (widest ball "
                        f"{max(float(zi.rad()) for zi in z):.3g})") from None
         left = abs(t_end - tcur)
-        h_f = min(_step_estimate(g, N, tol, flint), float(left))
+        h_f = min(_step_estimate(g, N, tol * C.down, flint) * 2.0 ** C.s, float(left))
+        terms = _defect_terms(g, flint)
         proved = None
         event_hit = None
         h_event_start = h_f
@@ -1000,7 +1246,7 @@ class _ValidatedEngine:
             hs = h * direction
             hb = arb(flint.fmpq(hs.numerator, hs.denominator))
             span = hb / 2 + arb(0, abs(hb) / 2)  # the ball [0, h] (or [h, 0])
-            got = _prove_step(prog, jprog, CZ, C, g, pars, consts, jconsts, span, flint,
+            got = _prove_step(prog, jprog, CZ, C, terms, pars, consts, jconsts, span, flint,
                               majorant=(jets, h, self.ps.parameter_values) if jets is not None else None)
             tail, B, D = got if got is not None else (None, None, None)
             hit = (_event_in(self.events, B, pars, self.ev_consts, arb(1)) if self.events and got is not None
@@ -1040,7 +1286,7 @@ class _ValidatedEngine:
             their difference."""
             ta = arb(flint.fmpq(tau.numerator, tau.denominator))
             bounds = bounds_h if tau == hs else tail(ta)  # the step's own end: bounded when it was proved
-            out = [p + arb(0, e) for p, e in zip(_horner(C, ta), bounds)]
+            out = [p + arb(0, e) for p, e in zip(C.at(ta), bounds)]
             return out, max(float(e) for e in bounds), ta
 
         def whole(phi, JA):
