@@ -31,11 +31,16 @@ _LOCK = threading.Lock()
 DRIFT_PER_STEP = 1000
 
 
-def drift_threshold(tol, steps) -> float:
+def drift_threshold(tol, steps):
     """The largest relative change of H a run of ``steps`` steps at tolerance ``tol`` may make:
-    min(sqrt(tol), DRIFT_PER_STEP * tol * steps)."""
-    tol = float(tol)
-    return min(math.sqrt(tol), DRIFT_PER_STEP * tol * max(int(steps), 1))
+    min(sqrt(tol), DRIFT_PER_STEP * tol * steps). A float, or an mpf for a tolerance below a float's range (a
+    Lie-series run above ~300 digits: a threshold of 0.0 called every such run ``invariant_drift``)."""
+    n = max(int(steps), 1)
+    f = float(tol)
+    if f > 1e-280:
+        return min(math.sqrt(f), DRIFT_PER_STEP * f * n)
+    t = mpmath.mpf(tol) if hasattr(tol, "_mpf_") else mpmath.mpf(tol.numerator) / tol.denominator
+    return min(mpmath.sqrt(t), DRIFT_PER_STEP * t * n)
 
 _ENERGY = cache.region("energy.functions", 64)  # compiled energy checks, in the one cache
 #: Energies (H and the Casimirs) printed longer than this get no plain Python check (:func:`energy_quick`): the

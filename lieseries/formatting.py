@@ -11,20 +11,57 @@ __all__ = ["fmt_sci", "fmt_int", "fmt_num", "fmt_p", "markdown_table", "plain_ta
 
 
 def fmt_sci(x, digits: int = 3) -> str:
-    """Scientific notation with ``digits`` significant digits ("" for None, "0" for zero)."""
+    """Scientific notation with ``digits`` significant digits ("" for None, "0" for zero). An mpf or a Fraction
+    beyond a double's range keeps its exponent (1e-402 is "1.00e-402", not the "0" of its float)."""
     if x is None:
         return ""
     try:
-        x = float(x)
+        f = float(x)
     except (TypeError, ValueError):
         return str(x)
-    if math.isnan(x):
+    except OverflowError:  # a Fraction or an integer above 1.8e308
+        f = math.inf
+    if math.isnan(f):
         return "nan"
-    if math.isinf(x):
-        return "inf" if x > 0 else "-inf"
-    if x == 0:
+    if (f == 0 or math.isinf(f)) and _exact_nonzero_finite(x):
+        return _big_sci(x, digits)
+    if math.isinf(f):
+        return "inf" if f > 0 else "-inf"
+    if f == 0:
         return "0"
-    return f"{x:.{digits - 1}e}"
+    return f"{f:.{digits - 1}e}"
+
+
+def _exact_nonzero_finite(x) -> bool:
+    if hasattr(x, "_mpf_"):
+        import mpmath
+
+        return bool(x) and mpmath.isfinite(x)
+    return hasattr(x, "numerator") and hasattr(x, "denominator") and x != 0
+
+
+def _big_sci(x, digits: int) -> str:
+    """``x`` (an mpf, a Fraction or an integer) in scientific notation, in decimal integers (no float)."""
+    if hasattr(x, "_mpf_"):
+        from fractions import Fraction
+
+        import mpmath
+
+        man, exp = mpmath.mpf(x).man_exp  # exact: x = man 2^exp
+        x = Fraction(int(man)) * Fraction(2) ** int(exp)
+    sign = "-" if x < 0 else ""
+    x = abs(x)
+    e = len(str(x.numerator)) - len(str(x.denominator))  # 10^(e-1) < x < 10^(e+1)
+    scaled = x / 10 ** e if e >= 0 else x * 10 ** -e
+    if scaled < 1:
+        e, scaled = e - 1, scaled * 10  # now in [1, 10)
+    m = round(scaled * 10 ** (digits - 1))
+    if m >= 10 ** digits:  # rounded up to 10.0
+        m //= 10
+        e += 1
+    text = str(m)
+    mant = text[0] + ("." + text[1:] if digits > 1 else "")
+    return f"{sign}{mant}e{e:+03d}"
 
 
 def fmt_int(x) -> str:
@@ -121,4 +158,5 @@ def save_figure(plt, fig, path) -> None:
 
 def positive_or_nan(values):
     """The values with None, non-positive and non-finite ones as NaN (for log axes)."""
-    return [v if (v is not None and v > 0 and math.isfinite(v)) else float("nan") for v in values]
+    return [float(v) if (v is not None and v > 0 and math.isfinite(v) and float(v) > 0) else float("nan")
+            for v in values]  # a value below a float's range cannot be drawn: left out, not drawn as 0

@@ -17,3 +17,20 @@ def test_a_part_bounded_below_reads_as_such():
     part = CostPart("run.t", "the reference", 1, "run", 3.9, "timed", lower_bound=True)
     assert part.describe() == "the reference at no less than 3.9 s each"  # it read "at at least 3.9 s"
     assert SceneEstimate("s", parts=[part]).summary().startswith("estimated at least 3.9 s: ")
+
+
+def test_scientific_notation_beyond_a_doubles_range_keeps_the_exponent():
+    """An error of 1e-402 (an mpf or a Fraction) read as a float is 0: the report would print "0", exact."""
+    from fractions import Fraction
+
+    import mpmath
+
+    from lieseries.formatting import fmt_sci
+
+    c = mpmath.MPContext()
+    c.dps = 500
+    assert fmt_sci(c.mpf("1.2345e-402")) == "1.23e-402"
+    assert fmt_sci(Fraction(-99951, 10**405)) == "-1.00e-400"
+    assert fmt_sci(10**400) == "1.00e+400" and fmt_sci(Fraction(10**400, 3), 2) == "3.3e+399"
+    assert fmt_sci(c.mpf("9.996e-500"), 3) == "1.00e-499"
+    assert fmt_sci(1e-5) == "1.00e-05" and fmt_sci(0) == "0" and fmt_sci(c.inf) == "inf"

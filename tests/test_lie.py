@@ -9,7 +9,7 @@ import pytest
 
 import lieseries as ls
 from lieseries import exact
-from problems import mpf, rigid_error
+from problems import ctx_mpf, mpf, private_ctx, rigid_error
 
 OMEGA = (1, "0.1", "0.5")
 
@@ -341,3 +341,19 @@ def test_the_radius_of_a_series_whose_odd_coefficients_are_small_is_that_of_its_
     ctx.dps = 40
     err = abs(ctx.sec(1) - ctx.polyval(ctx.taylor(ctx.sec, 0, 30)[::-1], 1))
     assert float(s.error_estimate(1)) >= 0.5 * float(err)
+
+
+def test_error_estimates_below_a_doubles_range_keep_their_size():
+    """At 400 digits a step's truncation estimate is ~1e-817: as a float it was 0.0, an estimate that claimed every
+    digit. It is an mpf there, and the report's notation keeps its exponent; the run itself is right to 400 digits
+    (against the closed form at 440)."""
+    from lieseries.formatting import fmt_sci
+
+    body = ls.EulerPoisson((1, 2, 3))
+    sol = ls.lie_integrate(body, body.initial_state(omega=(1, "0.1", "0.5")), t=["0.05"], dps=400)
+    est, = sol.stats.error_estimates
+    assert 0 < est < mp.mpf(10) ** -390
+    assert fmt_sci(est).endswith(f"e{int(mp.floor(mp.log10(est))):+03d}") and fmt_sci(est)[0] != "0"
+    c = private_ctx(440)
+    ex = ls.exact.euler_poisson((1, 2, 3), (1, "0.1", "0.5"), "0.05", dps=440)
+    assert max(abs(ctx_mpf(c, a) - ctx_mpf(c, b)) for a, b in zip(sol.y[-1], ex)) < c.mpf(10) ** -399

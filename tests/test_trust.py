@@ -491,3 +491,28 @@ def test_statuses_beyond_the_double_range_of_time():
     for p in ("quad", 113):
         sol = ls.integrate(body, y0, t="2e2001", precision=p)
         assert sol.status != "success" and ("1e2001" in sol.message or "1e2000" in sol.message), (p, sol.message)
+
+
+def test_a_run_at_400_digits_is_a_success_with_its_error_and_drift_at_400_digits(tmp_path):
+    """Above a double's range: the energy guard's threshold (1e-400 as a float was 0.0: every such run was
+    `invariant_drift`), the final error against the closed form (printed "0"), the initial invariants of an exact
+    state (read at 256 bits: a drift of 2e-83) and data.json (1e-402 written as 0.0) keep their size."""
+    import json
+
+    from lieseries.report import write_report
+    from lieseries.run import run_scene
+    from lieseries.scenes import parse_scene
+
+    scene = parse_scene('name = "x"\ntitle = "x"\ndescription = "x"\n[model]\nkind = "euler_poisson"\n'
+                        'inertia = [1, 2, 3]\n[initial]\nomega = [1, "0.1", "0.5"]\n[run]\nt = "0.5"\nsamples = 3\n'
+                        'methods = [{ method = "lie", dps = 400 }]\n')
+    res = run_scene(scene, progress=False)
+    row, = res.run["rows"]
+    assert row.status == "success", row.message
+    assert 0 < row.error < mp.mpf(10) ** -399 and all(0 <= d < mp.mpf(10) ** -398 for d in row.drift.values())
+    write_report(res, tmp_path / "rep")
+    md = (tmp_path / "rep" / "report.md").read_text()
+    line = next(ln for ln in md.splitlines() if ln.startswith("| Lie series 400 dps"))
+    assert "e-40" in line and "| 0 " not in line
+    data = json.loads((tmp_path / "rep" / "data.json").read_text())
+    assert "e-40" in json.dumps(data["run"]["rows"][0]["error"])

@@ -218,8 +218,8 @@ class _LieEngine:
 
     def __init__(self, stepper, N, N_auto, tolm, wdps, bits, sgn, events, user, deadline, dense):
         self.stepper, self.N, self.N_auto, self.tolm, self.wdps = stepper, N, N_auto, tolm, wdps
-        # every estimate is at least the data's own relative uncertainty (a float: 0 below its range)
-        self.floor = math.ldexp(1.0, -bits) if bits is not None else 0.0
+        # every estimate is at least the data's own relative uncertainty (an mpf below a float's range)
+        self.floor = 0.0 if bits is None else math.ldexp(1.0, -bits) if bits < 1000 else mp.ldexp(mp.mpf(1), -bits)
         self.log2_tol = _log2(tolm)
         self.collapse = mp.mpf(10) ** (-wdps + 2)  # a step below |t| * collapse has collapsed
         self.sgn, self.events, self.user, self.deadline = sgn, events, user, deadline
@@ -285,7 +285,10 @@ class _LieEngine:
             lerr = max(lerr, lnxt - lsc)
         if lerr != -math.inf and lq is not None:
             lerr -= math.log2(1 - 2.0 ** lq)
-        err = max(2.0 ** lerr if lerr < 1024 else math.inf, self.floor)
+        # a float where one holds it; an mpf below a float's range (above ~300 digits: 2.0 ** -1100 is 0.0, an
+        # estimate that would claim every digit)
+        err = math.inf if lerr >= 1024 else 2.0 ** lerr if lerr > -1000 else mp.mpf(2) ** lerr
+        err = max(err, self.floor)
         if self.first and self.N_auto is not None and N < self.N_auto:
             nrm = jet.norms
             _warn_slow_order(N, self.N_auto, nrm, tolm * max(mp.mpf(1), nrm[0]), rho, span)

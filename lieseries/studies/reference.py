@@ -59,12 +59,14 @@ def _mpf(q: Fraction):
     return mp.mpf(q.numerator) / q.denominator
 
 
-def to_float(x) -> float:
-    """A float from an mpf (0.0 only when it underflows)."""
+def to_float(x):
+    """A float from an mpf; the mpf itself when it is not zero but lies below a float's range (an error of 1e-402
+    read as 0.0 would claim an exact result; :func:`lieseries.formatting.fmt_sci` prints it with its exponent)."""
     try:
-        return float(x)
+        f = float(x)
     except (TypeError, ValueError, OverflowError):  # pragma: no cover - defensive
         return float("nan")
+    return x if f == 0 and x != 0 else f
 
 
 # -- what is compared ------------------------------------------------------------------------------------------
@@ -350,5 +352,7 @@ def loglog_slope(x, y):
 def finite_or_none(v):
     if v is None:
         return None
-    v = float(v)
-    return v if math.isfinite(v) else None
+    f = float(v)
+    if f == 0 and v != 0:
+        return v  # below a float's range: kept, not read as an exact 0
+    return f if math.isfinite(f) else None
