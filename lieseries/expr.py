@@ -80,6 +80,7 @@ from mpmath.libmp import (
 
 from . import cache
 from .precision import check_dps, dps_to_bits, to_fraction
+from .precision import to_raw as precision_raw
 
 __all__ = [
     "Program",
@@ -156,30 +157,13 @@ def _raw_to_fraction(raw, name):
 
 
 def to_raw(value, prec, name):
-    """Raw mpf of a user number, rounded once to `prec` bits.
-
-    Exact inputs stay exact up to that single rounding: ``Fraction(1, 3)``
-    and ``"0.1"`` are correctly rounded at `prec`; a float contributes its
-    exact binary value; an ``mpmath.mpf`` is rounded to `prec`.  Other sympy
-    numbers (``sqrt(2)``, ``pi``) are evaluated at `prec`.
-    """
-    if hasattr(value, "_mpf_"):
-        raw = value._mpf_
-        if not raw[1] and raw[2]:
-            raise ValueError(f"`{name}` must be finite; got {value}")
-        return mpf_pos(raw, prec, RND)
-    if isinstance(value, float):
-        if value != value or value in (float("inf"), float("-inf")):
-            raise ValueError(f"`{name}` must be finite; got {value!r}")
-        return mpf_pos(libmp.from_float(value), prec, RND)
+    """Raw mpf of a user number, rounded once to `prec` bits (:func:`lieseries.precision.to_raw`); sympy's
+    irrational numbers (``sqrt(2)``, ``pi``) too, evaluated at `prec`."""
     if isinstance(value, sympy.Basic) and not isinstance(value, (sympy.Rational, sympy.Float)):
         if getattr(value, "is_number", False) and value.is_real:
             digits = int(prec * 0.30103) + 5
             return mpf_pos(sympy.N(value, digits)._mpf_, prec, RND)
-    fr = to_fraction(value, name)
-    if fr.denominator == 1:
-        return from_int(fr.numerator, prec, RND)
-    return from_rational(fr.numerator, fr.denominator, prec, RND)
+    return precision_raw(value, prec, name)
 
 
 def convert_vector(values, n, prec, name):

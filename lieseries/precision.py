@@ -61,6 +61,7 @@ __all__ = [
     "to_fraction",
     "short_decimal",
     "to_mpf",
+    "to_raw",
     "dps_to_bits",
     "bits_to_dps",
 ]
@@ -652,16 +653,23 @@ def _sympy_to_fraction(value, argname):
     raise TypeError(f"`{argname}` must be an exact number; got the sympy expression {value!r}")
 
 
+def to_raw(value, bits: int, argname: str = "value") -> tuple:
+    """``value`` (an mpf, or anything :func:`to_fraction` reads exactly: ints, Fractions, decimal strings, floats
+    at their binary values) as mpmath's raw number, rounded once to ``bits`` bits."""
+    if hasattr(value, "_mpf_"):
+        raw = value._mpf_
+        if not raw[1] and raw[2]:  # inf or nan
+            raise ValueError(f"`{argname}` must be finite; got {value}")
+        return mp.libmp.mpf_pos(raw, bits, mp.libmp.round_nearest)
+    f = to_fraction(value, argname)
+    return mp.libmp.from_rational(f.numerator, f.denominator, bits, mp.libmp.round_nearest)
+
+
 def to_mpf(value, argname: str = "value", ctx=None) -> mp.mpf:
     """``value`` as an mpf of context ``ctx`` (mpmath's global one by default; the engines pass their thread's
-    :func:`mp_context`), rounded once to that context's working precision."""
+    :func:`mp_context`), rounded once to that context's working precision (:func:`to_raw`)."""
     ctx = mp.mp if ctx is None else ctx
-    if hasattr(value, "_mpf_"):
-        if not ctx.isfinite(value):
-            raise ValueError(f"`{argname}` must be finite; got {value}")
-        return ctx.make_mpf(mp.libmp.mpf_pos(value._mpf_, ctx.prec, mp.libmp.round_nearest))
-    f = to_fraction(value, argname)
-    return ctx.make_mpf(mp.libmp.from_rational(f.numerator, f.denominator, ctx.prec, mp.libmp.round_nearest))
+    return ctx.make_mpf(to_raw(value, ctx.prec, argname))
 
 
 # -- precision carried by data ---------------------------------------------------------------------------------------
