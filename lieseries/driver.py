@@ -34,6 +34,7 @@ messages.
 
 from __future__ import annotations
 
+import decimal
 import time as _time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -86,13 +87,20 @@ KEPT_ROWS = "The rows up to this time are kept."
 
 
 def format_time(t) -> str:
-    """A time of any engine (float, Fraction, mpf, a heyoka format) to 17 significant digits, beyond the double
-    range too."""
+    """A time of any engine (float, Fraction, mpf, a heyoka format) rounded to 17 significant digits in decimal,
+    trailing zeros dropped: the double 2.3 reads 2.2999999999999998, an mpf run's 1/20 reads 0.05 (not the
+    0.050000000000000003 of the double it was read through); beyond the double range too."""
     f = to_fraction(t)
+    if f == 0:
+        return "0"
     try:
-        return f"{float(f):.17g}"
+        float(f)
     except OverflowError:
         return short_decimal(f)
+    d = decimal.Context(prec=17).divide(decimal.Decimal(f.numerator), decimal.Decimal(f.denominator))
+    if d == d.to_integral_value() and abs(d) < 10**17:
+        return str(int(d))
+    return format(d.normalize(decimal.Context(prec=17)), "g")
 
 
 def run_message(reason: str, *, t=None, note: str = "", detail: str = "", kept: str = "", **fields) -> str:

@@ -34,8 +34,10 @@ __all__ = ["CostPart", "Pricer", "duration", "heyoka_step_seconds", "CALIBRATION
 CALIBRATION_BUDGET = 0.12
 #: Digits a Lie or validated run is timed at when one step at its own digits takes longer than the budget.
 SCALE_FROM_DPS = 60
-#: Output intervals of a run timed to price one (the scene's first ones, at its spacing).
-CALIBRATION_INTERVALS = 4
+#: Output intervals of a run timed to price one (the scene's first ones, at its spacing), against a run over the
+#: same span with one output: enough rows that their cost stands out of the step's (a 100-digit row of the rigid
+#: body costs ~0.5 ms beside a 47 ms step: four rows priced 100000 outputs at 0 s, a fifth of the real run).
+CALIBRATION_INTERVALS = 64
 #: Seconds per heyoka step of the 12-variable rigid body by precision (double, long double, quad); for
 #: ``heyoka.real`` of B bits see :func:`heyoka_step_seconds` (measured: 256 bits 0.06 s, 1024 bits 2.6 s per step).
 HEYOKA_STEP_SECONDS = {"double": 2.6e-5, "long double": 1.2e-4, "quad": 4.3e-3}
@@ -284,7 +286,10 @@ class Pricer:
             intervals = float(abs(reached_a) / spacing)
             if steps_a >= intervals:  # an engine that steps to every output time
                 steps = max(steps, steps_a / intervals * n_out)
-            per_out = max(0.0, secs_a - steps_a * per_step) / intervals
+            # the same span with one output takes the same steps: the difference is the rows' own cost
+            secs_1, reached_1, steps_1 = self._timed_run(model, y0, m, spec, [reached_a])
+            base = secs_1 if (reached_1 == reached_a and steps_1 == steps_a) else steps_a * per_step
+            per_out = max(0.0, secs_a - base) / intervals
         else:
             lower = True
         basis = (f"timed: {steps:.3g} steps at {duration(per_step)}, {n_out} outputs at {duration(per_out)}"
