@@ -12,8 +12,10 @@ orders can be pre-asymptotic).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
+import mpmath
 import numpy as np
 
 from fractions import Fraction
@@ -112,6 +114,23 @@ class ErrorVsOrder:
         }
 
 
+def log10_size(x) -> float:
+    """log10(x) of a positive number as a float, also for an mpf or a Fraction below a float's range (an error of
+    1e-402); NaN for None, zero, a negative or a non-finite number."""
+    if x is None:
+        return math.nan
+    try:
+        f = float(x)
+    except (TypeError, ValueError, OverflowError):
+        return math.nan
+    if f > 0 and math.isfinite(f):
+        return math.log10(f)
+    if f == 0 and x > 0:
+        v = x if hasattr(x, "_mpf_") else mpmath.mpf(x.numerator) / x.denominator
+        return float(mpmath.log10(v))
+    return math.nan
+
+
 def fit_geometric_rate(orders, errors, floor: float, min_order: int | None = None):
     """Least-squares slope and intercept of log10(error) against order, above ``floor``.
 
@@ -127,8 +146,9 @@ def fit_geometric_rate(orders, errors, floor: float, min_order: int | None = Non
         The orders used.
     """
     n = np.asarray(orders, dtype=float)
-    e = np.asarray(errors, dtype=float)
-    ok = (e > floor) & np.isfinite(e)
+    le = np.array([log10_size(v) for v in errors], dtype=float)  # mpf errors below a float's range too
+    lfloor = log10_size(floor) if floor is not None and floor > 0 else -math.inf
+    ok = np.isfinite(le) & (le > lfloor)
     if min_order is None:
         above = np.sort(n[ok])
         min_order = above[len(above) // 2] if len(above) >= 6 else (above[0] if len(above) else 0)
@@ -137,7 +157,7 @@ def fit_geometric_rate(orders, errors, floor: float, min_order: int | None = Non
         sel = ok
     if sel.sum() < 3:
         return None, None, [int(v) for v in n[sel]]
-    slope, intercept = np.polyfit(n[sel], np.log10(e[sel]), 1)
+    slope, intercept = np.polyfit(n[sel], le[sel], 1)
     return float(slope), float(intercept), [int(v) for v in n[sel]]
 
 
@@ -214,7 +234,8 @@ def error_vs_order(system, y0, t, orders, dps: int = 60, reference=None, *, fit_
             errors.append(max_difference(observables(system, acc, dps + REFERENCE_DIGITS), ref.values, dps + REFERENCE_DIGITS))
             if progress:
                 progress(3 + done, total, f"order {N}")
-    floor = FLOOR_FACTOR * 10.0 ** (-dps)
+    # below a float's range (more than ~300 digits) an mpf: a floor of 0.0 would fit noise
+    floor = FLOOR_FACTOR * 10.0 ** (-dps) if dps < 300 else mpmath.mpf(FLOOR_FACTOR) * mpmath.mpf(10) ** (-dps)
     slope, intercept, used = fit_geometric_rate(orders, errors, floor, fit_min_order)
     radius_measured = None
     if slope is not None and tf != 0:
@@ -396,8 +417,10 @@ class ErrorVsOrderStudy(Study):
                                 linewidth=1.2, label=f"theory: (t / rho)^N, rho = {ev.radius_theory:.4g}")
         floor = min(ev.floor for _, ev in items)
         smallest = min((e for _, ev in items for e in ev.errors if e and e > 0), default=floor)
-        if floor > smallest * 1e-4:  # drawn when the data come near it (it would only stretch the axis otherwise)
-            ax.axhline(floor, color="grey", linestyle="--", linewidth=0.8, label=f"precision floor {floor:.0e}")
+        # drawn when the data come near it (it would only stretch the axis otherwise) and a float can draw it
+        if floor > smallest * 1e-4 and float(floor) > 0:
+            ax.axhline(float(floor), color="grey", linestyle="--", linewidth=0.8,
+                       label=f"precision floor {fmt_sci(floor, 1)}")
         ax.set_xlabel("truncation order N")
         ax.set_ylabel("max-abs error of the truncated Lie series")
         ax.set_title("Lie series: error against order (slope gives the radius of convergence)", fontsize=10)

@@ -276,7 +276,7 @@ def radius_verdict(t, orders, errors, floor, fit_orders, slope):
     fit = None if slope is None else t * 10.0 ** (-slope)
     used = list(fit_orders)
     if slope is None or len(used) < RADIUS_MIN_POINTS:
-        return (f"not measured: {len(used)} errors above the precision floor {floor:.0e} (at least "
+        return (f"not measured: {len(used)} errors above the precision floor {fmt_sci(floor, 1)} (at least "
                 f"{RADIUS_MIN_POINTS} are needed): raise the digits or the orders, or lower t"), None, fit, None, None
     by_order = dict(zip(orders, errors))
     half = len(used) // 2
