@@ -62,6 +62,7 @@ threads.
 from __future__ import annotations
 
 import copy
+import inspect
 import math
 import time as _time
 from fractions import Fraction
@@ -71,7 +72,7 @@ import numpy as np
 
 from . import cache
 from .driver import KEPT_ROWS, Stop, StepResult, drive, format_time, run_message
-from .energy import clear_energy_cache, energy_function, energy_quick, energy_verdict
+from .energy import clear_energy_cache, energy_function, energy_verdict, quick_check
 from .events import resolve_events
 from .models.base import ExactState, Model, state_fractions
 from .poisson import as_poisson_system
@@ -464,29 +465,7 @@ def warn_coarse_inputs(ps, y0, times, work_bits: int, *, stacklevel: int = 4) ->
     return bool(coarse)
 
 
-def integrate(
-    system,
-    y0,
-    t,
-    *,
-    tol=None,
-    precision=None,
-    t0=0,
-    dense: bool = False,
-    max_steps: int | None = None,
-    max_time: float | None = None,
-    min_step: float | None = None,
-    compact_mode: bool | None = None,
-    high_accuracy: bool = False,
-    atlas: bool | None = None,
-    progress=None,
-    events=None,
-    params=None,
-    workers: int | None = None,
-    client=None,
-    chunk_size: int | None = None,
-    batch_size: int | None = None,
-):
+def integrate(system, y0, t, **options):
     """Integrate ``dz/dt = X_H(z)`` with heyoka's adaptive Taylor method.
 
     Parameters
@@ -539,10 +518,43 @@ def integrate(
     Solution
         ``sol.t``, ``sol.y`` (one row per output time reached), ``sol.stats``, ``sol.status``, ``sol.message``.
     """
+    if not options and type(y0) is ExactState and type(t) in _KEY_SCALARS:
+        # a repeated call with every option at its default, an exact state and a scalar time (the usual case):
+        # keyed as _call_key keys it, straight to the run on a hit (no options to bind, compare or key)
+        call = _CALLS.get((id(system), id(y0), t) + _DEFAULT_OPTIONS)
+        if call is not None and call.system is system:
+            return _execute_plain(call) if call.plain else _execute_general(call, None, None)
+    return _integrate(system, y0, t, **options)
+
+
+def _integrate(
+    system,
+    y0,
+    t,
+    *,
+    tol=None,
+    precision=None,
+    t0=0,
+    dense: bool = False,
+    max_steps: int | None = None,
+    max_time: float | None = None,
+    min_step: float | None = None,
+    compact_mode: bool | None = None,
+    high_accuracy: bool = False,
+    atlas: bool | None = None,
+    progress=None,
+    events=None,
+    params=None,
+    workers: int | None = None,
+    client=None,
+    chunk_size: int | None = None,
+    batch_size: int | None = None,
+):
+    """:func:`integrate` with its options bound (its signature)."""
     if progress is None and events is None and atlas is not True and params is None and workers is None and \
             client is None:
-        # a repeated call (the same system, exact state and options as a memoised one): straight to the run. The
-        # usual case, an exact state and a scalar time, is keyed here as _call_key does (a function call less)
+        # a repeated call (the same system, exact state and options as a memoised one): straight to the run. An
+        # exact state and a scalar time are keyed here as _call_key does (a function call less)
         ty = type(y0)
         if ty is ExactState and type(t) in _KEY_SCALARS:
             options = (t0, tol, precision, dense, max_steps, max_time, min_step, compact_mode, high_accuracy)
@@ -611,6 +623,9 @@ def integrate(
     return _execute(call, progress)
 
 
+integrate.__signature__ = inspect.signature(_integrate)  # help() and introspection see the options
+
+
 def _plain_setup(call) -> None:
     """Whether a new call is plain (no events of the user's, no dense output, no min_step; output times only in
     double), and what its short path (:func:`_execute_plain`) needs."""
@@ -644,11 +659,12 @@ class _Call:
     __slots__ = ("system", "y0", "ps", "prec", "plan", "user_events", "y0_native", "pars_native", "max_steps",
                  "stiff_steps", "max_time", "min_step", "dense", "energy", "dtype", "first_chunk", "plain", "t_out",
                  "t_requested", "t0_native", "t_end_native", "budget", "free", "repeat_chunk", "grid", "sqrt_tol",
-                 "reached", "t_exact", "views")
+                 "reached", "t_exact", "views", "quick")
 
     def __init__(self, **kw):
         self.energy = None  # (compiled H, parameters, H(y0)) once a run needs the energy check
         self.plain = False
+        self.quick = None  # the plain path's energy check (_quick_energy), made on its first run
         self.views = None  # (integrator, its state's view, its parameters' view) of the last plain run
         for k, v in kw.items():
             setattr(self, k, v)
@@ -657,6 +673,8 @@ class _Call:
 #: Memoised calls (:class:`_Call`) of :func:`integrate`; a hit is one dict lookup (``_CALLS.get``).
 _CALLS = cache.region("taylor.calls", 256)
 _KEY_SCALARS = frozenset((type(None), int, float, str, bool))
+#: (t0, tol, precision, dense, max_steps, max_time, min_step, compact_mode, high_accuracy) at their defaults
+_DEFAULT_OPTIONS = (0, None, None, False, None, None, None, None, False)
 
 
 def _call_key(system, y0, t, *options):
@@ -690,12 +708,13 @@ def _execute(call, progress):
 
 
 _TIME_LIMIT = _OUTCOME.time_limit
+_perf_counter = _time.perf_counter
 
 
 def _execute_plain(call):
     """A plain run (no events of the user's, no dense output, no progress, no ``min_step``; output times only in
     double): its first chunk is one heyoka call;
-    a run that ends within it and passes the cheap energy check (:func:`lieseries.energy.energy_quick`) returns a
+    a run that ends within it and passes the cheap energy check (:func:`lieseries.energy.quick_check`) returns a
     :class:`Solution` whose rows and statistics are made when read. Anything else -- a longer run, a non-finite
     state, a step budget, a doubtful energy -- goes on through the general path from where the chunk ended, so
     both give the same steps, states and statuses."""
@@ -724,11 +743,11 @@ def _execute_plain(call):
         if events:  # the model's terminal events (a chart's edge)
             ta.reset_cooldowns()
         grid = call.grid
-        tic = _time.perf_counter()
+        tic = _perf_counter()
         # max_steps passed by position (as a keyword: 1.5 us more)
         res = ta.propagate_until(call.t_end_native, call.budget) if grid is None else \
             ta.propagate_grid(grid, call.budget)
-        run_time = _time.perf_counter() - tic
+        run_time = _perf_counter() - tic
         t_end = ta.time
         if grid is not None:  # as _Chunks._propagate answers: the rows last, the first standing for t0
             res = (res[0], res[1], res[2], res[3], None, res[5])
@@ -740,19 +759,41 @@ def _execute_plain(call):
         if len(free) < cache.MAX_FREE:  # as _release (inline: the plain path is the fast one)
             free.append(ta)
     steps = res[3]
-    energy = call.energy
-    if energy is not False:
-        if energy is None:
-            ps = call.ps
-            energy = call.energy = energy_function(ps, call.prec, call.y0_native) if ps.is_hamiltonian else False
-        if energy is not False and not energy_quick(energy, call.sqrt_tol, y_end, steps):
-            status, _ = energy_verdict(energy, call.sqrt_tol, y_end, steps, "success", call.reached)
-            if status != "success":
-                return _execute_general(call, None, (None, res, run_time, (build, cached), t_end, y_end))
+    check = call.quick
+    if check is None:
+        check = call.quick = _quick_energy(call)
+    try:
+        sure = check(y_end.tolist(), steps)
+    except Exception:  # noqa: BLE001 - overflow, a domain error: the compiled check decides
+        sure = False
+    if not sure:
+        status, _ = energy_verdict(call.energy, call.sqrt_tol, y_end, steps, "success", call.reached)
+        if status != "success":
+            return _execute_general(call, None, (None, res, run_time, (build, cached), t_end, y_end))
     if call.budget < call.repeat_chunk:
         _succeeded(call)
     return Solution.deferred("success", call.reached, call.t_exact, call.t_requested, _plain_fields,
-                             (call, y_end, steps, res[1], res[2], t_end, build, cached, run_time, res[5]))
+                             (call, y_end, res, t_end, build, cached, run_time))
+
+
+def _no_energy(y, steps) -> bool:
+    return True  # a system without a Hamiltonian: nothing to check
+
+
+def _not_sure(y, steps) -> bool:
+    return False  # no cheap opinion: the compiled check decides
+
+
+def _quick_energy(call):
+    """The energy check of a plain call's runs, made on its first run: ``check(y_end as a list, steps)``, True
+    when the run surely passes the energy guard (:func:`lieseries.energy.quick_check`); False sends the run to the
+    compiled check (:func:`lieseries.energy.energy_verdict`)."""
+    ps = call.ps
+    if not ps.is_hamiltonian:
+        return _no_energy
+    if call.energy is None:
+        call.energy = energy_function(ps, call.prec, call.y0_native)
+    return quick_check(call.energy, call.sqrt_tol) or _not_sure
 
 
 def _succeeded(call) -> None:
@@ -790,9 +831,11 @@ def _plain_rows(call, y_end, rows):
     return y
 
 
-def _plain_fields(call, y_end, steps, lo, hi, t_end, build, cached, run_time, rows) -> dict:
-    """The fields of a plain run's :class:`Solution` (:func:`_execute_plain`), when first read."""
-    lo, hi = _step_range(steps, lo, hi, t_end, call.t0_native)
+def _plain_fields(call, y_end, res, t_end, build, cached, run_time) -> dict:
+    """The fields of a plain run's :class:`Solution` (:func:`_execute_plain`; ``res`` heyoka's answer), when first
+    read."""
+    steps, rows = res[3], res[5]
+    lo, hi = _step_range(steps, res[1], res[2], t_end, call.t0_native)
     stats = Stats(method="taylor (heyoka)", precision=call.prec.name, tol=call.plan["tol_float"],
                   order=call.plan["build"][0].order, build_time=build, cached=cached, run_time=run_time, steps=steps,
                   min_step=lo, max_step=hi)
