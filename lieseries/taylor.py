@@ -650,6 +650,10 @@ def _plain_setup(call) -> None:
         call.sqrt_tol, call.reached, call.t_exact = plan["sqrt_tol"], plan["reached"], plan["grid_exact"][-1]
         call.budget = min(call.first_chunk, call.max_steps)  # the first chunk's steps
         call.free = cache.free_copies(plan["build"][0])
+        call.events = plan["build"][3]
+        # a successful plain run's Solution fields that do not depend on the run
+        call.head = {"status": "success", "message": call.reached, "t_reached": call.t_exact,
+                     "t_requested": call.t_requested}
 
 
 class _Call:
@@ -659,13 +663,14 @@ class _Call:
     __slots__ = ("system", "y0", "ps", "prec", "plan", "user_events", "y0_native", "pars_native", "max_steps",
                  "stiff_steps", "max_time", "min_step", "dense", "energy", "dtype", "first_chunk", "plain", "t_out",
                  "t_requested", "t0_native", "t_end_native", "budget", "free", "repeat_chunk", "grid", "sqrt_tol",
-                 "reached", "t_exact", "views", "quick")
+                 "reached", "t_exact", "views", "quick", "report", "events", "head")
 
     def __init__(self, **kw):
         self.energy = None  # (compiled H, parameters, H(y0)) once a run needs the energy check
         self.plain = False
         self.quick = None  # the plain path's energy check (_quick_energy), made on its first run
-        self.views = None  # (integrator, its state's view, its parameters' view) of the last plain run
+        self.report = None  # (build time, cached) its next run reports, once known (_next_report)
+        self.views = (None, None, None)  # (integrator, its state's view, its parameters' view) of the last plain run
         for k, v in kw.items():
             setattr(self, k, v)
 
@@ -709,6 +714,7 @@ def _execute(call, progress):
 
 _TIME_LIMIT = _OUTCOME.time_limit
 _perf_counter = _time.perf_counter
+_MAX_FREE = cache.MAX_FREE
 
 
 def _execute_plain(call):
@@ -717,30 +723,27 @@ def _execute_plain(call):
     a run that ends within it and passes the cheap energy check (:func:`lieseries.energy.quick_check`) returns a
     :class:`Solution` whose rows and statistics are made when read. Anything else -- a longer run, a non-finite
     state, a step budget, a doubtful energy -- goes on through the general path from where the chunk ended, so
-    both give the same steps, states and statuses."""
-    plan = call.plan
-    template, build, cached, events = plan["build"]
-    if not cached:
-        if plan.get("used"):
-            build, cached = 0.0, True
-        plan["used"] = True  # only the first run of a new integrator reports its build time
+    both give the same steps, states and statuses. (The hot path of a repeated call: each line here costs.)"""
+    report = call.report
+    if report is None:
+        report = _next_report(call)
     free = call.free
     try:
         ta = free.pop()  # as _checkout: a free copy of the template, or a new one
     except IndexError:
-        ta = copy.deepcopy(template)
+        ta = copy.deepcopy(call.plan["build"][0])
     try:
         views = call.views
-        if views is None or views[0] is not ta:
+        if views[0] is not ta:
             # numpy views of the integrator's state and parameters (its own buffers, never reallocated), kept for
             # the integrator this call last ran on: each read of ta.state makes a new view (~1-2 us)
             views = call.views = (ta, ta.state, ta.pars if call.pars_native is not None else None)
         ta.time = call.t0_native
         state = views[1]
         state[:] = call.y0_native
-        if call.pars_native is not None:
+        if views[2] is not None:
             views[2][:] = call.pars_native
-        if events:  # the model's terminal events (a chart's edge)
+        if call.events:  # the model's terminal events (a chart's edge)
             ta.reset_cooldowns()
         grid = call.grid
         tic = _perf_counter()
@@ -754,26 +757,37 @@ def _execute_plain(call):
         if res[0] == _TIME_LIMIT and t_end == call.t_end_native:
             y_end = state.copy()
         else:
-            return _execute_general(call, None, (ta, res, run_time, (build, cached)))
+            return _execute_general(call, None, (ta, res, run_time, report))
     finally:
-        if len(free) < cache.MAX_FREE:  # as _release (inline: the plain path is the fast one)
+        if len(free) < _MAX_FREE:  # as _release (inline: the plain path is the fast one)
             free.append(ta)
-    steps = res[3]
     check = call.quick
     if check is None:
         check = call.quick = _quick_energy(call)
     try:
-        sure = check(y_end.tolist(), steps)
+        sure = check(y_end.tolist(), res[3])
     except Exception:  # noqa: BLE001 - overflow, a domain error: the compiled check decides
         sure = False
     if not sure:
-        status, _ = energy_verdict(call.energy, call.sqrt_tol, y_end, steps, "success", call.reached)
+        status, _ = energy_verdict(call.energy, call.sqrt_tol, y_end, res[3], "success", call.reached)
         if status != "success":
-            return _execute_general(call, None, (None, res, run_time, (build, cached), t_end, y_end))
+            return _execute_general(call, None, (None, res, run_time, report, t_end, y_end))
     if call.budget < call.repeat_chunk:
         _succeeded(call)
-    return Solution.deferred("success", call.reached, call.t_exact, call.t_requested, _plain_fields,
-                             (call, y_end, res, t_end, build, cached, run_time))
+    return Solution.deferred(call.head, _plain_fields, (call, y_end, res, t_end, report, run_time))
+
+
+def _next_report(call) -> tuple:
+    """(build time, cached) for the next run of ``call`` to report: only the first run of a new integrator (of any
+    call on its plan) reports its build time; what later runs of the call report is kept on it."""
+    plan = call.plan
+    _, build, cached, _ = plan["build"]
+    if not cached:
+        if plan.get("used"):
+            build, cached = 0.0, True
+        plan["used"] = True
+    call.report = (build, cached) if cached else (0.0, True)
+    return build, cached
 
 
 def _no_energy(y, steps) -> bool:
@@ -831,13 +845,14 @@ def _plain_rows(call, y_end, rows):
     return y
 
 
-def _plain_fields(call, y_end, res, t_end, build, cached, run_time) -> dict:
+def _plain_fields(call, y_end, res, t_end, report, run_time) -> dict:
     """The fields of a plain run's :class:`Solution` (:func:`_execute_plain`; ``res`` heyoka's answer), when first
     read."""
     steps, rows = res[3], res[5]
     lo, hi = _step_range(steps, res[1], res[2], t_end, call.t0_native)
     stats = Stats(method="taylor (heyoka)", precision=call.prec.name, tol=call.plan["tol_float"],
-                  order=call.plan["build"][0].order, build_time=build, cached=cached, run_time=run_time, steps=steps,
+                  order=call.plan["build"][0].order, build_time=report[0], cached=report[1], run_time=run_time,
+                  steps=steps,
                   min_step=lo, max_step=hi)
     # t: the solution's own copy (a read-only array can be made writable again by its owner)
     return {"t": call.t_out.copy(), "y": _plain_rows(call, y_end, rows), "stats": stats, "y_reached": y_end}
@@ -849,13 +864,8 @@ def _execute_general(call, progress, started):
     ps, prec, plan, user_events = call.ps, call.prec, call.plan, call.user_events
     grid, direction = plan["grid"], plan["direction"]
     grid_native, t0_native, y0_native = plan["grid_native"], plan["t0_native"], call.y0_native
-    template, build, cached, event_info = plan["build"]
-    if started is not None:
-        build, cached = started[3]
-    elif not cached:
-        if plan.get("used"):
-            build, cached = 0.0, True
-        plan["used"] = True  # only the first run of a new integrator reports its build time
+    template, _, _, event_info = plan["build"]
+    build, cached = started[3] if started is not None else (call.report or _next_report(call))
     ta = free = None
     sinks = [[] for ev in user_events if not ev[3]]  # no step: no crossing
     if started is not None:
