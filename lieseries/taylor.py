@@ -624,6 +624,7 @@ def _integrate(
 
 
 integrate.__signature__ = inspect.signature(_integrate)  # help() and introspection see the options
+_integrate.__qualname__ = "integrate"  # and a misspelt option is reported against integrate
 
 
 def _plain_setup(call) -> None:
