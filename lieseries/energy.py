@@ -20,7 +20,7 @@ import numpy as np
 from . import cache
 
 __all__ = ["drift_threshold", "DRIFT_PER_STEP", "energy_check", "energy_drift", "energy_function", "energy_verdict",
-           "energy_quick",
+           "energy_quick", "quick_check",
            "drift_message", "clear_energy_cache", "energy_exact", "exact_energy_verdict"]
 
 _LOCK = threading.Lock()
@@ -43,7 +43,7 @@ def drift_threshold(tol, steps):
     return min(mpmath.sqrt(t), DRIFT_PER_STEP * t * n)
 
 _ENERGY = cache.region("energy.functions", 64)  # compiled energy checks, in the one cache
-#: Energies (H and the Casimirs) printed longer than this get no plain Python check (:func:`energy_quick`): the
+#: Energies (H and the Casimirs) printed longer than this get no plain Python check (:func:`quick_check`): the
 #: compiled function's per-call cost matters little beside their own.
 PYTHON_CHECK_CHARS = 4000
 
@@ -71,12 +71,13 @@ def _compiled(ps, prec):
 
 
 def _python_function(ps, exprs, npar):
-    """(values, check): ``exprs`` (H, then the Casimirs) as plain Python functions of floats, or None when they do
+    """(values, make): ``exprs`` (H, then the Casimirs) as plain Python functions of floats, or None when they do
     not translate (a function the ``math`` module lacks). ``values(*state, *parameters)`` is their list;
-    ``check(state, parameters, ref, half)`` (two lists of floats) is True when ``|H - ref[0]| <= half * ref[1]`` and
-    ``|C_j - ref[2 + 2j]| <= half * ref[3 + 2j]`` for every Casimir. Calling a compiled ``hy.cfunc`` costs
-    several microseconds of argument handling, many times the few float operations of an energy: these give
-    :func:`energy_quick` its cheap first opinion on a double run."""
+    ``make(*parameters, *ref, per_step, most)`` returns ``check(state, steps)`` (the state a list of floats), True
+    when ``|H - ref[0]| <= half * ref[1]`` and ``|C_j - ref[2 + 2j]| <= half * ref[3 + 2j]`` for every Casimir, with
+    ``half = min(most, per_step * max(steps, 1))``; the constants are the closure's own cells (no subscripts).
+    Calling a compiled ``hy.cfunc`` costs several microseconds of argument handling, many times the few float
+    operations of an energy: these give :func:`quick_check` its cheap first opinion on a double run."""
     if sum(len(str(e)) for e in exprs) > PYTHON_CHECK_CHARS:
         return None  # a large energy: sympy's translation would cost more than the calls it saves
     try:
@@ -102,27 +103,30 @@ def _python_function(ps, exprs, npar):
         pr = Printer()
         head = ", ".join(str(a) for a in args)
         unpack = [f"    {''.join(f'v{i}, ' for i in range(len(names)))}= y"]
-        if npar:
-            unpack.append(f"    {''.join(f'p{i}, ' for i in range(npar))}= p")
         body = [f"    {w} = {pr.doprint(e)}" for w, e in common]
         outs = [pr.doprint(e) for e in reduced]
-        test = [f"abs({c} - ref[{2 + 2 * j}]) <= half * ref[{3 + 2 * j}]" for j, c in enumerate(outs[1:])]
+        test = [f"abs({c} - r{2 + 2 * j}) <= half * r{3 + 2 * j}" for j, c in enumerate(outs[1:])]
+        consts = [f"p{i}" for i in range(npar)] + [f"r{k}" for k in range(2 * len(outs))]
         code = "\n".join(
             [f"def values({head}):"] + body + [f"    return [{', '.join(outs)}]",
-             "def check(y, p, ref, half):"] + unpack + body
-            + [f"    h = {outs[0]}", "    if not abs(h - ref[0]) <= half * ref[1]:", "        return False",
-               f"    return {' and '.join(test) if test else 'True'}"])
+             f"def make({''.join(c + ', ' for c in consts)}per_step, most):",
+             "  def check(y, steps):"]
+            + ["  " + line for line in unpack + body + [
+                "    half = per_step * steps if steps > 1 else per_step", "    if half > most:", "        half = most",
+                f"    h = {outs[0]}", "    if not abs(h - r0) <= half * r1:", "        return False",
+                f"    return {' and '.join(test) if test else 'True'}"]]
+            + ["  return check"])
         namespace = {"math": math}
         exec(compile(code, "<lieseries energy check>", "exec"), namespace)  # noqa: S102 - code printed by sympy
-        return namespace["values"], namespace["check"]
+        return namespace["values"], namespace["make"]
     except Exception:  # noqa: BLE001 - no translation: the compiled function alone decides
         return None
 
 
 def _quick_start(quick, y0, pars, out, n, scale, casimirs):
-    """(check, the parameters as floats, ref) for :func:`energy_quick` when the Python functions agree with the
-    compiled one at y0 to 2^-40 of each value's scale; else None (the compiled function alone decides)."""
-    values, check = quick
+    """(make, its constants: the parameters as floats, ref) for :func:`quick_check` when the Python functions agree
+    with the compiled one at y0 to 2^-40 of each value's scale; else None (the compiled function alone decides)."""
+    values, make = quick
     args = [float(v) for v in y0] + ([float(v) for v in pars] if pars is not None else [])
     try:
         vals = [float(v) for v in values(*args)]
@@ -137,7 +141,7 @@ def _quick_start(quick, y0, pars, out, n, scale, casimirs):
             return None
     # the changes are measured against the scales at y0 alone (not also |H(y_end)|, |C(y_end)|): stricter
     limits = [vals[0], max(abs(vals[0]), sizes[0])] + [x for pair in zip(vals[1:], sizes[1:]) for x in pair]
-    return check, args[len(y0):], tuple(limits)
+    return make, tuple(args[len(y0):]) + tuple(limits)
 
 
 def energy_function(ps, prec, y0, parameters=None):
@@ -278,19 +282,30 @@ def energy_verdict(energy, sqrt_tol, y_end, steps, status, message):
     return status, message
 
 
-def energy_quick(energy, sqrt_tol, y_end, steps) -> bool:
-    """True when a successful double run that ended at ``y_end`` (a float64 array) after ``steps`` steps surely
-    passes :func:`energy_verdict`: H and every declared Casimir changed by at most half of the allowed amount,
-    measured with the plain Python function of :func:`energy_function` (a few float operations, several times
-    cheaper than a compiled-function call). False means "ask :func:`energy_verdict`", which alone reports a drift:
-    the half margin dwarfs the rounding differences of the two evaluations (a few ulps against at least 1000 tol),
-    so the cheap opinion never passes a run the compiled check would stop."""
+def quick_check(energy, sqrt_tol):
+    """The cheap first opinion on the energy of a successful double run at tolerance ``sqrt_tol**2``, or None when
+    there is none (not double, a large or untranslatable energy, disagreement at y0): ``check(y_end, steps)``
+    (``y_end`` a list of floats) is True when the run that ended there after ``steps`` steps surely passes
+    :func:`energy_verdict`: H and every declared Casimir changed by at most half of the allowed amount
+    (:func:`drift_threshold`), measured with the plain Python function of :func:`energy_function` (a few float
+    operations, several times cheaper than a compiled-function call). False, or an exception (overflow, a domain
+    error), means "ask :func:`energy_verdict`", which alone reports a drift: the half margin dwarfs the rounding
+    differences of the two evaluations (a few ulps against at least 1000 tol), so the cheap opinion never passes a
+    run the compiled check would stop. Made once per call and called on each of its runs."""
     quick = energy[6]
     if quick is None:
+        return None
+    make, consts = quick
+    return make(*consts, 0.5 * DRIFT_PER_STEP * sqrt_tol * sqrt_tol, 0.5 * sqrt_tol)
+
+
+def energy_quick(energy, sqrt_tol, y_end, steps) -> bool:
+    """:func:`quick_check`'s opinion on one end state ``y_end`` (a float64 array): False when it has none."""
+    check = quick_check(energy, sqrt_tol)
+    if check is None:
         return False
-    try:  # half of drift_threshold
-        return quick[0](y_end.tolist(), quick[1], quick[2],
-                        0.5 * min(sqrt_tol, DRIFT_PER_STEP * sqrt_tol * sqrt_tol * (steps if steps > 1 else 1)))
+    try:
+        return check(y_end.tolist(), steps)
     except Exception:  # noqa: BLE001 - overflow, a domain error: the compiled check decides
         return False
 

@@ -109,18 +109,19 @@ class Solution:
         )
 
     @classmethod
-    def deferred(cls, status: str, message: str, t_reached, t_requested, make, data):
-        """A Solution whose other fields (``t``, ``y``, ``stats``, ``y_reached``) ``make(*data)`` computes, as a
-        dict, the first time one of them is read (or the solution is pickled or copied): what a run that is called
-        many times in a loop, and whose every field is not read, costs to return. ``make`` must be a module-level
-        function (picklable), ``data`` a tuple the run no longer changes."""
-        if status not in STATUSES:  # pragma: no cover - programming error
-            raise ValueError(f"unknown status {status!r}")
+    def deferred(cls, head: dict, make, data):
+        """A Solution with ``head``'s ``status``, ``message``, ``t_reached`` and ``t_requested`` (a dict made once
+        by the caller and only read here) whose other fields (``t``, ``y``, ``stats``, ``y_reached``) ``make(*data)``
+        computes, as a dict, the first time one of them is read (or the solution is pickled or copied): what a run
+        that is called many times in a loop, and whose every field is not read, costs to return. ``make`` must be a
+        module-level function (picklable), ``data`` a tuple the run no longer changes."""
+        if head["status"] not in STATUSES:  # pragma: no cover - programming error
+            raise ValueError(f"unknown status {head['status']!r}")
         self = object.__new__(cls)
         # charts, chart_reached, events and the dense output are None: the class's own values
         d = self.__dict__
-        d["status"], d["message"], d["t_reached"], d["t_requested"], d["_make"] = (
-            status, message, t_reached, t_requested, (make, data))
+        d.update(head)
+        d["_make"] = (make, data)
         return self
 
     # a deferred solution's fields that no run of its kind has (every other solution sets its own)

@@ -62,6 +62,7 @@ threads.
 from __future__ import annotations
 
 import copy
+import inspect
 import math
 import time as _time
 from fractions import Fraction
@@ -71,7 +72,7 @@ import numpy as np
 
 from . import cache
 from .driver import KEPT_ROWS, Stop, StepResult, drive, format_time, run_message
-from .energy import clear_energy_cache, energy_function, energy_quick, energy_verdict
+from .energy import clear_energy_cache, energy_function, energy_verdict, quick_check
 from .events import resolve_events
 from .models.base import ExactState, Model, state_fractions
 from .poisson import as_poisson_system
@@ -464,29 +465,7 @@ def warn_coarse_inputs(ps, y0, times, work_bits: int, *, stacklevel: int = 4) ->
     return bool(coarse)
 
 
-def integrate(
-    system,
-    y0,
-    t,
-    *,
-    tol=None,
-    precision=None,
-    t0=0,
-    dense: bool = False,
-    max_steps: int | None = None,
-    max_time: float | None = None,
-    min_step: float | None = None,
-    compact_mode: bool | None = None,
-    high_accuracy: bool = False,
-    atlas: bool | None = None,
-    progress=None,
-    events=None,
-    params=None,
-    workers: int | None = None,
-    client=None,
-    chunk_size: int | None = None,
-    batch_size: int | None = None,
-):
+def integrate(system, y0, t, **options):
     """Integrate ``dz/dt = X_H(z)`` with heyoka's adaptive Taylor method.
 
     Parameters
@@ -539,10 +518,43 @@ def integrate(
     Solution
         ``sol.t``, ``sol.y`` (one row per output time reached), ``sol.stats``, ``sol.status``, ``sol.message``.
     """
+    if not options and type(y0) is ExactState and type(t) in _KEY_SCALARS:
+        # a repeated call with every option at its default, an exact state and a scalar time (the usual case):
+        # keyed as _call_key keys it, straight to the run on a hit (no options to bind, compare or key)
+        call = _CALLS.get((id(system), id(y0), t) + _DEFAULT_OPTIONS)
+        if call is not None and call.system is system:
+            return _execute_plain(call) if call.plain else _execute_general(call, None, None)
+    return _integrate(system, y0, t, **options)
+
+
+def _integrate(
+    system,
+    y0,
+    t,
+    *,
+    tol=None,
+    precision=None,
+    t0=0,
+    dense: bool = False,
+    max_steps: int | None = None,
+    max_time: float | None = None,
+    min_step: float | None = None,
+    compact_mode: bool | None = None,
+    high_accuracy: bool = False,
+    atlas: bool | None = None,
+    progress=None,
+    events=None,
+    params=None,
+    workers: int | None = None,
+    client=None,
+    chunk_size: int | None = None,
+    batch_size: int | None = None,
+):
+    """:func:`integrate` with its options bound (its signature)."""
     if progress is None and events is None and atlas is not True and params is None and workers is None and \
             client is None:
-        # a repeated call (the same system, exact state and options as a memoised one): straight to the run. The
-        # usual case, an exact state and a scalar time, is keyed here as _call_key does (a function call less)
+        # a repeated call (the same system, exact state and options as a memoised one): straight to the run. An
+        # exact state and a scalar time are keyed here as _call_key does (a function call less)
         ty = type(y0)
         if ty is ExactState and type(t) in _KEY_SCALARS:
             options = (t0, tol, precision, dense, max_steps, max_time, min_step, compact_mode, high_accuracy)
@@ -611,6 +623,10 @@ def integrate(
     return _execute(call, progress)
 
 
+integrate.__signature__ = inspect.signature(_integrate)  # help() and introspection see the options
+_integrate.__qualname__ = "integrate"  # and a misspelt option is reported against integrate
+
+
 def _plain_setup(call) -> None:
     """Whether a new call is plain (no events of the user's, no dense output, no min_step; output times only in
     double), and what its short path (:func:`_execute_plain`) needs."""
@@ -635,6 +651,10 @@ def _plain_setup(call) -> None:
         call.sqrt_tol, call.reached, call.t_exact = plan["sqrt_tol"], plan["reached"], plan["grid_exact"][-1]
         call.budget = min(call.first_chunk, call.max_steps)  # the first chunk's steps
         call.free = cache.free_copies(plan["build"][0])
+        call.events = plan["build"][3]
+        # a successful plain run's Solution fields that do not depend on the run
+        call.head = {"status": "success", "message": call.reached, "t_reached": call.t_exact,
+                     "t_requested": call.t_requested}
 
 
 class _Call:
@@ -644,12 +664,15 @@ class _Call:
     __slots__ = ("system", "y0", "ps", "prec", "plan", "user_events", "y0_native", "pars_native", "max_steps",
                  "stiff_steps", "max_time", "min_step", "dense", "energy", "dtype", "first_chunk", "plain", "t_out",
                  "t_requested", "t0_native", "t_end_native", "budget", "free", "repeat_chunk", "grid", "sqrt_tol",
-                 "reached", "t_exact", "views")
+                 "reached", "t_exact", "views", "quick", "report", "events", "head", "passed")
 
     def __init__(self, **kw):
         self.energy = None  # (compiled H, parameters, H(y0)) once a run needs the energy check
         self.plain = False
-        self.views = None  # (integrator, its state's view, its parameters' view) of the last plain run
+        self.quick = None  # the plain path's energy check (_quick_energy), made on its first run
+        self.passed = None  # (end state's bytes, steps) of its last double run that passed the energy check
+        self.report = None  # (build time, cached) its next run reports, once known (_next_report)
+        self.views = (None, None, None)  # (integrator, its state's view, its parameters' view) of the last plain run
         for k, v in kw.items():
             setattr(self, k, v)
 
@@ -657,6 +680,8 @@ class _Call:
 #: Memoised calls (:class:`_Call`) of :func:`integrate`; a hit is one dict lookup (``_CALLS.get``).
 _CALLS = cache.region("taylor.calls", 256)
 _KEY_SCALARS = frozenset((type(None), int, float, str, bool))
+#: (t0, tol, precision, dense, max_steps, max_time, min_step, compact_mode, high_accuracy) at their defaults
+_DEFAULT_OPTIONS = (0, None, None, False, None, None, None, None, False)
 
 
 def _call_key(system, y0, t, *options):
@@ -690,69 +715,109 @@ def _execute(call, progress):
 
 
 _TIME_LIMIT = _OUTCOME.time_limit
+_perf_counter = _time.perf_counter
+_MAX_FREE = cache.MAX_FREE
+_FLOAT64 = np.dtype(np.float64)
 
 
 def _execute_plain(call):
     """A plain run (no events of the user's, no dense output, no progress, no ``min_step``; output times only in
     double): its first chunk is one heyoka call;
-    a run that ends within it and passes the cheap energy check (:func:`lieseries.energy.energy_quick`) returns a
+    a run that ends within it and passes the cheap energy check (:func:`lieseries.energy.quick_check`) returns a
     :class:`Solution` whose rows and statistics are made when read. Anything else -- a longer run, a non-finite
     state, a step budget, a doubtful energy -- goes on through the general path from where the chunk ended, so
-    both give the same steps, states and statuses."""
-    plan = call.plan
-    template, build, cached, events = plan["build"]
-    if not cached:
-        if plan.get("used"):
-            build, cached = 0.0, True
-        plan["used"] = True  # only the first run of a new integrator reports its build time
+    both give the same steps, states and statuses. (The hot path of a repeated call: each line here costs.)"""
+    report = call.report
+    if report is None:
+        report = _next_report(call)
     free = call.free
     try:
         ta = free.pop()  # as _checkout: a free copy of the template, or a new one
     except IndexError:
-        ta = copy.deepcopy(template)
+        ta = copy.deepcopy(call.plan["build"][0])
     try:
         views = call.views
-        if views is None or views[0] is not ta:
+        if views[0] is not ta:
             # numpy views of the integrator's state and parameters (its own buffers, never reallocated), kept for
             # the integrator this call last ran on: each read of ta.state makes a new view (~1-2 us)
             views = call.views = (ta, ta.state, ta.pars if call.pars_native is not None else None)
         ta.time = call.t0_native
         state = views[1]
         state[:] = call.y0_native
-        if call.pars_native is not None:
+        if views[2] is not None:
             views[2][:] = call.pars_native
-        if events:  # the model's terminal events (a chart's edge)
+        if call.events:  # the model's terminal events (a chart's edge)
             ta.reset_cooldowns()
         grid = call.grid
-        tic = _time.perf_counter()
+        tic = _perf_counter()
         # max_steps passed by position (as a keyword: 1.5 us more)
         res = ta.propagate_until(call.t_end_native, call.budget) if grid is None else \
             ta.propagate_grid(grid, call.budget)
-        run_time = _time.perf_counter() - tic
+        run_time = _perf_counter() - tic
         t_end = ta.time
         if grid is not None:  # as _Chunks._propagate answers: the rows last, the first standing for t0
             res = (res[0], res[1], res[2], res[3], None, res[5])
         if res[0] == _TIME_LIMIT and t_end == call.t_end_native:
             y_end = state.copy()
         else:
-            return _execute_general(call, None, (ta, res, run_time, (build, cached)))
+            return _execute_general(call, None, (ta, res, run_time, report))
     finally:
-        if len(free) < cache.MAX_FREE:  # as _release (inline: the plain path is the fast one)
+        if len(free) < _MAX_FREE:  # as _release (inline: the plain path is the fast one)
             free.append(ta)
-    steps = res[3]
-    energy = call.energy
-    if energy is not False:
-        if energy is None:
-            ps = call.ps
-            energy = call.energy = energy_function(ps, call.prec, call.y0_native) if ps.is_hamiltonian else False
-        if energy is not False and not energy_quick(energy, call.sqrt_tol, y_end, steps):
-            status, _ = energy_verdict(energy, call.sqrt_tol, y_end, steps, "success", call.reached)
+    passed = call.passed
+    if passed is None or passed[1] != res[3] or passed[0] != y_end.tobytes():
+        # the energy check. It is a function of the end state and the step count alone (the call's constants
+        # fixed), so a run that ends on the very bits and step count of a run that passed it passes it: that is
+        # the comparison above (bytes: -0.0 is not 0.0, and a NaN never passed)
+        check = call.quick
+        if check is None:
+            check = call.quick = _quick_energy(call)
+        try:
+            sure = check(y_end.tolist(), res[3])
+        except Exception:  # noqa: BLE001 - overflow, a domain error: the compiled check decides
+            sure = False
+        if not sure:
+            status, _ = energy_verdict(call.energy, call.sqrt_tol, y_end, res[3], "success", call.reached)
             if status != "success":
-                return _execute_general(call, None, (None, res, run_time, (build, cached), t_end, y_end))
-    if call.budget < call.repeat_chunk:
-        _succeeded(call)
-    return Solution.deferred("success", call.reached, call.t_exact, call.t_requested, _plain_fields,
-                             (call, y_end, steps, res[1], res[2], t_end, build, cached, run_time, res[5]))
+                return _execute_general(call, None, (None, res, run_time, report, t_end, y_end))
+        if call.dtype == _FLOAT64:  # (other formats' bytes may hold padding or pointers)
+            call.passed = (y_end.tobytes(), res[3])
+        if call.budget < call.repeat_chunk:  # the call's first success (a run that skips the check comes after one)
+            _succeeded(call)
+    return Solution.deferred(call.head, _plain_fields, (call, y_end, res, t_end, report, run_time))
+
+
+def _next_report(call) -> tuple:
+    """(build time, cached) for the next run of ``call`` to report: only the first run of a new integrator (of any
+    call on its plan) reports its build time; what later runs of the call report is kept on it."""
+    plan = call.plan
+    _, build, cached, _ = plan["build"]
+    if not cached:
+        if plan.get("used"):
+            build, cached = 0.0, True
+        plan["used"] = True
+    call.report = (build, cached) if cached else (0.0, True)
+    return build, cached
+
+
+def _no_energy(y, steps) -> bool:
+    return True  # a system without a Hamiltonian: nothing to check
+
+
+def _not_sure(y, steps) -> bool:
+    return False  # no cheap opinion: the compiled check decides
+
+
+def _quick_energy(call):
+    """The energy check of a plain call's runs, made on its first run: ``check(y_end as a list, steps)``, True
+    when the run surely passes the energy guard (:func:`lieseries.energy.quick_check`); False sends the run to the
+    compiled check (:func:`lieseries.energy.energy_verdict`)."""
+    ps = call.ps
+    if not ps.is_hamiltonian:
+        return _no_energy
+    if call.energy is None:
+        call.energy = energy_function(ps, call.prec, call.y0_native)
+    return quick_check(call.energy, call.sqrt_tol) or _not_sure
 
 
 def _succeeded(call) -> None:
@@ -790,11 +855,14 @@ def _plain_rows(call, y_end, rows):
     return y
 
 
-def _plain_fields(call, y_end, steps, lo, hi, t_end, build, cached, run_time, rows) -> dict:
-    """The fields of a plain run's :class:`Solution` (:func:`_execute_plain`), when first read."""
-    lo, hi = _step_range(steps, lo, hi, t_end, call.t0_native)
+def _plain_fields(call, y_end, res, t_end, report, run_time) -> dict:
+    """The fields of a plain run's :class:`Solution` (:func:`_execute_plain`; ``res`` heyoka's answer), when first
+    read."""
+    steps, rows = res[3], res[5]
+    lo, hi = _step_range(steps, res[1], res[2], t_end, call.t0_native)
     stats = Stats(method="taylor (heyoka)", precision=call.prec.name, tol=call.plan["tol_float"],
-                  order=call.plan["build"][0].order, build_time=build, cached=cached, run_time=run_time, steps=steps,
+                  order=call.plan["build"][0].order, build_time=report[0], cached=report[1], run_time=run_time,
+                  steps=steps,
                   min_step=lo, max_step=hi)
     # t: the solution's own copy (a read-only array can be made writable again by its owner)
     return {"t": call.t_out.copy(), "y": _plain_rows(call, y_end, rows), "stats": stats, "y_reached": y_end}
@@ -806,13 +874,8 @@ def _execute_general(call, progress, started):
     ps, prec, plan, user_events = call.ps, call.prec, call.plan, call.user_events
     grid, direction = plan["grid"], plan["direction"]
     grid_native, t0_native, y0_native = plan["grid_native"], plan["t0_native"], call.y0_native
-    template, build, cached, event_info = plan["build"]
-    if started is not None:
-        build, cached = started[3]
-    elif not cached:
-        if plan.get("used"):
-            build, cached = 0.0, True
-        plan["used"] = True  # only the first run of a new integrator reports its build time
+    template, _, _, event_info = plan["build"]
+    build, cached = started[3] if started is not None else (call.report or _next_report(call))
     ta = free = None
     sinks = [[] for ev in user_events if not ev[3]]  # no step: no crossing
     if started is not None:

@@ -477,6 +477,40 @@ def test_cheap_energy_check_never_passes_what_the_compiled_check_stops():
     assert said_yes > 0 and said_no > 0  # both sides of the threshold were tried
 
 
+def test_repeated_call_skips_the_energy_check_only_on_the_bits_it_passed(monkeypatch):
+    """The plain path checks the energy of a run unless the run ended on the very bits and step count of one of
+    the call's runs that passed the check (the check is a function of those alone); any other end is checked, and
+    a drift found there is reported."""
+    import lieseries.taylor as taylor
+
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega=(1, "0.1", "0.5"))
+    first = ls.integrate(body, y0, t=2.0)
+    call = taylor._CALLS.get((id(body), id(y0), 2.0) + taylor._DEFAULT_OPTIONS)
+    assert first.success and call is not None and call.plain
+    checked = []
+    call.quick = (lambda check: lambda y, steps: checked.append(steps) or check(y, steps))(
+        call.quick or taylor._quick_energy(call))
+    call.passed = None
+    for _ in range(3):
+        sol = ls.integrate(body, y0, t=2.0)
+        assert sol.success and sol.y_reached.tobytes() == first.y_reached.tobytes()
+    assert checked == [first.stats.steps]  # checked once; then the same bits and steps
+    passed = call.passed
+    call.passed = (passed[0], passed[1] + 1)  # another step count: checked again
+    ls.integrate(body, y0, t=2.0)
+    end = bytearray(passed[0])
+    end[0] ^= 1  # another end state (the last bit of its first entry): checked again
+    call.passed = (bytes(end), passed[1])
+    ls.integrate(body, y0, t=2.0)
+    assert len(checked) == 3
+    # an end state the check stops (the stored bits of a passed run stand for it): reported, not skipped
+    call.quick = lambda y, steps: False
+    monkeypatch.setattr(taylor, "energy_verdict", lambda *a: ("invariant_drift", "drift."))
+    call.passed = (bytes(end), passed[1])
+    assert ls.integrate(body, y0, t=2.0).status == "invariant_drift"
+
+
 def test_memoised_grid_follows_the_array_not_its_identity():
     """Float64 output grids are memoised by their bytes: the same array changed in place is a new call."""
     body = ls.EulerPoisson((1, 2, 3))
