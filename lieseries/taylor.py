@@ -521,7 +521,7 @@ def integrate(system, y0, t, **options):
     if not options and type(y0) is ExactState and type(t) in _KEY_SCALARS:
         # a repeated call with every option at its default, an exact state and a scalar time (the usual case):
         # keyed as _call_key keys it, straight to the run on a hit (no options to bind, compare or key)
-        call = _CALLS.get((id(system), id(y0), t) + _DEFAULT_OPTIONS)
+        call = _CALLS.get((id(system), id(y0), t, type(t)) + _DEFAULT_KEY_TAIL)
         if call is not None and call.system is system:
             return _execute_plain(call) if call.plain else _execute_general(call, None, None)
     return _integrate(system, y0, t, **options)
@@ -682,6 +682,7 @@ _CALLS = cache.region("taylor.calls", 256)
 _KEY_SCALARS = frozenset((type(None), int, float, str, bool))
 #: (t0, tol, precision, dense, max_steps, max_time, min_step, compact_mode, high_accuracy) at their defaults
 _DEFAULT_OPTIONS = (0, None, None, False, None, None, None, None, False)
+_DEFAULT_KEY_TAIL = _DEFAULT_OPTIONS + tuple(map(type, _DEFAULT_OPTIONS))
 
 
 def _call_key(system, y0, t, *options):
@@ -702,9 +703,11 @@ def _call_key(system, y0, t, *options):
         t = ("grid", t.tobytes())
     elif type(t) not in _KEY_SCALARS:
         return None
-    if not _KEY_SCALARS.issuperset(map(type, options)):
+    types = tuple(map(type, options))
+    if not _KEY_SCALARS.issuperset(types):
         return None
-    return (id(system), ykey, t) + options
+    # the types too: 1 == True == 1.0, and a fresh call refuses some of them (`high_accuracy=1`, `t=True`)
+    return (id(system), ykey, t, type(t)) + options + types
 
 
 def _execute(call, progress):

@@ -536,3 +536,16 @@ def test_output_times_that_round_together_keep_their_rows(t):
         assert sol.success and len(sol.t) == len(t)
         for tk, yk in zip(sol.t, sol.y):
             assert rigid_error(yk, float(tk) - 1) < 1e-14
+
+
+def test_a_repeated_call_refuses_what_a_fresh_call_refuses():
+    """The memo keys options by value and type: after high_accuracy=True and t=1, the equal values 1 and True
+    (refused by a fresh call) are refused, not answered from the memo."""
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega=(1, "0.1", "0.5"))
+    assert ls.integrate(body, y0, t=2.0, high_accuracy=True).success
+    with pytest.raises(TypeError, match="`high_accuracy`"):
+        ls.integrate(body, y0, t=2.0, high_accuracy=1)
+    assert ls.integrate(body, y0, t=1).success
+    with pytest.raises(TypeError, match="`t`"):
+        ls.integrate(body, y0, t=True)
