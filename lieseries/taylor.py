@@ -395,11 +395,11 @@ def _plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events
     grid (exact and in the working format), the tolerance and the integrator's cache entry."""
     key = None
     scalar = (int, float, str, Fraction)
-    tkey = t if isinstance(t, scalar) else (
+    tkey = (type(t), t) if isinstance(t, scalar) else (  # the type: True == 1, and `t` = True is refused
         ("grid", t.tobytes()) if type(t) is np.ndarray and t.dtype == np.float64 and t.ndim == 1 else None)
     if (not user_events and tkey is not None and isinstance(t0, scalar)
             and (tol is None or isinstance(tol, scalar))):
-        key = (id(system), prec.name, tol, tkey, t0, compact_mode, high_accuracy)
+        key = (id(system), prec.name, type(tol), tol, tkey, type(t0), t0, compact_mode, high_accuracy)
         hit = _PLANS.get(key)
         if hit is not None and hit[0] is system:
             return hit[1]
@@ -558,7 +558,8 @@ def _integrate(
         ty = type(y0)
         if ty is ExactState and type(t) in _KEY_SCALARS:
             options = (t0, tol, precision, dense, max_steps, max_time, min_step, compact_mode, high_accuracy)
-            key = (id(system), id(y0), t) + options if _KEY_SCALARS.issuperset(map(type, options)) else None
+            types = tuple(map(type, options))
+            key = (id(system), id(y0), t, type(t)) + options + types if _KEY_SCALARS.issuperset(types) else None
         else:
             key = _call_key(system, y0, t, t0, tol, precision, dense, max_steps, max_time, min_step, compact_mode,
                             high_accuracy)

@@ -486,7 +486,7 @@ def test_repeated_call_skips_the_energy_check_only_on_the_bits_it_passed(monkeyp
     body = ls.EulerPoisson((1, 2, 3))
     y0 = body.initial_state(omega=(1, "0.1", "0.5"))
     first = ls.integrate(body, y0, t=2.0)
-    call = taylor._CALLS.get((id(body), id(y0), 2.0) + taylor._DEFAULT_OPTIONS)
+    call = taylor._CALLS.get((id(body), id(y0), 2.0, float) + taylor._DEFAULT_KEY_TAIL)
     assert first.success and call is not None and call.plain
     checked = []
     call.quick = (lambda check: lambda y, steps: checked.append(steps) or check(y, steps))(
