@@ -376,6 +376,19 @@ class ConstrainedSystem:
             cache[key] = ConstrainedReduced(self, tuple(dep), edge_f)
         return cache[key]
 
+    def _triangular(self, dep) -> bool:
+        """Whether the block dG/dq of the coordinates ``dep`` is triangular up to an order of the constraints and
+        of the coordinates (each constraint in turn has one dependent coordinate the later ones do not use)."""
+        rows = [{a for a in dep if sp.diff(g, self.q_symbols[a]) != 0} for g in self.constraints]
+        left = set(dep)
+        while rows:
+            pick = next((r for r in rows if len(r & left) == 1), None)
+            if pick is None:
+                return False
+            left -= pick
+            rows.remove(pick)
+        return True
+
     def _dependent_indices(self, dependent, argname="dependent"):
         """k distinct coordinate indices from names or indices (default: the last k), or an error naming
         ``argname``."""
@@ -546,7 +559,8 @@ class ConstrainedSystem:
 
         ``frame=None``: the system's own ``frame`` if it was given one and ``dependent`` is None; else the fields
         of p9 in the chart whose dependent coordinates are ``dependent`` (k names or indices; default the last k;
-        refused for more than two constraints, whose chart frame is out of symbolic reach): G_i has 1 in the free coordinate i, 0 in the other free ones, and solves
+        beyond two constraints only where their block of dG/dq is triangular: else its inverse is out of symbolic
+        reach, and it is refused naming ``frame``): G_i has 1 in the free coordinate i, 0 in the other free ones, and solves
         dG_alpha/dq . G_i = 0 in the dependent ones. The chart ends where the block dG/dq_dependent is singular:
         runs stop (status ``"chart_edge"``) when det(dG/dq_dep)^2 falls to ``edge``^2 det(G_q G_q^T) (the
         sphere with x3 dependent: |x3| = edge |x|).
@@ -561,14 +575,15 @@ class ConstrainedSystem:
         if dependent is None and frame is None and self.default_frame is not None:
             frame, own = self.default_frame
             momenta = own if momenta is None else momenta
-        if frame is None and len(self.constraints) > SYMBOLIC_DIRAC_MAX_CONSTRAINTS:
-            raise ValueError(
-                f"intermediate(): the frame of a chart is derived symbolically for at most "
-                f"{SYMBOLIC_DIRAC_MAX_CONSTRAINTS} constraints (it inverts the block dG/dq of the dependent "
-                f"coordinates; with {len(self.constraints)} constraints that ran for more than ten minutes on the "
-                "rigid body); give `frame=` (your own tangent vector fields, assembled numerically), e.g. "
-                "R^-T E_k for R^T R = 1, which EulerPoisson.constrained_system() uses")
         dep, F, names = self._frame(dependent, frame, momenta)
+        if F is None and len(self.constraints) > SYMBOLIC_DIRAC_MAX_CONSTRAINTS and not self._triangular(dep):
+            raise ValueError(
+                f"intermediate(): the frame of a chart inverts the block dG/dq of the dependent coordinates "
+                f"symbolically; with {len(self.constraints)} constraints that block must be triangular (constraints "
+                "solvable one after another, as for a chain of rods): this one is not, and its inverse is out of "
+                "reach (the rigid body's: more than ten minutes). Give `frame=` (your own tangent vector fields, "
+                "assembled numerically), e.g. R^-T E_k for R^T R = 1, which EulerPoisson.constrained_system() "
+                "uses")
         edge_f = to_fraction(edge, "edge")
         if not 0 < edge_f < 1:
             raise ValueError(f"`edge` must lie in (0, 1) (a fraction of the largest possible |det D|); got {edge!r}")
