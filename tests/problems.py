@@ -118,3 +118,13 @@ def ctx_mpf(c, v):
     """The exact value of ``v`` (str, int, Fraction, float, mpf) as a number of the context ``c``."""
     f = to_fraction(v)
     return c.mpf(f.numerator) / f.denominator
+
+
+def as_from_a_terminal():
+    """A child process's ``preexec_fn``: SIGINT at its default and not blocked, as a terminal starts a program. A
+    child inherits both from the process that starts it, and the test runner's worker process at times ignores
+    SIGINT (a program started with SIGINT ignored, as a background job is, rightly keeps ignoring it)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})

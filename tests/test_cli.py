@@ -10,6 +10,7 @@ import pytest
 from lieseries.cli import main
 from lieseries.progress import ProgressBar
 from lieseries.scenes import builtin_scenes
+from problems import as_from_a_terminal
 
 
 def test_scenes_lists_the_builtins(capsys):
@@ -295,7 +296,8 @@ def test_ctrl_c_while_the_command_line_imports_exits_130_without_a_traceback(tmp
     (tmp_path / "sitecustomize.py").write_text(CTRL_C_AT_IMPORT.format(module=module))
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(ROOT)])}
     res = subprocess.run([sys.executable, "-m", "lieseries", "run", "default", "--no-progress", "--out",
-                          str(tmp_path / "rep")], capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
+                          str(tmp_path / "rep")], capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path,
+                         preexec_fn=as_from_a_terminal)
     assert res.returncode == 130, res.stderr
     assert res.stderr.strip() == "lieseries: interrupted"
     assert not (tmp_path / "rep").exists()
@@ -312,7 +314,7 @@ def test_ctrl_c_while_the_library_imports_is_a_keyboard_interrupt(tmp_path):
     code += "import signal\nassert signal.getsignal(signal.SIGINT) is signal.default_int_handler\n"
     code += "import lieseries\nprint(lieseries.integrate.__name__)\n"
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env,
-                         cwd=tmp_path)
+                         cwd=tmp_path, preexec_fn=as_from_a_terminal)
     assert res.returncode == 0 and res.stdout.split() == ["interrupted", "integrate"], res.stderr
 
 

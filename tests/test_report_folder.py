@@ -18,6 +18,7 @@ from lieseries.folder import LOCK, MANIFEST, FolderError, ReportFolder
 from lieseries.report import write_report
 from lieseries.run import run_scene
 from lieseries.scenes import parse_scene
+from problems import as_from_a_terminal
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -282,7 +283,8 @@ def test_a_sigint_while_writing_exits_130_and_keeps_the_earlier_report(tmp_path)
             "sys.exit(c.main(sys.argv[1:]))\n")
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     p = subprocess.Popen([sys.executable, "-c", code, "run", str(scene), "--out", str(out), "--no-progress"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                         preexec_fn=as_from_a_terminal)
     assert p.stdout.readline().strip() == "writing"
     p.send_signal(signal.SIGINT)
     _, err = p.communicate(timeout=60)
@@ -340,7 +342,8 @@ def test_sigints_during_the_final_move_exit_130_with_the_new_report_whole(tmp_pa
             "sys.exit(c.main(sys.argv[1:]))\n")
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     p = subprocess.Popen([sys.executable, "-c", code, "run", str(scene), "--out", str(out), "--no-progress"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                         preexec_fn=as_from_a_terminal)
     assert p.stdout.readline().strip() == "moving"
     for _ in range(40):  # ~2 s of Ctrl-C: through the move, the cleanup and the exit
         if p.poll() is not None:
