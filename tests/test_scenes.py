@@ -237,18 +237,20 @@ def test_scene_without_drift_never_runs_drift(tmp_path, monkeypatch):
 
 
 def test_report_drops_its_own_earlier_plots_and_nothing_else(tmp_path):
-    write_report(run_scene(parse_scene(RIGID + '[report]\nplots = ["trajectory"]\n'), progress=False), tmp_path)
+    # each scene runs once: what is tested is how its reports replace each other in the folder
+    with_plot = run_scene(parse_scene(RIGID + '[report]\nplots = ["trajectory"]\n'), progress=False)
+    without = run_scene(parse_scene(RIGID), progress=False)
+    write_report(with_plot, tmp_path)
     assert (tmp_path / "trajectory.png").is_file()
     # a later report of a scene without plots removes the plot lieseries wrote before...
-    write_report(run_scene(parse_scene(RIGID), progress=False), tmp_path)
+    write_report(without, tmp_path)
     assert not (tmp_path / "trajectory.png").exists()
     # ...but a folder with the user's own files is refused, and with overwrite they are kept
     (tmp_path / "drift.png").write_bytes(b"mine")
     (tmp_path / "notes.txt").write_text("mine")
     with pytest.raises(FolderError, match="drift.png"):
-        write_report(run_scene(parse_scene(RIGID), progress=False), tmp_path)
-    write_report(run_scene(parse_scene(RIGID + '[report]\nplots = ["trajectory"]\n'), progress=False), tmp_path,
-                 overwrite=True)
+        write_report(without, tmp_path)
+    write_report(with_plot, tmp_path, overwrite=True)
     assert (tmp_path / "drift.png").read_bytes() == b"mine"
     assert (tmp_path / "notes.txt").read_text() == "mine"
     assert (tmp_path / "trajectory.png").is_file()
