@@ -60,14 +60,32 @@ def _compiled(ps, prec):
         npar = 1 + max((int(str(p)[1:]) for p in hy.get_params([ps.hamiltonian] + cas)), default=-1)
         compact = prec.name != "double"
         # H and the declared Casimirs for the check at the end of every run; with their gradients once per
-        # initial state: [H, dH/dy..., C_1, dC_1/dy..., ...]
-        h_fn = hy.cfunc([ps.hamiltonian] + cas, ps.variables, compact_mode=compact, **kwargs)
+        # initial state: [H, dH/dy..., C_1, dC_1/dy..., ...]. Beyond double the end check reads H and the
+        # Casimirs from the gradient function (one compilation, not two: at 256 bits the second costs as much as
+        # a small integrator; one call per run evaluates the gradients in vain)
         grad = [e for f in [ps.hamiltonian] + cas for e in [f] + [hy.diff(f, v) for v in ps.variables]]
         scale_fn = hy.cfunc(grad, ps.variables, compact_mode=compact, **kwargs)
+        if compact:
+            h_fn = _Values(scale_fn, len(ps.variables) + 1)
+        else:
+            h_fn = hy.cfunc([ps.hamiltonian] + cas, ps.variables, compact_mode=compact, **kwargs)
         quick = _python_function(ps, [ps.hamiltonian] + cas, npar) if prec.name == "double" else None
         with _LOCK:
             entry = _ENERGY.setdefault(key, (h_fn, scale_fn, npar, quick))
     return entry
+
+
+class _Values:
+    """H and the Casimirs (every ``stride``-th output, from the first) of the compiled function of H, the Casimirs
+    and their gradients: called as the compiled function of H and the Casimirs alone would be."""
+
+    __slots__ = ("fn", "stride")
+
+    def __init__(self, fn, stride):
+        self.fn, self.stride = fn, stride
+
+    def __call__(self, y, **kwargs):
+        return self.fn(y, **kwargs)[::self.stride]
 
 
 def _python_function(ps, exprs, npar):

@@ -25,7 +25,9 @@ def position_errors(model, sol, times, dps):
     return out
 
 
-@pytest.mark.parametrize("precision", ["double", "quad"])
+# quad over 20 revolutions is slow (the default suite has quad atlas runs against the great circle over a
+# revolution: test_stability.py::test_sphere_atlas_switches_charts_and_stays_on_the_great_circle)
+@pytest.mark.parametrize("precision", ["double", pytest.param("quad", marks=pytest.mark.slow)])
 def test_heyoka_atlas_follows_great_circle_over_20_revolutions(precision):
     s = ls.Sphere()
     y0 = s.initial_state(X0, V0, precision=precision)

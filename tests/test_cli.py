@@ -69,12 +69,12 @@ def test_run_exit_status_and_overwrite(tmp_path, capsys):
                      'methods = [{ method = "taylor" }]\n')
     assert main(["run", str(stiff), "--out", str(tmp_path / "s"), "--no-progress"]) == 1
     assert "step_collapse" in capsys.readouterr().out
-    # so does a failed study: the same body in a work-precision study only (the [run] table succeeds; the
-    # study's 256-bit reference cannot pass the stiffness), and the report is still written
+    # so does a failed study: the same body in a work-precision study only (no [run] table: the study's 256-bit
+    # reference cannot pass the stiffness), and the report is still written
     wp = tmp_path / "wp.toml"
     wp.write_text('name = "wp"\ntitle = "t"\n[model]\nkind = "damped_euler_poisson"\ninertia = [1, 2, 3]\n'
-                  'damping = 100000\n[initial]\nomega = [1, "0.1", "0.5"]\n[run]\nt = "1/1000"\n'
-                  'methods = [{ method = "taylor" }]\n[studies.work_precision]\nt = 20\nrepeat = 1\n'
+                  'damping = 100000\n[initial]\nomega = [1, "0.1", "0.5"]\n'
+                  '[studies.work_precision]\nt = 20\nrepeat = 1\n'
                   'methods = [{ method = "taylor", precision = "double", tol = [1e-10] }]\n')
     assert main(["run", str(wp), "--out", str(tmp_path / "w"), "--no-progress"]) == 1
     assert "work precision: RuntimeError" in (tmp_path / "w" / "report.md").read_text()
