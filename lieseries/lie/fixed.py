@@ -450,6 +450,17 @@ def _arg_slots(ins):
     return list(args)
 
 
+def _use_counts(instrs, outputs) -> dict:
+    """How many times each slot is read: by the instructions, and once more for each output."""
+    used = {}
+    for ins in instrs:
+        for x in _arg_slots(ins):
+            used[x] = used.get(x, 0) + 1
+    for o in outputs:
+        used[o] = used.get(o, 0) + 1
+    return used
+
+
 #: Working precisions (bits) up to which products sharing an operand are packed into one dot product
 #: (:func:`_group`), with Python ints and with gmpy2: above them a packed product, half of whose bits are the
 #: fields' headroom, costs more than the separate products it replaces (gmpy2: 1.7 against 1.3 us per term
@@ -572,12 +583,7 @@ def _fuse(plan):
     new = [ins for ins in new if ins[1] not in fused or ins[0] == "sop"]
     # scalings whose every use moved into products are dropped
     while True:
-        used = {}
-        for ins in new:
-            for x in _arg_slots(ins):
-                used[x] = used.get(x, 0) + 1
-        for o in plan.outputs:
-            used[o] = used.get(o, 0) + 1
+        used = _use_counts(new, plan.outputs)
         keep = [ins for ins in new if ins[0] != "scale" or used.get(ins[1])]
         if len(keep) == len(new):
             return new
@@ -1006,12 +1012,7 @@ def _prepared(plan, grouped, wp, pars_raw):
     fused = cache.get(grouped)
     if fused is None:
         instrs, nkeys = _group(_fuse(plan), grouped)
-        uses = {}
-        for ins in instrs:
-            for x in _arg_slots(ins):
-                uses[x] = uses.get(x, 0) + 1
-        for o in plan.outputs:
-            uses[o] = uses.get(o, 0) + 1
+        uses = _use_counts(instrs, plan.outputs)
         to_state = {o: i for i, o in enumerate(plan.outputs) if uses[o] == 1}
         fused = cache[grouped] = (instrs, nkeys, to_state)
     instrs, nkeys, to_state = fused
