@@ -1,0 +1,262 @@
+"""Compiling heyoka's integrator for a system (:func:`build_integrator`), cached by structure, precision,
+tolerance, events and options, and the event machinery its runs use: the recorder of non-terminal crossings, the
+compiled event functions and the per-step guard that finds the crossings heyoka misses."""
+
+from __future__ import annotations
+
+import time as _time
+
+import heyoka as hy
+import numpy as np
+
+from . import cache
+from .models.base import Model
+from .poisson import as_poisson_system
+from .precision import check_tolerance, resolve_precision
+
+__all__ = ["build_integrator", "integrator_count", "event_function", "Recorder", "CrossingGuard", "Both"]
+
+#: Compiled integrators (the templates runs copy, :func:`lieseries.cache.checkout`) by structure, precision,
+#: tolerance, events and options, in the shared cache (:mod:`lieseries.cache`); an evicted template takes its pooled
+#: copies with it.
+INTEGRATORS = cache.region("taylor.integrators", 64, on_evict=cache.drop_template)
+
+
+def integrator_count() -> int:
+    """Number of compiled integrators in the cache."""
+    return len(INTEGRATORS)
+
+
+class Recorder:
+    """Callback of a non-terminal heyoka event: records the time and the state of every crossing after the run's
+    start ``t0`` (a zero at the start is where the run begins, not a crossing: lie_integrate agrees)."""
+
+    def __init__(self):
+        self.sink = []
+        self.t0 = None
+        self.at_t0 = 0  # zeros reported at t0 (dropped); heyoka may report one twice and miss the next one
+
+    def __call__(self, ta, t, d_sgn):
+        if t == self.t0:
+            self.at_t0 += 1
+            return
+        ta.update_d_output(t)
+        self.sink.append((t, np.array(ta.d_output, copy=True)))
+
+
+EVENT_FUNCTIONS = cache.region("taylor.event_functions", 64)
+
+
+def event_function(ps, prec, exprs):
+    """The non-terminal events' expressions as one compiled function of the state (and parameters), in the run's
+    format: the sign checks of :class:`CrossingGuard`."""
+    key = (ps.key, prec.name, tuple(str(e) for e in exprs))
+    hit = EVENT_FUNCTIONS.get(key)
+    if hit is None:
+        kwargs = {} if prec.name == "double" else {"fp_type": prec.fp_type}
+        if prec.is_real:
+            kwargs["prec"] = prec.bits
+        uses_pars = any(hy.get_params(e) for e in exprs)
+        start = _time.perf_counter()
+        fn = hy.cfunc(list(exprs), ps.variables, compact_mode=prec.name != "double", **kwargs)
+        hit = EVENT_FUNCTIONS.put(key, (fn, uses_pars), cost=_time.perf_counter() - start)
+    return hit
+
+
+class CrossingGuard:
+    """Per-step check of heyoka's non-terminal events, so that a missed crossing is found rather than lost.
+
+    After every step the event functions are evaluated at the step's end. A step whose ends have opposite signs
+    must hold an odd number of crossings (for a one-way event: at least one when the ends go that way), and one that
+    starts or ends on a zero (a run starting on a Poincare section) is where heyoka's root finding is known to
+    fail (heyoka 7.13 at >= 180 bits reports the zero at the start twice and misses the next crossing). Such a
+    step is searched again on its Taylor polynomial (heyoka's dense output of the step): the function is sampled at
+    ``SAMPLES`` points and each sign change is solved by bisection to the run's precision; crossings heyoka did not
+    report are added. ``recovered`` counts them (``stats.extra["events_recovered"]``).
+    """
+
+    SAMPLES = 16
+
+    def __init__(self, fn, uses_pars, directions, recorders, bits):
+        self.fn, self.uses_pars = fn, uses_pars
+        self.directions = directions
+        self.recorders = recorders
+        self.bits = bits
+        self.recovered = 0
+        self.touches = 0  # zeros heyoka reported where the function does not change sign (dropped)
+        self.t_a = self.s_a = None
+        self.marks = ()
+
+    def _signs(self, ta, state):
+        vals = self.fn(state, pars=ta.pars) if self.uses_pars else self.fn(state)
+        return [int(v > 0) - int(v < 0) for v in vals]
+
+    def start(self, ta):
+        """The run (or a chunk run again) starts from the integrator's current time and state."""
+        self.t_a, self.s_a = ta.time, self._signs(ta, ta.state)
+        self.marks = [len(r.sink) for r in self.recorders]
+        for r in self.recorders:
+            r.at_t0 = 0
+
+    def __call__(self, ta) -> bool:
+        t_a, t_b = self.t_a, ta.time
+        s_a, s_b = self.s_a, self._signs(ta, ta.state)
+        for i, rec in enumerate(self.recorders):
+            mark = self.marks[i]
+            if len(rec.sink) > mark:
+                self._crossings_only(ta, i, rec, mark, t_a, t_b)
+            found = len(rec.sink) - mark
+            a, b, d = s_a[i], s_b[i], self.directions[i]
+            if a == 0 or b == 0 or rec.at_t0:
+                suspect = True
+            elif d == 0:
+                suspect = (found % 2 == 1) != (a != b)
+            else:
+                forward = t_b > t_a
+                suspect = found == 0 and (b - a) * d * (1 if forward else -1) > 0
+            if suspect:
+                self._search(ta, i, rec, mark, t_a, t_b)
+            rec.at_t0 = 0
+        self.t_a, self.s_a = t_b, s_b
+        self.marks = [len(r.sink) for r in self.recorders]
+        return True
+
+    def _crossings_only(self, ta, i, rec, mark, t_a, t_b):
+        """Keep, of heyoka's zeros in this step, the crossings: the function has opposite signs just before and
+        just after (a tangency, such as a double zero of M2**2, is reported by heyoka once, twice or not at all;
+        both engines report none). Duplicates (the same zero twice) are kept once."""
+        h = abs(t_b - t_a)
+        width = float(h) * 2.0 ** (-self.bits / 2)
+        kept = []
+        for t, y in rec.sink[mark:]:
+            if kept and abs(float(t - kept[-1][0])) <= width:
+                continue
+            kept.append((t, y))
+        times = [t for t, _ in kept]
+        out = []
+        for j, (t, y) in enumerate(kept):
+            gaps = [abs(t - u) for u in times[:j] + times[j + 1:]]
+            delta = min([h * 2.0 ** (-self.bits / 4)] + [g / 2 for g in gaps])
+            before, after = self._g(ta, t - delta, i), self._g(ta, t + delta, i)
+            if before * after < 0 or before == 0 or after == 0:
+                out.append((t, y))
+        if len(out) != len(rec.sink) - mark:
+            self.touches += len(rec.sink) - mark - len(out)
+            rec.sink[mark:] = out
+
+    def _g(self, ta, t, i):
+        ta.update_d_output(t)
+        v = (self.fn(ta.d_output, pars=ta.pars) if self.uses_pars else self.fn(ta.d_output))[i]
+        return int(v > 0) - int(v < 0)
+
+    def _search(self, ta, i, rec, mark, t_a, t_b):
+        """Crossings of event ``i`` in (t_a, t_b] from the step's polynomial; the ones heyoka missed are added."""
+        n = self.SAMPLES
+        h = t_b - t_a
+        taus = [t_a + h * k / n for k in range(n)] + [t_b]
+        signs = [self._g(ta, t, i) for t in taus]
+        d = self.directions[i]
+        forward = t_b > t_a
+        roots = []
+        for k in range(n):
+            ga, gb = signs[k], signs[k + 1]
+            if not (ga * gb < 0 or (gb == 0 and ga != 0)):
+                continue  # a zero at the step's start is the previous step's crossing (or the run's start)
+            rising = (gb > ga) == forward
+            if d and rising != (d > 0):
+                continue
+            lo, hi = taus[k], taus[k + 1]
+            if gb != 0:
+                for _ in range(self.bits + 8):  # bisection to the last bit of the run's format
+                    mid = lo + (hi - lo) / 2
+                    if mid == lo or mid == hi:
+                        break
+                    gm = self._g(ta, mid, i)
+                    if gm == 0:
+                        lo = hi = mid
+                        break
+                    if gm == ga:
+                        lo = mid
+                    else:
+                        hi = mid
+            roots.append(hi)
+        have = [t for t, _ in rec.sink[mark:]]
+        width = abs(float(h)) * 2.0 ** (-self.bits / 2)
+        added = [t for t in roots if all(abs(float(t - u)) > width for u in have)]
+        if not added:
+            return
+        for t in added:
+            ta.update_d_output(t)
+            rec.sink.append((t, np.array(ta.d_output, copy=True)))
+        rec.sink[mark:] = sorted(rec.sink[mark:], key=lambda r: float(r[0] - t_a) * (1 if forward else -1))
+        self.recovered += len(added)
+
+
+class Both:
+    """Two step callbacks in turn."""
+
+    def __init__(self, first, second):
+        self.first, self.second = first, second
+
+    def __call__(self, ta) -> bool:
+        return bool(self.first(ta)) & bool(self.second(ta))
+
+
+_HY_DIRECTION = {0: hy.event_direction.any, 1: hy.event_direction.positive, -1: hy.event_direction.negative}
+
+
+def build_integrator(system, precision="double", tol=None, *, events=True, user_events=(), compact_mode=None,
+                     high_accuracy=False):
+    """The heyoka ``taylor_adaptive`` object for ``system`` (from the cache when possible).
+
+    Returns
+    -------
+    ta : heyoka taylor_adaptive
+    build_time : float
+        Seconds spent building (0.0 on a cache hit).
+    cached : bool
+    event_info : list of (status, message) for the terminal events, in heyoka's event order.
+    """
+    ps = as_poisson_system(system)
+    prec = resolve_precision(precision)
+    tolf = check_tolerance(tol, prec)
+    model = system if isinstance(system, Model) else None
+    evs = model.events() if (model is not None and events) else []
+    n = ps.dimension
+    if compact_mode is None:
+        # compact mode keeps compilation fast: LLVM is slow on unrolled long-double, quad and real code
+        compact_mode = prec.name != "double" or n > 20 or bool(getattr(model, "large_field", False))
+    user = tuple((str(e[1]), e[2], e[3]) for e in user_events)
+    key = (ps.key, prec.name, tolf, tuple(str(e[0]) for e in evs), user, bool(compact_mode), bool(high_accuracy))
+    info = [(e[1], e[2]) for e in evs]  # messages from this model, never from the cached one
+    info += [("event", f"the event {e[0]!r} fired") for e in user_events if e[3]]
+    hit = INTEGRATORS.get(key)
+    if hit is not None:
+        INTEGRATORS.touch(key)
+        return hit, 0.0, True, info
+    state = prec.array([0] * n)
+    pars = prec.array(ps.parameter_values) if ps.parameter_values else None
+    kwargs = dict(tol=prec.to_native(tolf), compact_mode=compact_mode, high_accuracy=high_accuracy)
+    if prec.name != "double":
+        kwargs["fp_type"] = prec.fp_type
+    if prec.is_real:
+        kwargs["prec"] = prec.bits
+    fp = prec.fp_type if prec.name != "double" else float
+    t_events = [hy.t_event(e[0], fp_type=fp) for e in evs]
+    t_events += [hy.t_event(e[1], direction=_HY_DIRECTION[e[2]], fp_type=fp) for e in user_events if e[3]]
+    nt_events = [hy.nt_event(e[1], Recorder(), direction=_HY_DIRECTION[e[2]], fp_type=fp)
+                 for e in user_events if not e[3]]
+    if t_events:
+        kwargs["t_events"] = t_events
+    if nt_events:
+        kwargs["nt_events"] = nt_events
+    if pars is not None:
+        kwargs["pars"] = pars
+    t0 = _time.perf_counter()
+    ta = hy.taylor_adaptive(ps.ode_system, state, **kwargs)
+    build = _time.perf_counter() - t0
+    cache.add_template(ta, copies=1)
+    cached = INTEGRATORS.put(key, ta, cost=build)
+    if cached is not ta:  # another thread built it at the same time: use the cached one
+        cache.drop_template(ta)
+    return cached, build, False, info
