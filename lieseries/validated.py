@@ -31,13 +31,9 @@ duration and restores the precision afterwards, so runs from several threads are
 
 from __future__ import annotations
 
-import copyreg
 import functools
 import math
-import threading
-import weakref
 import time as _time
-from contextlib import contextmanager
 from fractions import Fraction
 
 import mpmath
@@ -57,6 +53,8 @@ from .precision import (
     to_fraction,
     warn_if_coarse,
 )
+from .ball_series import (SUPPORTED_OPS, Singular, ball_constant, check_ops, evaluate, flint_module, norm_bound,
+                          taylor_coefficients, taylor_coefficients_checked, working_precision)
 from .driver import StepResult, Stop, drive
 from .lie.jets import DeadlineExceeded
 from .solution import ChartRows, Solution, Stats
@@ -65,314 +63,10 @@ from .timegrid import parse_times
 __all__ = ["validated_integrate", "ball_taylor_coefficients", "centre_coefficients", "SUPPORTED_OPS", "midpoints",
            "radii", "certified_digits"]
 
-#: Operations of a vector field that the validated engine evaluates in ball arithmetic.
-SUPPORTED_OPS = ("add", "sub", "neg", "mul", "div", "powi", "pow", "sqrt", "exp", "log", "sin", "cos", "tan",
-                 "atan", "sinh", "cosh", "tanh")
 #: Guard bits above the requested digits (:data:`precision.VALIDATED_GUARD_BITS`).
 GUARD_BITS = VALIDATED_GUARD_BITS
 #: Each step's remainder bound, relative to the state's size, is at most this times 10^-dps.
 REMAINDER_FACTOR = 1e-4
-
-_LOCK = threading.RLock()
-
-
-def _flint():
-    try:
-        import flint
-    except ImportError:  # pragma: no cover - python-flint is a dependency
-        raise ImportError("`validated_integrate` needs python-flint: pip install python-flint") from None
-    if not _PICKLING:
-        # flint.arb has no pickle support of its own: a validated Solution (its rows are arbs) pickles through
-        # this reducer, which keeps every ball exactly (midpoint and radius as integer mantissa and exponent)
-        copyreg.pickle(flint.arb, _reduce_arb)
-        _PICKLING.append(True)
-    return flint
-
-
-_PICKLING: list = []
-
-
-def _arb_part(x):
-    """An exact arb value (a midpoint, or a radius as an arb) as (mantissa, exponent), or 'nan' / '+inf' / '-inf'."""
-    if x.is_finite():
-        man, exp = x.man_exp()
-        return int(man), int(exp)
-    if x.is_nan():
-        return "nan"
-    return "+inf" if x > 0 else "-inf"
-
-
-def _reduce_arb(x):
-    return _rebuild_arb, (_arb_part(x.mid()), _arb_part(x.rad()))
-
-
-def _rebuild_arb(mid, rad):
-    """The ball of :func:`_reduce_arb`, exactly (arb((man, exp), ...) takes the binary data without rounding)."""
-    import flint
-
-    def part(p):
-        return p if isinstance(p, tuple) else p.replace("+", "")
-
-    if not isinstance(rad, tuple):  # an infinite (or nan) radius
-        return flint.arb(part(mid), "inf") if isinstance(mid, tuple) else flint.arb(part(mid))
-    return flint.arb(part(mid), rad)
-
-
-@contextmanager
-def _working_precision(bits: int, cap: int = 10):
-    """python-flint's process-wide working precision (bits) and series length cap, set under a lock and restored
-    (series longer than ``ctx.cap`` are silently truncated: the cap must exceed the series order)."""
-    flint = _flint()
-    with _LOCK:
-        old = flint.ctx.prec, flint.ctx.cap
-        flint.ctx.prec = int(bits)
-        flint.ctx.cap = max(int(cap), old[1])
-        try:
-            yield flint
-        finally:
-            flint.ctx.prec, flint.ctx.cap = old
-
-
-# -- evaluating a program on balls, complex boxes and ball series ------------------------------------------------
-def _powi(x, n: int, one):
-    if n < 0:
-        return one / _powi(x, -n, one)
-    result, base = one, x
-    while n:
-        if n & 1:
-            result = result * base
-        n >>= 1
-        if n:
-            base = base * base
-    return result
-
-
-class _Singular(ValueError):
-    """The field cannot be evaluated on the balls: an operation's argument reaches its singularity (a divisor, a
-    series' leading term, a root's or logarithm's argument containing 0 or a negative value)."""
-
-    def __init__(self, op, cause):
-        super().__init__(f"`{op}` is singular on its argument ({cause})")
-        self.op = op
-
-
-def _apply(op, a, data, one):
-    try:
-        return _apply_op(op, a, data, one)
-    except (ValueError, ZeroDivisionError) as e:
-        raise _Singular(op, e) from None
-
-
-def _apply_op(op, a, data, one):
-    if op == "add":
-        s = a[0]
-        for x in a[1:]:
-            s = s + x
-        return s
-    if op == "sub":
-        return a[0] - a[1]
-    if op == "neg":
-        return -a[0]
-    if op == "mul":
-        p = a[0]
-        for x in a[1:]:
-            p = p * x
-        return p
-    if op == "div":
-        return a[0] / a[1]
-    if op == "powi":
-        return _powi(a[0], int(data), one)
-    if op == "pow":
-        ex = a[1] if data is None else one * data[0] / data[1]
-        return (a[0].log() * ex).exp()
-    if op in ("sqrt", "exp", "log", "sin", "cos", "tan", "atan"):
-        return getattr(a[0], op)()
-    e = a[0].exp()
-    if op == "sinh":
-        return (e - 1 / e) / 2
-    if op == "cosh":
-        return (e + 1 / e) / 2
-    if op == "tanh":
-        return (e - 1 / e) / (e + 1 / e)
-    raise AssertionError(op)  # pragma: no cover - checked in _check_ops
-
-
-def _constant(c, flint):
-    kind, value = c
-    if kind == "rational":
-        return flint.arb(flint.fmpq(*value))
-    if kind == "binary":
-        sign, man, exp, _ = value
-        q = Fraction(int(man) << exp) if exp >= 0 else Fraction(int(man), 1 << -exp)
-        return flint.arb(flint.fmpq(-q.numerator if sign else q.numerator, q.denominator))
-    if kind == "pi":
-        return flint.arb.pi()
-    return flint.arb.const_e()
-
-
-def _evaluate(prog, values, pars, consts, one):
-    """The program's outputs on ``values`` (balls or ball series), ``pars`` and the constant balls ``consts``
-    (pairs (slot, ball) in the order of ``prog.constants``), by its straight-line Python function (the same
-    operations in the same order as :func:`_interpret`, without its dispatch). An operation singular on its
-    argument raises :class:`_Singular`, named by the interpreter."""
-    run = _COMPILED.get(prog)
-    if run is None:
-        run = _COMPILED[prog] = _compile(prog)
-    try:
-        return run(values, pars, consts, one)
-    except (ValueError, ZeroDivisionError) as e:
-        _interpret(prog, values, pars, consts, one)  # raises _Singular with the operation's name
-        raise _Singular("?", e) from None  # pragma: no cover - the interpreter fails on the same operation
-
-
-#: Straight-line functions of programs (:func:`_compile`), per program object.
-_COMPILED: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-_INLINE = {"add": " + ", "mul": " * "}
-
-
-def _compile(prog):
-    """``run(values, pars, consts, one)``: the program as one Python function of local variables (slot i is
-    ``v<i>``); arithmetic written out, other operations through :func:`_apply_op`."""
-    lines = ["def run(x, p, c, one):"]
-    if prog.nvars:
-        lines.append("    " + "".join(f"v{i}, " for i in range(prog.nvars)) + "= x")
-    if prog.npars:
-        lines.append("    " + "".join(f"v{prog.nvars + j}, " for j in range(prog.npars)) + "= p")
-    for k, (slot, _) in enumerate(prog.constants):
-        lines.append(f"    v{slot} = c[{k}][1]")
-    for op, out, args, data in prog.nodes:
-        a = [f"v{i}" for i in args]
-        if op in _INLINE:
-            expr = a[0]
-            for x in a[1:]:
-                expr = f"({expr}{_INLINE[op]}{x})"
-        elif op == "sub":
-            expr = f"{a[0]} - {a[1]}"
-        elif op == "div":
-            expr = f"{a[0]} / {a[1]}"
-        elif op == "neg":
-            expr = f"-{a[0]}"
-        else:
-            expr = f"apply_op({op!r}, [{', '.join(a)}], data[{out}], one)"
-        lines.append(f"    v{out} = {expr}")
-    lines.append("    return [" + ", ".join(f"v{o}" for o in prog.outputs) + "]")
-    namespace = {"apply_op": _apply_op, "data": {n.out: n.data for n in prog.nodes}}
-    exec(compile("\n".join(lines), f"<validated program {len(prog.nodes)} nodes>", "exec"), namespace)
-    return namespace["run"]
-
-
-def _interpret(prog, values, pars, consts, one):
-    vals = [None] * prog.nslots
-    vals[: prog.nvars] = values
-    vals[prog.nvars: prog.nvars + prog.npars] = pars
-    for slot, c in consts:
-        vals[slot] = c
-    for op, out, args, data in prog.nodes:
-        vals[out] = _apply(op, [vals[i] for i in args], data, one)
-    return [vals[o] for o in prog.outputs]
-
-
-def _check_ops(prog):
-    bad = sorted({n.op for n in prog.nodes} - set(SUPPORTED_OPS))
-    if bad:
-        raise ValueError(f"`system`: the validated engine cannot evaluate the operations {bad} in ball arithmetic; "
-                         f"it supports {', '.join(SUPPORTED_OPS)}")
-
-
-def _taylor(prog, z0, pars, consts, order, flint, *, bits=None, deadline=None):
-    """Ball Taylor coefficients c_0..c_order of the flow from the balls z0: out[i][j] for component i, order j.
-
-    Picard iteration on Arb power series, one coefficient per iteration: the (m-1)-th coefficient of f(z) depends
-    only on c_0..c_{m-1}, so iteration m evaluates f on the series known so far (length m) and takes
-    z = z0 + integral of f(z), of length m + 1 (its coefficient m is c_m = f_{m-1} / m; the earlier ones enclose
-    c_0..c_{m-1} again, from the same balls). ``bits``: the precision to work at (default: the
-    current one); a lower precision only widens the balls, it never makes them wrong. ``deadline``: a
-    perf_counter value after which :class:`~lieseries.lie.jets.DeadlineExceeded` is raised (checked every order).
-    """
-
-    arb, arb_series = flint.arb, flint.arb_series
-    if flint.ctx.cap < order + 2:
-        raise AssertionError("the series cap must exceed the order")  # pragma: no cover - set by the driver
-    saved = flint.ctx.prec
-    flint.ctx.prec = saved if bits is None else bits
-    try:
-        start = [arb_series([c], prec=order + 1) for c in z0]  # a sum's length is its shorter term's
-        z = [arb_series([c], prec=1) for c in z0]
-        for m in range(1, order + 1):
-            if deadline is not None and _time.perf_counter() > deadline:
-                raise DeadlineExceeded(m - 1)
-            f = _evaluate(prog, z, pars, consts, arb_series([arb(1)], prec=m))
-            z = [s + (fi if isinstance(fi, arb_series) else arb_series([fi], prec=m)).integral()
-                 for s, fi in zip(start, f)]  # a constant component: a series of its own
-        coeffs = []
-        for c, zi in zip(z0, z):
-            got = list(zi.coeffs())
-            coeffs.append([c] + got[1:order + 1] + [arb(0)] * (order + 1 - max(len(got), 1)))
-    finally:
-        flint.ctx.prec = saved
-    return coeffs
-
-
-def _taylor_checked(prog, z0, guess, pars, consts, order, flint, *, bits=64, tries=3):
-    """The ball Taylor coefficients of :func:`_taylor` (c_0..c_order from the balls z0), proved from a guess in
-    one evaluation of the field instead of ``order``.
-
-    ``guess[i]``: balls Y_1..Y_{order-1} for component i. The (k-1)-th coefficient of f(z) depends only on
-    c_0..c_{k-1}, so with W_k = [f(z0 + Y_1 tau + ...)]_{k-1} / k: when every W_k (k < order) lies in Y_k, induction
-    on k gives c_k(z) in W_k for every z in z0 (c_0 = z in z0; c_0..c_{k-1} in Y_0..Y_{k-1} puts
-    c_k = [f(c)]_{k-1} / k in W_k, inside Y_k), and c_order in W_order. When the check fails, the guess is widened
-    to cover W (2^k times, order k) and checked again, ``tries`` times in all (after a widened guess, the
-    coefficients are evaluated once more from W, which holds them, and intersected with W); then Picard iteration
-    (:func:`_taylor`)."""
-    arb, arb_series = flint.arb, flint.arb_series
-    saved = flint.ctx.prec
-    flint.ctx.prec = bits
-    try:
-        one = arb_series([arb(1)], prec=order)
-
-        def step(Y):  # W from Y
-            f = _evaluate(prog, [arb_series([z] + y, prec=order) for z, y in zip(z0, Y)], pars, consts, one)
-            W = []
-            for fi in f:
-                got = list(fi.coeffs()) if isinstance(fi, arb_series) else [fi if isinstance(fi, arb) else arb(fi)]
-                got = got[:order] + [arb(0)] * (order - len(got))
-                W.append([got[k] / (k + 1) for k in range(order)])
-            return W
-
-        Y = guess
-        for attempt in range(tries):
-            W = step(Y)
-            if all(y.contains(w) for Yi, Wi in zip(Y, W) for y, w in zip(Yi, Wi)):
-                if attempt:  # a widened guess: W (which holds the coefficients) once more, and the common part
-                    V = step([Wi[:-1] for Wi in W])
-                    W = [[w.intersection(v) for w, v in zip(Wi, Vi)] for Wi, Vi in zip(W, V)]
-                return [[z] + Wi for z, Wi in zip(z0, W)]
-            Y = [[_widened(y.union(w), k) for k, (y, w) in enumerate(zip(Yi, Wi), 1)] for Yi, Wi in zip(Y, W)]
-    finally:
-        flint.ctx.prec = saved
-    return _taylor(prog, z0, pars, consts, order, flint, bits=bits)
-
-
-def _norm_bound(jprog, z, pars, consts, flint):
-    """||Df(z)||_inf (an upper bound at 64 bits; at least 1/4), from the Jacobian program ``jprog``."""
-    arb = flint.arb
-    n = len(z)
-    saved = flint.ctx.prec
-    flint.ctx.prec = 64
-    try:
-        vals = _evaluate(jprog, z, pars, consts, arb(1))
-        return max([arb(0.25)] + [sum((abs(arb(v)).upper() for v in vals[i * n:(i + 1) * n]), arb(0)).upper()
-                                  for i in range(n)])
-    finally:
-        flint.ctx.prec = saved
-
-
-def _widened(x, k):
-    """The ball x (a guess of order k) with 2^k times its radius (and at least 2^-60 of its midpoint): widening
-    every order alike would leave the ratio of what the orders below pass on to order k unchanged; growing with k,
-    the widening halves it at every retry."""
-    return type(x)(x.mid(), (x.rad() + abs(x.mid()) * 2.0**-60) * 2.0**k)
-
 
 def _centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadline=None):
     """The Taylor polynomial of order ``order`` of the flow from the point m, as a :class:`_Centre` of exact
@@ -392,7 +86,7 @@ def _centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadl
         rows, s = _exact_rows(jets.M, jets.U, order, flint), jets.s
     except (ZeroDivisionError, ValueError, ArithmeticError):
         jets, s = None, 0
-        rows = [[arb(c.mid()) for c in row] for row in _taylor(prog, m, pars, consts, order, flint,
+        rows = [[arb(c.mid()) for c in row] for row in taylor_coefficients(prog, m, pars, consts, order, flint,
                                                                 deadline=deadline)]
     return _Centre([[mi] + row[1:] for mi, row in zip(m, rows)], s, flint), jets
 
@@ -417,7 +111,7 @@ class _Centre:
 
     def guess(self, order, width, lip):
         """Balls around the coefficients c_1..c_{order-1} in tau of the polynomials (at 64 bits): a guess of the
-        coefficients from a box of radius ``width`` around the centre (:func:`_taylor_checked`), ``lip`` about
+        coefficients from a box of radius ``width`` around the centre (:func:`taylor_coefficients_checked`), ``lip`` about
         the norm of the field's Jacobian there. A change d of the first k coefficients moves c_k by about
         lip d_{k-1} / k, so radii r_k = (2^-52 |z| + width) (4 lip)^k / k! (2^-52: far above the rounding at
         64 bits) leave room for what the field's evaluation carries from order to order (its leading part
@@ -482,7 +176,7 @@ def _field_series(prog, polys, pars, consts, length, flint, base=None):
             for c in reversed(row[:-1]):
                 acc = acc * x + c
             series.append(acc)
-    f = _evaluate(prog, series, pars, consts, arb_series([arb(1)], prec=length))
+    f = evaluate(prog, series, pars, consts, arb_series([arb(1)], prec=length))
     out = []
     for fi in f:
         got = list(fi.coeffs()) if isinstance(fi, arb_series) else [fi if isinstance(fi, arb) else arb(fi)]
@@ -502,7 +196,7 @@ def _defect_coefficients(prog, centre, pars, consts, flint):
     arb, arb_series = flint.arb, flint.arb_series
     P, down = centre.rows, centre.down
     L = len(P[0]) - 1 + DEFECT_EXTRA
-    F = _evaluate(prog, [arb_series(row, prec=L) for row in P], pars, consts, arb_series([arb(1)], prec=L))
+    F = evaluate(prog, [arb_series(row, prec=L) for row in P], pars, consts, arb_series([arb(1)], prec=L))
     out = []
     for fi, row in zip(F, P):
         if not isinstance(fi, arb_series):  # a constant component of the field
@@ -673,12 +367,12 @@ def _prove_step(prog, jprog, CZ, centre, terms, pars, consts, jconsts, span, fli
     flint.ctx.prec = 64
     try:
         R = [b.union(p) for b, p in zip(B, centre.at(span))]
-        vals = _evaluate(jprog, R, pars, jconsts, arb(1))
+        vals = evaluate(jprog, R, pars, jconsts, arb(1))
         L = arb_mat([[abs(v if isinstance(v, arb) else arb(v)).upper() for v in vals[i * n:(i + 1) * n]]
                      for i in range(n)])
         if not all(L[i, j].is_finite() for i in range(n) for j in range(n)):
             return None
-        D = _taylor(prog, B, pars, consts, K + 1, flint)  # B is wide: Picard iteration
+        D = taylor_coefficients(prog, B, pars, consts, K + 1, flint)  # B is wide: Picard iteration
         if not all(d[K + 1].is_finite() for d in D):
             return None
         if not all(b.contains(p + d[K + 1] * span ** (K + 1)) for b, p, d in zip(B, Pz, D)):
@@ -770,7 +464,7 @@ def _jacobian_program(ps):
 
         exprs = [hy.diff(fi, vj) for fi in ps.vector_field for vj in ps.variables]
         prog = compile_expressions(ps.variables, exprs, len(ps.parameter_values))
-        _check_ops(prog)
+        check_ops(prog)
         _JACOBIANS[ps.key] = prog
     return prog
 
@@ -811,8 +505,8 @@ def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECE
                     for p, dp, d in zip(polys, slopes, D)]
 
         try:
-            whole = _evaluate(jprog, box(arb(0), tau), pars, consts, arb(1))
-        except _Singular:
+            whole = evaluate(jprog, box(arb(0), tau), pars, consts, arb(1))
+        except Singular:
             return None
         norm = max(sum((abs(v if isinstance(v, arb) else arb(v)).upper() for v in whole[i * n:(i + 1) * n]),
                        arb(0)) for i in range(n)) * abs(tau)
@@ -840,8 +534,8 @@ def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECE
         J = eye
         for piece in range(pieces):
             try:
-                vals = _evaluate(jprog, box(dt * piece, dt * (piece + 1)), pars, consts, arb(1))
-            except _Singular:
+                vals = evaluate(jprog, box(dt * piece, dt * (piece + 1)), pars, consts, arb(1))
+            except Singular:
                 return None
             M = arb_mat([vals[i * n:(i + 1) * n] for i in range(n)]) * dt
             S, T = eye, eye
@@ -867,11 +561,11 @@ def _chart_context(model, flint):
     ps = as_poisson_system(model)
     prog = ps.program
     pars = [flint.arb(flint.fmpq(p.numerator, p.denominator)) for p in ps.parameter_values]
-    consts = [(slot, _constant(c, flint)) for slot, c in prog.constants]
+    consts = [(slot, ball_constant(c, flint)) for slot, c in prog.constants]
     events = _model_events(model, ps)
-    ev_consts = [(slot, _constant(c, flint)) for slot, c in events[0].constants] if events else []
+    ev_consts = [(slot, ball_constant(c, flint)) for slot, c in events[0].constants] if events else []
     jprog = _jacobian_program(ps)
-    jconsts = [(slot, _constant(c, flint)) for slot, c in jprog.constants]
+    jconsts = [(slot, ball_constant(c, flint)) for slot, c in jprog.constants]
     return ps, prog, pars, consts, events, ev_consts, jprog, jconsts
 
 
@@ -903,8 +597,8 @@ def _switch_chart(model, current, chart, z, flint):
         prog = compile_expressions(ps.variables, current.chart_change_expressions(chart), len(ps.parameter_values))
         _CHART_MAPS[key] = prog
     pars = [flint.arb(flint.fmpq(p.numerator, p.denominator)) for p in ps.parameter_values]
-    consts = [(slot, _constant(c, flint)) for slot, c in prog.constants]
-    out = _evaluate(prog, z, pars, consts, flint.arb(1))
+    consts = [(slot, ball_constant(c, flint)) for slot, c in prog.constants]
+    out = evaluate(prog, z, pars, consts, flint.arb(1))
     return [v if isinstance(v, flint.arb) else flint.arb(v) for v in out]
 
 
@@ -916,7 +610,7 @@ def _model_events(system, ps):
     from .expr import compile_expressions
 
     prog = compile_expressions(ps.variables, [e[0] for e in evs], len(ps.parameter_values))
-    _check_ops(prog)
+    check_ops(prog)
     return prog, [e[1] for e in evs], [e[2] for e in evs]
 
 
@@ -924,7 +618,7 @@ def _event_in(events, B, pars, consts, one):
     """(status, message) of the first event whose expression may vanish somewhere in the box B, else None: a
     step whose box reaches an event is not taken (the run stops before it, every row proved)."""
     prog, statuses, messages = events
-    values = _evaluate(prog, B, pars, consts, one)
+    values = evaluate(prog, B, pars, consts, one)
     for v, status, message in zip(values, statuses, messages):
         if not (v > 0 or v < 0):
             return status, message
@@ -966,9 +660,9 @@ def _check_regular(prog, z, pars, consts, flint):
     arb = flint.arb
     centre = [arb(v.mid()) for v in z]
     try:
-        values = _evaluate(prog, centre, pars, consts, arb(1))
+        values = evaluate(prog, centre, pars, consts, arb(1))
         ok = all((v if isinstance(v, arb) else arb(v)).is_finite() for v in values)
-    except _Singular:
+    except Singular:
         ok = False
     if not ok:
         raise ValueError(f"`y0` = {[float(v.mid()) for v in centre]} is a singular point of the vector field (it "
@@ -1027,12 +721,12 @@ def ball_taylor_coefficients(system, y0, order: int, dps: int = 30) -> list:
     order = check_order(order)
     ps = as_poisson_system(system)
     prog = ps.program
-    _check_ops(prog)
-    with _working_precision(dps_to_bits(dps) + GUARD_BITS, cap=order + 4) as flint:
+    check_ops(prog)
+    with working_precision(dps_to_bits(dps) + GUARD_BITS, cap=order + 4) as flint:
         z = _initial_balls(system, y0, ps.dimension, flint)
         pars = [flint.arb(flint.fmpq(p.numerator, p.denominator)) for p in ps.parameter_values]
-        consts = [(slot, _constant(c, flint)) for slot, c in prog.constants]
-        return _taylor(prog, z, pars, consts, order, flint)
+        consts = [(slot, ball_constant(c, flint)) for slot, c in prog.constants]
+        return taylor_coefficients(prog, z, pars, consts, order, flint)
 
 
 def centre_coefficients(system, y0, order: int, dps: int = 30, step=None) -> list:
@@ -1046,11 +740,11 @@ def centre_coefficients(system, y0, order: int, dps: int = 30, step=None) -> lis
     order = check_order(order)
     ps = as_poisson_system(system)
     prog = ps.program
-    _check_ops(prog)
-    with _working_precision(dps_to_bits(dps) + GUARD_BITS, cap=order + 4) as flint:
+    check_ops(prog)
+    with working_precision(dps_to_bits(dps) + GUARD_BITS, cap=order + 4) as flint:
         z = [flint.arb(v.mid()) for v in _initial_balls(system, y0, ps.dimension, flint)]
         pars = [flint.arb(flint.fmpq(p.numerator, p.denominator)) for p in ps.parameter_values]
-        consts = [(slot, _constant(c, flint)) for slot, c in prog.constants]
+        consts = [(slot, ball_constant(c, flint)) for slot, c in prog.constants]
         stepper = _jet_stepper(ps, order, dps)
         if step is not None:
             stepper.h_last = float(to_fraction(step, "step"))
@@ -1104,7 +798,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                          f"{max_width!r}. Leave it out for the default, 1e-3 x max(1, |z|)")
     N = check_order(order) if order is not None else max(8, math.ceil(math.log(10) * dps / 2) + 1)
     ps = as_poisson_system(system)
-    _check_ops(ps.program)
+    check_ops(ps.program)
     if atlas is None:
         atlas = bool(getattr(system, "atlas", False))  # a Sphere says (True unless built with atlas=False)
     if atlas and not hasattr(system, "chart_change_expressions"):
@@ -1121,7 +815,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     start = _time.perf_counter()
     deadline = None if max_time is None else start + max_time
 
-    with _working_precision(bits, cap=max(N, BOX_ORDER + 1) + DEFECT_EXTRA + 4) as flint:
+    with working_precision(bits, cap=max(N, BOX_ORDER + 1) + DEFECT_EXTRA + 4) as flint:
         arb = flint.arb
         z = _initial_balls(system, y0, ps.dimension, flint)
         width_cap = None if max_width is None else arb(flint.fmpq(*to_fraction(max_width, "max_width").as_integer_ratio()))
@@ -1220,11 +914,11 @@ class _ValidatedEngine:
                                          mpmath.mpf(float(abs(t_end - tcur))), self.deadline)  # centre
             g = _defect_coefficients(prog, C, pars, consts, flint)  # in the centre's scaled time
             # from the whole set (checked from a guess around the centre polynomial)
-            guess = C.guess(BOX_ORDER, max(zi.rad() for zi in z), _norm_bound(jprog, self.m, pars, jconsts, flint))
-            CZ = _taylor_checked(prog, z, guess, pars, consts, BOX_ORDER, flint)
+            guess = C.guess(BOX_ORDER, max(zi.rad() for zi in z), norm_bound(jprog, self.m, pars, jconsts, flint))
+            CZ = taylor_coefficients_checked(prog, z, guess, pars, consts, BOX_ORDER, flint)
         except DeadlineExceeded:
             raise Stop("time_budget", note=" (inside a step)") from None
-        except _Singular as e:
+        except Singular as e:
             # the enclosure of the state itself reaches a singularity of the field: nothing beyond is proved
             raise Stop("validation_failed", f"the vector field cannot be evaluated on the enclosure of the state "
                        f"({e}): the solution is at or near a singularity of the field (widest ball "
@@ -1357,7 +1051,7 @@ def radii(sol) -> np.ndarray:
 def certified_digits(sol) -> np.ndarray:
     """Per output time: -log10 of the widest ball's radius relative to max(1, |z|): the digits every component is
     certified to (computed from the balls, so beyond a float's range too; inf for a row of exact values)."""
-    flint = _flint()
+    flint = flint_module()
     out = []
     for row in np.atleast_2d(sol.y):
         widest = functools.reduce(lambda a, b: b if b > a else a, [v.rad() for v in row])  # exact values

@@ -426,7 +426,7 @@ def test_lagrange_majorant_bounds_the_shifted_coefficient_at_every_point_of_the_
     ps = body.poisson
     prog = ps.program
     dps, order = 30, 36
-    with V._working_precision(V.dps_to_bits(dps) + V.GUARD_BITS, cap=order + 20) as fl:
+    with V.working_precision(V.dps_to_bits(dps) + V.GUARD_BITS, cap=order + 20) as fl:
         z = V._initial_balls(body, body.initial_state(omega=RIGID_OMEGA), ps.dimension, fl)
         _, prog, pars, consts, *_ = V._chart_context(body, fl)
         stepper = V._jet_stepper(ps, order, dps)
@@ -457,6 +457,7 @@ def test_ball_taylor_coefficients_contain_those_from_every_point_of_the_box(monk
     # Picard iteration and the one-evaluation check from a guess around the centre polynomial (which must succeed
     # here, without falling back to Picard) enclose the Taylor coefficients from points of a box, computed at
     # 90 digits
+    from lieseries import ball_series
     from lieseries import validated as V
 
     body = ls.EulerPoisson(RIGID_INERTIA)
@@ -475,19 +476,19 @@ def test_ball_taylor_coefficients_contain_those_from_every_point_of_the_box(monk
     delta = Fraction(1, 10**20)
     points = [centre, [c + delta for c in centre], [c - delta for c in centre]]
     points += [[c + (delta if j == i else 0) for j, c in enumerate(centre)] for i in range(0, len(centre), 3)]
-    with V._working_precision(V.dps_to_bits(dps) + V.GUARD_BITS, cap=order + 20) as fl:
+    with V.working_precision(V.dps_to_bits(dps) + V.GUARD_BITS, cap=order + 20) as fl:
         z = [fl.arb(fl.fmpq(c.numerator, c.denominator)) + fl.arb(0, fl.arb(fl.fmpq(1, 10**20))) for c in centre]
         m = [fl.arb(v.mid()) for v in z]
         _, prog, pars, consts, _, _, jprog, jconsts = V._chart_context(body, fl)
         C, _ = V._centre_polynomial(V._jet_stepper(ps, 40, dps), prog, m, pars, consts, 40, fl, 10)
-        guess = C.guess(order, max(v.rad() for v in z), V._norm_bound(jprog, m, pars, jconsts, fl))
-        picard = V._taylor(prog, z, pars, consts, order, fl, bits=64)
+        guess = C.guess(order, max(v.rad() for v in z), V.norm_bound(jprog, m, pars, jconsts, fl))
+        picard = V.taylor_coefficients(prog, z, pars, consts, order, fl, bits=64)
         with monkeypatch.context() as mpatch:
-            mpatch.setattr(V, "_taylor", lambda *a, **k: pytest.fail("the guess was not proved"))
-            checked = V._taylor_checked(prog, z, guess, pars, consts, order, fl)
+            mpatch.setattr(ball_series, "taylor_coefficients", lambda *a, **k: pytest.fail("the guess was not proved"))
+            checked = V.taylor_coefficients_checked(prog, z, guess, pars, consts, order, fl)
             # a guess of points (radius 0) fails the check: proved after widening, then evaluated once more
-            retried = V._taylor_checked(prog, z, [[fl.arb(b.mid()) for b in row] for row in guess], pars, consts,
-                                        order, fl)
+            retried = V.taylor_coefficients_checked(prog, z, [[fl.arb(b.mid()) for b in row] for row in guess], pars,
+                                                    consts, order, fl)
         for balls in (picard, checked, retried):
             assert all(len(row) == order + 1 for row in balls)
             for point in points:
@@ -506,7 +507,7 @@ def test_the_remainder_factor_exp_times_bounds_the_matrix_exponential_from_above
 
     rng = random.Random(7)
     n = 12
-    with V._working_precision(64) as fl:
+    with V.working_precision(64) as fl:
         for scale in (0.01, 0.5, 1, 3, 10, 40):
             M = fl.arb_mat([[fl.arb(rng.random() * scale / n) for _ in range(n)] for _ in range(n)])
             g = fl.arb_mat([[fl.arb(rng.random())] for _ in range(n)])

@@ -1,0 +1,322 @@
+"""Arb ball arithmetic for the validated engine (:mod:`lieseries.validated`): python-flint's process-wide working
+precision set under a lock, balls that pickle exactly, a vector field's program evaluated on balls, complex boxes
+and ball series, its Taylor coefficients over a box (Picard iteration, or a guess checked in one evaluation), and
+norm bounds."""
+
+from __future__ import annotations
+
+import copyreg
+import threading
+import time as _time
+import weakref
+from contextlib import contextmanager
+from fractions import Fraction
+
+from .lie.jets import DeadlineExceeded
+
+__all__ = ["SUPPORTED_OPS", "flint_module", "working_precision", "Singular", "ball_constant", "evaluate",
+           "check_ops", "taylor_coefficients", "taylor_coefficients_checked", "norm_bound"]
+
+#: Operations of a vector field that the validated engine evaluates in ball arithmetic.
+SUPPORTED_OPS = ("add", "sub", "neg", "mul", "div", "powi", "pow", "sqrt", "exp", "log", "sin", "cos", "tan",
+                 "atan", "sinh", "cosh", "tanh")
+
+_LOCK = threading.RLock()
+
+
+def flint_module():
+    try:
+        import flint
+    except ImportError:  # pragma: no cover - python-flint is a dependency
+        raise ImportError("`validated_integrate` needs python-flint: pip install python-flint") from None
+    if not _PICKLING:
+        # flint.arb has no pickle support of its own: a validated Solution (its rows are arbs) pickles through
+        # this reducer, which keeps every ball exactly (midpoint and radius as integer mantissa and exponent)
+        copyreg.pickle(flint.arb, _reduce_arb)
+        _PICKLING.append(True)
+    return flint
+
+
+_PICKLING: list = []
+
+
+def _arb_part(x):
+    """An exact arb value (a midpoint, or a radius as an arb) as (mantissa, exponent), or 'nan' / '+inf' / '-inf'."""
+    if x.is_finite():
+        man, exp = x.man_exp()
+        return int(man), int(exp)
+    if x.is_nan():
+        return "nan"
+    return "+inf" if x > 0 else "-inf"
+
+
+def _reduce_arb(x):
+    return _rebuild_arb, (_arb_part(x.mid()), _arb_part(x.rad()))
+
+
+def _rebuild_arb(mid, rad):
+    """The ball of :func:`_reduce_arb`, exactly (arb((man, exp), ...) takes the binary data without rounding)."""
+    import flint
+
+    def part(p):
+        return p if isinstance(p, tuple) else p.replace("+", "")
+
+    if not isinstance(rad, tuple):  # an infinite (or nan) radius
+        return flint.arb(part(mid), "inf") if isinstance(mid, tuple) else flint.arb(part(mid))
+    return flint.arb(part(mid), rad)
+
+
+@contextmanager
+def working_precision(bits: int, cap: int = 10):
+    """python-flint's process-wide working precision (bits) and series length cap, set under a lock and restored
+    (series longer than ``ctx.cap`` are silently truncated: the cap must exceed the series order)."""
+    flint = flint_module()
+    with _LOCK:
+        old = flint.ctx.prec, flint.ctx.cap
+        flint.ctx.prec = int(bits)
+        flint.ctx.cap = max(int(cap), old[1])
+        try:
+            yield flint
+        finally:
+            flint.ctx.prec, flint.ctx.cap = old
+
+
+# -- evaluating a program on balls, complex boxes and ball series ------------------------------------------------
+def _powi(x, n: int, one):
+    if n < 0:
+        return one / _powi(x, -n, one)
+    result, base = one, x
+    while n:
+        if n & 1:
+            result = result * base
+        n >>= 1
+        if n:
+            base = base * base
+    return result
+
+
+class Singular(ValueError):
+    """The field cannot be evaluated on the balls: an operation's argument reaches its singularity (a divisor, a
+    series' leading term, a root's or logarithm's argument containing 0 or a negative value)."""
+
+    def __init__(self, op, cause):
+        super().__init__(f"`{op}` is singular on its argument ({cause})")
+        self.op = op
+
+
+def _apply(op, a, data, one):
+    try:
+        return _apply_op(op, a, data, one)
+    except (ValueError, ZeroDivisionError) as e:
+        raise Singular(op, e) from None
+
+
+def _apply_op(op, a, data, one):
+    if op == "add":
+        s = a[0]
+        for x in a[1:]:
+            s = s + x
+        return s
+    if op == "sub":
+        return a[0] - a[1]
+    if op == "neg":
+        return -a[0]
+    if op == "mul":
+        p = a[0]
+        for x in a[1:]:
+            p = p * x
+        return p
+    if op == "div":
+        return a[0] / a[1]
+    if op == "powi":
+        return _powi(a[0], int(data), one)
+    if op == "pow":
+        ex = a[1] if data is None else one * data[0] / data[1]
+        return (a[0].log() * ex).exp()
+    if op in ("sqrt", "exp", "log", "sin", "cos", "tan", "atan"):
+        return getattr(a[0], op)()
+    e = a[0].exp()
+    if op == "sinh":
+        return (e - 1 / e) / 2
+    if op == "cosh":
+        return (e + 1 / e) / 2
+    if op == "tanh":
+        return (e - 1 / e) / (e + 1 / e)
+    raise AssertionError(op)  # pragma: no cover - checked in check_ops
+
+
+def ball_constant(c, flint):
+    kind, value = c
+    if kind == "rational":
+        return flint.arb(flint.fmpq(*value))
+    if kind == "binary":
+        sign, man, exp, _ = value
+        q = Fraction(int(man) << exp) if exp >= 0 else Fraction(int(man), 1 << -exp)
+        return flint.arb(flint.fmpq(-q.numerator if sign else q.numerator, q.denominator))
+    if kind == "pi":
+        return flint.arb.pi()
+    return flint.arb.const_e()
+
+
+def evaluate(prog, values, pars, consts, one):
+    """The program's outputs on ``values`` (balls or ball series), ``pars`` and the constant balls ``consts``
+    (pairs (slot, ball) in the order of ``prog.constants``), by its straight-line Python function (the same
+    operations in the same order as :func:`_interpret`, without its dispatch). An operation singular on its
+    argument raises :class:`Singular`, named by the interpreter."""
+    run = _COMPILED.get(prog)
+    if run is None:
+        run = _COMPILED[prog] = _compile(prog)
+    try:
+        return run(values, pars, consts, one)
+    except (ValueError, ZeroDivisionError) as e:
+        _interpret(prog, values, pars, consts, one)  # raises Singular with the operation's name
+        raise Singular("?", e) from None  # pragma: no cover - the interpreter fails on the same operation
+
+
+#: Straight-line functions of programs (:func:`_compile`), per program object.
+_COMPILED: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_INLINE = {"add": " + ", "mul": " * "}
+
+
+def _compile(prog):
+    """``run(values, pars, consts, one)``: the program as one Python function of local variables (slot i is
+    ``v<i>``); arithmetic written out, other operations through :func:`_apply_op`."""
+    lines = ["def run(x, p, c, one):"]
+    if prog.nvars:
+        lines.append("    " + "".join(f"v{i}, " for i in range(prog.nvars)) + "= x")
+    if prog.npars:
+        lines.append("    " + "".join(f"v{prog.nvars + j}, " for j in range(prog.npars)) + "= p")
+    for k, (slot, _) in enumerate(prog.constants):
+        lines.append(f"    v{slot} = c[{k}][1]")
+    for op, out, args, data in prog.nodes:
+        a = [f"v{i}" for i in args]
+        if op in _INLINE:
+            expr = a[0]
+            for x in a[1:]:
+                expr = f"({expr}{_INLINE[op]}{x})"
+        elif op == "sub":
+            expr = f"{a[0]} - {a[1]}"
+        elif op == "div":
+            expr = f"{a[0]} / {a[1]}"
+        elif op == "neg":
+            expr = f"-{a[0]}"
+        else:
+            expr = f"apply_op({op!r}, [{', '.join(a)}], data[{out}], one)"
+        lines.append(f"    v{out} = {expr}")
+    lines.append("    return [" + ", ".join(f"v{o}" for o in prog.outputs) + "]")
+    namespace = {"apply_op": _apply_op, "data": {n.out: n.data for n in prog.nodes}}
+    exec(compile("\n".join(lines), f"<validated program {len(prog.nodes)} nodes>", "exec"), namespace)
+    return namespace["run"]
+
+
+def _interpret(prog, values, pars, consts, one):
+    vals = [None] * prog.nslots
+    vals[: prog.nvars] = values
+    vals[prog.nvars: prog.nvars + prog.npars] = pars
+    for slot, c in consts:
+        vals[slot] = c
+    for op, out, args, data in prog.nodes:
+        vals[out] = _apply(op, [vals[i] for i in args], data, one)
+    return [vals[o] for o in prog.outputs]
+
+
+def check_ops(prog):
+    bad = sorted({n.op for n in prog.nodes} - set(SUPPORTED_OPS))
+    if bad:
+        raise ValueError(f"`system`: the validated engine cannot evaluate the operations {bad} in ball arithmetic; "
+                         f"it supports {', '.join(SUPPORTED_OPS)}")
+
+
+def taylor_coefficients(prog, z0, pars, consts, order, flint, *, bits=None, deadline=None):
+    """Ball Taylor coefficients c_0..c_order of the flow from the balls z0: out[i][j] for component i, order j.
+
+    Picard iteration on Arb power series, one coefficient per iteration: the (m-1)-th coefficient of f(z) depends
+    only on c_0..c_{m-1}, so iteration m evaluates f on the series known so far (length m) and takes
+    z = z0 + integral of f(z), of length m + 1 (its coefficient m is c_m = f_{m-1} / m; the earlier ones enclose
+    c_0..c_{m-1} again, from the same balls). ``bits``: the precision to work at (default: the
+    current one); a lower precision only widens the balls, it never makes them wrong. ``deadline``: a
+    perf_counter value after which :class:`~lieseries.lie.jets.DeadlineExceeded` is raised (checked every order).
+    """
+
+    arb, arb_series = flint.arb, flint.arb_series
+    if flint.ctx.cap < order + 2:
+        raise AssertionError("the series cap must exceed the order")  # pragma: no cover - set by the driver
+    saved = flint.ctx.prec
+    flint.ctx.prec = saved if bits is None else bits
+    try:
+        start = [arb_series([c], prec=order + 1) for c in z0]  # a sum's length is its shorter term's
+        z = [arb_series([c], prec=1) for c in z0]
+        for m in range(1, order + 1):
+            if deadline is not None and _time.perf_counter() > deadline:
+                raise DeadlineExceeded(m - 1)
+            f = evaluate(prog, z, pars, consts, arb_series([arb(1)], prec=m))
+            z = [s + (fi if isinstance(fi, arb_series) else arb_series([fi], prec=m)).integral()
+                 for s, fi in zip(start, f)]  # a constant component: a series of its own
+        coeffs = []
+        for c, zi in zip(z0, z):
+            got = list(zi.coeffs())
+            coeffs.append([c] + got[1:order + 1] + [arb(0)] * (order + 1 - max(len(got), 1)))
+    finally:
+        flint.ctx.prec = saved
+    return coeffs
+
+
+def taylor_coefficients_checked(prog, z0, guess, pars, consts, order, flint, *, bits=64, tries=3):
+    """The ball Taylor coefficients of :func:`taylor_coefficients` (c_0..c_order from the balls z0), proved from a guess in
+    one evaluation of the field instead of ``order``.
+
+    ``guess[i]``: balls Y_1..Y_{order-1} for component i. The (k-1)-th coefficient of f(z) depends only on
+    c_0..c_{k-1}, so with W_k = [f(z0 + Y_1 tau + ...)]_{k-1} / k: when every W_k (k < order) lies in Y_k, induction
+    on k gives c_k(z) in W_k for every z in z0 (c_0 = z in z0; c_0..c_{k-1} in Y_0..Y_{k-1} puts
+    c_k = [f(c)]_{k-1} / k in W_k, inside Y_k), and c_order in W_order. When the check fails, the guess is widened
+    to cover W (2^k times, order k) and checked again, ``tries`` times in all (after a widened guess, the
+    coefficients are evaluated once more from W, which holds them, and intersected with W); then Picard iteration
+    (:func:`taylor_coefficients`)."""
+    arb, arb_series = flint.arb, flint.arb_series
+    saved = flint.ctx.prec
+    flint.ctx.prec = bits
+    try:
+        one = arb_series([arb(1)], prec=order)
+
+        def step(Y):  # W from Y
+            f = evaluate(prog, [arb_series([z] + y, prec=order) for z, y in zip(z0, Y)], pars, consts, one)
+            W = []
+            for fi in f:
+                got = list(fi.coeffs()) if isinstance(fi, arb_series) else [fi if isinstance(fi, arb) else arb(fi)]
+                got = got[:order] + [arb(0)] * (order - len(got))
+                W.append([got[k] / (k + 1) for k in range(order)])
+            return W
+
+        Y = guess
+        for attempt in range(tries):
+            W = step(Y)
+            if all(y.contains(w) for Yi, Wi in zip(Y, W) for y, w in zip(Yi, Wi)):
+                if attempt:  # a widened guess: W (which holds the coefficients) once more, and the common part
+                    V = step([Wi[:-1] for Wi in W])
+                    W = [[w.intersection(v) for w, v in zip(Wi, Vi)] for Wi, Vi in zip(W, V)]
+                return [[z] + Wi for z, Wi in zip(z0, W)]
+            Y = [[_widened(y.union(w), k) for k, (y, w) in enumerate(zip(Yi, Wi), 1)] for Yi, Wi in zip(Y, W)]
+    finally:
+        flint.ctx.prec = saved
+    return taylor_coefficients(prog, z0, pars, consts, order, flint, bits=bits)
+
+
+def norm_bound(jprog, z, pars, consts, flint):
+    """||Df(z)||_inf (an upper bound at 64 bits; at least 1/4), from the Jacobian program ``jprog``."""
+    arb = flint.arb
+    n = len(z)
+    saved = flint.ctx.prec
+    flint.ctx.prec = 64
+    try:
+        vals = evaluate(jprog, z, pars, consts, arb(1))
+        return max([arb(0.25)] + [sum((abs(arb(v)).upper() for v in vals[i * n:(i + 1) * n]), arb(0)).upper()
+                                  for i in range(n)])
+    finally:
+        flint.ctx.prec = saved
+
+
+def _widened(x, k):
+    """The ball x (a guess of order k) with 2^k times its radius (and at least 2^-60 of its midpoint): widening
+    every order alike would leave the ratio of what the orders below pass on to order k unchanged; growing with k,
+    the widening halves it at every retry."""
+    return type(x)(x.mid(), (x.rad() + abs(x.mid()) * 2.0**-60) * 2.0**k)
