@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import types
+
 from dataclasses import asdict, dataclass, field
 from typing import Callable
 
@@ -151,6 +153,10 @@ class Solution:
         self._fill()
         return {k: v for k, v in self.__dict__.items() if k != "_make"}
 
+    def __setstate__(self, state):
+        # numpy unpickles its arrays writable: read-only again
+        self.__dict__.update({k: _read_only(v) for k, v in state.items()})
+
     def __setattr__(self, name, value):
         raise AttributeError(f"a Solution is immutable; `{name}` cannot be set")
 
@@ -261,7 +267,8 @@ class MemberEvents(list):
 
 
 class EnsembleSolution:
-    """The result of an ensemble run (:func:`lieseries.integrate` with ``Y0`` of shape (k, n)).
+    """The result of an ensemble run (:func:`lieseries.integrate` with ``Y0`` of shape (k, n)); immutable, as a
+    :class:`Solution` is (its arrays read-only).
 
     Attributes
     ----------
@@ -271,7 +278,7 @@ class EnsembleSolution:
         ``y[i, j]`` is member i's state at ``t[j]``; NaN in the rows after a member stopped early.
     status : ndarray of str, shape (k,)
         Each member's status (one of :data:`STATUSES`).
-    message : list of str
+    message : tuple of str
         Each member's message: what happened and, for an early stop, where and what to do.
     t_reached : ndarray of Fraction, shape (k,)
         The time each member reached (exact).
@@ -279,7 +286,7 @@ class EnsembleSolution:
         The state at ``t_reached`` (for a member that stopped early, its last good state).
     rows : ndarray of int, shape (k,)
         How many output rows each member reached.
-    stats : dict
+    stats : mapping (read-only)
         ``steps`` (array, per member), ``order``, ``build_time``, ``run_time``, ``workers``, ``batch_size``,
         ``path`` ("batch" or "single"), ``single_runs`` (members run one by one), ``precision``, ``tol``.
     events : list of dict or None
@@ -292,23 +299,36 @@ class EnsembleSolution:
 
     def __init__(self, t, y, status, message, t_reached, y_reached, stats: dict, rows=None,
                  method: str = "taylor (heyoka)", events=None, charts=None, chart_reached=None):
-        self.t = t
-        self.charts = None if charts is None else np.asarray(charts, dtype=int)
-        self.chart_reached = None if chart_reached is None else np.asarray(chart_reached, dtype=int)
-        if self.charts is not None:
-            y, y_reached = ChartRows(y, self.charts), ChartRows(y_reached, self.chart_reached)
-        self.y = y
-        self.status = np.asarray(status, dtype=object)
-        for s in self.status:
+        charts = None if charts is None else np.asarray(charts, dtype=int)
+        chart_reached = None if chart_reached is None else np.asarray(chart_reached, dtype=int)
+        if charts is not None:
+            y, y_reached = ChartRows(y, charts), ChartRows(y_reached, chart_reached)
+        status = np.asarray(status, dtype=object)
+        for s in status:
             if s not in STATUSES:  # pragma: no cover - programming error
                 raise ValueError(f"unknown status {s!r}")
-        self.message = list(message)
-        self.t_reached = np.asarray(t_reached, dtype=object)
-        self.y_reached = y_reached
-        self.stats = stats
-        self.method = method
-        self.rows = np.full(len(self.status), len(t), dtype=np.int64) if rows is None else np.asarray(rows)
-        self.events = None if events is None else MemberEvents(events)
+        rows = np.full(len(status), len(t), dtype=np.int64) if rows is None else np.asarray(rows)
+        # immutable, as a Solution is: read-only arrays, a tuple of messages, a read-only view of the statistics
+        self.__dict__.update(
+            t=_read_only(t), y=_read_only(y), status=_read_only(status), message=tuple(message),
+            t_reached=_read_only(np.asarray(t_reached, dtype=object)), y_reached=_read_only(y_reached),
+            stats=types.MappingProxyType(dict(stats)), method=method, rows=_read_only(rows),
+            events=None if events is None else MemberEvents(events), charts=_read_only(charts),
+            chart_reached=_read_only(chart_reached))
+
+    def __getstate__(self):
+        return {**self.__dict__, "stats": dict(self.stats)}
+
+    def __setstate__(self, state):
+        # numpy unpickles its arrays writable: read-only again
+        state = {k: _read_only(v) for k, v in state.items()}
+        self.__dict__.update(state, stats=types.MappingProxyType(dict(state["stats"])))
+
+    def __setattr__(self, name, value):
+        raise AttributeError(f"an EnsembleSolution is immutable; `{name}` cannot be set")
+
+    def __delattr__(self, name):
+        raise AttributeError(f"an EnsembleSolution is immutable; `{name}` cannot be deleted")
 
     def __len__(self) -> int:
         return len(self.status)
@@ -342,18 +362,20 @@ class EnsembleSolution:
                         chart_reached=int(self.chart_reached[i]) if charted else None)
 
     @classmethod
-    def concatenate(cls, parts):
-        """One ensemble from consecutive chunks run with the same times and options."""
+    def concatenate(cls, parts, **stats):
+        """One ensemble from consecutive chunks run with the same times and options; ``stats`` set or replace
+        entries of its statistics (a cluster's ``run_time``, ``workers``, ...)."""
         parts = list(parts)
         if not parts:
             raise ValueError("`parts` must hold at least one EnsembleSolution")
-        first = parts[0]
+        first, extra = parts[0], stats
         stats = dict(first.stats)
         stats["steps"] = np.concatenate([p.stats["steps"] for p in parts])
         stats["build_time"] = max(p.stats.get("build_time", 0.0) for p in parts)
         stats["run_time"] = sum(p.stats.get("run_time", 0.0) for p in parts)
         stats["single_runs"] = sum(p.stats.get("single_runs", 0) for p in parts)
         stats["order"] = max(p.stats.get("order", 0) for p in parts)
+        stats.update(extra)
         return cls(first.t, np.concatenate([p.y for p in parts]),
                    np.concatenate([p.status for p in parts]), [m for p in parts for m in p.message],
                    np.concatenate([p.t_reached for p in parts]), np.concatenate([p.y_reached for p in parts]),

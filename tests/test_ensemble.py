@@ -367,6 +367,20 @@ def test_models_systems_and_solutions_pickle():
     es2 = pickle.loads(pickle.dumps(es))
     assert np.array_equal(es2.y, es.y) and list(es2.status) == list(es.status)
     assert es2.member(1).status == "success"
+    # immutable, as a Solution is (also after a round trip): nothing a caller holds can change what it reported
+    for sol in (es, es2):
+        with pytest.raises(AttributeError, match="immutable"):
+            sol.status = ["success"] * 3
+        with pytest.raises(ValueError, match="read-only"):
+            sol.y[0, 0, 0] = 0.0
+        with pytest.raises(ValueError, match="read-only"):
+            sol.status[0] = "success"
+        with pytest.raises(TypeError):
+            sol.stats["steps"] = None
+        assert isinstance(sol.message, tuple)
+    single = pickle.loads(pickle.dumps(ls.integrate(body, y0, 3.0)))
+    with pytest.raises(ValueError, match="read-only"):
+        single.y[0, 0] = 0.0
 
 
 # -- Dask --------------------------------------------------------------------------------------------------------

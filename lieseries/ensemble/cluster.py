@@ -99,9 +99,5 @@ def run_dask(client, task, system, Ynat, pars, t, t0, opts, chunk_size, progress
             raise  # an error of the run itself (raised on the worker): as a local run would raise it
         raise dask_failure(err, f"collecting the chunks ({done} of {k} members back)") from err
     ordered = [parts[lo] for lo in sorted(parts)]
-    es = EnsembleSolution.concatenate(ordered)
-    es.stats["run_time"] = _time.perf_counter() - start
-    es.stats["workers"] = len(client.nthreads())
-    es.stats["chunks"] = len(ordered)
-    es.stats["chunk_size"] = chunk_size
-    return es
+    return EnsembleSolution.concatenate(ordered, run_time=_time.perf_counter() - start,
+                                        workers=len(client.nthreads()), chunks=len(ordered), chunk_size=chunk_size)
