@@ -5,14 +5,16 @@ from __future__ import annotations
 
 import math
 import textwrap
+from fractions import Fraction
 
 __all__ = ["fmt_sci", "fmt_int", "fmt_num", "fmt_p", "markdown_table", "plain_table", "pyplot", "save_figure",
            "positive_or_nan", "wrap", "MARKERS", "file_tag"]
 
 
 def fmt_sci(x, digits: int = 3) -> str:
-    """Scientific notation with ``digits`` significant digits ("" for None, "0" for zero). An mpf or a Fraction
-    beyond a double's range keeps its exponent (1e-402 is "1.00e-402", not the "0" of its float)."""
+    """Scientific notation with ``digits`` significant digits ("" for None, "0" for zero). A number beyond a
+    double's range (an mpf, a long double, a Fraction) keeps its exponent (1e-402 is "1.00e-402", not the "0" of
+    its float)."""
     if x is None:
         return ""
     try:
@@ -23,8 +25,10 @@ def fmt_sci(x, digits: int = 3) -> str:
         f = math.inf
     if math.isnan(f):
         return "nan"
-    if (f == 0 or math.isinf(f)) and _exact_nonzero_finite(x):
-        return _big_sci(x, digits)
+    if f == 0 or math.isinf(f):  # zero or beyond a double's range as a float: perhaps not as itself
+        exact = _exact_value(x)
+        if exact is not None and exact != 0:
+            return _big_sci(exact, digits)
     if math.isinf(f):
         return "inf" if f > 0 else "-inf"
     if f == 0:
@@ -32,29 +36,32 @@ def fmt_sci(x, digits: int = 3) -> str:
     return f"{f:.{digits - 1}e}"
 
 
-def _exact_nonzero_finite(x) -> bool:
-    if hasattr(x, "_mpf_"):
-        import mpmath
+def _exact_value(x):
+    """The exact value of a finite number of any type (an mpf, a long double, a Fraction, an integer) as a
+    Fraction; None for an infinity, a NaN or a type without an exact value."""
+    try:
+        if hasattr(x, "_mpf_"):
+            man, exp = x.man_exp  # x = man 2^exp exactly; raises for inf and nan
+            return Fraction(int(man)) * Fraction(2) ** int(exp) if man is not None else None
+        if hasattr(x, "as_integer_ratio"):  # ints, Fractions, floats, numpy's long double
+            return Fraction(*x.as_integer_ratio())
+        from .precision import to_fraction
 
-        return bool(x) and mpmath.isfinite(x)
-    return hasattr(x, "numerator") and hasattr(x, "denominator") and x != 0
+        return to_fraction(x)
+    except (TypeError, ValueError, OverflowError, AttributeError):
+        return None
 
 
 def _big_sci(x, digits: int) -> str:
-    """``x`` (an mpf, a Fraction or an integer) in scientific notation, in decimal integers (no float)."""
-    if hasattr(x, "_mpf_"):
-        from fractions import Fraction
-
-        import mpmath
-
-        man, exp = mpmath.mpf(x).man_exp  # exact: x = man 2^exp
-        x = Fraction(int(man)) * Fraction(2) ** int(exp)
+    """The Fraction ``x`` in scientific notation, in decimal integers (no float)."""
     sign = "-" if x < 0 else ""
     x = abs(x)
-    e = len(str(x.numerator)) - len(str(x.denominator))  # 10^(e-1) < x < 10^(e+1)
-    scaled = x / 10 ** e if e >= 0 else x * 10 ** -e
-    if scaled < 1:
-        e, scaled = e - 1, scaled * 10  # now in [1, 10)
+    e = math.floor((x.numerator.bit_length() - x.denominator.bit_length()) * math.log10(2))  # within 1 of log10 x
+    while x < Fraction(10) ** e:
+        e -= 1
+    while x >= Fraction(10) ** (e + 1):
+        e += 1
+    scaled = x / Fraction(10) ** e  # in [1, 10)
     m = round(scaled * 10 ** (digits - 1))
     if m >= 10 ** digits:  # rounded up to 10.0
         m //= 10

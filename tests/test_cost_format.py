@@ -34,3 +34,7 @@ def test_scientific_notation_beyond_a_doubles_range_keeps_the_exponent():
     assert fmt_sci(10**400) == "1.00e+400" and fmt_sci(Fraction(10**400, 3), 2) == "3.3e+399"
     assert fmt_sci(c.mpf("9.996e-500"), 3) == "1.00e-499"
     assert fmt_sci(1e-5) == "1.00e-05" and fmt_sci(0) == "0" and fmt_sci(c.inf) == "inf"
+    import numpy as np
+
+    assert fmt_sci(np.longdouble("1e-4000")) == "1.00e-4000" and fmt_sci(c.mpf("1e-9000")) == "1.00e-9000"
+    assert fmt_sci(np.longdouble("-3e4000"), 2) == "-3.0e+4000" and fmt_sci(c.nan) == "nan"
