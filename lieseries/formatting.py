@@ -45,9 +45,7 @@ def _exact_value(x):
             return Fraction(int(man)) * Fraction(2) ** int(exp) if man is not None else None
         if hasattr(x, "as_integer_ratio"):  # ints, Fractions, floats, numpy's long double
             return Fraction(*x.as_integer_ratio())
-        from .precision import to_fraction
-
-        return to_fraction(x)
+        return None
     except (TypeError, ValueError, OverflowError, AttributeError):
         return None
 
