@@ -14,6 +14,8 @@ Precision names
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import decimal
 import math
 import numbers
@@ -62,6 +64,7 @@ __all__ = [
     "short_decimal",
     "to_mpf",
     "to_raw",
+    "exact_states_read_at",
     "dps_to_bits",
     "bits_to_dps",
 ]
@@ -781,13 +784,27 @@ def _significand_bits(man: int, fmt_bits: int):
 
 #: Bits at which helpers evaluate an exact state (it has no format of its own; well above quad).
 EXACT_STATE_BITS = 256
+_EXACT_STATE_BITS = contextvars.ContextVar("exact_state_bits", default=EXACT_STATE_BITS)
+
+
+@contextlib.contextmanager
+def exact_states_read_at(bits: int):
+    """Within the block (this thread or task only), a state that carries its exact values is read at ``bits`` bits
+    (at least ``EXACT_STATE_BITS``) by everything that asks :func:`state_bits`: the invariants of a run's exact
+    initial state compared with those of a run at 400 digits must carry 400 digits, not 77."""
+    token = _EXACT_STATE_BITS.set(max(int(bits), EXACT_STATE_BITS))
+    try:
+        yield
+    finally:
+        _EXACT_STATE_BITS.reset(token)
 
 
 def state_bits(y) -> int:
     """The precision (bits) a state is stored in: 53 for float64, 113 for quad, the ``real`` precision, ...;
-    EXACT_STATE_BITS for a state that carries its exact values (``y.exact``, an ExactState)."""
+    EXACT_STATE_BITS for a state that carries its exact values (``y.exact``, an ExactState), or the bits of an
+    enclosing :func:`exact_states_read_at`."""
     if getattr(y, "exact", None) is not None:
-        return EXACT_STATE_BITS
+        return _EXACT_STATE_BITS.get()
     arr = np.asarray(y) if not isinstance(y, np.ndarray) else y
     prec = precision_of_dtype(arr.dtype)
     if prec is not None:

@@ -496,7 +496,8 @@ def test_statuses_beyond_the_double_range_of_time():
 def test_a_run_at_400_digits_is_a_success_with_its_error_and_drift_at_400_digits(tmp_path):
     """Above a double's range: the energy guard's threshold (1e-400 as a float was 0.0: every such run was
     `invariant_drift`), the final error against the closed form (printed "0"), the initial invariants of an exact
-    state (read at 256 bits: a drift of 2e-83) and data.json (1e-402 written as 0.0) keep their size."""
+    state (read at 256 bits: a drift of 2e-83; and a state of dyadic numbers must not be read at their own short
+    significands) and data.json (1e-402 written as 0.0) keep their size."""
     import json
 
     from lieseries.report import write_report
@@ -504,8 +505,8 @@ def test_a_run_at_400_digits_is_a_success_with_its_error_and_drift_at_400_digits
     from lieseries.scenes import parse_scene
 
     scene = parse_scene('name = "x"\ntitle = "x"\ndescription = "x"\n[model]\nkind = "euler_poisson"\n'
-                        'inertia = [1, 2, 3]\n[initial]\nomega = [1, "0.1", "0.5"]\n[run]\nt = "0.5"\nsamples = 3\n'
-                        'methods = [{ method = "lie", dps = 400 }]\n')
+                        'inertia = [1, 2, 3]\n[initial]\nomega = [1, "0.5", 2]\n[run]\nt = "0.5"\nsamples = 3\n'
+                        'methods = [{ method = "lie", dps = 400 }]\n')  # dyadic data: short mpf significands
     res = run_scene(scene, progress=False)
     row, = res.run["rows"]
     assert row.status == "success", row.message

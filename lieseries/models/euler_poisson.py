@@ -432,7 +432,7 @@ class EulerPoisson(Model):
     # -- the same body as a constrained system (the paper's derivation) -----------------------------------------
     def potential_of_R(self) -> tuple:
         """(U(R) as a string in R11..R33 and parameter names, {name: exact value}): the potential energy of the
-        body's configuration, for :meth:`constrained_system`. None for the free body."""
+        body's configuration, for :meth:`constrained_system`: ``("", {})`` for the free body."""
         return "", {}
 
     def constrained_system(self) -> ConstrainedSystem:

@@ -83,8 +83,9 @@ class HeavyTop(EulerPoisson):
 
     def potential_of_R(self) -> tuple:
         """mass g (R com)_3 = mass g (R31 com1 + R32 com2 + R33 com3), for the derived system."""
-        weight = {f"w{i + 1}": self.mass_exact * self.g_exact * c for i, c in enumerate(self._com) if c != 0}
-        return " + ".join(f"w{i[1:]}*R3{i[1:]}" for i in weight), weight
+        axes = [i + 1 for i, c in enumerate(self._com) if c != 0]
+        weight = {f"w{i}": self.mass_exact * self.g_exact * self._com[i - 1] for i in axes}
+        return " + ".join(f"w{i}*R3{i}" for i in axes), weight
 
     @property
     def com_exact(self) -> list:

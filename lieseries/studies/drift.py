@@ -28,7 +28,8 @@ from ..formatting import file_tag, fmt_num, fmt_p, fmt_sci, markdown_table, posi
 from ..methods.pricing import CostPart
 from ..models.base import as_model, state_fractions
 from ..poisson import as_poisson_system
-from ..precision import MAX_SAMPLES, check_count, check_time, check_tolerance, resolve_precision, to_fraction
+from ..precision import (MAX_SAMPLES, check_count, check_time, check_tolerance, dps_to_bits, exact_states_read_at,
+                         resolve_precision, to_fraction)
 from .plugin import Study, register_study
 from .reference import loglog_slope
 
@@ -124,7 +125,8 @@ def growth_exponent(steps, errors) -> float | None:
 def invariant_function(system, dps: int):
     """f(state or states) -> dict name -> mpf (list of mpf for a 2-d array), from the model's ``invariants`` or,
     for a bare PoissonSystem (a ``python`` scene's model), :meth:`PoissonSystem.invariants` (H and its declared
-    Casimirs) at ``dps`` digits. Both read a state built from exact input at its exact values."""
+    Casimirs) at ``dps`` digits. Both read a state built from exact input at its exact values, at ``dps`` digits
+    or more (:func:`~lieseries.precision.exact_states_read_at`)."""
     ps = as_poisson_system(system)
     if system is ps or not hasattr(system, "invariants"):
 
@@ -132,7 +134,13 @@ def invariant_function(system, dps: int):
             return ps.invariants(y, dps)
 
         return inv
-    return system.invariants
+    bits = dps_to_bits(dps)
+
+    def model_inv(y):
+        with exact_states_read_at(bits):
+            return system.invariants(y)
+
+    return model_inv
 
 
 def _perturbable(system, n: int) -> set:

@@ -32,7 +32,6 @@ or that has fewer than ``RADIUS_MIN_POINTS`` errors above the precision floor.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 from fractions import Fraction
