@@ -184,6 +184,18 @@ def _field_series(prog, polys, pars, consts, length, flint, base=None):
     return out
 
 
+#: The default order is the Jorba-Zou choice, ceil(ln(10) dps / 2) + 1, plus this: a validated step has costs that
+#: do not grow with the order (the a priori box, the flow's Jacobian, the set's update), so longer steps of a
+#: higher order pay (the rigid body to T = 10: 25 -> 20 steps at 50 digits, 27 -> 17 at 20 digits, 24 -> 22 at 100
+#: digits, as many certified digits or more; benchmarks/validated_vs_lie.py).
+EXTRA_ORDER = 8
+
+#: A step whose remainder bound exceeds the tolerance is retried at this fraction of the length the bound's
+#: power law (h^(N+1)) points to; the next steps' estimates are scaled by what the last one needed, and grow back
+#: by STEP_GROWTH a step while their first attempt is proved. Efficiency only: every step is proved.
+RETRY_MARGIN = 0.97
+STEP_GROWTH = 1.02
+
 #: Orders beyond N at which the defect's Taylor coefficients are computed at the step's start; the Lagrange term
 #: over the whole step comes after them (so its overestimate is damped by (h / radius of convergence)^EXTRA).
 DEFECT_EXTRA = 8
@@ -771,7 +783,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     dps : int
         Digits of the ball arithmetic (32 guard bits above); the enclosures aim at widths near 10^-dps.
     order : int, optional
-        Series order (default ceil(ln(10) dps / 2) + 1, the Jorba-Zou choice).
+        Series order (default ceil(ln(10) dps / 2) + 1 + :data:`EXTRA_ORDER`: the Jorba-Zou choice plus 8).
     max_steps, max_time :
         Budgets (statuses ``step_budget``, ``time_budget``); the clock is read between steps and after every order
         of a step's series, so a long step stops within about one order's work of ``max_time``.
@@ -796,7 +808,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     if max_width is not None and not to_fraction(max_width, "max_width") > 0:
         raise ValueError(f"`max_width` must be a positive radius (the widest ball the run may carry); got "
                          f"{max_width!r}. Leave it out for the default, 1e-3 x max(1, |z|)")
-    N = check_order(order) if order is not None else max(8, math.ceil(math.log(10) * dps / 2) + 1)
+    N = check_order(order) if order is not None else max(8, math.ceil(math.log(10) * dps / 2) + 1) + EXTRA_ORDER
     ps = as_poisson_system(system)
     check_ops(ps.program)
     if atlas is None:
@@ -871,6 +883,7 @@ class _ValidatedEngine:
         self.width_cap, self.deadline, self.h_min, self.direction, self.atlas = (
             width_cap, deadline, h_min, direction, atlas)
         self.tails = []
+        self.h_scale = 1.0  # the step estimate's correction (efficiency only)
         arb = flint.arb
         self.unit = arb(10) ** -dps
         # per-step remainder bound, relative: far below 10^-dps, because every step's remainder is then carried
@@ -924,7 +937,10 @@ class _ValidatedEngine:
                        f"({e}): the solution is at or near a singularity of the field (widest ball "
                        f"{max(float(zi.rad()) for zi in z):.3g})") from None
         left = abs(t_end - tcur)
-        h_f = min(_step_estimate(g, N, tol * C.down, flint) * 2.0 ** C.s, float(left))
+        # the estimate reads the defect at the step's start only: scaled by what the last steps learnt
+        h_est = _step_estimate(g, N, tol * C.down, flint) * 2.0 ** C.s
+        h_f = min(h_est * self.h_scale, float(left))
+        first, evented = True, False
         terms = _defect_terms(g, flint)
         proved = None
         event_hit = None
@@ -952,6 +968,7 @@ class _ValidatedEngine:
                 if float(h) < 1e-3 * h_event_start:
                     break
                 h_f = float(h) / 2
+                evented = True
                 continue
             J = _flow_jacobian(jprog, CZ, D, pars, jconsts, hb, flint, pieces) if got is not None else None
             bounds_h = tail(hb) if J is not None else None
@@ -960,8 +977,10 @@ class _ValidatedEngine:
                 proved = (h, hs, tail, D, J, bounds_h)
                 break
             # the remainder scales like h^(N+1): aim just below the tolerance (halve when unproved)
-            shrink = 0.5 if worst is None or not worst.is_finite() else min(0.9 * _root(tol / worst, N + 1), 0.9)
+            shrink = (0.5 if worst is None or not worst.is_finite()
+                      else min(RETRY_MARGIN * _root(tol / worst, N + 1), RETRY_MARGIN))
             h_f = float(h) * shrink
+            first = False
         if proved is None and event_hit is not None:
             # the driver switches charts (atlas) or stops here
             raise Stop(event_hit[0], f"{event_hit[1]} within the next step (every row up to here is a proven "
@@ -972,6 +991,9 @@ class _ValidatedEngine:
                        f"wide: widest ball {max(float(zi.rad()) for zi in z):.3g})")
         h, hs, tail, D, J, bounds_h = proved
         self.stepper.h_last = float(h)  # the next centre's jets hold what a step of about this length needs
+        if h != left and not evented and 0 < h_est < math.inf:
+            # a step cut short by its remainder bound: the next estimate is scaled alike
+            self.h_scale = min(1.0, self.h_scale * STEP_GROWTH) if first else float(h) / h_est
         tnew = tcur + hs
         A, r = self.A, self.r
 
