@@ -14,7 +14,8 @@ from fractions import Fraction
 
 from .lie.jets import DeadlineExceeded
 
-__all__ = ["SUPPORTED_OPS", "flint_module", "working_precision", "Singular", "ball_constant", "evaluate",
+__all__ = ["SUPPORTED_OPS", "flint_module", "working_precision", "Singular", "ball_constant", "exact_constant",
+           "evaluate",
            "check_ops", "taylor_coefficients", "taylor_coefficients_checked", "norm_bound"]
 
 #: Operations of a vector field that the validated engine evaluates in ball arithmetic.
@@ -146,16 +147,23 @@ def _apply_op(op, a, data, one):
 
 
 def ball_constant(c, flint):
+    """A program's constant as a ball (exact values rounded outward at the working precision)."""
+    q = exact_constant(c, flint)
+    if q is not None:
+        return flint.arb(q)
+    return flint.arb.pi() if c[0] == "pi" else flint.arb.const_e()
+
+
+def exact_constant(c, flint):
+    """A program's constant as an fmpq (exactly), or None for pi and e."""
     kind, value = c
     if kind == "rational":
-        return flint.arb(flint.fmpq(*value))
+        return flint.fmpq(*value)
     if kind == "binary":
         sign, man, exp, _ = value
         q = Fraction(int(man) << exp) if exp >= 0 else Fraction(int(man), 1 << -exp)
-        return flint.arb(flint.fmpq(-q.numerator if sign else q.numerator, q.denominator))
-    if kind == "pi":
-        return flint.arb.pi()
-    return flint.arb.const_e()
+        return flint.fmpq(-q.numerator if sign else q.numerator, q.denominator)
+    return None
 
 
 def evaluate(prog, values, pars, consts, one):

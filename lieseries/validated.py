@@ -53,8 +53,8 @@ from .precision import (
     to_fraction,
     warn_if_coarse,
 )
-from .ball_series import (SUPPORTED_OPS, Singular, ball_constant, check_ops, evaluate, flint_module, norm_bound,
-                          taylor_coefficients, taylor_coefficients_checked, working_precision)
+from .ball_series import (SUPPORTED_OPS, Singular, ball_constant, check_ops, evaluate, exact_constant, flint_module,
+                          norm_bound, taylor_coefficients, taylor_coefficients_checked, working_precision)
 from .driver import StepResult, Stop, drive
 from .lie.jets import DeadlineExceeded
 from .solution import ChartRows, Solution, Stats
@@ -70,12 +70,12 @@ REMAINDER_FACTOR = 1e-4
 
 def _centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadline=None):
     """The Taylor polynomial of order ``order`` of the flow from the point m, as a :class:`_Centre` of exact
-    binary balls (radius 0), and the jets it came from (None after the fallback).
+    binary numbers, and the jets it came from (None after the fallback).
 
     Nothing about these coefficients needs proving: the remainder bound (:func:`_defect`) holds for any
     polynomial p with p(0) = m, and only its size depends on p being close to the flow. They come from the Lie
     engine's fixed-point jets (``stepper``, a :class:`~lieseries.lie.fixed.FixedStepper` of the chart's field:
-    integers ``M`` with c_k = M * 2^(u - s k), taken into Arb exactly as the coefficients in the jets' scaled time
+    integers ``M`` with c_k = M * 2^(u - s k), taken exactly as the coefficients in the jets' scaled time
     sigma = 2^-s tau: no composition), or from Picard iteration on Arb series when the jets fail (s = 0).
     ``span``: the time left (the stepper's time scale covers it when the solution is a polynomial). Past
     ``deadline`` (a perf_counter value) both stop with :class:`~lieseries.lie.jets.DeadlineExceeded`."""
@@ -83,22 +83,53 @@ def _centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadl
     try:
         jets = stepper.expand([mpmath.make_mpf(mpmath.libmp.from_man_exp(*(int(q) for q in v.mid().man_exp())))
                                for v in m], span, deadline)
-        rows, s = _exact_rows(jets.M, jets.U, order, flint), jets.s
     except (ZeroDivisionError, ValueError, ArithmeticError):
-        jets, s = None, 0
         rows = [[arb(c.mid()) for c in row] for row in taylor_coefficients(prog, m, pars, consts, order, flint,
                                                                 deadline=deadline)]
-    return _Centre([[mi] + row[1:] for mi, row in zip(m, rows)], s, flint), jets
+        return _Centre([flint.arb_poly([mi] + row[1:]) for mi, row in zip(m, rows)], m, 0, order, flint), None
+    fmpq, fmpq_poly, fmpz_poly = flint.fmpq, flint.fmpq_poly, flint.fmpz_poly
+    exact = []
+    for Mi, u, mi in zip(jets.M, jets.U, m):
+        ints = [int(c) for c in Mi]
+        ints[0] = 0  # p(0) = m exactly (the jets hold the state rounded)
+        man, exp = (int(v) for v in mi.mid().man_exp())
+        exact.append(fmpq_poly(fmpz_poly(ints)) * _fmpq_two(u, fmpq) + fmpq(man) * _fmpq_two(exp, fmpq))
+    saved = flint.ctx.prec
+    # above every numerator (integers below 2^(bits) times powers of two): the balls are exact
+    flint.ctx.prec = max(64, max(int(max(map(abs, Mi))).bit_length() for Mi in jets.M) + 64,
+                         max(int(v.mid().man_exp()[0]).bit_length() for v in m) + 64)
+    try:
+        polys = [flint.arb_poly(q) for q in exact]
+    finally:
+        flint.ctx.prec = saved
+    return _Centre(polys, m, jets.s, order, flint, exact), jets
+
+
+def _fmpq_two(e, fmpq):
+    """2^e as an fmpq."""
+    return fmpq(1 << e) if e >= 0 else fmpq(1, 1 << -e)
 
 
 class _Centre:
-    """The centre polynomials p_i(tau) = sum_k rows[i][k] sigma^k in the scaled time sigma = 2^-s tau (exact
-    balls; rows[i][0] is the centre itself)."""
+    """The centre polynomials p_i(tau) = sum_k c_ik sigma^k of order ``order`` in the scaled time
+    sigma = 2^-s tau: ``polys`` (exact arb_polys), ``exact`` (the same as fmpq_polys, or None), ``mids`` the centre
+    itself (p(0))."""
 
-    def __init__(self, rows, s, flint):
-        self.rows, self.s, self.flint = rows, s, flint
+    def __init__(self, polys, mids, s, order, flint, exact=None):
+        self.polys, self.mids, self.s, self.order, self.flint, self.exact = polys, mids, s, order, flint, exact
         self.down = flint.arb(2) ** -s  # sigma per unit of tau (exact)
-        self.polys = [flint.arb_poly(row) for row in rows]
+        self._rows = None
+
+    @property
+    def rows(self):
+        """The coefficients as exact balls, ``rows[i][k]`` (k <= order)."""
+        if self._rows is None:
+            arb = self.flint.arb
+            self._rows = []
+            for p, mi in zip(self.polys, self.mids):
+                row = [mi] + list(p.coeffs())[1:self.order + 1]
+                self._rows.append(row + [arb(0)] * (self.order + 1 - len(row)))
+        return self._rows
 
     def sigma(self, tau):
         """The scaled time of the ball ``tau`` (exactly: a power of two)."""
@@ -122,14 +153,15 @@ class _Centre:
         saved = flint.ctx.prec
         flint.ctx.prec = 64
         try:
-            size = max(abs(row[0]).upper() for row in self.rows)
+            size = max(abs(mi).upper() for mi in self.mids)
             r = size * 2.0**-52 + width
-            out = [[] for _ in self.rows]
+            out = [[] for _ in self.polys]
+            rows = [list(p.coeffs()) for p in self.polys]
             for k in range(1, order):
                 r = (r * (4 * lip) / k).upper()
                 ck = self.down ** k
-                for row, o in zip(self.rows, out):  # beyond the polynomial's order: around 0
-                    o.append(arb((row[k] * ck).mid() if k < len(row) else 0, r))
+                for row, o in zip(rows, out):  # beyond the polynomial's order: around 0
+                    o.append(arb((row[k] * ck).mid() if k < len(row) and k <= self.order else 0, r))
             return out
         finally:
             flint.ctx.prec = saved
@@ -144,22 +176,6 @@ class _Centre:
             return [[c * flint.arb(2) ** (-self.s * k) for k, c in enumerate(row)] for row in self.rows]
         finally:
             flint.ctx.prec = saved
-
-
-def _exact_rows(M, U, order, flint):
-    """The coefficients M[i][k] 2^U[i] as rows of exact arbs, padded to ``order`` + 1 (integers into series and
-    scaled by 2^U[i] at a precision above every mantissa: exact)."""
-    arb, arb_series = flint.arb, flint.arb_series
-    saved = flint.ctx.prec
-    flint.ctx.prec = max(64, max(int(max(map(abs, Mi))).bit_length() for Mi in M) + 64)
-    try:
-        rows = []
-        for Mi, u in zip(M, U):
-            row = (arb_series([int(c) for c in Mi], prec=order + 1) * arb(2) ** u).coeffs()
-            rows.append(row + [arb(0)] * (order + 1 - len(row)))
-    finally:
-        flint.ctx.prec = saved
-    return rows
 
 
 def _field_series(prog, polys, pars, consts, length, flint, base=None):
@@ -201,40 +217,89 @@ STEP_GROWTH = 1.02
 DEFECT_EXTRA = 8
 
 
-def _defect_coefficients(prog, centre, pars, consts, flint):
-    """Coefficients g_0..g_{N+EXTRA-1} in the scaled time sigma = 2^-s tau, at the step's start, of the defect
-    g = f(p) - dp/dtau of the :class:`_Centre` p (order N): balls around ~0 below N (rounding of the jets), the
-    field's own terms from N on (dp/dtau = 2^-s dp/dsigma)."""
-    arb, arb_series = flint.arb, flint.arb_series
+def _defect_coefficients(prog, centre, pars, consts, flint, exact=None):
+    """The defect g = f(p) - dp/dtau of the :class:`_Centre` p (order N) at the step's start, in the scaled time
+    sigma = 2^-s tau (dp/dtau = 2^-s dp/dsigma), as ``(low, high)``: per component, ``low[i]`` an upper bound of
+    |g_k| for every k < N (the rounding of the jets: p is close to the flow's Taylor polynomial) and ``high[i]``
+    balls holding g_N..g_{N+EXTRA-1} (the field's own terms).
+
+    ``exact``: the parameters and constants as fmpqs (:func:`_exact_data`) when the field is a polynomial with
+    exact constants; with the centre's exact polynomials (the jets' integers), f(p) is then computed in exact
+    rational arithmetic (FLINT's fmpq series) and g is exact before it is bounded; otherwise on Arb series at the
+    working precision."""
+    arb = flint.arb
+    N = centre.order
+    L = N + DEFECT_EXTRA
+    saved = flint.ctx.prec
+    if exact is not None and centre.exact is not None:
+        fmpq, series = flint.fmpq, flint.fmpq_series
+        F = evaluate(prog, [series(q, prec=L) for q in centre.exact], exact[0], exact[1], series([1], prec=L))
+        down = _fmpq_two(-centre.s, fmpq)
+        lows, highs = [], []
+        flint.ctx.prec = 64
+        try:
+            for fi, q in zip(F, centre.exact):
+                if not isinstance(fi, series):  # a constant component of the field
+                    fi = series([fi], prec=L)
+                g = fi - series(q.derivative(), prec=L) * down
+                num, den = g.numer().coeffs(), arb(g.denom())
+                # |g_k| < 2^height for k < N: a factor below 2 on the jets' rounding, far under the tolerance
+                low = flint.fmpz_poly(num[:N]).height_bits() if len(num) else 0
+                lows.append((arb(2) ** low / den).upper() if low else arb(0))
+                highs.append([arb(num[k]) / den if k < len(num) else arb(0) for k in range(N, L)])
+        finally:
+            flint.ctx.prec = saved
+        return lows, highs
+    arb_series = flint.arb_series
     P, down = centre.rows, centre.down
-    L = len(P[0]) - 1 + DEFECT_EXTRA
     F = evaluate(prog, [arb_series(row, prec=L) for row in P], pars, consts, arb_series([arb(1)], prec=L))
-    out = []
+    lows, highs = [], []
     for fi, row in zip(F, P):
         if not isinstance(fi, arb_series):  # a constant component of the field
             fi = arb_series([fi if isinstance(fi, arb) else arb(fi)], prec=L)
         got = list((fi - arb_series(row, prec=L + 1).derivative() * down).coeffs())
-        out.append(got[:L] + [arb(0)] * (L - len(got)))
-    return out
+        got = got[:L] + [arb(0)] * (L - len(got))
+        flint.ctx.prec = 64
+        try:
+            lows.append(max([arb(0)] + [abs(x).upper() for x in got[:N]]))
+        finally:
+            flint.ctx.prec = saved
+        highs.append(got[N:])
+    return lows, highs
 
 
-def _defect_terms(g, flint):
-    """Per component, the upper bounds |g_k| / (k + 1) that :func:`_defect` sums (at 64 bits: upper bounds)."""
+def _defect_terms(g, N, flint):
+    """(low, high): per component, the bound of |g_k| below N and the upper bounds |g_k| / (k + 1) from N on that
+    :func:`_defect` sums (at 64 bits: upper bounds), from :func:`_defect_coefficients`."""
+    lows, highs = g
     saved = flint.ctx.prec
     flint.ctx.prec = 64
     try:
-        return [[(abs(x) / (k + 1)).upper() for k, x in enumerate(gi)] for gi in g]
+        return lows, [[(abs(x) / (k + 1)).upper() for k, x in enumerate(gi, N)] for gi in highs]
     finally:
         flint.ctx.prec = saved
 
 
-def _defect(terms, top, flint):
-    """Per component, the polynomial d_i(t) = sum_k |g_k| t^k / (k+1) + |top_i| t^L / (L+1) (``terms``: upper
-    bounds of |g_k| / (k+1) of the coefficients g at the step's start, :func:`_defect_terms`; ``top``: the L-th
-    coefficient of g over the whole step, L = len(terms[i])): |tau| d_i(|tau|) bounds int_0^|tau| |g_i(s)| ds
-    (nonnegative coefficients: its value at a point is tight). In the scaled time: sigma and g's coefficients in
-    sigma give the bound divided by 2^s."""
-    return [flint.arb_poly(gi + [(abs(ti) / (len(gi) + 1)).upper()]) for gi, ti in zip(terms, top)]
+def _defect(terms, top, N, flint):
+    """Per component, the polynomial d_i(t) = low_i sum_{k<N} t^k / (k+1) + sum_{k>=N} |g_k| t^k / (k+1)
+    + |top_i| t^L / (L+1) (``terms`` = (low, high) from :func:`_defect_terms`; ``top``: the L-th coefficient of g
+    over the whole step, L = N + len(high[i])): |tau| d_i(|tau|) bounds int_0^|tau| |g_i(s)| ds (nonnegative
+    coefficients: its value at a point is tight). In the scaled time: sigma and g's coefficients in sigma give the
+    bound divided by 2^s."""
+    lows, highs = terms
+    arb, arb_poly = flint.arb, flint.arb_poly
+    base = _LOW_SUMS.get(N)
+    if base is None:
+        base = _LOW_SUMS[N] = arb_poly([(arb(1) / (k + 1)).upper() for k in range(N)])
+    out = []
+    for low, gi, ti in zip(lows, highs, top):
+        L = N + len(gi)
+        out.append(base * low + arb_poly([0] * N + gi + [(abs(ti) / (L + 1)).upper()]))
+    return out
+
+
+#: sum_{k<N} t^k / (k + 1) with upper-bound coefficients, per N (64 bits).
+_LOW_SUMS: dict = {}
 
 
 def _horner(C, tau):
@@ -371,8 +436,8 @@ def _prove_step(prog, jprog, CZ, centre, terms, pars, consts, jconsts, span, fli
     parameters) is given and the field is a polynomial; else by ball series at 64 bits)."""
     arb, arb_mat = flint.arb, flint.arb_mat
     K = len(CZ[0]) - 1
-    n = len(centre.rows)
-    Lg = len(terms[0])  # the order of the Lagrange term
+    n = len(centre.polys)
+    Lg = centre.order + len(terms[1][0])  # the order of the Lagrange term
     Pz = _horner(CZ, span)
     B = _enclosure_box(Pz, flint)
     saved = flint.ctx.prec
@@ -407,7 +472,7 @@ def _prove_step(prog, jprog, CZ, centre, terms, pars, consts, jconsts, span, fli
     saved = flint.ctx.prec
     flint.ctx.prec = 64
     try:
-        defect = _defect(terms, top, flint)
+        defect = _defect(terms, top, centre.order, flint)
     finally:
         flint.ctx.prec = saved
 
@@ -581,6 +646,19 @@ def _chart_context(model, flint):
     return ps, prog, pars, consts, events, ev_consts, jprog, jconsts
 
 
+def _exact_data(ps, prog, flint):
+    """(parameters, constants) as fmpqs for the exact defect (:func:`_defect_coefficients`), or None when the field
+    is not a polynomial (only sums, products and powers of nonnegative integer exponents) with rational or binary
+    constants."""
+    if not all(node.op in ("add", "sub", "neg", "mul") or (node.op == "powi" and int(node.data) >= 0)
+               for node in prog.nodes):
+        return None
+    consts = [(slot, exact_constant(c, flint)) for slot, c in prog.constants]
+    if any(c is None for _, c in consts):
+        return None
+    return [flint.fmpq(p.numerator, p.denominator) for p in ps.parameter_values], consts
+
+
 def _jet_stepper(ps, order, dps):
     """The fixed-point jets of a chart's field for the centre polynomials (:func:`_centre_polynomial`), at the
     run's precision (``dps`` + 10 digits: the ball arithmetic's 32 guard bits)."""
@@ -650,7 +728,7 @@ def _step_estimate(g, N, tol, flint) -> float:
     saved = flint.ctx.prec
     flint.ctx.prec = 64
     try:
-        hi = [[arb(abs(x).mid()) for x in gi[N:]] for gi in g]
+        hi = [[arb(abs(x).mid()) for x in gi] for gi in g[1]]
         gN = max((row[0] for row in hi), key=float)
         if gN.is_zero():
             return math.inf
@@ -899,6 +977,7 @@ class _ValidatedEngine:
         (self.ps, self.prog, self.pars, self.consts, self.events, self.ev_consts, self.jprog,
          self.jconsts) = _chart_context(current, self.flint)
         self.stepper = _jet_stepper(self.ps, self.N, self.dps)
+        self.exact = _exact_data(self.ps, self.prog, self.flint)
         # the set of states is m + A r: a centre point, a matrix (the identity to start) and a box around 0
         self.m, self.A, self.r = _lohner_set(z, self.flint)
 
@@ -925,7 +1004,7 @@ class _ValidatedEngine:
         try:
             C, jets = _centre_polynomial(self.stepper, prog, self.m, pars, consts, N, flint,
                                          mpmath.mpf(float(abs(t_end - tcur))), self.deadline)  # centre
-            g = _defect_coefficients(prog, C, pars, consts, flint)  # in the centre's scaled time
+            g = _defect_coefficients(prog, C, pars, consts, flint, self.exact)  # in the centre's scaled time
             # from the whole set (checked from a guess around the centre polynomial)
             guess = C.guess(BOX_ORDER, max(zi.rad() for zi in z), norm_bound(jprog, self.m, pars, jconsts, flint))
             CZ = taylor_coefficients_checked(prog, z, guess, pars, consts, BOX_ORDER, flint)
@@ -941,7 +1020,7 @@ class _ValidatedEngine:
         h_est = _step_estimate(g, N, tol * C.down, flint) * 2.0 ** C.s
         h_f = min(h_est * self.h_scale, float(left))
         first, evented = True, False
-        terms = _defect_terms(g, flint)
+        terms = _defect_terms(g, N, flint)
         proved = None
         event_hit = None
         h_event_start = h_f

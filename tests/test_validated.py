@@ -453,6 +453,45 @@ def test_lagrange_majorant_bounds_the_shifted_coefficient_at_every_point_of_the_
         assert V._lagrange_majorant(sprog, C, jets, Fraction(1, 4), s.poisson.parameter_values, L, fl) is None
 
 
+def test_exact_defect_holds_the_centre_polynomials_defect(bigint):
+    # a polynomial field's defect g = f(p) - p' is computed in exact rational arithmetic from the jets' integers:
+    # its bound below order N must hold every |g_k| and its balls from N on must hold g_k, both against the
+    # defect on 600-bit ball series; the bound below N stays within a factor 2 of the largest |g_k| (the jets'
+    # rounding), far below the tolerance of a step
+    from lieseries import validated as V
+
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    ps = body.poisson
+    dps, order = 30, 40
+    with V.working_precision(V.dps_to_bits(dps) + V.GUARD_BITS, cap=order + 20) as fl:
+        _, prog, pars, consts, *_ = V._chart_context(body, fl)
+        exact = V._exact_data(ps, prog, fl)
+        assert exact is not None
+        assert V._exact_data(ls.Sphere(atlas=False).poisson, ls.Sphere(atlas=False).poisson.program, fl) is None
+        stepper = V._jet_stepper(ps, order, dps)
+        for omega in (RIGID_OMEGA, ("-0.3", "2.5", "1e-3")):
+            z = V._initial_balls(body, body.initial_state(omega=omega), ps.dimension, fl)
+            m = [fl.arb(v.mid()) for v in z]
+            centre, jets = V._centre_polynomial(stepper, prog, m, pars, consts, order, fl, 10)
+            assert jets is not None and centre.exact is not None
+            lows, highs = V._defect_coefficients(prog, centre, pars, consts, fl, exact)
+            saved, fl.ctx.prec = fl.ctx.prec, 600
+            try:
+                _, _, pars6, consts6, *_ = V._chart_context(body, fl)  # the parameters' balls at 600 bits
+                ref = V._defect_coefficients(prog, centre, pars6, consts6, fl)
+                full = V._field_series(prog, centre.rows, pars6, consts6, order, fl)
+                for i in range(ps.dimension):
+                    g_low = [abs(f - centre.rows[i][k + 1] * (k + 1) * centre.down) for k, f in enumerate(full[i])]
+                    assert max(x.rad() for x in g_low) < fl.arb(2) ** -500
+                    assert all(x.upper() <= lows[i] for x in g_low)
+                    assert lows[i] <= 2 * max(x.upper() for x in g_low) + fl.arb(2) ** -500
+                    assert lows[i] < fl.arb(10) ** -(dps + 8)
+                    assert all(a.overlaps(b) for a, b in zip(highs[i], ref[1][i]))
+                    assert all(a.rad() < abs(a.mid()) * 2.0 ** -50 for a in highs[i] if a.mid() != 0)
+            finally:
+                fl.ctx.prec = saved
+
+
 def test_ball_taylor_coefficients_contain_those_from_every_point_of_the_box(monkeypatch):
     # Picard iteration and the one-evaluation check from a guess around the centre polynomial (which must succeed
     # here, without falling back to Picard) enclose the Taylor coefficients from points of a box, computed at
