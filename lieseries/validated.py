@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import functools
 import math
+import weakref
 import time as _time
 from fractions import Fraction
 
@@ -318,6 +319,8 @@ def _horner(C, tau):
 MAJORANT_MAX_BITS = 700
 #: Every value of the majorant series is raised to at least this (a majorant stays one; no float underflows).
 MAJORANT_FLOOR = 1e-280
+#: The scaled coefficients |c_k| |h|^k must be at least this (or 0): the majorant is not used otherwise.
+MAJORANT_TINY = 1e-290
 _PASCAL: dict = {}
 
 
@@ -358,10 +361,15 @@ def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
         def scalar(x):
             return max(abs(x) * up, MAJORANT_FLOOR)
 
-        for i, (Mi, u) in enumerate(zip(jets.M, jets.U)):
-            a = np.ldexp(np.abs(np.fromiter(map(float, Mi), float, len(Mi))), u) * hpow * up
-            a[0] = abs(float(P[i][0].mid())) * up  # the centre itself (the jets hold it rounded)
-            vals[i] = series(T @ a * up)
+        M = np.abs(np.array([list(map(float, Mi)) for Mi in jets.M]))
+        A = np.ldexp(M, np.array(jets.U)[:, None]) * hpow * up
+        A[:, 0] = [abs(float(row[0].mid())) * up for row in P]  # the centre itself (the jets hold it rounded)
+        if np.any((A < MAJORANT_TINY) & (M != 0)):
+            # a coefficient near or below the float range: a dropped term, times the binomials (up to 2^N),
+            # could exceed the floor
+            return None
+        for i, v in enumerate(A @ T.T * up):
+            vals[i] = series(v)
         for j, q in enumerate(par_values):
             vals[prog.nvars + j] = scalar(float(abs(Fraction(q))))
         for slot, (kind, value) in prog.constants:
@@ -372,8 +380,28 @@ def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
             else:
                 x = 3.2 if kind == "pi" else 2.8
             vals[slot] = scalar(float(x))
+        top_only = _top_only(prog)
         for node in prog.nodes:
             a = [vals[x] for x in node.args]
+            if node.out in top_only:
+                # only coefficient L is read downstream (through sums): a _Top, no series
+                if node.op in ("add", "sub", "neg"):  # a constant adds to coefficient 0 only
+                    v = sum(x.value if isinstance(x, _Top) else x[L] for x in a if not isinstance(x, float))
+                else:
+                    factors = a if node.op == "mul" else [a[0]] * int(node.data)
+                    c, ser = 1.0, [x for x in factors if not isinstance(x, float)]
+                    for x in factors:
+                        if isinstance(x, float):
+                            c *= x
+                    if not ser:
+                        v = 0.0
+                    else:
+                        w = ser[0]
+                        for x in ser[1:-1]:
+                            w = np.convolve(w, x)[: L + 1]
+                        v = (float(w[L]) if len(ser) == 1 else float(np.dot(w, ser[-1][::-1]))) * c
+                vals[node.out] = _Top(max(v * up, MAJORANT_FLOOR))
+                continue
             if node.op in ("add", "sub"):
                 # a constant c is the series (|c|, 0, 0, ...): it adds to the first coefficient only
                 c = sum(x for x in a if isinstance(x, float))
@@ -399,7 +427,8 @@ def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
             # an overflow (inf, or nan from inf * 0) reaches the outputs it feeds: checked there
             vals[node.out] = (max(v * up, MAJORANT_FLOOR) if isinstance(v, float)
                               else np.maximum(v * up, MAJORANT_FLOOR))
-        tops = [MAJORANT_FLOOR if isinstance(vals[o], float) else float(vals[o][L]) * 1.01 for o in prog.outputs]
+        tops = [MAJORANT_FLOOR if isinstance(vals[o], float) else
+                (vals[o].value if isinstance(vals[o], _Top) else float(vals[o][L])) * 1.01 for o in prog.outputs]
     except (OverflowError, ValueError):
         return None
     if not all(math.isfinite(t) for t in tops):
@@ -407,6 +436,39 @@ def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
     arb = flint.arb
     hL = arb(flint.fmpq(hq.numerator, hq.denominator)) ** L
     return [(arb(t) / hL).upper() for t in tops]
+
+
+class _Top:
+    """Coefficient L alone of a nonnegative majorant series (a float), where nothing downstream needs the rest."""
+
+    __slots__ = ("value",)
+
+    def __init__(self, value):
+        self.value = value
+
+
+_TOP_ONLY: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _top_only(prog):
+    """The slots of ``prog`` whose majorant series only the coefficient L of the outputs reads: outputs, and the
+    arguments of sums, differences and negations that are themselves read so (a product's factors need their whole
+    series)."""
+    got = _TOP_ONLY.get(prog)
+    if got is None:
+        top, full = set(prog.outputs), set()
+        for node in reversed(prog.nodes):  # every consumer of a slot comes after it
+            if node.out in full or node.out not in top:
+                if node.out in full:
+                    full.update(node.args)
+                continue
+            if node.op in ("add", "sub", "neg"):
+                top.update(x for x in node.args if x not in full)
+            else:
+                full.update(node.args)
+        got = _TOP_ONLY[prog] = frozenset(top - full - set(range(prog.nvars + prog.npars))
+                                          - {slot for slot, _ in prog.constants})
+    return got
 
 
 def _enclosure_box(P, flint):
@@ -1103,10 +1165,16 @@ class _ValidatedEngine:
         # Lohner's QR step: the new set is m' + A' r' with m' the centre of phi, A' the orthogonal factor of
         # mid(J A) (exact floats) and r' = (A'^-1 J A) r + A'^-1 (phi - m'), A'^-1 enclosed in ball arithmetic
         self.m = [arb(v.mid()) for v in phi]
-        Q, _ = np.linalg.qr(np.array([[float(JA[i, j].mid()) for j in range(n)] for i in range(n)]))
-        self.A = flint.arb_mat([[float(Q[i, j]) for j in range(n)] for i in range(n)])
-        Ainv = self.A.inv()
-        self.r = (Ainv * JA) * r + Ainv * flint.arb_mat([[phi[i] - self.m[i]] for i in range(n)])
+        Q, _ = np.linalg.qr(np.array([float(x) for x in JA.mid().entries()]).reshape(n, n))
+        self.A = flint.arb_mat(Q.tolist())
+        spread = flint.arb_mat([[phi[i] - self.m[i]] for i in range(n)])
+        saved = flint.ctx.prec
+        flint.ctx.prec = 64  # r is far below the state's size: 64 bits of it are plenty (and stay rigorous)
+        try:
+            Ainv = self.A.inv()
+            self.r = (Ainv * JA) * r + Ainv * spread
+        finally:
+            flint.ctx.prec = saved
         self.tails.append(tail_h)
         cap = self.width_cap if self.width_cap is not None else arb(scale) / 1000
         widest = max(znew, key=lambda v: float(v.rad()))
