@@ -156,14 +156,16 @@ class _Centre:
         try:
             size = max(abs(mi).upper() for mi in self.mids)
             r = size * 2.0**-52 + width
-            out = [[] for _ in self.polys]
-            rows = [list(p.coeffs()) for p in self.polys]
+            rows = [p.truncate(min(order, self.order + 1)).coeffs() for p in self.polys]
+            if self.s:
+                ck = [self.down ** k for k in range(order)]
+                rows = [[c * x for c, x in zip(row, ck)] for row in rows]
+            radii = []
             for k in range(1, order):
                 r = (r * (4 * lip) / k).upper()
-                ck = self.down ** k
-                for row, o in zip(rows, out):  # beyond the polynomial's order: around 0
-                    o.append(arb((row[k] * ck).mid() if k < len(row) and k <= self.order else 0, r))
-            return out
+                radii.append(r)
+            # beyond the polynomial's order (or a zero coefficient): around 0
+            return [[arb(row[k].mid() if k < len(row) else 0, rk) for k, rk in enumerate(radii, 1)] for row in rows]
         finally:
             flint.ctx.prec = saved
 
