@@ -7,11 +7,11 @@ user gives uncertainties). The argument is in ``docs/theory.md`` ("Certified enc
 states is carried in Lohner's form m + A r (a centre point, an orthogonal matrix, a box around 0), and each step
 
 1. computes the Taylor polynomial p of order N of the flow from m (the Lie engine's fixed-point jets, as exact
-   binary numbers: nothing about them needs proving), and the coefficients up to order 10 from the whole box
+   binary numbers: nothing about them needs proving), and the coefficients up to order 12 from the whole box
    Z = m + A r as balls, proved from a guess around p's in one evaluation of the field on Arb power series
    (``arb_series``; Picard iteration when the guess fails);
 2. finds an a priori enclosure by the high-order enclosure theorem: a box B around the polynomials from Z over
-   [0, h] such that sum_{j<=10} c_j(Z) [0, h]^j + c_11(B) [0, h]^11 lies inside B -- then every solution from Z
+   [0, h] such that sum_{j<=12} c_j(Z) [0, h]^j + c_13(B) [0, h]^13 lies inside B -- then every solution from Z
    exists on [0, h] and stays in B;
 3. encloses the centre's solution x as p plus a bound of x - p, which solves e' = g + A(s) e with the defect
    g = f(p) - p' and A(s) in Df(R), R the box around B and p's range: |x(tau) - p(tau)| <= exp(|tau| L)
@@ -214,6 +214,8 @@ EXTRA_ORDER = 8
 #: by STEP_GROWTH a step while their first attempt is proved. Efficiency only: every step is proved.
 RETRY_MARGIN = 0.97
 STEP_GROWTH = 1.02
+#: A step whose a priori box (or Jacobian) is not proved is retried at this fraction of its length.
+UNPROVED_SHRINK = 0.5
 
 #: Orders beyond N at which the defect's Taylor coefficients are computed at the step's start; the Lagrange term
 #: over the whole step comes after them (so its overestimate is damped by (h / radius of convergence)^EXTRA).
@@ -591,10 +593,10 @@ JACOBIAN_PIECES = 8
 #: More pieces, up to MAX_JACOBIAN_PIECES, when |Df| |tau| over the step exceeds JACOBIAN_MU per piece.
 JACOBIAN_MU = 1.0
 MAX_JACOBIAN_PIECES = 1024
-#: Order of the Taylor polynomials from the whole enclosure that the a priori box is built around (the rigid body
-#: at 50 digits to T = 10: 52.4609 certified digits with 10, 52.4616 with 12, for 4% less time: Picard iteration
-#: from the box evaluates the field once per order).
-BOX_ORDER = 10
+#: Order of the Taylor polynomials from the whole enclosure that the a priori box is built around (10 saves some
+#: of the box's Picard iteration on the rigid body, but its box fails more often on longer steps elsewhere: the full
+#: inertia tensor to T = 10 at 50 digits takes 21 steps instead of 19, the sphere 248 instead of 217).
+BOX_ORDER = 12
 
 
 def _jacobian_program(ps):
@@ -1085,7 +1087,7 @@ class _ValidatedEngine:
         # the estimate reads the defect at the step's start only: scaled by what the last steps learnt
         h_est = _step_estimate(g, N, tol * C.down, flint) * 2.0 ** C.s
         h_f = min(h_est * self.h_scale, float(left))
-        first, evented = True, False
+        first, evented, unproved = True, False, False
         terms = _defect_terms(g, N, flint)
         proved = None
         event_hit = None
@@ -1122,8 +1124,10 @@ class _ValidatedEngine:
                 proved = (h, hs, tail, D, J, bounds_h)
                 break
             # the remainder scales like h^(N+1): aim just below the tolerance (halve when unproved)
-            shrink = (0.5 if worst is None or not worst.is_finite()
-                      else min(RETRY_MARGIN * _root(tol / worst, N + 1), RETRY_MARGIN))
+            if worst is None or not worst.is_finite():  # no a priori box, or no Jacobian: shorter
+                shrink, unproved = UNPROVED_SHRINK, True
+            else:
+                shrink = min(RETRY_MARGIN * _root(tol / worst, N + 1), RETRY_MARGIN)
             h_f = float(h) * shrink
             first = False
         if proved is None and event_hit is not None:
@@ -1136,8 +1140,8 @@ class _ValidatedEngine:
                        f"wide: widest ball {max(float(zi.rad()) for zi in z):.3g})")
         h, hs, tail, D, J, bounds_h = proved
         self.stepper.h_last = float(h)  # the next centre's jets hold what a step of about this length needs
-        if h != left and not evented and 0 < h_est < math.inf:
-            # a step cut short by its remainder bound: the next estimate is scaled alike
+        if h != left and not evented and not unproved and 0 < h_est < math.inf:
+            # a step cut short by its remainder bound alone: the next estimate is scaled alike
             self.h_scale = min(1.0, self.h_scale * STEP_GROWTH) if first else float(h) / h_est
         tnew = tcur + hs
         A, r = self.A, self.r
