@@ -676,16 +676,17 @@ def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECE
             fact *= j
         eps = (mu ** (terms + 1) / fact / (1 - mu / (terms + 2))).upper()
         tail = arb_mat([[arb(0, eps)] * n for _ in range(n)])
+        steps = [None] + [dt / j for j in range(1, terms + 1)]  # the series' term j is (dt Df)^j / j!
         J = eye
         for piece in range(pieces):
             try:
                 vals = evaluate(jprog, box(dt * piece, dt * (piece + 1)), pars, consts, arb(1))
             except Singular:
                 return None
-            M = arb_mat([vals[i * n:(i + 1) * n] for i in range(n)]) * dt
+            M = arb_mat([vals[i * n:(i + 1) * n] for i in range(n)])  # Df(B_i); dt comes in with 1/j
             S, T = eye, eye
             for j in range(1, terms + 1):
-                T = T * M / j
+                T = T * M * steps[j]
                 S = S + T
             J = (S + tail) * J
         if not all(J[i, j].is_finite() for i in range(n) for j in range(n)):
