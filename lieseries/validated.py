@@ -581,15 +581,17 @@ def _exp_times(M, g, flint):
 
 _JACOBIANS = cache.region("validated.jacobians", 64)
 #: Terms of the interval-matrix exponential that encloses the flow's Jacobian over one piece of a step, and the
-#: number of pieces a step is cut into for it (twice as many when the set is wider than 10^-dps, as from uncertain
-#: data, where the Jacobian's own width multiplies the set's spread: measured on the rigid body from data known to
-#: a double's width, the final ball narrows from 1.2e-14 to 9.4e-15 for 17% more time).
+#: number of pieces a step is cut into for it (three times as many when the set is wider than 10^-dps, as from
+#: uncertain data, where the Jacobian's own width multiplies the set's spread: measured on the rigid body at 50
+#: digits from data known to a double's width, the final ball at T = 10 is 1.0e-14 with 16 pieces, 8.9e-15 with 24,
+#: for a few percent more time).
 JACOBIAN_TERMS = 10
 #: Fewer terms when their tail bound is below this (relative to the identity: the Jacobian multiplies the set's
 #: spread only; its width comes mostly from the range of Df over each piece: the rigid body's widest final ball at
 #: 50 digits, T = 10, is 6.5599e-53 with a tail below 2^-30 as below 2^-40, with two matrix products fewer a piece).
 JACOBIAN_EPS = 2.0**-30
 JACOBIAN_PIECES = 8
+WIDE_JACOBIAN_PIECES = 24
 #: More pieces, up to MAX_JACOBIAN_PIECES, when |Df| |tau| over the step exceeds JACOBIAN_MU per piece.
 JACOBIAN_MU = 1.0
 MAX_JACOBIAN_PIECES = 1024
@@ -1075,7 +1077,7 @@ class _ValidatedEngine:
         scale = max([1.0] + [abs(float(zi.mid())) for zi in z])
         tol = self.rem_tol * scale
         wide = any(zi.rad() > self.unit * scale for zi in z)  # wider than 10^-dps of the state's size
-        pieces = 2 * JACOBIAN_PIECES if wide else JACOBIAN_PIECES
+        pieces = WIDE_JACOBIAN_PIECES if wide else JACOBIAN_PIECES
         try:
             C, jets = _centre_polynomial(self.stepper, prog, self.m, pars, consts, N, flint,
                                          mpmath.mpf(float(abs(t_end - tcur))), self.deadline)  # centre
