@@ -188,7 +188,9 @@ _INLINE = {"add": " + ", "mul": " * "}
 
 def _compile(prog):
     """``run(values, pars, consts, one)``: the program as one Python function of local variables (slot i is
-    ``v<i>``); arithmetic written out, other operations through :func:`_apply_op`."""
+    ``v<i>``); arithmetic written out, other operations through :func:`_apply_op`. Factors that are the exact
+    constant 1 are left out of products (an exact 1 changes no ball, series or rational)."""
+    ones = {slot for slot, c in prog.constants if _is_one(c)}
     lines = ["def run(x, p, c, one):"]
     if prog.nvars:
         lines.append("    " + "".join(f"v{i}, " for i in range(prog.nvars)) + "= x")
@@ -198,6 +200,8 @@ def _compile(prog):
         lines.append(f"    v{slot} = c[{k}][1]")
     for op, out, args, data in prog.nodes:
         a = [f"v{i}" for i in args]
+        if op == "mul" and ones.intersection(args):
+            a = [f"v{i}" for i in args if i not in ones] or [f"v{args[0]}"]
         if op in _INLINE:
             expr = a[0]
             for x in a[1:]:
@@ -215,6 +219,17 @@ def _compile(prog):
     namespace = {"apply_op": _apply_op, "data": {n.out: n.data for n in prog.nodes}}
     exec(compile("\n".join(lines), f"<validated program {len(prog.nodes)} nodes>", "exec"), namespace)
     return namespace["run"]
+
+
+def _is_one(c) -> bool:
+    """The program constant ``c`` is exactly 1."""
+    kind, value = c
+    if kind == "rational":
+        return value[0] == value[1]
+    if kind == "binary":
+        sign, man, exp, _ = value
+        return not sign and int(man) == 1 and exp == 0
+    return False
 
 
 def _interpret(prog, values, pars, consts, one):
