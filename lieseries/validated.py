@@ -330,8 +330,9 @@ _PASCAL: dict = {}
 
 def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
     """Per component, an upper bound (an arb) of |[f(p(xi + tau))]_L| (the L-th Taylor coefficient in tau) over
-    every xi between 0 and h, for the centre polynomial p (``P``, from the integer ``jets``: c_k = M 2^(u - s k)) and a
-    polynomial field f; None when the field is not a polynomial or the numbers leave the float range.
+    every xi between 0 and h, for the centre polynomial p (its coefficients from the integer ``jets``:
+    c_k = M 2^(u - s k), the centre itself as ``P[i][0]``) and a polynomial field f; None when the field is not a
+    polynomial or the numbers leave the float range.
 
     In the time u = tau / |h|, the shifted polynomial's coefficients are bounded by those of a(1 + u) with
     a_k = |c_k| |h|^k (binomial expansion, |xi| <= |h|), and a polynomial field's Taylor coefficients of order L by
@@ -520,7 +521,8 @@ def _prove_step(prog, jprog, CZ, centre, terms, pars, consts, jconsts, span, fli
             return None
         if not all(b.contains(p + d[K + 1] * span ** (K + 1)) for b, p, d in zip(B, Pz, D)):
             return None
-        top = None if majorant is None else _lagrange_majorant(prog, centre.rows, *majorant, Lg, flint)
+        top = (None if majorant is None
+               else _lagrange_majorant(prog, [[mi] for mi in centre.mids], *majorant, Lg, flint))
         if top is None:  # coefficient Lg in sigma, over the step in sigma
             top = [row[-1] for row in _field_series(prog, centre.rows, pars, consts, Lg + 1, flint,
                                                     base=centre.sigma(span))]
