@@ -235,6 +235,8 @@ def _defect_coefficients(prog, centre, pars, consts, flint, exact=None):
     arb = flint.arb
     N = centre.order
     L = N + DEFECT_EXTRA
+    if flint.ctx.cap < L + 1:  # series beyond the cap are cut silently: the terms from N on would be lost
+        raise AssertionError("the series cap must exceed the defect's length")  # pragma: no cover - set by the run
     saved = flint.ctx.prec
     if exact is not None and centre.exact is not None:
         fmpq, series = flint.fmpq, flint.fmpq_series
