@@ -50,6 +50,19 @@ def test_backend_switch():
         fixed.set_backend(before)
 
 
+def test_every_module_follows_the_backend(bigint):
+    """The integers of an expansion, of its evaluation and of its step builders are the backend's type just after
+    a switch (no module keeps the type it saw at import)."""
+    from lieseries.lie import bigint as big
+
+    Z = big.integer_type()
+    assert (Z is int) == (bigint == "int")
+    stepper = fixed.FixedStepper(compile_system(*rigid_body()), RB_PARS, 20, 30)
+    jets = stepper.expand([mp.mpf(v) for v in RB_Y0], 1)
+    assert {type(m) for row in jets.M for m in row} == {Z}
+    assert all(hasattr(v, "_mpf_") for v in jets.evaluate(jets.max_step / 2))
+
+
 @pytest.mark.parametrize("dps", [30, 50])
 @pytest.mark.parametrize("s", [0, 1, -2])
 def test_rigid_body(bigint, dps, s):
@@ -108,7 +121,7 @@ def every_op():
 
 @pytest.mark.parametrize("dps", [30, 60, 100])
 def test_every_instruction(bigint, dps):
-    # from fixed.PAIR_BITS (100 digits) on, Cauchy products pair their terms (half the multiplications)
+    # from bigint.PAIR_BITS (100 digits) on, Cauchy products pair their terms (half the multiplications)
     check(compile_system(*every_op()), ["0.25", "0.5", "0.75"], [Fraction(2, 7)], 30, dps, -2, 1)
     check(compile_system(*nonlinear()), ["0.5", "0.25", "0.75"], [Fraction(2, 7)], 30, dps, -2, 1)
 

@@ -15,19 +15,16 @@ from mpmath.libmp import from_man_exp, fzero
 
 from ..expr import RND
 
-__all__ = ["backend", "set_backend"]
+__all__ = ["backend", "set_backend", "integer_type"]
 
 try:  # pragma: no cover - depends on the installation
-    from gmpy2 import bit_length as _gmpy_bit_length
     from gmpy2 import mpz as _mpz
 except ImportError:  # pragma: no cover
-    _mpz = _gmpy_bit_length = None
+    _mpz = None
 
+# The backend's one state: the integer type, rebound by set_backend. Other modules call integer_type() (once per
+# expansion or per evaluation) instead of binding the type at import, so that they follow set_backend.
 _Z = int
-
-
-def _bitlen(x):
-    return x.bit_length()
 
 
 def set_backend(name=None):
@@ -38,15 +35,18 @@ def set_backend(name=None):
         name = "int" if os.environ.get("LIESERIES_BIGINT", "").strip().lower() == "int" else "gmpy"
     if name not in ("gmpy", "int"):
         raise ValueError(f"`name` must be 'gmpy', 'int' or None; got {name!r}")
-    global _bitlen
     _Z = _mpz if (name == "gmpy" and _mpz is not None) else int
-    _bitlen = _gmpy_bit_length if _Z is _mpz else int.bit_length
     return backend()
 
 
 def backend():
     """The big integers in use: ``"gmpy"`` or ``"int"``."""
     return "int" if _Z is int else "gmpy"
+
+
+def integer_type():
+    """The big-integer type in use (gmpy2's ``mpz`` or ``int``)."""
+    return _Z
 
 
 set_backend()
@@ -56,14 +56,14 @@ set_backend()
 # Integer helpers
 # --------------------------------------------------------------------------
 
-def _sh(x, n):
+def round_shift(x, n):
     """round(x / 2**n) (a left shift for n <= 0)."""
     if n <= 0:
         return x << -n
     return (x + (1 << (n - 1))) >> n
 
 
-def _divr(num, den, d):
+def div_round(num, den, d):
     """round(num * 2**d / den), den > 0."""
     if d >= 0:
         num = num << d
@@ -72,46 +72,46 @@ def _divr(num, den, d):
     return ((num << 1) + den) // (den << 1)
 
 
-def _ebits(m, u):
+def ebits(m, u):
     """Binary exponent of m * 2**u (|x| < 2**e), None for zero."""
     return u + m.bit_length() if m else None
 
 
-def _eraw(raw):
+def eraw(raw):
     return raw[2] + raw[3] if raw[1] else None
 
 
-def _emax(*es):
+def emax(*es):
     es = [e for e in es if e is not None]
     return max(es) if es else None
 
 
-def _to_int(raw, u):
+def to_int(raw, u):
     """round(raw / 2**u) as a big integer."""
     s, m, e, _ = raw
     if not m:
         return _Z(0)
     m = _Z(m)
-    m = _sh(m, u - e)
+    m = round_shift(m, u - e)
     return -m if s else m
 
 
-def _raw(m, u, prec=None):
+def to_raw(m, u, prec=None):
     if not m:
         return fzero
     return from_man_exp(m, u, prec, RND) if prec else from_man_exp(m, u)
 
 
-def _dot(a, b):
+def sum_products(a, b):
     return sum(map(_mul, a, b))
 
 
-#: Working precisions (bits) from which Cauchy products pair their terms (:class:`_Cauchy`): half the big-integer
+#: Working precisions (bits) from which Cauchy products pair their terms (:class:`Cauchy`): half the big-integer
 #: multiplications for a few more additions, a gain once multiplications dominate.
 PAIR_BITS = 300
 
 
-class _Cauchy:
+class Cauchy:
     """sum_{j<=k} A_j B_{k-j} at k = 0, 1, 2, ... (called for every k in turn, A and B holding k + 1 terms).
 
     With ``paired``, the terms j and k - j go into one product: A_j B_{k-j} + A_{k-j} B_j =
@@ -144,9 +144,9 @@ class _Cauchy:
 
 
 
-def _sqr_sum(A, k):
+def sqr_sum(A, k):
     h = (k + 1) >> 1
-    r = _dot(A[:h], A[k:k - h:-1]) << 1 if h else 0
+    r = sum_products(A[:h], A[k:k - h:-1]) << 1 if h else 0
     if not k & 1:
         x = A[k >> 1]
         r += x * x
@@ -154,15 +154,15 @@ def _sqr_sum(A, k):
 
 
 
-def _lg(m):
+def log2_abs(m):
     """log2 |m| of a nonzero big integer, in floating point."""
-    b = _bitlen(m)
+    b = m.bit_length()
     if b > 1000:
         return math.log2(abs(m) >> (b - 64)) + (b - 64)
     return math.log2(abs(m))
 
 
-def _gt(m1, u1, m2, u2):
+def greater_abs(m1, u1, m2, u2):
     """|m1| 2**u1 > |m2| 2**u2."""
     m1, m2 = abs(m1), abs(m2)
     if u1 >= u2:

@@ -24,16 +24,14 @@ Scaling (why fixed point loses nothing)
   factor of a few powers of two, well inside the :func:`~lieseries.lie.jets.jet_guard_bits` the working
   precision carries (tests/test_fixed_jets.py checks every instruction against the mpf jets at twice the digits).
 
-Execution
----------
-Order 0 runs the step functions of the plan's instructions, which fix every exponent, shift and constant; the
-orders k >= 1 run as one generated Python function (:func:`_order_loop`, cached per structure) that writes the
-sums of products and the packed dot products out over local variables and calls the other steps.  Products
-sharing an operand are packed into one dot product up to :data:`_GMP_GROUP_BITS` (gmpy2) or
-:data:`_INT_GROUP_BITS` (Python ints) working bits, and computed separately, each once per order, above.
-
-Big integers are gmpy2's ``mpz`` when gmpy2 imports, Python ``int`` otherwise; the environment variable
-``LIESERIES_BIGINT=int`` (or :func:`set_backend`) forces Python ints.
+The modules
+-----------
+:mod:`~lieseries.lie.bigint` holds the big integers (gmpy2's ``mpz`` when gmpy2 imports, Python ``int`` otherwise;
+the environment variable ``LIESERIES_BIGINT=int`` or :func:`set_backend` forces Python ints) and the integer
+helpers; :mod:`~lieseries.lie.fixed_steps` the step of each instruction; :mod:`~lieseries.lie.fixed_orders` the
+instructions fused and grouped, the generated order loop and :func:`~lieseries.lie.fixed_orders.expand`; this
+module what a step reads from an expansion (:class:`FixedJets`), the stepper that chooses the time scale
+(:class:`FixedStepper`) and :func:`fixed_taylor_coefficients`.
 """
 
 from __future__ import annotations
@@ -47,7 +45,7 @@ from .. import expr as _expr
 from ..precision import check_dps, check_order, dps_to_bits, mp_context
 from ..precision import thread_mp as mp
 from . import bigint
-from .bigint import _gt, _lg, _raw, _sh, backend, set_backend
+from .bigint import greater_abs, log2_abs, to_raw, round_shift, backend, set_backend
 from .fixed_orders import expand
 from .jets import jet_guard_bits, radius_from_logs, resolve_program
 
@@ -95,7 +93,7 @@ class FixedJets:
                 bm, bu = 0, None
                 for u, col in cols:
                     m = col[k]
-                    if m and (bu is None or _gt(m, u, bm, bu)):
+                    if m and (bu is None or greater_abs(m, u, bm, bu)):
                         bm, bu = m, u
                 nrm.append(make(from_man_exp(bm, bu - s * k, 64, "u") if bu is not None else fzero))
             self._norms = nrm
@@ -107,7 +105,7 @@ class FixedJets:
         for Mi, ui in zip(self.M, self.U):
             m = Mi[k]
             if m:
-                x = _lg(m) + ui
+                x = log2_abs(m) + ui
                 if x > best:
                     best = x
         return best - self.s * k
@@ -133,7 +131,7 @@ class FixedJets:
     def log2_column(self, k):
         """log2 |c_{k,i}| of every variable i (``-inf`` for zero)."""
         sk = self.s * k
-        return [_lg(Mi[k]) + (ui - sk) if Mi[k] else -math.inf for Mi, ui in zip(self.M, self.U)]
+        return [log2_abs(Mi[k]) + (ui - sk) if Mi[k] else -math.inf for Mi, ui in zip(self.M, self.U)]
 
     def horner(self, t):
         """sum_k c_k t^k as mpf at ``prec`` bits (``t`` an mpf with |t| <= ``max_step``): the step to ``t``; a
@@ -151,8 +149,9 @@ class FixedJets:
         raw = t._mpf_
         sg, tm, te, _ = raw
         if not tm:
-            return [make(_raw(Mi[0], ui, self.prec)) for Mi, ui in zip(self.M, self.U)]
-        tm = -bigint._Z(tm) if sg else bigint._Z(tm)
+            return [make(to_raw(Mi[0], ui, self.prec)) for Mi, ui in zip(self.M, self.U)]
+        Z = bigint.integer_type()
+        tm = -Z(tm) if sg else Z(tm)
         sh = self.s - te  # t / sigma = tm * 2**-sh
         out = []
         prec = self.prec
@@ -164,8 +163,8 @@ class FixedJets:
                     acc = ((acc * tm + half) >> sh) + Mi[k]
             else:
                 for k in range(len(Mi) - 2, -1, -1):
-                    acc = _sh(acc * tm, sh) + Mi[k]
-            out.append(make(_raw(acc, ui, prec)))
+                    acc = round_shift(acc * tm, sh) + Mi[k]
+            out.append(make(to_raw(acc, ui, prec)))
         return out
 
     def _abs_horner(self, h):
@@ -173,12 +172,13 @@ class FixedJets:
         if abs(h) > self.max_step:
             raise RuntimeError(f"a step of {mp.nstr(h, 5)} beyond the jets' time scale {mp.nstr(self.max_step, 5)}")
         sg, tm, te, _ = abs(h)._mpf_
+        Z = bigint.integer_type()
         out = []
         for Mi, ui in zip(self.M, self.U):
             if not tm:
                 acc = abs(Mi[0])
             else:
-                tmz, sh = bigint._Z(tm), self.s - te
+                tmz, sh = Z(tm), self.s - te
                 acc = abs(Mi[-1])
                 if sh > 0:
                     half = 1 << (sh - 1)
@@ -186,7 +186,7 @@ class FixedJets:
                         acc = ((acc * tmz + half) >> sh) + abs(Mi[k])
                 else:
                     for k in range(len(Mi) - 2, -1, -1):
-                        acc = _sh(acc * tmz, sh) + abs(Mi[k])
+                        acc = round_shift(acc * tmz, sh) + abs(Mi[k])
             out.append((acc, ui))
         return out
 
@@ -204,7 +204,7 @@ class FixedJets:
                 lg = np.log2(a @ (x ** np.arange(a.shape[1]))) + np.array(self.U, dtype=float)
             if not (lg == np.inf).any():  # (a sum beyond the double range: in integers)
                 return np.maximum(lg, 0.0).tolist()
-        return [max(0.0, _lg(acc) + ui) if acc else 0.0 for acc, ui in self._abs_horner(h)]
+        return [max(0.0, log2_abs(acc) + ui) if acc else 0.0 for acc, ui in self._abs_horner(h)]
 
 
 
@@ -222,7 +222,7 @@ class _LazyCoefficients(list):
             make = mp_context().make_mpf
             M, U, s, p = self._M, self._U, self._s, self._prec
             n, N = len(M), len(M[0])
-            list.extend(self, [[make(_raw(M[i][k], U[i] - s * k, p)) for i in range(n)] for k in range(N)])
+            list.extend(self, [[make(to_raw(M[i][k], U[i] - s * k, p)) for i in range(n)] for k in range(N)])
             self._built = True
 
     def __len__(self):
@@ -353,4 +353,4 @@ def fixed_taylor_coefficients(program_or_system, y0, pars, order, dps, time_scal
         ) from None
     make = (ctx or mp_context()).make_mpf
     s = int(time_scale)
-    return [[make(_raw(M[i][k], U[i] - s * k, prec)) for i in range(program.nvars)] for k in range(order + 1)]
+    return [[make(to_raw(M[i][k], U[i] - s * k, prec)) for i in range(program.nvars)] for k in range(order + 1)]

@@ -1,5 +1,11 @@
-"""The fixed-point expansion: the jet plan's instructions fused and grouped, the order loop generated as Python,
-and :func:`expand` (:mod:`lieseries.lie.fixed`)."""
+"""The fixed-point expansion (:mod:`lieseries.lie.fixed`): the jet plan's instructions prepared, the orders run.
+
+Order 0 runs the step functions of the plan's instructions (:mod:`lieseries.lie.fixed_steps`), which fix every
+exponent, shift and constant; the orders k >= 1 run as one generated Python function (:func:`_order_loop`, cached
+per structure) that writes the sums of products and the packed dot products out over local variables and calls
+the other steps.  Products sharing an operand are packed into one dot product up to :data:`_GMP_GROUP_BITS`
+(gmpy2) or :data:`_INT_GROUP_BITS` (Python ints) working bits, and computed separately, each once per order, above.
+"""
 
 from __future__ import annotations
 
@@ -11,23 +17,23 @@ from mpmath.libmp import fzero, mpf_add, mpf_mul, mpf_sub
 
 from ..expr import RND
 from . import bigint
-from .bigint import _divr, _eraw, _to_int
+from .bigint import div_round, eraw, to_int
 from .fixed_steps import (
-    _Dots,
-    _Run,
-    _mk_atan,
-    _mk_div,
-    _mk_exp,
-    _mk_lin,
-    _mk_log,
-    _mk_mul,
-    _mk_pow,
-    _mk_scale,
-    _mk_sincos,
-    _mk_sop,
-    _mk_sqr,
-    _mk_sqrt,
-    _mk_tan,
+    Dots,
+    Run,
+    mk_atan,
+    mk_div,
+    mk_exp,
+    mk_lin,
+    mk_log,
+    mk_mul,
+    mk_pow,
+    mk_scale,
+    mk_sincos,
+    mk_sop,
+    mk_sqr,
+    mk_sqrt,
+    mk_tan,
 )
 from .jets import DeadlineExceeded, jet_plan
 
@@ -199,7 +205,7 @@ def _fuse(plan):
 # --------------------------------------------------------------------------
 
 def _state_exponents(y0_raw):
-    es = [_eraw(r) for r in y0_raw]
+    es = [eraw(r) for r in y0_raw]
     nz = [e for e in es if e is not None]
     fallback = min(nz) if nz else 0
     return [fallback if e is None else e for e in es]
@@ -302,7 +308,7 @@ def _generate(key, names):
             body.append(f"D = c{j}(k)" if paired else f"D = sum(map(_mul, a{j}, reversed(p{j})))")
             if n == 1:
                 body.append(f"dv{keys[0]} = D")
-            else:  # the fields of D + bias (_Dots.repack)
+            else:  # the fields of D + bias (Dots.repack)
                 at = ["E", f"(E >> W{j})"] + [f"(E >> {m} * W{j})" for m in range(2, n)]
                 body.append(f"E = D + bias{j}")
                 body += [f"dv{key_} = ({e} & mask{j}) - half{j}" for key_, e in zip(keys[:-1], at)]
@@ -334,7 +340,7 @@ def _generate(key, names):
                              "        k1 = k + 1",
                              "        k2 = k1 << 1"] + ["        " + line for line in body]) + "\n"
     scope = {"_clock": _clock, "DeadlineExceeded": DeadlineExceeded, "_mul": _mul}
-    exec(compile(src, "<lieseries.lie.fixed orders>", "exec"), scope)
+    exec(compile(src, "<lieseries.lie.fixed_orders>", "exec"), scope)
     return scope["run"]
 
 
@@ -387,15 +393,16 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
     """
     plan = jet_plan(program)
     # packed dot products pay off with Python ints up to about 100 digits, with gmpy2 up to about 300
-    grouped = wp <= (_GMP_GROUP_BITS if bigint._Z is not int else _INT_GROUP_BITS)
+    Z = bigint.integer_type()
+    grouped = wp <= (_GMP_GROUP_BITS if Z is not int else _INT_GROUP_BITS)
     instrs, nkeys, to_state, cv = _prepared(plan, grouped, wp, pars_raw)
-    run = _Run(plan.nslots, wp)
+    run = Run(plan.nslots, wp, Z)
     J, U = run.J, run.U
     nvars = program.nvars
     is_const = plan.is_const
     for i, e in enumerate(_state_exponents(y0_raw)):
         U[i] = e - wp
-        J[i] = [_to_int(y0_raw[i], U[i])]
+        J[i] = [to_int(y0_raw[i], U[i])]
     for x in range(nvars, plan.nslots):
         if not is_const[x]:
             J[x] = []
@@ -405,36 +412,36 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
     run.s = s
     for kind, out, args, extra in instrs:
         if kind == "dots":
-            steps.append(_Dots(run, args[0], args[1], extra))
+            steps.append(Dots(run, args[0], args[1], extra))
         elif kind == "lin":
-            steps.append(_mk_lin(run, out, args, extra))
+            steps.append(mk_lin(run, out, args, extra))
         elif kind == "sop":
-            steps.append(_mk_sop(run, out, args[0], args[1], extra, to_state.get(out)))
+            steps.append(mk_sop(run, out, args[0], args[1], extra, to_state.get(out)))
         elif kind == "scale":
-            steps.append(_mk_scale(run, out, args[0], cv[extra]))
+            steps.append(mk_scale(run, out, args[0], cv[extra]))
         elif kind == "mul":
-            steps.append(_mk_mul(run, out, args[0], args[1]))
+            steps.append(mk_mul(run, out, args[0], args[1]))
         elif kind == "sqr":
-            steps.append(_mk_sqr(run, out, args[0]))
+            steps.append(mk_sqr(run, out, args[0]))
         elif kind == "div":
-            steps.append(_mk_div(run, out, args[0], args[1], wp))
+            steps.append(mk_div(run, out, args[0], args[1], wp))
         elif kind == "rdiv":
-            steps.append(_mk_div(run, out, None, args[0], wp, cnum=cv[extra]))
+            steps.append(mk_div(run, out, None, args[0], wp, cnum=cv[extra]))
         elif kind == "pow":
             e, data = extra
-            steps.append(_mk_pow(run, out, args[0], cv[e], data, wp))
+            steps.append(mk_pow(run, out, args[0], cv[e], data, wp))
         elif kind == "sqrt":
-            steps.append(_mk_sqrt(run, out, args[0], wp))
+            steps.append(mk_sqrt(run, out, args[0], wp))
         elif kind == "exp":
-            steps.append(_mk_exp(run, out, args[0], wp))
+            steps.append(mk_exp(run, out, args[0], wp))
         elif kind == "log":
-            steps.append(_mk_log(run, out, args[0], wp))
+            steps.append(mk_log(run, out, args[0], wp))
         elif kind in ("sincos", "sinhcosh"):
-            steps.append(_mk_sincos(run, out[0], out[1], args[0], wp, kind == "sinhcosh"))
+            steps.append(mk_sincos(run, out[0], out[1], args[0], wp, kind == "sinhcosh"))
         elif kind in ("tan", "tanh"):
-            steps.append(_mk_tan(run, out[0], out[1], args[0], wp, kind == "tanh"))
+            steps.append(mk_tan(run, out[0], out[1], args[0], wp, kind == "tanh"))
         elif kind == "atan":
-            steps.append(_mk_atan(run, out[0], out[1], args[0], wp))
+            steps.append(mk_atan(run, out[0], out[1], args[0], wp))
         else:  # pragma: no cover
             raise AssertionError(kind)
     srcs = []
@@ -453,13 +460,13 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
         k1 = k + 1
         for zi, i, o, c in srcs:
             if o is not None:
-                zi.append(_divr(J[o][k], k1, U[o] + s - U[i]))
+                zi.append(div_round(J[o][k], k1, U[o] + s - U[i]))
             elif k == 0 and c[1]:
                 cs, cm, ce, _ = c
-                m = _divr(bigint._Z(cm), k1, ce + s - U[i])
+                m = div_round(Z(cm), k1, ce + s - U[i])
                 zi.append(-m if cs else m)
             else:
-                zi.append(bigint._Z(0))
+                zi.append(Z(0))
 
     if order:  # order 0 sets every jet's exponent and the constants of the later orders
         for st in steps:

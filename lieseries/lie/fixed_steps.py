@@ -14,8 +14,7 @@ from mpmath.libmp import (
 )
 
 from ..expr import POINTWISE, RND
-from . import bigint
-from .bigint import PAIR_BITS, _Cauchy, _divr, _dot, _ebits, _emax, _eraw, _raw, _sh, _sqr_sum, _to_int
+from .bigint import PAIR_BITS, Cauchy, div_round, sum_products, ebits, emax, eraw, to_raw, round_shift, sqr_sum, to_int
 
 
 # --------------------------------------------------------------------------
@@ -36,10 +35,12 @@ class _Once:
         return self.v
 
 
-class _Run:
-    """The state of one expansion: jets J (lists of integers), exponents U, working bits F."""
+class Run:
+    """The state of one expansion: jets J (lists of integers), exponents U, working bits F, the integer type Z
+    (:func:`~lieseries.lie.bigint.integer_type`, read once per expansion)."""
 
-    def __init__(self, nslots, F):
+    def __init__(self, nslots, F, Z):
+        self.Z = Z
         self.J = [None] * nslots
         self.U = [None] * nslots
         self.D = {}
@@ -47,12 +48,12 @@ class _Run:
         self.products = {}
 
     def product(self, a, b):
-        """sum_{j<=k} a_j b_{k-j} as a function of k (:class:`_Cauchy`), one per pair of slots: a product that
+        """sum_{j<=k} a_j b_{k-j} as a function of k (:class:`Cauchy`), one per pair of slots: a product that
         several sum-of-products steps read is computed once per order."""
         key = (a, b) if a <= b else (b, a)
         f = self.products.get(key)
         if f is None:
-            f = self.products[key] = _Once(_Cauchy(self.J[a], self.J[b], self.F >= PAIR_BITS))
+            f = self.products[key] = _Once(Cauchy(self.J[a], self.J[b], self.F >= PAIR_BITS))
         return f
 
     def dj(self, s):
@@ -70,13 +71,13 @@ def _ext(a, da, k):
 
 def _fn_exp(run, slot, *cands):
     """Exponent of a jet from candidate magnitudes (None ignored); u = e - F."""
-    e = _emax(*cands)
+    e = emax(*cands)
     if e is None:
         e = run.U[slot] + run.F if run.U[slot] is not None else 0
     return e - run.F
 
 
-def _mk_lin(run, out, vterms, offset):
+def mk_lin(run, out, vterms, offset):
     J, U = run.J, run.U
     c = J[out]
     shifts = []
@@ -87,7 +88,7 @@ def _mk_lin(run, out, vterms, offset):
             u = min(U[a] for a, _ in vterms)
             U[out] = u
             shifts.extend((J[a], U[a] - u, ng) for a, ng in vterms)
-            off[0] = _to_int(offset, u) if offset is not None else 0
+            off[0] = to_int(offset, u) if offset is not None else 0
         r = 0
         for a, d, ng in shifts:
             x = a[k] << d if d else a[k]
@@ -98,32 +99,32 @@ def _mk_lin(run, out, vterms, offset):
     return step
 
 
-def _mk_scale(run, out, a, craw):
-    J, U = run.J, run.U
+def mk_scale(run, out, a, craw):
+    J, U, Z = run.J, run.U, run.Z
     A, C = J[a], J[out]
     s, m, e, bc = craw
-    cm = -bigint._Z(m) if s else bigint._Z(m)
+    cm = -Z(m) if s else Z(m)
 
     def step(k):
         if k == 0:
             U[out] = U[a] + (e + bc if m else 0)
-        C.append(_sh(A[k] * cm, bc) if m else bigint._Z(0))
+        C.append(round_shift(A[k] * cm, bc) if m else Z(0))
     return step
 
 
-def _mk_mul(run, out, a, b):
+def mk_mul(run, out, a, b):
     J, U, F = run.J, run.U, run.F
     A, B, C = J[a], J[b], J[out]
-    dot = _Cauchy(A, B, F >= PAIR_BITS)
+    dot = Cauchy(A, B, F >= PAIR_BITS)
 
     def step(k):
         if k == 0:
             U[out] = U[a] + U[b] + F
-        C.append(_sh(dot(k), F))
+        C.append(round_shift(dot(k), F))
     return step
 
 
-def _mk_sop(run, out, prods, lins, offset, state=None):
+def mk_sop(run, out, prods, lins, offset, state=None):
     """out = sum of ±c (a * b) product terms and ±c x linear terms (c a raw constant or None) plus an offset:
     all terms exact at their finest exponent, one rounding (a lin whose terms' products were fused into it).
     With ``state`` = i (out is the right-hand side of state variable i and used nowhere else) the step appends
@@ -138,7 +139,7 @@ def _mk_sop(run, out, prods, lins, offset, state=None):
         if c is None:
             return 1, 0, 0
         cs, cm, ce, cbc = c
-        return (-bigint._Z(cm) if cs else bigint._Z(cm)), ce, cbc
+        return (-run.Z(cm) if cs else run.Z(cm)), ce, cbc
 
     def step(k):
         if k == 0:
@@ -171,7 +172,7 @@ def _mk_sop(run, out, prods, lins, offset, state=None):
                     A, B = B, None
                 terms.append((A, B, None if cm == 1 else (-1 if cm == -1 else cm), x - x0))
             st.update(fin=uo - x0 if state is None else x0 + run.s - U[state],
-                      off=_to_int(offset, x0) if offset is not None else 0)
+                      off=to_int(offset, x0) if offset is not None else 0)
             step.terms, step.fin = terms, st["fin"]
         tot = st["off"] if k == 0 else 0
         dv = run.dv
@@ -184,14 +185,14 @@ def _mk_sop(run, out, prods, lins, offset, state=None):
                 v = -v if cm == -1 else v * cm
             tot += v << d if d else v
         if state is None:
-            C.append(_sh(tot, st["fin"]))
+            C.append(round_shift(tot, st["fin"]))
         else:  # appended after the order's last step: every step of order k sees k + 1 state coefficients
-            nxt[state] = _divr(tot, k + 1, st["fin"])
+            nxt[state] = div_round(tot, k + 1, st["fin"])
     step.kind, step.C, step.state = "sop", C, state
     return step
 
 
-class _Dots:
+class Dots:
     """Several Cauchy products sharing one operand in one dot product: the partners' coefficients are packed
     into one integer per order (fields of W bits, W above the bits any of the products can reach, checked at
     every order) and the products' k-th coefficients are read back from the fields of one sum."""
@@ -205,7 +206,7 @@ class _Dots:
         self.rBs = self.Bs[::-1]
         self.keys = keys
         self.P = []
-        self.dot = _Cauchy(self.A, self.P, run.F >= PAIR_BITS)
+        self.dot = Cauchy(self.A, self.P, run.F >= PAIR_BITS)
         self.W = self.ba = self.bb = 0
         self.mask = self.full = self.half = self.bias = 0
 
@@ -233,7 +234,7 @@ class _Dots:
         x = self.A[k].bit_length()
         if x > self.ba:
             self.ba = x
-        x = max(map(bigint._bitlen, [B[k] for B in self.Bs]))
+        x = max(B[k].bit_length() for B in self.Bs)
         if x > self.bb:
             self.bb = x
         need = self.ba + self.bb + (k + 1).bit_length() + 2
@@ -255,18 +256,18 @@ class _Dots:
 
 
 
-def _mk_sqr(run, out, a):
+def mk_sqr(run, out, a):
     J, U, F = run.J, run.U, run.F
     A, C = J[a], J[out]
 
     def step(k):
         if k == 0:
             U[out] = 2 * U[a] + F
-        C.append(_sh(_sqr_sum(A, k), F))
+        C.append(round_shift(sqr_sum(A, k), F))
     return step
 
 
-def _mk_div(run, out, a, b, wp, cnum=None):
+def mk_div(run, out, a, b, wp, cnum=None):
     """out = a / b, or cnum / b (cnum a raw constant) when a is None."""
     J, U, F = run.J, run.U, run.F
     A = J[a] if a is not None else None
@@ -278,20 +279,20 @@ def _mk_div(run, out, a, b, wp, cnum=None):
             B0, ub = B[0], U[b]
             if not B0:
                 raise ZeroDivisionError("a division by a series with zero constant term")
-            b0 = _raw(B0, ub)
-            eb0 = _ebits(B0, ub)
+            b0 = to_raw(B0, ub)
+            eb0 = ebits(B0, ub)
             if A is not None:
-                a0 = _raw(A[0], U[a])
+                a0 = to_raw(A[0], U[a])
                 ea = U[a] + F
-                e0 = _eraw(a0)
+                e0 = eraw(a0)
                 cands = (ea - eb0, None if e0 is None else e0 + ub + F - 2 * eb0)
             else:
                 a0 = cnum
-                e0 = _eraw(cnum)
+                e0 = eraw(cnum)
                 cands = (None,) if e0 is None else (e0 - eb0, e0 + ub + F - 2 * eb0)
             uc = _fn_exp(run, b, *cands)
             U[out] = uc
-            C.append(_to_int(mpf_div(a0, b0, wp, RND), uc))
+            C.append(to_int(mpf_div(a0, b0, wp, RND), uc))
             us = ub + uc
             if A is not None:
                 ucom = min(U[a], us)
@@ -301,50 +302,50 @@ def _mk_div(run, out, a, b, wp, cnum=None):
             st["B0"] = B0 if B0 > 0 else -B0
             st["sg"] = B0 < 0
             return
-        num = -(_dot(B[1:k + 1], C[k - 1::-1]) << st["ds"])
+        num = -(sum_products(B[1:k + 1], C[k - 1::-1]) << st["ds"])
         if A is not None:
             num += A[k] << st["da"]
         if st["sg"]:
             num = -num
-        C.append(_divr(num, st["B0"], st["d"]))
+        C.append(div_round(num, st["B0"], st["d"]))
     return step
 
 
-def _mk_pow(run, out, a, ex, data, wp):
+def mk_pow(run, out, a, ex, data, wp):
     J, U, F = run.J, run.U, run.F
     A, C = J[a], J[out]
     DA, DC = run.dj(a), run.dj(out)
     es, em, ee, ebc = ex
-    pm = -bigint._Z(em) if es else bigint._Z(em)
+    pm = -run.Z(em) if es else run.Z(em)
     st = {}
 
     def step(k):
         if k == 0:
             if not A[0]:
                 raise ZeroDivisionError("a non-integer power of a series with zero constant term")
-            a0 = _raw(A[0], U[a])
+            a0 = to_raw(A[0], U[a])
             c0 = POINTWISE["pow"]([a0, ex], data, wp)
-            e0 = _eraw(c0)
-            ep = _eraw(ex)
-            uc = _fn_exp(run, a, e0, None if (e0 is None or ep is None) else ep + e0 - _eraw(a0) + U[a] + F)
+            e0 = eraw(c0)
+            ep = eraw(ex)
+            uc = _fn_exp(run, a, e0, None if (e0 is None or ep is None) else ep + e0 - eraw(a0) + U[a] + F)
             U[out] = uc
-            C.append(_to_int(c0, uc))
+            C.append(to_int(c0, uc))
             # num = p S1 - S2 at exponent ua + uc + min(ee, 0); p S1 has ee, S2 has 0
             pe = min(ee, 0)
             st.update(p=pm << (ee - pe), s2=-pe, d=pe, A0=A[0] if A[0] > 0 else -A[0], sg=A[0] < 0)
             return
         _ext(A, DA, k)
         _ext(C, DC, k - 1)
-        s1 = _dot(C[0:k], DA[k:0:-1])
-        s2 = _dot(DC[1:k], A[k - 1:0:-1])
+        s1 = sum_products(C[0:k], DA[k:0:-1])
+        s2 = sum_products(DC[1:k], A[k - 1:0:-1])
         num = st["p"] * s1 - (s2 << st["s2"])
         if st["sg"]:
             num = -num
-        C.append(_divr(num, st["A0"] * k, st["d"]))
+        C.append(div_round(num, st["A0"] * k, st["d"]))
     return step
 
 
-def _mk_sqrt(run, out, a, wp):
+def mk_sqrt(run, out, a, wp):
     J, U, F = run.J, run.U, run.F
     A, C = J[a], J[out]
     st = {}
@@ -353,44 +354,44 @@ def _mk_sqrt(run, out, a, wp):
         if k == 0:
             if not A[0]:
                 raise ZeroDivisionError("sqrt of a series with zero constant term")
-            c0 = POINTWISE["sqrt"]([_raw(A[0], U[a])], None, wp)
-            e0 = _eraw(c0)
+            c0 = POINTWISE["sqrt"]([to_raw(A[0], U[a])], None, wp)
+            e0 = eraw(c0)
             uc = _fn_exp(run, a, e0, U[a] + F - e0 - 1)
             U[out] = uc
-            C0 = _to_int(c0, uc)
+            C0 = to_int(c0, uc)
             C.append(C0)
             ucom = min(U[a], 2 * uc)
             st.update(da=U[a] - ucom, ds=2 * uc - ucom, d=ucom - 2 * uc, den=2 * C0)
             return
         h = (k - 1) >> 1
-        s = _dot(C[1:h + 1], C[k - 1:k - h - 1:-1]) << 1 if h else 0
+        s = sum_products(C[1:h + 1], C[k - 1:k - h - 1:-1]) << 1 if h else 0
         if not k & 1:
             x = C[k >> 1]
             s += x * x
         num = (A[k] << st["da"]) - (s << st["ds"])
-        C.append(_divr(num, st["den"], st["d"]))
+        C.append(div_round(num, st["den"], st["d"]))
     return step
 
 
-def _mk_exp(run, out, a, wp):
+def mk_exp(run, out, a, wp):
     J, U, F = run.J, run.U, run.F
     A, C = J[a], J[out]
     DA = run.dj(a)
 
     def step(k):
         if k == 0:
-            c0 = POINTWISE["exp"]([_raw(A[0], U[a])], None, wp)
-            e0 = _eraw(c0)
+            c0 = POINTWISE["exp"]([to_raw(A[0], U[a])], None, wp)
+            e0 = eraw(c0)
             uc = _fn_exp(run, a, e0, None if e0 is None else e0 + U[a] + F)
             U[out] = uc
-            C.append(_to_int(c0, uc))
+            C.append(to_int(c0, uc))
             return
         _ext(A, DA, k)
-        C.append(_divr(_dot(DA[1:k + 1], C[k - 1::-1]), k, U[a]))
+        C.append(div_round(sum_products(DA[1:k + 1], C[k - 1::-1]), k, U[a]))
     return step
 
 
-def _mk_log(run, out, a, wp):
+def mk_log(run, out, a, wp):
     J, U, F = run.J, run.U, run.F
     A, C = J[a], J[out]
     DA, DC = run.dj(a), run.dj(out)
@@ -400,25 +401,25 @@ def _mk_log(run, out, a, wp):
         if k == 0:
             if not A[0]:
                 raise ZeroDivisionError("log of a series with zero constant term")
-            a0 = _raw(A[0], U[a])
+            a0 = to_raw(A[0], U[a])
             c0 = POINTWISE["log"]([a0], None, wp)
-            uc = _fn_exp(run, a, _eraw(c0), U[a] + F - _eraw(a0))
+            uc = _fn_exp(run, a, eraw(c0), U[a] + F - eraw(a0))
             U[out] = uc
-            C.append(_to_int(c0, uc))
+            C.append(to_int(c0, uc))
             ucom = min(U[a], uc + U[a])
             st.update(da=U[a] - ucom, ds=uc + U[a] - ucom, d=ucom - U[a] - uc,
                       A0=A[0] if A[0] > 0 else -A[0], sg=A[0] < 0)
             return
         _ext(A, DA, k)
         _ext(C, DC, k - 1)
-        num = (DA[k] << st["da"]) - (_dot(DC[1:k], A[k - 1:0:-1]) << st["ds"])
+        num = (DA[k] << st["da"]) - (sum_products(DC[1:k], A[k - 1:0:-1]) << st["ds"])
         if st["sg"]:
             num = -num
-        C.append(_divr(num, st["A0"] * k, st["d"]))
+        C.append(div_round(num, st["A0"] * k, st["d"]))
     return step
 
 
-def _mk_sincos(run, so, co, a, wp, hyperbolic):
+def mk_sincos(run, so, co, a, wp, hyperbolic):
     J, U, F = run.J, run.U, run.F
     A, S, C = J[a], J[so], J[co]
     DA = run.dj(a)
@@ -426,29 +427,29 @@ def _mk_sincos(run, so, co, a, wp, hyperbolic):
 
     def step(k):
         if k == 0:
-            a0 = _raw(A[0], U[a])
+            a0 = to_raw(A[0], U[a])
             c0, s0 = (mpf_cosh_sinh if hyperbolic else mpf_cos_sin)(a0, wp, RND)
             ea = U[a] + F
-            es0, ec0 = _eraw(s0), _eraw(c0)
+            es0, ec0 = eraw(s0), eraw(c0)
             us = _fn_exp(run, a, es0, None if ec0 is None else ec0 + ea)
             uc = _fn_exp(run, a, ec0, None if es0 is None else es0 + ea)
             U[so], U[co] = us, uc
-            S.append(_to_int(s0, us))
-            C.append(_to_int(c0, uc))
+            S.append(to_int(s0, us))
+            C.append(to_int(c0, uc))
             st.update(ds=U[a] + uc - us, dc=U[a] + us - uc)
             return
         _ext(A, DA, k)
         d = DA[1:k + 1]
-        ss = _dot(d, C[k - 1::-1])
-        sc = _dot(d, S[k - 1::-1])
+        ss = sum_products(d, C[k - 1::-1])
+        sc = sum_products(d, S[k - 1::-1])
         if not hyperbolic:
             sc = -sc
-        S.append(_divr(ss, k, st["ds"]))
-        C.append(_divr(sc, k, st["dc"]))
+        S.append(div_round(ss, k, st["ds"]))
+        C.append(div_round(sc, k, st["dc"]))
     return step
 
 
-def _mk_tan(run, out, aux, a, wp, hyperbolic):
+def mk_tan(run, out, aux, a, wp, hyperbolic):
     """out = tan(a) (tanh), aux = 1 + out^2 (1 - out^2)."""
     J, U, F = run.J, run.U, run.F
     A, T, W = J[a], J[out], J[aux]
@@ -457,26 +458,26 @@ def _mk_tan(run, out, aux, a, wp, hyperbolic):
 
     def step(k):
         if k == 0:
-            a0 = _raw(A[0], U[a])
+            a0 = to_raw(A[0], U[a])
             t0 = POINTWISE["tanh" if hyperbolic else "tan"]([a0], None, wp)
             t2 = mpf_mul(t0, t0)
             w0 = mpf_sub(fone, t2, wp, RND) if hyperbolic else mpf_add(fone, t2, wp, RND)
-            ew0 = _eraw(w0)
-            ut = _fn_exp(run, a, _eraw(t0), None if ew0 is None else ew0 + U[a] + F)
+            ew0 = eraw(w0)
+            ut = _fn_exp(run, a, eraw(t0), None if ew0 is None else ew0 + U[a] + F)
             uw = _fn_exp(run, a, ew0, 2 * (ut + F))
             U[out], U[aux] = ut, uw
-            T.append(_to_int(t0, ut))
-            W.append(_to_int(w0, uw))
+            T.append(to_int(t0, ut))
+            W.append(to_int(w0, uw))
             st.update(dt=U[a] + uw - ut, dw=uw - 2 * ut)
             return
         _ext(A, DA, k)
-        T.append(_divr(_dot(DA[1:k + 1], W[k - 1::-1]), k, st["dt"]))
-        w = _sh(_sqr_sum(T, k), st["dw"])
+        T.append(div_round(sum_products(DA[1:k + 1], W[k - 1::-1]), k, st["dt"]))
+        w = round_shift(sqr_sum(T, k), st["dw"])
         W.append(-w if hyperbolic else w)
     return step
 
 
-def _mk_atan(run, out, aux, a, wp):
+def mk_atan(run, out, aux, a, wp):
     """out = atan(a), aux = 1 + a^2."""
     J, U, F = run.J, run.U, run.F
     A, C, W = J[a], J[out], J[aux]
@@ -485,22 +486,22 @@ def _mk_atan(run, out, aux, a, wp):
 
     def step(k):
         if k == 0:
-            a0 = _raw(A[0], U[a])
+            a0 = to_raw(A[0], U[a])
             w0 = mpf_add(fone, mpf_mul(a0, a0), wp, RND)
             c0 = POINTWISE["atan"]([a0], None, wp)
-            ea, ew0 = U[a] + F, _eraw(w0)
+            ea, ew0 = U[a] + F, eraw(w0)
             uw = _fn_exp(run, a, ew0, 2 * ea)
-            uc = _fn_exp(run, a, _eraw(c0), ea - ew0)
+            uc = _fn_exp(run, a, eraw(c0), ea - ew0)
             U[out], U[aux] = uc, uw
-            C.append(_to_int(c0, uc))
-            W0 = _to_int(w0, uw)
+            C.append(to_int(c0, uc))
+            W0 = to_int(w0, uw)
             W.append(W0)
             ucom = min(U[a], uc + uw)
             st.update(dw=uw - 2 * U[a], da=U[a] - ucom, ds=uc + uw - ucom, d=ucom - uw - uc, W0=W0)
             return
-        W.append(_sh(_sqr_sum(A, k), st["dw"]))
+        W.append(round_shift(sqr_sum(A, k), st["dw"]))
         _ext(A, DA, k)
         _ext(C, DC, k - 1)
-        num = (DA[k] << st["da"]) - (_dot(DC[1:k], W[k - 1:0:-1]) << st["ds"])
-        C.append(_divr(num, st["W0"] * k, st["d"]))
+        num = (DA[k] << st["da"]) - (sum_products(DC[1:k], W[k - 1:0:-1]) << st["ds"])
+        C.append(div_round(num, st["W0"] * k, st["d"]))
     return step
