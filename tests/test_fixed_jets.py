@@ -14,6 +14,7 @@ import pytest
 import lieseries as ls
 from lieseries import exact
 from lieseries.lie import compile_system, fixed, taylor_coefficients
+from lieseries.precision import Precision
 
 from problems import RB_PARS, RB_Y0, mpf, nonlinear, rigid_body, rigid_error
 
@@ -57,7 +58,7 @@ def test_every_module_follows_the_backend(bigint):
 
     Z = big.integer_type()
     assert (Z is int) == (bigint == "int")
-    stepper = fixed.FixedStepper(compile_system(*rigid_body()), RB_PARS, 20, 30)
+    stepper = fixed.FixedStepper(compile_system(*rigid_body()), RB_PARS, 20, Precision.of(dps=30))
     jets = stepper.expand([mp.mpf(v) for v in RB_Y0], 1)
     assert {type(m) for row in jets.M for m in row} == {Z}
     assert all(hasattr(v, "_mpf_") for v in jets.evaluate(jets.max_step / 2))
@@ -213,7 +214,7 @@ def test_stepper_deadline(bigint):
     from lieseries.lie.jets import DeadlineExceeded
 
     prog = compile_system(*rigid_body())
-    stepper = fixed.FixedStepper(prog, RB_PARS, 60, 40)
+    stepper = fixed.FixedStepper(prog, RB_PARS, 60, Precision.of(dps=40))
     with pytest.raises(DeadlineExceeded):
         stepper.expand([mp.mpf(v) for v in [1, 0, 0, 0, 1, 0, 0, 0, 1, 1, "0.2", "1.5"]], 10,
                        deadline=perf_counter() - 1)

@@ -263,7 +263,8 @@ _LN2 = math.log(2)
 class FixedStepper:
     """Repeated expansions of one system at one order and precision (the Lie step's jets).
 
-    ``expand(z, span)`` returns :class:`FixedJets` for the state ``z`` (mpf) with a time scale ``sigma`` (a power
+    ``precision`` is a :class:`~lieseries.precision.Precision`: the jets hold its working bits (guard included) and
+    :func:`~lieseries.lie.jets.jet_guard_bits` more.  ``expand(z, span)`` returns :class:`FixedJets` for the state ``z`` (mpf) with a time scale ``sigma`` (a power
     of two, ``max_step`` of the result) that the caller's step must not exceed.  Integers hold
     ``c_k sigma**k`` to a fixed number of bits relative to the state, so a coefficient carries exactly the
     absolute accuracy that a step of at most ``sigma`` needs, and no more: with ``sigma`` a few times the step
@@ -274,10 +275,10 @@ class FixedStepper:
     solution is a polynomial (an infinite radius).
     """
 
-    def __init__(self, program, pars, order, dps):
+    def __init__(self, program, pars, order, precision):
         self.program = program
         self.order = order
-        self.prec = dps_to_bits(dps)
+        self.prec = precision.working_bits
         self.wp = self.prec + jet_guard_bits(order)
         self.pars_raw = _expr.convert_vector(pars, program.npars, self.wp, "pars")
         self.s = None
