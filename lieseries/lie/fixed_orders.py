@@ -260,13 +260,15 @@ def _order_loop(steps, deferred, rest):
                 # state's exponents and are variables, so that one function serves every step)
                 tsig.append((src, None if cm is None else (-1 if cm == -1 else 0)))
             fin = st.fin
-            if st.state is None:
+            if st.state is None:  # round(tot / 2**fin)
                 bind(f"C{j}", st.C)
-                bind(f"fin{j}", max(fin, 0))
                 bind(f"hf{j}", 1 << (fin - 1) if fin > 0 else 0)
-            else:
-                bind(f"fin{j}", fin + 1 if fin >= 0 else 0)
-            bind(f"fp{j}", fin > 0 if st.state is None else fin >= 0)
+                fp = fin > 0
+            else:  # round(tot 2**fin / (k + 1)) = floor((tot 2**e + k + 1) / (2 (k + 1))), e = fin + 1
+                fin += 1
+                fp = fin >= 0
+            bind(f"fp{j}", fp)
+            bind(f"fin{j}", max(fin, 0))
             bind(f"nf{j}", max(-fin, 0))
             sig.append(("s", st.state, tuple(tsig)))
         else:
@@ -326,9 +328,11 @@ def _generate(key, names):
             body.append(f"tot = {tot}")
             if state is None:  # round(tot / 2**fin)
                 body += [f"if fp{j}: C{j}.append((tot + hf{j}) >> fin{j})", f"else: C{j}.append(tot << nf{j})"]
-            else:  # round(tot 2**fin / (k + 1))
+            else:  # round(tot 2**fin / (k + 1)): floor((tot 2**e + k + 1) / (2 (k + 1))) with e = fin + 1, the same
+                # with floor(tot 2**e) for e < 0 (floor(floor(x) / m) = floor(x / m) for an integer m > 0): a shift
+                # and a division by a small integer
                 body += [f"if fp{j}: nx{state} = ((tot << fin{j}) + k1) // k2",
-                         f"else: dd = k1 << nf{j}; nx{state} = ((tot << 1) + dd) // (dd << 1)"]
+                         f"else: nx{state} = ((tot >> nf{j}) + k1) // k2"]
         else:
             body.append(f"g{j}(k)")
     body += [f"z{i}.append(nx{i})" for i in deferred]
