@@ -18,9 +18,10 @@ from ..expr import RND
 __all__ = ["backend", "set_backend", "integer_type"]
 
 try:  # pragma: no cover - depends on the installation
+    from gmpy2 import bit_length as _gmpy_bit_length
     from gmpy2 import mpz as _mpz
 except ImportError:  # pragma: no cover
-    _mpz = None
+    _mpz = _gmpy_bit_length = None
 
 # The backend's one state: the integer type, rebound by set_backend. Other modules call integer_type() (once per
 # expansion or per evaluation) instead of binding the type at import, so that they follow set_backend.
@@ -47,6 +48,12 @@ def backend():
 def integer_type():
     """The big-integer type in use (gmpy2's ``mpz`` or ``int``)."""
     return _Z
+
+
+def bit_length_function():
+    """The bit length of the integers in use as a function (for ``map``): gmpy2's, which takes ints too, or
+    ``int.bit_length``."""
+    return int.bit_length if _Z is int else _gmpy_bit_length
 
 
 set_backend()

@@ -218,12 +218,14 @@ def _state_exponents(y0_raw):
 _LOOPS = {}  # the structure of an expansion's orders -> its generated function
 
 
-def _order_loop(steps, deferred, rest):
+def _order_loop(steps, deferred, rest, checked):
     """(run, env): ``run(k0, order, deadline, env)`` computes the orders k0..order-1 of an expansion whose order 0
     the steps have computed (it fixed every exponent, shift and constant).  The ``sop`` and ``dots`` steps are
     written out as straight-line Python over local variables (the same integer operations as their step
     functions, without their per-term loops and lookups), the other steps are called; the function is generated
-    once per structure (the instructions and which constant factors are -1, 1 or other) and cached."""
+    once per structure (the instructions and which constant factors are -1, 1 or other) and cached.  With
+    ``checked`` the packed dot products check their fields' width at every order (:class:`Dots`); without, the
+    caller checks it once at the end (:meth:`Dots.fits`)."""
     sig, names, env = [], [], []
 
     def bind(name, value):
@@ -278,7 +280,7 @@ def _order_loop(steps, deferred, rest):
         bind(f"z{i}", zi)
     if rest is not None:
         bind("rest", rest)
-    key = (tuple(sig), tuple(i for _, i in deferred), rest is not None)
+    key = (tuple(sig), tuple(i for _, i in deferred), rest is not None, checked)
     fn = _LOOPS.get(key)
     if fn is None:
         if len(_LOOPS) >= 256:  # a process that meets many systems: start again
@@ -288,21 +290,22 @@ def _order_loop(steps, deferred, rest):
 
 
 def _generate(key, names):
-    sig, deferred, rest = key
+    sig, deferred, rest, checked = key
     head = ["def run(k0, order, deadline, env):", f"    ({', '.join(names)},) = env"]
     body = []
     for j, st in enumerate(sig):
-        if st[0] == "dots" or st[0] == "d":
+        if st[0] == "d":
             _, n, paired, keys = st
-            head.append(f"    W{j}, mask{j}, half{j}, bias{j}, ba{j}, bb{j} = o{j}.W, o{j}.mask, o{j}.half, o{j}.bias, "
-                        f"o{j}.ba, o{j}.bb")
-            body += [f"x = a{j}[k].bit_length()",
-                     f"if x > ba{j}: ba{j} = x",
-                     f"x = max({', '.join(f'b{j}_{m}[k].bit_length()' for m in range(n))})" if n > 1 else
-                     f"x = b{j}_0[k].bit_length()",
-                     f"if x > bb{j}: bb{j} = x",
-                     f"need = ba{j} + bb{j} + k1.bit_length() + 2",
-                     f"if need > W{j}: W{j}, mask{j}, half{j}, bias{j} = o{j}.repack(k, need)"]
+            head.append(f"    W{j}, mask{j}, half{j}, bias{j} = o{j}.W, o{j}.mask, o{j}.half, o{j}.bias")
+            if checked:
+                head.append(f"    ba{j}, bb{j} = o{j}.ba, o{j}.bb")
+                body += [f"x = a{j}[k].bit_length()",
+                         f"if x > ba{j}: ba{j} = x",
+                         f"x = max({', '.join(f'b{j}_{m}[k].bit_length()' for m in range(n))})" if n > 1 else
+                         f"x = b{j}_0[k].bit_length()",
+                         f"if x > bb{j}: bb{j} = x",
+                         f"need = ba{j} + bb{j} + k1.bit_length() + 2",
+                         f"if need > W{j}: W{j}, mask{j}, half{j}, bias{j} = o{j}.repack(k, need)"]
             e = f"b{j}_{n - 1}[k]"
             for m in range(n - 2, -1, -1):
                 e = f"(({e}) << W{j}) + b{j}_{m}[k]"
@@ -395,6 +398,14 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
     ``wp`` is the working precision in bits (guard bits included), ``s`` the time scale exponent, ``deadline`` an
     optional :func:`time.perf_counter` value checked after every order (:class:`DeadlineExceeded`).
     """
+    got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, False)
+    if got is None:  # a packed dot product's fields were too narrow for a later order: again, checking every order
+        got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, True)
+    return got
+
+
+def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked):
+    """:func:`expand`; None when ``checked`` is false and a packed dot product's fields did not fit every order."""
     plan = jet_plan(program)
     # packed dot products pay off with Python ints up to about 100 digits, with gmpy2 up to about 300
     Z = bigint.integer_type()
@@ -479,6 +490,8 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
             zi.append(nxt[i])
         rest(0)
     if order > 1:
-        run_orders, env = _order_loop(steps, deferred, rest if srcs else None)
+        run_orders, env = _order_loop(steps, deferred, rest if srcs else None, checked)
         run_orders(1, order, deadline, env)
+        if not checked and not all(st.fits(order) for st in steps if st.__class__ is Dots):
+            return None
     return [J[i] for i in range(nvars)], [U[i] for i in range(nvars)]

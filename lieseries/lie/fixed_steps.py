@@ -14,7 +14,7 @@ from mpmath.libmp import (
 )
 
 from ..expr import POINTWISE, RND
-from .bigint import PAIR_BITS, Cauchy, div_round, sum_products, ebits, emax, eraw, to_raw, round_shift, sqr_sum, to_int
+from .bigint import PAIR_BITS, Cauchy, bit_length_function, div_round, sum_products, ebits, emax, eraw, to_raw, round_shift, sqr_sum, to_int
 
 
 # --------------------------------------------------------------------------
@@ -194,8 +194,13 @@ def mk_sop(run, out, prods, lins, offset, state=None):
 
 class Dots:
     """Several Cauchy products sharing one operand in one dot product: the partners' coefficients are packed
-    into one integer per order (fields of W bits, W above the bits any of the products can reach, checked at
-    every order) and the products' k-th coefficients are read back from the fields of one sum."""
+    into one integer per order (fields of W bits, W above the bits any of the products can reach) and the
+    products' k-th coefficients are read back from the fields of one sum.
+
+    The fields' width is set at order 0 with 32 bits to spare.  The order loop either checks the bound at every
+    order (widening the fields when a coefficient outgrows it) or, faster, runs without checks, after which
+    :meth:`fits` checks the same bound over every order at once (the expansion is then run again with the checks
+    when it fails)."""
 
     kind = "dots"
 
@@ -229,6 +234,16 @@ class Dots:
             P.append(v)
         self.dot.reset(P, k)
         return W, self.mask, self.half, self.bias
+
+    def fits(self, n):
+        """Whether the fields of width W held every sum of products of the orders k < n exactly: |sum_{j<=k} a_j
+        b_{k-j}| < (k + 1) 2**(ba + bb) <= 2**(W - 1), with ba and bb the largest bit lengths of the pivot's and
+        the partners' coefficients of orders < n (the first order that overflowed would have read only correct
+        coefficients, all of them within these bounds)."""
+        bl = bit_length_function()
+        ba = max(map(bl, self.A[:n]))
+        bb = max(max(map(bl, B[:n])) for B in self.Bs)
+        return ba + bb + n.bit_length() + 2 <= self.W
 
     def __call__(self, k):
         x = self.A[k].bit_length()
