@@ -225,8 +225,10 @@ def _order_loop(steps, deferred, rest, checked):
     functions, without their per-term loops and lookups), the other steps are called; the function is generated
     once per structure (the instructions and which constant factors are -1, 1 or other) and cached.  With
     ``checked`` the packed dot products check their fields' width at every order (:class:`Dots`); without, the
-    caller checks it once at the end (:meth:`Dots.fits`)."""
+    caller checks it once at the end (:meth:`Dots.fits`), the fields are read with half a field added to each and
+    every sum of products that reads them subtracts the halves at once, as a constant ``K`` of its own."""
     sig, names, env = [], [], []
+    half_of = {}  # a dot product's key -> what its field holds above it (without checks)
 
     def bind(name, value):
         names.append(name)
@@ -243,15 +245,21 @@ def _order_loop(steps, deferred, rest, checked):
             paired = st.dot.paired
             if paired:
                 bind(f"c{j}", st.dot)
+            if not checked:
+                bind(f"ball{j}", st.bias_all)
+                half_of.update((key, st.half if len(st.Bs) > 1 else 0) for key in st.keys)
             sig.append(("d", len(st.Bs), paired, tuple(st.keys)))
         elif kind == "sop":
             tsig = []
+            K = 0
             for m, (A, B, cm, d) in enumerate(st.terms):
                 if B is not None:
                     src = "call"
                     bind(f"t{j}_{m}", B)
                 elif A.__class__ is int:
                     src = A  # a dot product's key
+                    if not checked:  # the term reads its field plus half: minus (half times its factor) << d
+                        K -= (half_of[A] * (1 if cm is None else cm)) << d
                 else:
                     src = "jet"
                     bind(f"t{j}_{m}", A)
@@ -272,7 +280,9 @@ def _order_loop(steps, deferred, rest, checked):
             bind(f"fp{j}", fp)
             bind(f"fin{j}", max(fin, 0))
             bind(f"nf{j}", max(-fin, 0))
-            sig.append(("s", st.state, tuple(tsig)))
+            if K:
+                bind(f"K{j}", K)
+            sig.append(("s", st.state, tuple(tsig), bool(K)))
         else:
             bind(f"g{j}", st)
             sig.append(("g",))
@@ -311,15 +321,20 @@ def _generate(key, names):
                 e = f"(({e}) << W{j}) + b{j}_{m}[k]"
             body.append(f"p{j}.append({e})")
             body.append(f"D = c{j}(k)" if paired else f"D = sum(map(_mul, a{j}, reversed(p{j})))")
+            at = ["E", f"(E >> W{j})"] + [f"(E >> {m} * W{j})" for m in range(2, n)]
+            top = "E >> " + (f"W{j}" if n == 2 else f"{n - 1} * W{j}")
             if n == 1:
                 body.append(f"dv{keys[0]} = D")
-            else:  # the fields of D + bias (Dots.repack)
-                at = ["E", f"(E >> W{j})"] + [f"(E >> {m} * W{j})" for m in range(2, n)]
+            elif checked:  # the fields of D + bias (Dots.repack)
                 body.append(f"E = D + bias{j}")
                 body += [f"dv{key_} = ({e} & mask{j}) - half{j}" for key_, e in zip(keys[:-1], at)]
-                body.append(f"dv{keys[-1]} = E >> " + (f"W{j}" if n == 2 else f"{n - 1} * W{j}"))
+                body.append(f"dv{keys[-1]} = {top}")
+            else:  # the fields of D + bias_all, each its sum of products plus half
+                body.append(f"E = D + ball{j}")
+                body += [f"dv{key_} = {e} & mask{j}" for key_, e in zip(keys[:-1], at)]
+                body.append(f"dv{keys[-1]} = {top}")
         elif st[0] == "s":
-            _, state, terms = st
+            _, state, terms, has_K = st
             parts = []
             for m, (src, cm) in enumerate(terms):
                 v = f"t{j}_{m}(k)" if src == "call" else (f"t{j}_{m}[k]" if src == "jet" else f"dv{src}")
@@ -328,7 +343,7 @@ def _generate(key, names):
                 parts.append(("- " if cm == -1 else "+ ") + f"({v} << d{j}_{m})")
             tot = " ".join(parts)
             tot = tot[2:] if tot.startswith("+ ") else "-" + tot[2:]
-            body.append(f"tot = {tot}")
+            body.append(f"tot = {tot}" + (f" + K{j}" if has_K else ""))
             if state is None:  # round(tot / 2**fin)
                 body += [f"if fp{j}: C{j}.append((tot + hf{j}) >> fin{j})", f"else: C{j}.append(tot << nf{j})"]
             else:  # round(tot 2**fin / (k + 1)): floor((tot 2**e + k + 1) / (2 (k + 1))) with e = fin + 1, the same

@@ -213,7 +213,7 @@ class Dots:
         self.P = []
         self.dot = Cauchy(self.A, self.P, run.F >= PAIR_BITS)
         self.W = self.ba = self.bb = 0
-        self.mask = self.full = self.half = self.bias = 0
+        self.mask = self.full = self.half = self.bias = self.bias_all = 0
 
     def repack(self, k, need):
         """Widen the fields to hold ``need`` bits: the packed partners of orders < k again; the new
@@ -225,6 +225,10 @@ class Dots:
         # fields): field m of D + bias, less half, is the m-th sum of products, and what lies above the last but
         # one field is the last (the order loop's way of reading them)
         self.bias = sum(self.half << (m * W) for m in range(len(self.Bs) - 1))
+        # with the top field too, every field of D + bias_all is its sum of products plus half, in [0, 2**W): the
+        # order loop without checks reads the fields so (with one mask each, and subtracts the halves where it sums
+        # them)
+        self.bias_all = self.bias + (self.half << ((len(self.Bs) - 1) * W))
         P = self.P
         P[:] = []
         for j in range(k):
