@@ -225,7 +225,7 @@ def _order_loop(steps, deferred, rest, checked):
     functions, without their per-term loops and lookups), the other steps are called; the function is generated
     once per structure (the instructions and which constant factors are -1, 1 or other) and cached.  With
     ``checked`` the packed dot products check their fields' width at every order (:class:`Dots`); without, the
-    caller checks it once at the end (:meth:`Dots.fits`), the fields are read with half a field added to each and
+    caller checks it once at the end (:meth:`Dots.all_fit`), the fields are read with half a field added to each and
     every sum of products that reads them subtracts the halves at once, as a constant ``K`` of its own."""
     sig, names, env = [], [], []
     half_of = {}  # a dot product's key -> what its field holds above it (without checks)
@@ -329,10 +329,12 @@ def _generate(key, names):
                 body.append(f"E = D + bias{j}")
                 body += [f"dv{key_} = ({e} & mask{j}) - half{j}" for key_, e in zip(keys[:-1], at)]
                 body.append(f"dv{keys[-1]} = {top}")
-            else:  # the fields of D + bias_all, each its sum of products plus half
+            else:  # the fields of D + bias_all, each its sum of products plus half (W fixed: its multiples once)
+                head += [f"    W{j}_{m} = {m} * W{j}" for m in range(2, n)]
+                at = ["E", f"(E >> W{j})"] + [f"(E >> W{j}_{m})" for m in range(2, n)]
                 body.append(f"E = D + ball{j}")
                 body += [f"dv{key_} = {e} & mask{j}" for key_, e in zip(keys[:-1], at)]
-                body.append(f"dv{keys[-1]} = {top}")
+                body.append(f"dv{keys[-1]} = E >> " + (f"W{j}" if n == 2 else f"W{j}_{n - 1}"))
         elif st[0] == "s":
             _, state, terms, has_K = st
             parts = []
@@ -507,6 +509,6 @@ def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked):
     if order > 1:
         run_orders, env = _order_loop(steps, deferred, rest if srcs else None, checked)
         run_orders(1, order, deadline, env)
-        if not checked and not all(st.fits(order) for st in steps if st.__class__ is Dots):
+        if not checked and not Dots.all_fit([st for st in steps if st.__class__ is Dots], order):
             return None
     return [J[i] for i in range(nvars)], [U[i] for i in range(nvars)]

@@ -199,7 +199,7 @@ class Dots:
 
     The fields' width is set at order 0 with 32 bits to spare.  The order loop either checks the bound at every
     order (widening the fields when a coefficient outgrows it) or, faster, runs without checks, after which
-    :meth:`fits` checks the same bound over every order at once (the expansion is then run again with the checks
+    :meth:`all_fit` checks the same bound over every order at once (the expansion is then run again with the checks
     when it fails)."""
 
     kind = "dots"
@@ -239,15 +239,23 @@ class Dots:
         self.dot.reset(P, k)
         return W, self.mask, self.half, self.bias
 
-    def fits(self, n):
-        """Whether the fields of width W held every sum of products of the orders k < n exactly: |sum_{j<=k} a_j
-        b_{k-j}| < (k + 1) 2**(ba + bb) <= 2**(W - 1), with ba and bb the largest bit lengths of the pivot's and
-        the partners' coefficients of orders < n (the first order that overflowed would have read only correct
-        coefficients, all of them within these bounds)."""
+    @staticmethod
+    def all_fit(dots, n):
+        """Whether the fields of width W of each of ``dots`` held every sum of products of the orders k < n
+        exactly: |sum_{j<=k} a_j b_{k-j}| < (k + 1) 2**(ba + bb) <= 2**(W - 1), with ba and bb the largest bit
+        lengths of the pivot's and the partners' coefficients of orders < n (the first order that overflowed would
+        have read only correct coefficients, all of them within these bounds)."""
         bl = bit_length_function()
-        ba = max(map(bl, self.A[:n]))
-        bb = max(max(map(bl, B[:n])) for B in self.Bs)
-        return ba + bb + n.bit_length() + 2 <= self.W
+        known = {}
+
+        def bits(jet):  # the largest bit length of a jet's coefficients (a jet several products share: once)
+            b = known.get(id(jet))
+            if b is None:
+                c = jet[:n]
+                b = known[id(jet)] = max(bl(max(c)), bl(min(c)))
+            return b
+
+        return all(bits(d.A) + max(map(bits, d.Bs)) + n.bit_length() + 2 <= d.W for d in dots)
 
     def __call__(self, k):
         x = self.A[k].bit_length()
