@@ -37,6 +37,7 @@ module what a step reads from an expansion (:class:`FixedJets`), the stepper tha
 from __future__ import annotations
 
 import math
+from itertools import chain
 
 import numpy as np
 from mpmath.libmp import from_man_exp, fzero
@@ -114,7 +115,9 @@ class FixedJets:
         """|M| as a float matrix (variables x orders), or None when an integer is beyond the double range."""
         if self._abs is None:
             try:
-                self._abs = np.abs(np.array([[float(m) for m in Mi] for Mi in self.M]))
+                M = self.M
+                self._abs = np.abs(np.fromiter(map(float, chain.from_iterable(M)), float, len(M) * len(M[0]))
+                                   .reshape(len(M), len(M[0])))
             except OverflowError:
                 self._abs = False
         return self._abs if self._abs is not False else None
