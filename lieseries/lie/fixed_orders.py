@@ -227,26 +227,19 @@ def _order_loop(steps, deferred, rest, checked):
     ``checked`` the packed dot products check their fields' width at every order (:class:`Dots`); without, the
     caller checks it once at the end (:meth:`Dots.all_fit`), the fields are read with half a field added to each and
     every sum of products that reads them subtracts the halves at once, as a constant ``K`` of its own."""
-    sig, names, env = [], [], []
+    sig, env = [], []
+    put = env.append  # the values in the order of their names (_env_names)
     half_of = {}  # a dot product's key -> what its field holds above it (without checks)
-
-    def bind(name, value):
-        names.append(name)
-        env.append(value)
 
     for j, st in enumerate(steps):
         kind = getattr(st, "kind", None)
         if kind == "dots":
-            bind(f"o{j}", st)
-            bind(f"a{j}", st.A)
-            bind(f"p{j}", st.P)
-            for m, B in enumerate(st.Bs):
-                bind(f"b{j}_{m}", B)
+            env += (st, st.A, st.P, *st.Bs)  # o, a, p, b_m
             paired = st.dot.paired
             if paired:
-                bind(f"c{j}", st.dot)
+                put(st.dot)
             if not checked:
-                bind(f"ball{j}", st.bias_all)
+                put(st.bias_all)
                 half_of.update((key, st.half if len(st.Bs) > 1 else 0) for key in st.keys)
             sig.append(("d", len(st.Bs), paired, tuple(st.keys)))
         elif kind == "sop":
@@ -255,48 +248,81 @@ def _order_loop(steps, deferred, rest, checked):
             for m, (A, B, cm, d) in enumerate(st.terms):
                 if B is not None:
                     src = "call"
-                    bind(f"t{j}_{m}", B)
+                    put(B)
                 elif A.__class__ is int:
                     src = A  # a dot product's key
                     if not checked:  # the term reads its field plus half: minus (half times its factor) << d
                         K -= (half_of[A] * (1 if cm is None else cm)) << d
                 else:
                     src = "jet"
-                    bind(f"t{j}_{m}", A)
+                    put(A)
                 if cm is not None and cm != -1:
-                    bind(f"cm{j}_{m}", cm)
-                bind(f"d{j}_{m}", d)
+                    put(cm)  # cm_m
+                put(d)  # d_m
                 # (cm depends on the constants only; the shifts and the final rounding's direction depend on the
                 # state's exponents and are variables, so that one function serves every step)
                 tsig.append((src, None if cm is None else (-1 if cm == -1 else 0)))
             fin = st.fin
             if st.state is None:  # round(tot / 2**fin)
-                bind(f"C{j}", st.C)
-                bind(f"hf{j}", 1 << (fin - 1) if fin > 0 else 0)
+                put(st.C)  # C, hf
+                put(1 << (fin - 1) if fin > 0 else 0)
                 fp = fin > 0
             else:  # round(tot 2**fin / (k + 1)) = floor((tot 2**e + k + 1) / (2 (k + 1))), e = fin + 1
                 fin += 1
                 fp = fin >= 0
-            bind(f"fp{j}", fp)
-            bind(f"fin{j}", max(fin, 0))
-            bind(f"nf{j}", max(-fin, 0))
+            put(fp)  # fp, fin, nf
+            put(max(fin, 0))
+            put(max(-fin, 0))
             if K:
-                bind(f"K{j}", K)
+                put(K)
             sig.append(("s", st.state, tuple(tsig), bool(K)))
         else:
-            bind(f"g{j}", st)
+            put(st)
             sig.append(("g",))
     for zi, i in deferred:
-        bind(f"z{i}", zi)
+        put(zi)
     if rest is not None:
-        bind("rest", rest)
+        put(rest)
     key = (tuple(sig), tuple(i for _, i in deferred), rest is not None, checked)
     fn = _LOOPS.get(key)
     if fn is None:
         if len(_LOOPS) >= 256:  # a process that meets many systems: start again
             _LOOPS.clear()
-        fn = _LOOPS[key] = _generate(key, names)
+        fn = _LOOPS[key] = _generate(key, _env_names(key))
     return fn, env
+
+
+def _env_names(key):
+    """The names of the values :func:`_order_loop` puts in the environment of a structure, in their order."""
+    sig, deferred, rest, checked = key
+    names = []
+    for j, st in enumerate(sig):
+        if st[0] == "d":
+            _, n, paired, _keys = st
+            names += [f"o{j}", f"a{j}", f"p{j}"] + [f"b{j}_{m}" for m in range(n)]
+            if paired:
+                names.append(f"c{j}")
+            if not checked:
+                names.append(f"ball{j}")
+        elif st[0] == "s":
+            _, state, terms, has_K = st
+            for m, (src, cm) in enumerate(terms):
+                if src == "call" or src == "jet":
+                    names.append(f"t{j}_{m}")
+                if cm == 0:
+                    names.append(f"cm{j}_{m}")
+                names.append(f"d{j}_{m}")
+            if state is None:
+                names += [f"C{j}", f"hf{j}"]
+            names += [f"fp{j}", f"fin{j}", f"nf{j}"]
+            if has_K:
+                names.append(f"K{j}")
+        else:
+            names.append(f"g{j}")
+    names += [f"z{i}" for i in deferred]
+    if rest:
+        names.append("rest")
+    return names
 
 
 def _generate(key, names):
