@@ -169,24 +169,30 @@ def lie_integrate(
                     kept="The rows up to this time are kept.",
                     # the energy guard of every run: H at the end against H(y0) (lieseries.energy.drift_threshold)
                     guard=lambda out: energy_guard(out, ps, z0, export_mpf(list(out.z)), prec.working_bits, tolm))
-        # y_reached keeps the guard digits: a run continued from it (an atlas chart change) loses nothing
-        y_reached = export_mpf(np.array(list(out.z), dtype=object))
-        t_reached = to_fraction(out.t)
-        y_rows = [export_mpf(np.array(row, dtype=object), prec.bits) for row in out.rows_y]
+        return _solution(out, engine, prec, tolm, N, bits, grid, ps.dimension, dense)
+
+
+def _solution(out, engine, prec, tolm, N, bits, grid, n, dense) -> Solution:
+    """The run's :class:`Solution` from the driver's outcome (in the working precision's context): rows rounded
+    to ``prec``'s digits, the reached state with its guard digits (a run continued from it, an atlas chart change,
+    loses nothing)."""
+    y_reached = export_mpf(np.array(list(out.z), dtype=object))
+    y_rows = [export_mpf(np.array(row, dtype=object), prec.bits) for row in out.rows_y]
     extra = {"data_bits": bits}
     if engine.max_ratio is not None:
         extra["max_step_over_radius"] = engine.max_ratio
     nsteps = out.steps
-    stats = Stats(method="lie series (mpmath)", precision=f"{dps} dps", tol=float(tolm), order=N, steps=nsteps,
+    stats = Stats(method="lie series (mpmath)", precision=f"{prec.dps} dps", tol=float(tolm), order=N, steps=nsteps,
                   run_time=out.run_time, min_step=float(out.hmin) if nsteps else float("nan"),
                   max_step=float(out.hmax) if nsteps else float("nan"), error_estimates=tuple(out.estimates),
                   extra=extra)
-    y = np.stack(y_rows) if y_rows else np.empty((0, ps.dimension), dtype=object)
+    y = np.stack(y_rows) if y_rows else np.empty((0, n), dtype=object)
     tarr = np.array([float(v) for v in out.rows_t])
-    dense_fn = _Dense(engine.segments, dps, engine.sgn) if dense else None
+    dense_fn = _Dense(engine.segments, prec.dps, engine.sgn) if dense else None
     user = engine.user
-    return Solution(tarr, y, stats, out.status, out.message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
-                    y_reached=y_reached, events=user.records(prec.bits, ps.dimension) if user is not None else None)
+    return Solution(tarr, y, stats, out.status, out.message, t_reached=to_fraction(out.t), dense=dense_fn,
+                    t_requested=grid, y_reached=y_reached,
+                    events=user.records(prec.bits, n) if user is not None else None)
 
 
 def _precision(dps, guard) -> Precision:
