@@ -40,8 +40,8 @@ def execute_general(call, progress, started):
     """Run a prepared call in full generality on the driver loop (:func:`lieseries.driver.drive`), a chunk of steps
     per driver step (:class:`Chunks`); ``started``: the first chunk :func:`execute_plain` ran."""
     ps, prec, plan, user_events = call.ps, call.prec, call.plan, call.user_events
-    grid, direction = plan["grid"], plan["direction"]
-    grid_native, t0_native, y0_native = plan["grid_native"], plan["t0_native"], call.y0_native
+    direction, grid_native, t0_native, y0_native = plan["direction"], plan["grid_native"], plan["t0_native"], \
+        call.y0_native
     template, _, _, event_info = plan["build"]
     build, cached = started[3] if started is not None else (call.report or next_report(call))
     ta = free = None
@@ -77,15 +77,23 @@ def execute_general(call, progress, started):
     finally:
         if free is not None:
             _release(ta, free)
-    status = out.status
+    if out.status == "success" and call.first_chunk < call.repeat_chunk:
+        succeeded(call)
+    return _solution(call, engine, out, sinks, build, cached)
+
+
+def _solution(call, engine, out, sinks, build, cached):
+    """The :class:`~lieseries.solution.Solution` of a run on the driver loop (``out``: the driver's answer;
+    ``engine``: the run's :class:`Chunks`; ``sinks``: the crossings of its non-terminal events)."""
+    ps, prec, plan, user_events = call.ps, call.prec, call.plan, call.user_events
+    grid, direction, grid_native = plan["grid"], plan["direction"], plan["grid_native"]
+    template, _, _, event_info = plan["build"]
     stats = Stats(method="taylor (heyoka)", precision=prec.name, tol=plan["tol_float"], order=template.order,
                   build_time=build, cached=cached, run_time=out.run_time, steps=out.steps, min_step=engine.min_h,
                   max_step=engine.max_h,
                   extra={"events_recovered": engine.guard.recovered if engine.guard else 0,
                          "event_touches_dropped": (engine.guard.touches if engine.guard else 0) + engine.touches}
                   if user_events and direction != 0 else None)
-    if status == "success" and call.first_chunk < call.repeat_chunk:
-        succeeded(call)
     # the exact value of the time reached (the exact grid's when the run got to the end)
     t_reached = plan["grid_exact"][-1] if out.t == grid_native[-1] else to_fraction(out.t)
     # np.array copies the rows (the run's own arrays, y0's read-only cache)
@@ -93,8 +101,8 @@ def execute_general(call, progress, started):
     y = np.array(rows_y, dtype=call.dtype) if rows_y else np.empty((0, ps.dimension), dtype=call.dtype)
     tarr = time_array(out.rows_t, prec) if prec.is_real else np.array(out.rows_t, dtype=call.dtype)
     dense_fn = DenseOutput(engine.c_outs, prec) if engine.c_outs else None
-    return Solution(tarr, y, stats, status, out.message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
-                    y_reached=np.array(out.z, copy=True) if out.z is y0_native else out.z,
+    return Solution(tarr, y, stats, out.status, out.message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
+                    y_reached=np.array(out.z, copy=True) if out.z is call.y0_native else out.z,
                     events=_event_records(user_events, sinks, engine, out, event_info, prec, ps.dimension)
                     if user_events else None)
 
