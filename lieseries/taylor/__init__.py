@@ -28,7 +28,7 @@ from ..poisson import as_poisson_system
 from ..precision import (check_callable, check_count, check_flag, check_progress, check_seconds, check_tolerance,
                          to_fraction)
 from .call import CALLS, DEFAULT_KEY_TAIL, KEY_SCALARS, Call, call_key
-from .dense import DenseOutput  # noqa: F401 - pickles name it here
+from .dense import DenseOutput  # noqa: F401 - pickles made before the split name it here
 from .general import execute_general
 from .plain import execute, execute_plain, plain_setup
 from .plan import (
