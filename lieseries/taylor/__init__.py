@@ -201,21 +201,30 @@ def _integrate(
         model = system if isinstance(system, Model) else None
         z0 = model.check_state(y0, "y0") if model is not None else state_fractions(y0, ps.dimension, "y0")
         warned = warn_coarse_inputs(ps, y0, [t, t0], prec.bits)
-        user_events = resolve_events(events, system, ps)
-        plan = make_plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events, max_time)
-        call = Call(
-            system=system, y0=y0, ps=ps, prec=prec, plan=plan, user_events=user_events,
-            y0_native=y0.native(prec) if type(y0) is ExactState else prec.array(z0, "y0"),
-            pars_native=ps.native_parameters(prec) if ps.parameter_values else None,
-            max_steps=max_steps, stiff_steps=min(max_steps, STIFF_STEPS) if default_budget else max_steps,
-            max_time=max_time, min_step=min_step, dense=dense, dtype=prec.numpy_dtype,
-            first_chunk=FIRST_CHUNK.get(prec.name, FIRST_CHUNK_REAL),
-        )
-        call.repeat_chunk = repeat_chunk(prec, plan["build"][0], call.first_chunk)
-        plain_setup(call)
+        call = _new_call(system, ps, prec, y0, z0, t, t0, tol, events, dense, compact_mode, high_accuracy,
+                         max_steps=max_steps, stiff_steps=min(max_steps, STIFF_STEPS) if default_budget else max_steps,
+                         max_time=max_time, min_step=min_step)
         if key is not None and not warned:
             CALLS.put(key, call)
     return execute(call, progress)
+
+
+def _new_call(system, ps, prec, y0, z0, t, t0, tol, events, dense, compact_mode, high_accuracy, *, max_steps,
+              stiff_steps, max_time, min_step):
+    """A new :class:`~lieseries.taylor.call.Call` of checked arguments (``z0``: the exact state, the budgets
+    checked), with its plan and its plain path set up."""
+    user_events = resolve_events(events, system, ps)
+    plan = make_plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events, max_time)
+    call = Call(
+        system=system, y0=y0, ps=ps, prec=prec, plan=plan, user_events=user_events,
+        y0_native=y0.native(prec) if type(y0) is ExactState else prec.array(z0, "y0"),
+        pars_native=ps.native_parameters(prec) if ps.parameter_values else None,
+        max_steps=max_steps, stiff_steps=stiff_steps, max_time=max_time, min_step=min_step, dense=dense,
+        dtype=prec.numpy_dtype, first_chunk=FIRST_CHUNK.get(prec.name, FIRST_CHUNK_REAL),
+    )
+    call.repeat_chunk = repeat_chunk(prec, plan["build"][0], call.first_chunk)
+    plain_setup(call)
+    return call
 
 
 integrate.__signature__ = inspect.signature(_integrate)  # help() and introspection see the options
