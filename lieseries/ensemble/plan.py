@@ -143,13 +143,13 @@ def warn_coarse(prec: Precision, inputs, systems) -> None:
             # a numeric array keeps its dtype (a float32 0.1 carries 24 bits, the double it widens to looks exact)
             arr = values if isinstance(values, np.ndarray) and values.dtype != object else np.asarray(values,
                                                                                                      dtype=object)
-            warn_if_coarse(data_bits(arr), prec.bits, name, stacklevel=6)
+            warn_if_coarse(data_bits(arr), prec.bits, name)
     seen = set()
     for s in systems:
         for name, bits in as_poisson_system(s).coarse_data().items():
             if name not in seen and bits is not None and bits < prec.bits:
                 seen.add(name)
-                warn_if_coarse(bits, prec.bits, name, stacklevel=6)
+                warn_if_coarse(bits, prec.bits, name)
 
 
 def member_parameters(model, ps, params, members, k):

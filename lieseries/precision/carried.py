@@ -14,6 +14,7 @@ from fractions import Fraction
 import heyoka as hy
 import numpy as np
 
+from ..caller import stacklevel
 from .conversions import bits_to_dps, to_fraction
 from .formats import precision_of_dtype, resolve_precision
 
@@ -200,7 +201,7 @@ def _leaves(values):
         yield values
 
 
-def warn_if_coarse(bits, work_bits: int, argname: str, *, stacklevel: int = 3) -> None:
+def warn_if_coarse(bits, work_bits: int, argname: str) -> None:
     """Emit one :class:`PrecisionWarning` when data carrying ``bits`` bits feed a run at ``work_bits`` bits."""
     if bits is None or bits >= work_bits:
         return
@@ -226,5 +227,5 @@ def warn_if_coarse(bits, work_bits: int, argname: str, *, stacklevel: int = 3) -
         f"decimals you may have meant, and agrees with the intended problem to about {bits_to_dps(bits)} digits "
         f"only. {how}",
         PrecisionWarning,
-        stacklevel=stacklevel,
+        stacklevel=stacklevel(),
     )

@@ -125,7 +125,7 @@ def infer_precision(precision, y0) -> Precision:
     return resolve_precision("double")
 
 
-def warn_coarse_inputs(ps, y0, times, work_bits: int, *, stacklevel: int = 4) -> bool:
+def warn_coarse_inputs(ps, y0, times, work_bits: int) -> bool:
     """One :class:`~lieseries.precision.PrecisionWarning` per input that carries fewer bits than the run uses
     (``times`` is ``(t, t0)``, each named on its own). True when there was one."""
     if work_bits <= 53 and data_bits(y0) is None:
@@ -136,7 +136,7 @@ def warn_coarse_inputs(ps, y0, times, work_bits: int, *, stacklevel: int = 4) ->
         coarse += [(bits, name) for name, bits in ps.coarse_data().items()]
     coarse = [(bits, name) for bits, name in coarse if bits is not None and bits < work_bits]
     for bits, name in coarse:
-        warn_if_coarse(bits, work_bits, name, stacklevel=stacklevel)
+        warn_if_coarse(bits, work_bits, name)
     return bool(coarse)
 
 
