@@ -22,7 +22,7 @@ Modules
 from .bounds import (MAX_BITS, MAX_DIGITS, MAX_DPS, MAX_EXPONENT, MAX_ORDER, MAX_SAMPLES, MAX_TIME_MAGNITUDE,
                      MIN_DPS)
 from .carried import (EXACT_BITS, EXACT_STATE_BITS, BinaryFraction, CarriedBits, PrecisionWarning, binary_inputs,
-                      carried_bits, data_bits, exact_states_read_at, state_bits, warn_if_coarse)
+                      carried_bits, data_bits, exact_states_read_at, infer_precision, state_bits, warn_if_coarse)
 from .checks import (check_callable, check_count, check_dps, check_flag, check_order, check_progress, check_seconds,
                      check_time, check_tolerance)
 from .conversions import bits_to_dps, dps_to_bits, short_decimal, to_fraction, to_mpf, to_raw
@@ -76,4 +76,5 @@ __all__ = [
     "check_seconds",
     "NamedValues",
     "precision_of_dtype",
+    "infer_precision",
 ]

@@ -201,6 +201,41 @@ def _leaves(values):
         yield values
 
 
+def infer_precision(precision, y0, argname: str = "y0"):
+    """The precision of a heyoka run: ``precision`` when given, else the format of the data ``y0`` (one state or
+    the rows of an ensemble).
+
+    A numeric array runs in its dtype's format; an :class:`~lieseries.models.base.ExactState`, ints, Fractions,
+    strings and floats in double; heyoka.real entries in their bits, real128 in quad, long double scalars in long
+    double (where it is wider than double). mpmath numbers carry no format: refused, naming ``precision=`` (read
+    as double, a 100-digit mpf would lose its digits silently).
+    """
+    if precision is not None:
+        return resolve_precision(precision)
+    if getattr(y0, "exact", None) is not None:
+        return resolve_precision("double")
+    prec = precision_of_dtype(y0.dtype) if isinstance(y0, np.ndarray) and y0.dtype != object else None
+    if prec is not None:
+        return prec  # (an array of heyoka.real has a dtype of no fixed precision: its entries say)
+    try:
+        flat = np.asarray(y0, dtype=object).ravel()
+    except ValueError:  # ragged rows: the run's own checks say what is wrong
+        return resolve_precision("double")
+    first = flat[0] if flat.size else None
+    if isinstance(first, hy.real):
+        return resolve_precision(int(first.prec), argname)
+    if isinstance(first, hy.real128):
+        return resolve_precision("quad")
+    if isinstance(first, np.longdouble) and np.finfo(np.longdouble).nmant > 52:
+        return resolve_precision("long double")
+    if any(hasattr(ty, "_mpf_") for ty in set(map(type, flat))):
+        raise ValueError(
+            f"`{argname}` holds mpmath numbers, which carry no precision of their own: pass `precision=` ('double', "
+            "'long double', 'quad' or a number of bits)"
+        )
+    return resolve_precision("double")
+
+
 def warn_if_coarse(bits, work_bits: int, argname: str) -> None:
     """Emit one :class:`PrecisionWarning` when data carrying ``bits`` bits feed a run at ``work_bits`` bits."""
     if bits is None or bits >= work_bits:

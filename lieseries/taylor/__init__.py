@@ -26,7 +26,7 @@ from ..heyoka_build import build_integrator, integrator_count
 from ..models.base import ExactState, Model, state_fractions
 from ..poisson import as_poisson_system
 from ..precision import (check_callable, check_count, check_flag, check_progress, check_seconds, check_tolerance,
-                         to_fraction)
+                         infer_precision, to_fraction)
 from .call import CALLS, DEFAULT_KEY_TAIL, KEY_SCALARS, Call, call_key
 from .dense import DenseOutput  # noqa: F401 - pickles made before the split name it here
 from .general import execute_general
@@ -36,7 +36,6 @@ from .plan import (
     FIRST_CHUNK,
     FIRST_CHUNK_REAL,
     STIFF_STEPS,
-    infer_precision,
     make_plan,
     repeat_chunk,
     warn_coarse_inputs,

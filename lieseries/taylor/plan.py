@@ -25,8 +25,6 @@ from ..precision import (
     Precision,
     check_tolerance,
     data_bits,
-    precision_of_dtype,
-    resolve_precision,
     to_fraction,
     warn_if_coarse,
 )
@@ -95,34 +93,6 @@ def make_plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_ev
     if key is not None:
         _PLANS.put(key, (system, plan))
     return plan
-
-
-def infer_precision(precision, y0) -> Precision:
-    """The run's precision: ``precision`` when given, else the precision of ``y0``'s format.
-
-    A float64 array, an :class:`~lieseries.models.base.ExactState` or plain Python numbers run in double; a
-    long double, real128 or heyoka.real array in its own precision. mpmath numbers carry no format: they need an
-    explicit ``precision``.
-    """
-    if precision is not None:
-        return resolve_precision(precision)
-    if getattr(y0, "exact", None) is not None:
-        return resolve_precision("double")
-    arr = y0 if isinstance(y0, np.ndarray) else np.asarray(y0, dtype=object)
-    prec = precision_of_dtype(arr.dtype) if arr.dtype != object else None
-    if prec is not None:
-        return prec
-    flat = arr.ravel()
-    if flat.size and isinstance(flat[0], hy.real):
-        return resolve_precision(int(flat[0].prec), "y0")
-    if flat.size and isinstance(flat[0], hy.real128):
-        return resolve_precision("quad")
-    if any(hasattr(v, "_mpf_") for v in flat):
-        raise ValueError(
-            "`y0` holds mpmath numbers, which carry no precision of their own: pass `precision=` ('double', "
-            "'long double', 'quad' or a number of bits)"
-        )
-    return resolve_precision("double")
 
 
 def warn_coarse_inputs(ps, y0, times, work_bits: int) -> bool:
