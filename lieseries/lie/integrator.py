@@ -35,6 +35,7 @@ from fractions import Fraction
 
 import numpy as np
 
+from ..caller import stacklevel
 from ..driver import StepResult, Stop, drive, energy_guard
 from ..events import resolve_events
 from ..poisson import as_poisson_system
@@ -386,7 +387,7 @@ def _warn_slow_order(N, N_auto, nrm, tol_abs, rho, span):
             f"{mp.nstr(steps_fixed, 2)} steps instead of about {mp.nstr(steps_auto, 2)}. Leave `order` out unless "
             "you study the order itself.",
             UserWarning,
-            stacklevel=5,
+            stacklevel=stacklevel(),
         )
 
 
