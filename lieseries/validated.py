@@ -44,6 +44,7 @@ from .models.base import Model
 from .poisson import as_poisson_system
 from .precision import (
     VALIDATED_GUARD_BITS,
+    Precision,
     check_count,
     check_dps,
     check_order,
@@ -574,7 +575,7 @@ def _jet_stepper(ps, order, dps):
     run's precision (``dps`` + 10 digits: the ball arithmetic's 32 guard bits)."""
     from .lie.fixed import FixedStepper
 
-    return FixedStepper(ps.program, list(ps.parameter_values), order, dps + 10)
+    return FixedStepper(ps.program, list(ps.parameter_values), order, Precision.of(dps=dps, guard_digits=10))
 
 
 def _lohner_set(z, flint):

@@ -84,6 +84,19 @@ class Precision:
         return self.digits is not None
 
     @property
+    def working_dps(self) -> int:
+        """The decimal digits an mpmath engine works with: :attr:`dps` and the guard digits."""
+        return self.dps + self.guard_digits
+
+    @property
+    def working_bits(self) -> int:
+        """The bits an engine works with: what :attr:`working_dps` digits need (mpmath's rule) for a decimal
+        precision, :attr:`bits` and the guard digits' bits for a binary one; and the guard bits."""
+        if self.digits is not None:
+            return dps_to_bits(self.working_dps) + self.guard_bits
+        return self.bits + math.ceil(self.guard_digits * math.log2(10)) + self.guard_bits
+
+    @property
     def working_eps(self) -> float:
         """The unit round-off of the numbers the engine carries between steps: :attr:`eps` reduced by the guard
         digits and bits (the size of a perturbation an instability amplifies)."""
