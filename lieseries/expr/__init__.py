@@ -232,7 +232,3 @@ def compile_system(variables, rhs, npars=None):
         )
     return compile_expressions(variables, rhs, npars)
 
-
-#: The earlier names of :data:`PAR_RE` and :func:`compile_program` (:mod:`lieseries.lie.literal` reads them).
-_PAR_RE = PAR_RE
-_compile = compile_program
