@@ -189,7 +189,7 @@ def _initial_balls(system, y0, n, flint):
         raise ValueError(f"`y0` must have {n} entries; got {len(entries)}")
     # binary data (0.1 as a double) are enclosed at their binary values: say so when the run has more digits
     plain = [v for v in entries if not isinstance(v, (tuple, flint.arb))]
-    warn_if_coarse(data_bits(plain), flint.ctx.prec - GUARD_BITS, "y0", stacklevel=4)
+    warn_if_coarse(data_bits(plain), flint.ctx.prec - GUARD_BITS, "y0")
     balls, mids = [], []
     for i, v in enumerate(entries):
         if isinstance(v, arb):

@@ -25,6 +25,7 @@ import numpy as np
 
 from . import cache
 from .ball_series import Singular, check_ops, evaluate, exact_constant, taylor_coefficients
+from .precision import Precision
 
 __all__ = ["Centre", "centre_polynomial", "field_series", "defect_coefficients", "defect_terms",
            "defect_polynomials", "lagrange_majorant", "prove_step", "exp_times", "jacobian_program",
@@ -672,7 +673,7 @@ def jet_stepper(ps, order, dps):
     guard bits) is exact at their precision."""
     from .lie.fixed import FixedStepper
 
-    return FixedStepper(ps.program, list(ps.parameter_values), order, dps + JET_EXTRA_DPS)
+    return FixedStepper(ps.program, list(ps.parameter_values), order, Precision.of(dps=dps, guard_digits=JET_EXTRA_DPS))
 
 
 #: Digits of the centre's jets above the run's (:func:`jet_stepper`).

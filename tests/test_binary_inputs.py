@@ -137,3 +137,29 @@ def test_energy_check_compares_energies_in_the_working_format():
     assert sol.status == "success", sol.message
     diff = max(abs(ls.precision.to_fraction(a) - ls.precision.to_fraction(b)) for a, b in zip(sol.y[-1], ref.y[-1]))
     assert diff < Fraction(1, 2**225)
+
+
+def test_every_warning_names_the_callers_line():
+    """A warning names the user's line, whatever the path through the library (a fixed stacklevel named a line of
+    lieseries for ls.integrate, so `warnings.filterwarnings(module=...)` and the printed line pointed inside it)."""
+    body = ls.EulerPoisson(BODY)
+    y0 = body.initial_state(omega=(1, 0.1, 0.5))
+    not_rotation = np.array([1, 0, 0, 0, 1, 0, 0, 0, 2, 1, 0.2, 1.5])
+    calls = {
+        "integrate": lambda: ls.integrate(body, y0, t="0.1", precision="quad"),
+        "integrate, not a rotation": lambda: ls.integrate(body, not_rotation, t="0.1"),
+        "lie_integrate": lambda: ls.lie_integrate(body, y0, t="0.1", dps=40),
+        "lie_integrate, low order": lambda: ls.lie_integrate(body, body.initial_state((1, "0.1", "0.5")), t=20,
+                                                             dps=30, order=6, max_steps=1),
+        "validated_integrate": lambda: ls.validated_integrate(body, y0, t="0.05", dps=30),
+        "ensemble": lambda: ls.integrate(body, [y0, y0], t="0.1", precision="quad"),
+        "lie_series": lambda: ls.lie_series(body, y0, order=5, dps=40),
+        "closed form": lambda: exact.euler_poisson(BODY, (1, 0.1, 0.5), "0.1", dps=30),
+        "triangle inequality": lambda: ls.EulerPoisson((1, 1, 3)),
+    }
+    for what, call in calls.items():
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            call()
+        assert w, what
+        assert {x.filename for x in w} == {__file__}, (what, [(x.filename, x.lineno) for x in w])

@@ -14,6 +14,7 @@ import pytest
 import lieseries as ls
 from lieseries import exact
 from lieseries.lie import compile_system, fixed, taylor_coefficients
+from lieseries.precision import Precision
 
 from problems import RB_PARS, RB_Y0, mpf, nonlinear, rigid_body, rigid_error
 
@@ -48,6 +49,19 @@ def test_backend_switch():
             fixed.set_backend("float")
     finally:
         fixed.set_backend(before)
+
+
+def test_every_module_follows_the_backend(bigint):
+    """The integers of an expansion, of its evaluation and of its step builders are the backend's type just after
+    a switch (no module keeps the type it saw at import)."""
+    from lieseries.lie import bigint as big
+
+    Z = big.integer_type()
+    assert (Z is int) == (bigint == "int")
+    stepper = fixed.FixedStepper(compile_system(*rigid_body()), RB_PARS, 20, Precision.of(dps=30))
+    jets = stepper.expand([mp.mpf(v) for v in RB_Y0], 1)
+    assert {type(m) for row in jets.M for m in row} == {Z}
+    assert all(hasattr(v, "_mpf_") for v in jets.evaluate(jets.max_step / 2))
 
 
 @pytest.mark.parametrize("dps", [30, 50])
@@ -108,7 +122,7 @@ def every_op():
 
 @pytest.mark.parametrize("dps", [30, 60, 100])
 def test_every_instruction(bigint, dps):
-    # from fixed.PAIR_BITS (100 digits) on, Cauchy products pair their terms (half the multiplications)
+    # from bigint.PAIR_BITS (100 digits) on, Cauchy products pair their terms (half the multiplications)
     check(compile_system(*every_op()), ["0.25", "0.5", "0.75"], [Fraction(2, 7)], 30, dps, -2, 1)
     check(compile_system(*nonlinear()), ["0.5", "0.25", "0.75"], [Fraction(2, 7)], 30, dps, -2, 1)
 
@@ -200,7 +214,7 @@ def test_stepper_deadline(bigint):
     from lieseries.lie.jets import DeadlineExceeded
 
     prog = compile_system(*rigid_body())
-    stepper = fixed.FixedStepper(prog, RB_PARS, 60, 40)
+    stepper = fixed.FixedStepper(prog, RB_PARS, 60, Precision.of(dps=40))
     with pytest.raises(DeadlineExceeded):
         stepper.expand([mp.mpf(v) for v in [1, 0, 0, 0, 1, 0, 0, 0, 1, 1, "0.2", "1.5"]], 10,
                        deadline=perf_counter() - 1)

@@ -5,7 +5,7 @@ import mpmath as mp
 import numpy as np
 import pytest
 
-from lieseries.precision import bits_to_dps, dps_to_bits, resolve_precision, to_fraction, to_mpf
+from lieseries.precision import Precision, bits_to_dps, dps_to_bits, resolve_precision, to_fraction, to_mpf
 
 
 @pytest.mark.parametrize(
@@ -119,3 +119,12 @@ def test_a_grid_of_doubles_is_read_exactly_as_any_other_grid():
                      (np.array([-0.5, 1.0]), "starts before t0")):
         with pytest.raises(ValueError, match=msg):
             parse_times(bad)
+
+
+def test_working_digits_and_bits():
+    # what the engines work with: the Lie engine's guard digits, the validated engine's guard bits
+    lie = Precision.of(dps=50, guard_digits=10)
+    assert (lie.working_dps, lie.working_bits) == (60, mp.libmp.dps_to_prec(60))
+    arb = Precision.of(dps=50, guard_bits=32)
+    assert (arb.working_dps, arb.working_bits) == (50, mp.libmp.dps_to_prec(50) + 32)
+    assert Precision.of("quad").working_bits == 113

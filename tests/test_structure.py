@@ -74,7 +74,7 @@ def test_layers_point_one_way():
 #: The layers, lowest first: a module imports only from its own layer or the layers below it (lazy imports in
 #: functions included). Every module of the package is in exactly one layer (a new module must be placed here).
 LAYERS = [
-    ("utilities", {"progress", "interrupts", "formatting", "folder", "cache"}),
+    ("utilities", {"progress", "interrupts", "formatting", "folder", "cache", "caller"}),
     ("core", {"precision", "fields", "expr", "poisson", "solution", "events", "timegrid", "balls", "models"}),
     ("engines", {"energy", "atlas", "ensemble", "taylor", "heyoka_build", "lie", "ball_series", "exact", "validated",
                  "validated_step", "driver"}),

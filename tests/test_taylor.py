@@ -442,7 +442,7 @@ def test_repeated_plain_calls_match_the_general_path_and_the_reference(problem, 
         def general_path(*args):
             raise AssertionError("the repeated call took the general path")
 
-        monkeypatch.setattr(taylor, "_execute_general", general_path)
+        monkeypatch.setattr(taylor.plain, "execute_general", general_path)
         sol = ls.integrate(model, y0, t=t, **options)
         check(sol)
         assert sol.y.tobytes() == general.y.tobytes()
@@ -486,11 +486,11 @@ def test_repeated_call_skips_the_energy_check_only_on_the_bits_it_passed(monkeyp
     body = ls.EulerPoisson((1, 2, 3))
     y0 = body.initial_state(omega=(1, "0.1", "0.5"))
     first = ls.integrate(body, y0, t=2.0)
-    call = taylor._CALLS.get((id(body), id(y0), 2.0, float) + taylor._DEFAULT_KEY_TAIL)
+    call = taylor.call.CALLS.get((id(body), id(y0), 2.0, float) + taylor.call.DEFAULT_KEY_TAIL)
     assert first.success and call is not None and call.plain
     checked = []
     call.quick = (lambda check: lambda y, steps: checked.append(steps) or check(y, steps))(
-        call.quick or taylor._quick_energy(call))
+        call.quick or taylor.plain.quick_energy(call))
     call.passed = None
     for _ in range(3):
         sol = ls.integrate(body, y0, t=2.0)
@@ -506,7 +506,8 @@ def test_repeated_call_skips_the_energy_check_only_on_the_bits_it_passed(monkeyp
     assert len(checked) == 3
     # an end state the check stops (the stored bits of a passed run stand for it): reported, not skipped
     call.quick = lambda y, steps: False
-    monkeypatch.setattr(taylor, "energy_verdict", lambda *a: ("invariant_drift", "drift."))
+    for path in (taylor.plain, taylor.general):  # the plain path's check, and the general path it hands on to
+        monkeypatch.setattr(path, "energy_verdict", lambda *a: ("invariant_drift", "drift."))
     call.passed = (bytes(end), passed[1])
     assert ls.integrate(body, y0, t=2.0).status == "invariant_drift"
 

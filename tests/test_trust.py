@@ -121,6 +121,33 @@ def test_precision_left_out_runs_at_the_precision_of_y0(precision, dtype_of):
         ls.integrate(body, [mp.mpf(v) for v in np.asarray(y0, float)], t=1)
 
 
+def test_a_single_run_and_an_ensemble_read_the_precision_of_the_same_data_alike():
+    """Rows of mpf numbers are refused in an ensemble as in a single run (they ran in double, a 60-digit mpf
+    losing its digits without a word), and long double scalars run in long double in both (a single run read them
+    as double)."""
+    body = ls.EulerPoisson(INERTIA)
+    with mp.workdps(60):
+        rows = [mp.mpf(v) for v in exact.euler_poisson(INERTIA, OMEGA, 0, dps=60)]
+    for y in (rows, [rows, rows]):
+        with pytest.raises(ValueError, match="`y0` holds mpmath numbers.*`precision=`"):
+            ls.integrate(body, y, t=1)
+    # the rows of 160-bit heyoka.real states stacked in one array (its dtype has no fixed precision) ran in
+    # double
+    y160 = np.asarray(body.initial_state(omega=OMEGA, precision=160))
+    ens = ls.integrate(body, np.stack([y160, y160]), t=5)
+    assert ens.stats["precision"] == "real160" and body_error(ens.y[1, -1], 5) < 1e-40
+    if np.finfo(np.longdouble).nmant > 52:
+        dyadic = (1, "0.5", "0.25")  # omega whose state is exact in binary: the run's error is its own
+        y0 = [np.longdouble(v) for v in np.asarray(body.initial_state(omega=dyadic), dtype=float)]
+        single, ens = ls.integrate(body, y0, t=5), ls.integrate(body, [y0, y0], t=5)
+        assert single.stats.precision == ens.stats["precision"] == "long double"
+        ref = exact.euler_poisson(INERTIA, dyadic, 5, dps=30)
+        for y in (single.y_final, ens.y[1, -1]):
+            assert np.asarray(y).dtype == np.longdouble
+            err = max(abs(mp.mpf(to_fraction(a).numerator) / to_fraction(a).denominator - b) for a, b in zip(y, ref))
+            assert err < 1e-16  # long double's 1e-19 steps; a double run is 1e-15 off here
+
+
 def test_lie_estimates_never_claim_more_digits_than_the_data():
     body = ls.EulerPoisson(INERTIA)
     y0 = np.asarray(body.initial_state(omega=OMEGA), dtype=float)

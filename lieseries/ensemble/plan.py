@@ -8,14 +8,13 @@ import copy
 import numbers
 import re
 
-import heyoka as hy
 import numpy as np
 
 from ..events import resolve_events
 from ..models.base import Model, state_fractions
 from ..poisson import PoissonSystem, as_poisson_system
-from ..precision import (Precision, check_flag, check_tolerance, data_bits, precision_of_dtype, resolve_precision,
-                         to_fraction, warn_if_coarse)
+from ..precision import (Precision, check_flag, check_tolerance, data_bits, infer_precision, to_fraction,
+                         warn_if_coarse)
 from ..timegrid import parse_times
 from .build import check_batch_size
 
@@ -110,26 +109,6 @@ def exact_rows(Y0):
     return Y0
 
 
-def infer_precision(precision, Y0) -> Precision:
-    """``precision``, or when it is None the precision of the data (as a single run): the dtype of a numeric
-    array, the type of heyoka.real / real128 / long double entries, else double."""
-    if precision is not None:
-        return resolve_precision(precision)
-    if isinstance(Y0, np.ndarray) and Y0.dtype != object:
-        return precision_of_dtype(Y0.dtype) or resolve_precision("double")
-    try:
-        first = np.asarray(Y0, dtype=object).ravel()[0]
-    except (ValueError, IndexError):
-        return resolve_precision("double")
-    if isinstance(first, hy.real):
-        return resolve_precision(int(first.prec))
-    if isinstance(first, hy.real128):
-        return resolve_precision("quad")
-    if isinstance(first, np.longdouble) and np.finfo(np.longdouble).nmant > 52:
-        return resolve_precision("long double")
-    return resolve_precision("double")
-
-
 def warn_coarse(prec: Precision, inputs, systems) -> None:
     """One :class:`~lieseries.precision.PrecisionWarning` per input (``(name, values)``: Y0, params, t, t0) or
     model parameter that carries fewer bits than the run (binary doubles in a run of more bits), as a single run
@@ -143,13 +122,13 @@ def warn_coarse(prec: Precision, inputs, systems) -> None:
             # a numeric array keeps its dtype (a float32 0.1 carries 24 bits, the double it widens to looks exact)
             arr = values if isinstance(values, np.ndarray) and values.dtype != object else np.asarray(values,
                                                                                                      dtype=object)
-            warn_if_coarse(data_bits(arr), prec.bits, name, stacklevel=6)
+            warn_if_coarse(data_bits(arr), prec.bits, name)
     seen = set()
     for s in systems:
         for name, bits in as_poisson_system(s).coarse_data().items():
             if name not in seen and bits is not None and bits < prec.bits:
                 seen.add(name)
-                warn_if_coarse(bits, prec.bits, name, stacklevel=6)
+                warn_if_coarse(bits, prec.bits, name)
 
 
 def member_parameters(model, ps, params, members, k):
@@ -245,7 +224,7 @@ def plan_ensemble(system, Y0, t, *, tol, precision, t0, params, workers, client,
     ps = as_poisson_system(structure)
     model = structure if isinstance(structure, Model) else None
     Y0 = exact_rows(Y0)
-    prec = infer_precision(precision, Y0)
+    prec = infer_precision(precision, Y0, "y0")
     # the output: k members x n values per time (hy.real: an object of ~48 bytes plus its limbs)
     members_k = len(Y0) if hasattr(Y0, "__len__") else 1
     grid, direction, t0f = parse_times(t, t0, values_per_time=max(1, members_k) * ps.dimension,

@@ -103,7 +103,7 @@ def to_real(x, name):
         raise TypeError(f"`{name}` must contain real numbers, not booleans; got {x!r}")
     if isinstance(x, numbers.Real) and not isinstance(x, (numbers.Rational, decimal.Decimal)) or hasattr(x, "_mpf_"):
         # the caller works GUARD_DIGITS above the digits asked for
-        warn_if_coarse(carried_bits(x), mp_context().prec - dps_to_bits(GUARD_DIGITS), name, stacklevel=5)
+        warn_if_coarse(carried_bits(x), mp_context().prec - dps_to_bits(GUARD_DIGITS), name)
     if isinstance(x, (str, float, decimal.Decimal, fractions.Fraction, numbers.Integral)) or hasattr(x, "_mpf_"):
         return to_mpf(x, name, ctx=mp_context())
     if isinstance(x, numbers.Rational):

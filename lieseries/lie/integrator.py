@@ -35,11 +35,13 @@ from fractions import Fraction
 
 import numpy as np
 
+from ..caller import stacklevel
 from ..driver import StepResult, Stop, drive, energy_guard
 from ..events import resolve_events
 from ..poisson import as_poisson_system
 from ..precision import (
     MAX_ORDER,
+    Precision,
     check_progress,
     check_count,
     check_dps,
@@ -128,7 +130,8 @@ def lie_integrate(
     """
     from .fixed import FixedStepper
 
-    dps = check_dps(dps)
+    prec = _precision(dps, guard)
+    dps = prec.dps
     user_events_arg = events
     max_steps = check_count(max_steps, "max_steps")
     max_time = check_seconds(max_time, "max_time")
@@ -138,50 +141,25 @@ def lie_integrate(
     if atlas:
         from ..atlas import run_atlas
 
-        coarse_bits(as_poisson_system(system), y0, dps_to_bits(dps), times=[t, t0])
-        return run_atlas(lie_integrate, system, y0, t, t0=t0, bits=dps_to_bits(dps + guard), dense=dense,
+        coarse_bits(as_poisson_system(system), y0, prec.bits, times=[t, t0])
+        return run_atlas(lie_integrate, system, y0, t, t0=t0, bits=prec.working_bits, dense=dense,
                          energy_tol=tol if tol is not None else Fraction(1, 10**dps),
                          dps=dps, tol=tol, order=order, max_steps=max_steps, max_time=max_time, guard=guard,
                          progress=progress, events=events)
-    if isinstance(guard, bool) or not isinstance(guard, int) or guard < 0:
-        raise ValueError(f"`guard` must be a non-negative number of digits; got {guard!r}")
-    wdps = dps + guard
     ps, model, z0, pars = prepare(system, y0)
     grid, direction, t0f = parse_times(t, t0, max_time=max_time, values_per_time=ps.dimension,
-                                       bytes_per_value=64 + dps_to_bits(wdps) // 8)  # rows of mpf
-    with mp.workdps(wdps):
-        if tol is None:
-            tolm = mp.mpf(10) ** (-dps)
-        else:
-            tf = to_fraction(tol, "tol")
-            if tf <= 0:
-                raise ValueError(f"`tol` must be positive; got {float(tf)}")
-            if tf >= 1:
-                raise ValueError(f"`tol` must be below 1; got {tol!r}")
-            tolm = to_mpf(tf, ctx=mp_context())
-            if tolm < mp.mpf(10) ** (-(dps + guard)):
-                raise ValueError(
-                    f"`tol` = {mp.nstr(tolm, 3)} is below what {dps} digits (+{guard} guard) can resolve; "
-                    f"raise `dps` to at least {int(-mp.log10(tolm)) + 1}"
-                )
-    N_auto = default_order(tolm)
-    if order is None and N_auto > MAX_ORDER:
-        source = f"`tol` = {mp.nstr(tolm, 3)}" if tol is not None else f"`dps` = {dps}"
-        raise ValueError(
-            f"{source} asks for the automatic series order {N_auto} (ceil(-ln(tol) / 2) + 1), above the largest "
-            f"order {MAX_ORDER}: pass `order` (at most {MAX_ORDER}: shorter steps reach the same accuracy), or "
-            f"ask for fewer digits (the automatic order stays within {MAX_ORDER} up to `dps` = "
-            f"{_largest_auto_dps()})"
-        )
-    N = N_auto if order is None else check_order(order)
-    bits = coarse_bits(ps, y0, dps_to_bits(dps), times=[t, t0])
+                                       bytes_per_value=64 + prec.working_bits // 8)  # rows of mpf
+    tolm = _tolerance(tol, prec)
+    N, N_auto = _series_order(order, tolm, tol, dps)
+    bits = coarse_bits(ps, y0, prec.bits, times=[t, t0])
 
-    stepper = FixedStepper(ps.program, pars, N, wdps)  # the jets in fixed-point big integers
+    stepper = FixedStepper(ps.program, pars, N, prec)  # the jets in fixed-point big integers
     start = _time.perf_counter()
     user_events = resolve_events(user_events_arg, system, ps)
+    wdps = prec.working_dps
     with mp.workdps(wdps):
         engine = _LieEngine(stepper, N, N_auto if order is not None else None, tolm, wdps, bits,
-                            1 if direction >= 0 else -1, _event_checks(model, ps, wdps),
+                            1 if direction >= 0 else -1, _event_checks(model, ps),
                             _UserEvents(user_events, ps, pars) if user_events else None,
                             None if max_time is None else start + max_time, dense)
         z = [to_mpf(v, ctx=mp_context()) for v in z0]
@@ -191,26 +169,75 @@ def lie_integrate(
                     max_steps=max_steps, max_time=max_time, start=start, progress=progress,
                     kept="The rows up to this time are kept.",
                     # the energy guard of every run: H at the end against H(y0) (lieseries.energy.drift_threshold)
-                    guard=lambda out: energy_guard(out, ps, z0, export_mpf(list(out.z)), dps_to_bits(wdps), tolm))
-        # y_reached keeps the guard digits: a run continued from it (an atlas chart change) loses nothing
-        y_reached = export_mpf(np.array(list(out.z), dtype=object))
-        t_reached = to_fraction(out.t)
-        prec = dps_to_bits(dps)
-        y_rows = [export_mpf(np.array(row, dtype=object), prec) for row in out.rows_y]
+                    guard=lambda out: energy_guard(out, ps, z0, export_mpf(list(out.z)), prec.working_bits, tolm))
+        return _solution(out, engine, prec, tolm, N, bits, grid, ps.dimension, dense)
+
+
+def _solution(out, engine, prec, tolm, N, bits, grid, n, dense) -> Solution:
+    """The run's :class:`Solution` from the driver's outcome (in the working precision's context): rows rounded
+    to ``prec``'s digits, the reached state with its guard digits (a run continued from it, an atlas chart change,
+    loses nothing)."""
+    y_reached = export_mpf(np.array(list(out.z), dtype=object))
+    y_rows = [export_mpf(np.array(row, dtype=object), prec.bits) for row in out.rows_y]
     extra = {"data_bits": bits}
     if engine.max_ratio is not None:
         extra["max_step_over_radius"] = engine.max_ratio
     nsteps = out.steps
-    stats = Stats(method="lie series (mpmath)", precision=f"{dps} dps", tol=float(tolm), order=N, steps=nsteps,
+    stats = Stats(method="lie series (mpmath)", precision=f"{prec.dps} dps", tol=float(tolm), order=N, steps=nsteps,
                   run_time=out.run_time, min_step=float(out.hmin) if nsteps else float("nan"),
                   max_step=float(out.hmax) if nsteps else float("nan"), error_estimates=tuple(out.estimates),
                   extra=extra)
-    y = np.stack(y_rows) if y_rows else np.empty((0, ps.dimension), dtype=object)
+    y = np.stack(y_rows) if y_rows else np.empty((0, n), dtype=object)
     tarr = np.array([float(v) for v in out.rows_t])
-    dense_fn = _Dense(engine.segments, dps, engine.sgn) if dense else None
+    dense_fn = _Dense(engine.segments, prec.dps, engine.sgn) if dense else None
     user = engine.user
-    return Solution(tarr, y, stats, out.status, out.message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
-                    y_reached=y_reached, events=user.records(dps, ps.dimension) if user is not None else None)
+    return Solution(tarr, y, stats, out.status, out.message, t_reached=to_fraction(out.t), dense=dense_fn,
+                    t_requested=grid, y_reached=y_reached,
+                    events=user.records(prec.bits, n) if user is not None else None)
+
+
+def _precision(dps, guard) -> Precision:
+    """The run's precision: ``dps`` digits and ``guard`` guard digits, checked."""
+    dps = check_dps(dps)
+    if isinstance(guard, bool) or not isinstance(guard, int) or guard < 0:
+        raise ValueError(f"`guard` must be a non-negative number of digits; got {guard!r}")
+    return Precision.of(dps=dps, guard_digits=guard)
+
+
+def _tolerance(tol, prec):
+    """The step tolerance as an mpf at the working digits: 10**-dps by default, else ``tol`` checked (in (0, 1),
+    and within what the working digits resolve)."""
+    dps, guard = prec.dps, prec.guard_digits
+    with mp.workdps(prec.working_dps):
+        if tol is None:
+            return mp.mpf(10) ** (-dps)
+        tf = to_fraction(tol, "tol")
+        if tf <= 0:
+            raise ValueError(f"`tol` must be positive; got {float(tf)}")
+        if tf >= 1:
+            raise ValueError(f"`tol` must be below 1; got {tol!r}")
+        tolm = to_mpf(tf, ctx=mp_context())
+        if tolm < mp.mpf(10) ** (-(dps + guard)):
+            raise ValueError(
+                f"`tol` = {mp.nstr(tolm, 3)} is below what {dps} digits (+{guard} guard) can resolve; "
+                f"raise `dps` to at least {int(-mp.log10(tolm)) + 1}"
+            )
+        return tolm
+
+
+def _series_order(order, tolm, tol, dps):
+    """(the order of the steps, the automatic order for ``tolm``): ``order`` checked, or the automatic one (at
+    most MAX_ORDER)."""
+    N_auto = default_order(tolm)
+    if order is None and N_auto > MAX_ORDER:
+        source = f"`tol` = {mp.nstr(tolm, 3)}" if tol is not None else f"`dps` = {dps}"
+        raise ValueError(
+            f"{source} asks for the automatic series order {N_auto} (ceil(-ln(tol) / 2) + 1), above the largest "
+            f"order {MAX_ORDER}: pass `order` (at most {MAX_ORDER}: shorter steps reach the same accuracy), or "
+            f"ask for fewer digits (the automatic order stays within {MAX_ORDER} up to `dps` = "
+            f"{_largest_auto_dps()})"
+        )
+    return (N_auto if order is None else check_order(order)), N_auto
 
 
 class _LieEngine:
@@ -360,7 +387,7 @@ def _warn_slow_order(N, N_auto, nrm, tol_abs, rho, span):
             f"{mp.nstr(steps_fixed, 2)} steps instead of about {mp.nstr(steps_auto, 2)}. Leave `order` out unless "
             "you study the order itself.",
             UserWarning,
-            stacklevel=5,
+            stacklevel=stacklevel(),
         )
 
 
@@ -480,15 +507,15 @@ class _UserEvents:
             return None
         return tau
 
-    def records(self, dps, n):
-        prec = dps_to_bits(dps)
+    def records(self, prec, n):
+        """The crossings found, rounded to ``prec`` bits."""
         return {name: {"t": np.array([export_mpf(t, prec) for t, _ in hits], dtype=object),
                        "y": (np.stack([export_mpf(np.array(y, dtype=object), prec) for _, y in hits]) if hits
                              else np.empty((0, n), dtype=object))}
                 for name, hits in self.found.items()}
 
 
-def _event_checks(model, ps, wdps):
+def _event_checks(model, ps):
     """The model's terminal events as (program, initial-sign placeholder, status, message)."""
     if model is None:
         return []

@@ -123,7 +123,7 @@ def _used_pars(sym_exprs):
     used = set()
     for s in sym_exprs:
         for f in s.free_symbols:
-            m = _expr._PAR_RE.match(f.name)
+            m = _expr.PAR_RE.match(f.name)
             if m:
                 used.add(int(m.group(1)))
     return used
@@ -214,7 +214,7 @@ def _literal_heyoka_values(names, rhs, y0, pars, order, dps):
     lie = lie_derivatives(names, rhs, [hy.expression(nm) for nm in names], order)
     flat = [e for level in lie for e in level]
     # one-shot and possibly huge: compiled without cse and outside the cache
-    prog = _expr._compile(names, flat, len(pars), False)
+    prog = _expr.compile_program(names, flat, len(pars), False)
     n = len(names)
     # explicit precision: mpmath's global context is never touched
     prec = mpmath.libmp.dps_to_prec(dps)

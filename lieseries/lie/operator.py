@@ -107,7 +107,7 @@ def _local(coefficients):
 def _times(t, dps):
     """(values, scalar): a real or complex time, or a sequence/array of them, in this thread's context (binary
     times with fewer bits than ``dps`` digits give a PrecisionWarning)."""
-    warn_if_coarse(data_bits(t), dps_to_bits(dps), "t", stacklevel=4)
+    warn_if_coarse(data_bits(t), dps_to_bits(dps), "t")
     if np.ndim(t) > 0 and not isinstance(t, str):
         vals = [_time(v, f"t[{i}]") for i, v in enumerate(np.asarray(t, dtype=object).ravel())]
         return vals, False
@@ -237,7 +237,7 @@ def lie_series(system, y0, order: int = 20, dps: int = 30) -> LieSeries:
     return LieSeries(coeffs, order, dps, ps.names, data_bits=bits)
 
 
-def coarse_bits(ps, y0, work_bits: int, *, times=(), stacklevel: int = 4):
+def coarse_bits(ps, y0, work_bits: int, *, times=()):
     """The least precision carried by ``y0`` and the system's data (None when exact), warning once per coarse
     input when it is below ``work_bits``; binary ``times`` (t, t0) below ``work_bits`` are warned about too (the
     run is exact for their binary values)."""
@@ -247,5 +247,5 @@ def coarse_bits(ps, y0, work_bits: int, *, times=(), stacklevel: int = 4):
     for name, value in zip(("t", "t0"), times):
         found[name] = data_bits(value)
     for name, b in found.items():
-        warn_if_coarse(b, work_bits, name, stacklevel=stacklevel)
+        warn_if_coarse(b, work_bits, name)
     return min(bits) if bits else None

@@ -10,6 +10,7 @@ import heyoka as hy
 from ..precision import thread_mp as mp
 import numpy as np
 
+from ..caller import stacklevel
 from ..poisson import PoissonSystem, as_poisson_system
 from ..solution import ChartRows, Solution, plain_ufunc
 from ..precision import (BinaryFraction, CarriedBits, PrecisionWarning, binary_inputs, bits_to_dps, carried_bits,
@@ -128,7 +129,7 @@ def make_state(values, precision=None, inputs=None):
             f"and agrees with the decimals you may have meant to about {bits_to_dps(low)} digits only; a run of more "
             "bits cannot tell. Pass them as strings ('0.1') or Fractions.",
             PrecisionWarning,
-            stacklevel=3,
+            stacklevel=stacklevel(),
         )
     return prec.array(values, "state")
 
@@ -175,7 +176,7 @@ def _warn_mixed_reals(arr, argname):
             f"{first[1]} bits: a run that takes its precision from `{argname}` works with {first[1]} bits and "
             f"rounds `{argname}[{longest[0]}]` to them. Give every entry the same precision, or pass `precision=`.",
             PrecisionWarning,
-            stacklevel=4,
+            stacklevel=stacklevel(),
         )
 
 

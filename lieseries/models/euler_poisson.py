@@ -27,6 +27,7 @@ import heyoka as hy
 from ..precision import thread_mp as mp
 import numpy as np
 
+from ..caller import stacklevel
 from ..poisson import PoissonSystem
 from ..precision import (binary_inputs, data_bits, export_mpf, resolve_precision, short_decimal, state_bits,
                          to_fraction)
@@ -203,7 +204,7 @@ class EulerPoisson(Model):
                 "physical body has them (the mass matrix g = tr(I)/2 - I has a negative entry). The equations are "
                 "integrated as given.",
                 UserWarning,
-                stacklevel=2,
+                stacklevel=stacklevel(),
             )
         if bracket not in ("chetaev", "intermediate"):
             raise ValueError(f"`bracket` must be 'chetaev' or 'intermediate'; got {bracket!r}")
@@ -353,7 +354,7 @@ class EulerPoisson(Model):
                     f"`{argname}` holds an R that is not a rotation: max |R R^T - 1| = {float(defect):.3g}, det R = "
                     f"{float(det):.17g}. The run keeps R R^T and det R, so it is not a rigid motion; start from "
                     "`model.initial_state(omega, R0)`, which checks R0, if you meant one.",
-                    stacklevel=3,
+                    stacklevel=stacklevel(),
                 )
         return z
 

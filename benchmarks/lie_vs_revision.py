@@ -1,0 +1,76 @@
+"""ls.lie_integrate of this checkout against the same call of an earlier git revision, alternated in one process.
+
+The revision's package is extracted (`git archive`) into a temporary folder under another name and imported beside
+this one; the rigid body I = (1, 2, 3), omega0 = (1, 0.1, 0.5) is integrated to T by each in turn (`--reps` pairs
+after one warm-up call each, the order of the pair alternating), and the ratio of each pair is printed with its
+range, on the process's CPU time by default. The final states are compared bit for bit.
+
+    .venv/bin/python benchmarks/lie_vs_revision.py main                 # 50 digits, this checkout against main
+    .venv/bin/python benchmarks/lie_vs_revision.py HEAD~3 --digits 50 100 --reps 9
+    LIESERIES_BIGINT=int .venv/bin/python benchmarks/lie_vs_revision.py main   # Python ints in both
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import statistics
+import subprocess
+import sys
+import tarfile
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import lieseries as ls  # noqa: E402
+
+
+def load_revision(rev: str, folder: Path):
+    """The package as it was at ``rev``, imported as ``lieseries_rev`` (its imports are relative)."""
+    archive = folder / "rev.tar"
+    subprocess.run(["git", "-C", str(ROOT), "archive", "-o", str(archive), rev, "lieseries"], check=True)
+    with tarfile.open(archive) as tar:
+        tar.extractall(folder / "x", filter="data")
+    (folder / "x" / "lieseries").rename(folder / "lieseries_rev")
+    sys.path.insert(0, str(folder))
+    return importlib.import_module("lieseries_rev")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("rev", help="the git revision to compare against (main, HEAD~3, a commit)")
+    ap.add_argument("--digits", type=int, nargs="+", default=[50])
+    ap.add_argument("--reps", type=int, default=7, help="alternated pairs per precision (default 7)")
+    ap.add_argument("--T", type=float, default=10)
+    ap.add_argument("--clock", choices=["wall", "cpu"], default="cpu")
+    args = ap.parse_args(argv)
+    clock = time.perf_counter if args.clock == "wall" else time.process_time
+    with tempfile.TemporaryDirectory() as tmp:
+        old = load_revision(args.rev, Path(tmp))
+        print(f"lie_integrate, rigid body to T = {args.T}: this checkout against {args.rev}; {args.clock} clock")
+        for dps in args.digits:
+            runs = {}
+            for name, pkg in (("rev", old), ("this", ls)):
+                body = pkg.EulerPoisson((1, 2, 3))
+                y0 = body.initial_state((1, "0.1", "0.5"))
+                runs[name] = (lambda pkg=pkg, body=body, y0=y0: pkg.lie_integrate(body, y0, t=args.T, dps=dps))
+            end = {name: run().y[-1] for name, run in runs.items()}  # warm-up
+            same = all(a == b for a, b in zip(end["rev"], end["this"]))
+            times = {"rev": [], "this": []}
+            for r in range(args.reps):
+                for name in (("rev", "this") if r % 2 == 0 else ("this", "rev")):
+                    t0 = clock()
+                    runs[name]()
+                    times[name].append(clock() - t0)
+            ratios = [b / a for a, b in zip(times["rev"], times["this"])]
+            print(f"  {dps} digits: {args.rev} {statistics.median(times['rev']):.4f} s, this "
+                  f"{statistics.median(times['this']):.4f} s; this / {args.rev} = {min(ratios):.3f} - "
+                  f"{max(ratios):.3f} (median {statistics.median(ratios):.3f}, {args.reps} alternated pairs); final "
+                  f"states {'bit-identical' if same else 'DIFFERENT'}")
+
+
+if __name__ == "__main__":
+    main()

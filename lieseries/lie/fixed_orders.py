@@ -1,0 +1,540 @@
+"""The fixed-point expansion (:mod:`lieseries.lie.fixed`): the jet plan's instructions prepared, the orders run.
+
+Order 0 runs the step functions of the plan's instructions (:mod:`lieseries.lie.fixed_steps`), which fix every
+exponent, shift and constant; the orders k >= 1 run as one generated Python function (:func:`_order_loop`, cached
+per structure) that writes the sums of products and the packed dot products out over local variables and calls
+the other steps.  Products sharing an operand are packed into one dot product up to :data:`_GMP_GROUP_BITS`
+(gmpy2) or :data:`_INT_GROUP_BITS` (Python ints) working bits, and computed separately, each once per order, above.
+"""
+
+from __future__ import annotations
+
+import weakref
+from operator import mul as _mul
+from time import perf_counter as _clock
+
+from mpmath.libmp import fzero, mpf_add, mpf_mul, mpf_sub
+
+from ..expr import RND
+from . import bigint
+from .bigint import div_round, eraw, to_int
+from .fixed_steps import (
+    Dots,
+    Run,
+    mk_atan,
+    mk_div,
+    mk_exp,
+    mk_lin,
+    mk_log,
+    mk_mul,
+    mk_pow,
+    mk_scale,
+    mk_sincos,
+    mk_sop,
+    mk_sqr,
+    mk_sqrt,
+    mk_tan,
+)
+from .jets import DeadlineExceeded, jet_plan
+
+def _cprod(cv, slots):
+    """The exact product of constant slots (None for none)."""
+    if not slots:
+        return None
+    r = cv[slots[0]]
+    for x in slots[1:]:
+        r = mpf_mul(r, cv[x])
+    return r
+
+
+def _arg_slots(ins):
+    """The slots an instruction reads."""
+    kind, out, args, extra = ins
+    if kind == "lin":
+        return [x for x, _ in args]
+    if kind == "sop":
+        return [x for a, b, *_ in args[0] for x in (a, b)] + [a for a, *_ in args[1]]
+    if kind == "dots":
+        return [args[0], *args[1]]
+    return list(args)
+
+
+def _use_counts(instrs, outputs) -> dict:
+    """How many times each slot is read: by the instructions, and once more for each output."""
+    used = {}
+    for ins in instrs:
+        for x in _arg_slots(ins):
+            used[x] = used.get(x, 0) + 1
+    for o in outputs:
+        used[o] = used.get(o, 0) + 1
+    return used
+
+
+#: Working precisions (bits) up to which products sharing an operand are packed into one dot product
+#: (:func:`_group`), with Python ints and with gmpy2: above them a packed product, half of whose bits are the
+#: fields' headroom, costs more than the separate products it replaces (gmpy2: 1.7 against 1.3 us per term
+#: at 800 bits, 18 against 10 at 3500 bits, 7 partners).
+_INT_GROUP_BITS = 400
+_GMP_GROUP_BITS = 1000
+
+
+def _group(instrs, enabled=True):
+    """Insert ``dots`` steps: the products of the ``sop`` steps that share an operand, computed together at the
+    first step that needs one of them (when both operands are computed by then); none when not ``enabled``."""
+    pos = {}
+    for i, ins in enumerate(instrs):
+        outs = ins[1] if isinstance(ins[1], tuple) else (ins[1],)
+        for o in outs:
+            pos[o] = i
+    count = {}
+    prods = []  # (consumer index, term index, a, b)
+    for i, ins in enumerate(instrs):
+        if ins[0] == "sop":
+            for t, (a, b, c, ng) in enumerate(ins[2][0]):
+                prods.append((i, t, a, b))
+                for x in {a, b}:
+                    count[x] = count.get(x, 0) + 1
+    groups = {}
+    for i, t, a, b in (prods if enabled else ()):
+        pv, pt = (a, b) if (count[a], -a) >= (count[b], -b) else (b, a)
+        groups.setdefault(pv, []).append((i, t, pt))
+    at = {}  # instruction index -> dots steps to run before it
+    keyed = {}
+    nkeys = 0
+    for pv, members in groups.items():
+        P = min(i for i, _, _ in members)
+        ready = [m for m in members if pos.get(pv, -1) < P and pos.get(m[2], -1) < P]
+        partners = list(dict.fromkeys(m[2] for m in ready))  # a product used twice is computed once
+        if len(partners) < 2:
+            continue
+        keys = tuple(range(nkeys, nkeys + len(partners)))
+        nkeys += len(partners)
+        key_of = dict(zip(partners, keys))
+        for i, t, pt in ready:
+            keyed[(i, t)] = key_of[pt]
+        at.setdefault(P, []).append(("dots", None, (pv, tuple(partners)), keys))
+    out = []
+    for i, ins in enumerate(instrs):
+        out.extend(at.get(i, ()))
+        if ins[0] == "sop":
+            prods_i = tuple((a, b, c, ng, keyed.get((i, t))) for t, (a, b, c, ng) in enumerate(ins[2][0]))
+            ins = ("sop", ins[1], (prods_i, ins[2][1]), ins[3])
+        out.append(ins)
+    return out, nkeys
+
+
+_FUSED = weakref.WeakKeyDictionary()  # jet plan -> its fused instructions
+
+
+def _fuse(plan):
+    """The plan's instructions with every lin whose terms are single-use products (possibly scaled by a
+    constant) or scaled slots turned into one ``sop`` instruction."""
+    uses = {}
+
+    def use(x):
+        uses[x] = uses.get(x, 0) + 1
+
+    for kind, out, args, extra in plan.instrs:
+        if kind == "lin":
+            for x, _ in args:
+                use(x)
+        else:
+            for x in args:
+                use(x)
+    for o in plan.outputs:
+        use(o)
+    producer = {}
+    for ins in plan.instrs:
+        kind, out = ins[0], ins[1]
+        if kind in ("mul", "sqr", "scale"):
+            producer[out] = ins
+    fused = set()
+    new = []
+
+    def unscale(a, b, cs, ng):
+        """A product term with scaled operands (c y) written as c (y * ...)."""
+        ops = []
+        for x in (a, b):
+            p = producer.get(x)
+            while p is not None and p[0] == "scale":
+                cs = cs + (p[3],)
+                x = p[2][0]
+                p = producer.get(x)
+            ops.append(x)
+        return ops[0], ops[1], cs, ng
+
+    for ins in plan.instrs:
+        kind, out, args, extra = ins
+        if kind != "lin":
+            new.append(ins)
+            continue
+        prods, lins = [], []
+        for v, ng in args:
+            p = producer.get(v) if uses.get(v) == 1 else None
+            if p is not None and p[0] == "scale":
+                inner = producer.get(p[2][0]) if uses.get(p[2][0]) == 1 else None
+                if inner is not None and inner[0] in ("mul", "sqr"):
+                    fused.update((v, inner[1]))
+                    a = inner[2][0]
+                    b = inner[2][1] if inner[0] == "mul" else a
+                    prods.append(unscale(a, b, (p[3],), ng))
+                else:
+                    fused.add(v)
+                    lins.append((p[2][0], (p[3],), ng))
+            elif p is not None and p[0] in ("mul", "sqr"):
+                fused.add(v)
+                a = p[2][0]
+                b = p[2][1] if p[0] == "mul" else a
+                prods.append(unscale(a, b, (), ng))
+            else:
+                lins.append((v, (), ng))
+        new.append(("sop", out, (tuple(prods), tuple(lins)), extra))
+    new = [ins for ins in new if ins[1] not in fused or ins[0] == "sop"]
+    # scalings whose every use moved into products are dropped
+    while True:
+        used = _use_counts(new, plan.outputs)
+        keep = [ins for ins in new if ins[0] != "scale" or used.get(ins[1])]
+        if len(keep) == len(new):
+            return new
+        new = keep
+
+
+
+# --------------------------------------------------------------------------
+# The expansion
+# --------------------------------------------------------------------------
+
+def _state_exponents(y0_raw):
+    es = [eraw(r) for r in y0_raw]
+    nz = [e for e in es if e is not None]
+    fallback = min(nz) if nz else 0
+    return [fallback if e is None else e for e in es]
+
+
+# --------------------------------------------------------------------------
+# The orders k >= 1 as one generated function
+# --------------------------------------------------------------------------
+
+_LOOPS = {}  # the structure of an expansion's orders -> its generated function
+
+
+def _order_loop(steps, deferred, rest, checked):
+    """(run, env): ``run(k0, order, deadline, env)`` computes the orders k0..order-1 of an expansion whose order 0
+    the steps have computed (it fixed every exponent, shift and constant).  The ``sop`` and ``dots`` steps are
+    written out as straight-line Python over local variables (the same integer operations as their step
+    functions, without their per-term loops and lookups), the other steps are called; the function is generated
+    once per structure (the instructions and which constant factors are -1, 1 or other) and cached.  With
+    ``checked`` the packed dot products check their fields' width at every order (:class:`Dots`); without, the
+    caller checks it once at the end (:meth:`Dots.all_fit`), the fields are read with half a field added to each and
+    every sum of products that reads them subtracts the halves at once, as a constant ``K`` of its own."""
+    sig, env = [], []
+    put = env.append  # the values in the order of their names (_env_names)
+    half_of = {}  # a dot product's key -> what its field holds above it (without checks)
+
+    for j, st in enumerate(steps):
+        kind = getattr(st, "kind", None)
+        if kind == "dots":
+            env += (st, st.A, st.P, *st.Bs)  # o, a, p, b_m
+            paired = st.dot.paired
+            if paired:
+                put(st.dot)
+            if not checked:
+                put(st.bias_all)
+                half_of.update((key, st.half if len(st.Bs) > 1 else 0) for key in st.keys)
+            sig.append(("d", len(st.Bs), paired, tuple(st.keys)))
+        elif kind == "sop":
+            tsig = []
+            K = 0
+            for m, (A, B, cm, d) in enumerate(st.terms):
+                if B is not None:
+                    src = "call"
+                    put(B)
+                elif A.__class__ is int:
+                    src = A  # a dot product's key
+                    if not checked:  # the term reads its field plus half: minus (half times its factor) << d
+                        K -= (half_of[A] * (1 if cm is None else cm)) << d
+                else:
+                    src = "jet"
+                    put(A)
+                if cm is not None and cm != -1:
+                    put(cm)  # cm_m
+                put(d)  # d_m
+                # (cm depends on the constants only; the shifts and the final rounding's direction depend on the
+                # state's exponents and are variables, so that one function serves every step)
+                tsig.append((src, None if cm is None else (-1 if cm == -1 else 0)))
+            fin = st.fin
+            if st.state is None:  # round(tot / 2**fin)
+                put(st.C)  # C, hf
+                put(1 << (fin - 1) if fin > 0 else 0)
+                fp = fin > 0
+            else:  # round(tot 2**fin / (k + 1)) = floor((tot 2**e + k + 1) / (2 (k + 1))), e = fin + 1
+                fin += 1
+                fp = fin >= 0
+            put(fp)  # fp, fin, nf
+            put(max(fin, 0))
+            put(max(-fin, 0))
+            if K:
+                put(K)
+            sig.append(("s", st.state, tuple(tsig), bool(K)))
+        else:
+            put(st)
+            sig.append(("g",))
+    for zi, i in deferred:
+        put(zi)
+    if rest is not None:
+        put(rest)
+    key = (tuple(sig), tuple(i for _, i in deferred), rest is not None, checked)
+    fn = _LOOPS.get(key)
+    if fn is None:
+        if len(_LOOPS) >= 256:  # a process that meets many systems: start again
+            _LOOPS.clear()
+        fn = _LOOPS[key] = _generate(key, _env_names(key))
+    return fn, env
+
+
+def _env_names(key):
+    """The names of the values :func:`_order_loop` puts in the environment of a structure, in their order."""
+    sig, deferred, rest, checked = key
+    names = []
+    for j, st in enumerate(sig):
+        if st[0] == "d":
+            _, n, paired, _keys = st
+            names += [f"o{j}", f"a{j}", f"p{j}"] + [f"b{j}_{m}" for m in range(n)]
+            if paired:
+                names.append(f"c{j}")
+            if not checked:
+                names.append(f"ball{j}")
+        elif st[0] == "s":
+            _, state, terms, has_K = st
+            for m, (src, cm) in enumerate(terms):
+                if src == "call" or src == "jet":
+                    names.append(f"t{j}_{m}")
+                if cm == 0:
+                    names.append(f"cm{j}_{m}")
+                names.append(f"d{j}_{m}")
+            if state is None:
+                names += [f"C{j}", f"hf{j}"]
+            names += [f"fp{j}", f"fin{j}", f"nf{j}"]
+            if has_K:
+                names.append(f"K{j}")
+        else:
+            names.append(f"g{j}")
+    names += [f"z{i}" for i in deferred]
+    if rest:
+        names.append("rest")
+    return names
+
+
+def _generate(key, names):
+    sig, deferred, rest, checked = key
+    head = ["def run(k0, order, deadline, env):", f"    ({', '.join(names)},) = env"]
+    body = []
+    for j, st in enumerate(sig):
+        if st[0] == "d":
+            _, n, paired, keys = st
+            head.append(f"    W{j}, mask{j}, half{j}, bias{j} = o{j}.W, o{j}.mask, o{j}.half, o{j}.bias")
+            if checked:
+                head.append(f"    ba{j}, bb{j} = o{j}.ba, o{j}.bb")
+                body += [f"x = a{j}[k].bit_length()",
+                         f"if x > ba{j}: ba{j} = x",
+                         f"x = max({', '.join(f'b{j}_{m}[k].bit_length()' for m in range(n))})" if n > 1 else
+                         f"x = b{j}_0[k].bit_length()",
+                         f"if x > bb{j}: bb{j} = x",
+                         f"need = ba{j} + bb{j} + k1.bit_length() + 2",
+                         f"if need > W{j}: W{j}, mask{j}, half{j}, bias{j} = o{j}.repack(k, need)"]
+            e = f"b{j}_{n - 1}[k]"
+            for m in range(n - 2, -1, -1):
+                e = f"(({e}) << W{j}) + b{j}_{m}[k]"
+            body.append(f"p{j}.append({e})")
+            body.append(f"D = c{j}(k)" if paired else f"D = sum(map(_mul, a{j}, reversed(p{j})))")
+            at = ["E", f"(E >> W{j})"] + [f"(E >> {m} * W{j})" for m in range(2, n)]
+            top = "E >> " + (f"W{j}" if n == 2 else f"{n - 1} * W{j}")
+            if n == 1:
+                body.append(f"dv{keys[0]} = D")
+            elif checked:  # the fields of D + bias (Dots.repack)
+                body.append(f"E = D + bias{j}")
+                body += [f"dv{key_} = ({e} & mask{j}) - half{j}" for key_, e in zip(keys[:-1], at)]
+                body.append(f"dv{keys[-1]} = {top}")
+            else:  # the fields of D + bias_all, each its sum of products plus half (W fixed: its multiples once)
+                head += [f"    W{j}_{m} = {m} * W{j}" for m in range(2, n)]
+                at = ["E", f"(E >> W{j})"] + [f"(E >> W{j}_{m})" for m in range(2, n)]
+                body.append(f"E = D + ball{j}")
+                body += [f"dv{key_} = {e} & mask{j}" for key_, e in zip(keys[:-1], at)]
+                body.append(f"dv{keys[-1]} = E >> " + (f"W{j}" if n == 2 else f"W{j}_{n - 1}"))
+        elif st[0] == "s":
+            _, state, terms, has_K = st
+            parts = []
+            for m, (src, cm) in enumerate(terms):
+                v = f"t{j}_{m}(k)" if src == "call" else (f"t{j}_{m}[k]" if src == "jet" else f"dv{src}")
+                if cm == 0:
+                    v = f"({v} * cm{j}_{m})"
+                parts.append(("- " if cm == -1 else "+ ") + f"({v} << d{j}_{m})")
+            tot = " ".join(parts)
+            tot = tot[2:] if tot.startswith("+ ") else "-" + tot[2:]
+            body.append(f"tot = {tot}" + (f" + K{j}" if has_K else ""))
+            if state is None:  # round(tot / 2**fin)
+                body += [f"if fp{j}: C{j}.append((tot + hf{j}) >> fin{j})", f"else: C{j}.append(tot << nf{j})"]
+            else:  # round(tot 2**fin / (k + 1)): floor((tot 2**e + k + 1) / (2 (k + 1))) with e = fin + 1, the same
+                # with floor(tot 2**e) for e < 0 (floor(floor(x) / m) = floor(x / m) for an integer m > 0): a shift
+                # and a division by a small integer
+                body += [f"if fp{j}: nx{state} = ((tot << fin{j}) + k1) // k2",
+                         f"else: nx{state} = ((tot >> nf{j}) + k1) // k2"]
+        else:
+            body.append(f"g{j}(k)")
+    body += [f"z{i}.append(nx{i})" for i in deferred]
+    if rest:
+        body.append("rest(k)")
+    src = "\n".join(head + ["    for k in range(k0, order):",
+                             "        if deadline is not None and _clock() > deadline:",
+                             "            raise DeadlineExceeded(k)",
+                             "        k1 = k + 1",
+                             "        k2 = k1 << 1"] + ["        " + line for line in body]) + "\n"
+    scope = {"_clock": _clock, "DeadlineExceeded": DeadlineExceeded, "_mul": _mul}
+    exec(compile(src, "<lieseries.lie.fixed_orders>", "exec"), scope)
+    return scope["run"]
+
+
+_PREPARED = weakref.WeakKeyDictionary()  # jet plan -> {(grouped, wp, parameters): prepared instructions}
+
+
+def _prepared(plan, grouped, wp, pars_raw):
+    """(instructions, number of dot-product keys, outputs fused into their state's step, constant values) of a
+    plan at ``wp`` bits for the parameters ``pars_raw``: the fused and grouped instructions with their constants
+    (offsets of lin/sop steps, the exact constant factors of their terms) evaluated, once per plan, precision and
+    parameters."""
+    by_plan = _PREPARED.setdefault(plan, {})
+    key = (grouped, wp, tuple(pars_raw))
+    got = by_plan.get(key)
+    if got is not None:
+        return got
+    cv = plan.constant_values(pars_raw, wp)
+    cache = _FUSED.setdefault(plan, {})
+    fused = cache.get(grouped)
+    if fused is None:
+        instrs, nkeys = _group(_fuse(plan), grouped)
+        uses = _use_counts(instrs, plan.outputs)
+        to_state = {o: i for i, o in enumerate(plan.outputs) if uses[o] == 1}
+        fused = cache[grouped] = (instrs, nkeys, to_state)
+    instrs, nkeys, to_state = fused
+    out = []
+    for kind, o, args, extra in instrs:
+        if kind in ("lin", "sop"):
+            offset = None
+            if extra:
+                offset = fzero
+                for x, ng in extra:
+                    offset = (mpf_sub if ng else mpf_add)(offset, cv[x], 2 * wp, RND)
+            if kind == "sop":
+                args = ([(a, b, _cprod(cv, cs), ng, k) for a, b, cs, ng, k in args[0]],
+                        [(a, _cprod(cv, cs), ng) for a, cs, ng in args[1]])
+            extra = offset
+        out.append((kind, o, args, extra))
+    if len(by_plan) >= 16:  # a plan run with many parameter sets or precisions: start again
+        by_plan.clear()
+    got = by_plan[key] = (out, nkeys, to_state, cv)
+    return got
+
+
+def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
+    """Fixed-point jets of the state: (M, U) with ``c_{i,k} = M[i][k] * 2**(U[i] - s*k)``.
+
+    ``wp`` is the working precision in bits (guard bits included), ``s`` the time scale exponent, ``deadline`` an
+    optional :func:`time.perf_counter` value checked after every order (:class:`DeadlineExceeded`).
+    """
+    got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, False)
+    if got is None:  # a packed dot product's fields were too narrow for a later order: again, checking every order
+        got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, True)
+    return got
+
+
+def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked):
+    """:func:`expand`; None when ``checked`` is false and a packed dot product's fields did not fit every order."""
+    plan = jet_plan(program)
+    # packed dot products pay off with Python ints up to about 100 digits, with gmpy2 up to about 300
+    Z = bigint.integer_type()
+    grouped = wp <= (_GMP_GROUP_BITS if Z is not int else _INT_GROUP_BITS)
+    instrs, nkeys, to_state, cv = _prepared(plan, grouped, wp, pars_raw)
+    run = Run(plan.nslots, wp, Z)
+    J, U = run.J, run.U
+    nvars = program.nvars
+    is_const = plan.is_const
+    for i, e in enumerate(_state_exponents(y0_raw)):
+        U[i] = e - wp
+        J[i] = [to_int(y0_raw[i], U[i])]
+    for x in range(nvars, plan.nslots):
+        if not is_const[x]:
+            J[x] = []
+    steps = []
+    run.dv = [None] * nkeys
+    run.nxt = [None] * nvars
+    run.s = s
+    for kind, out, args, extra in instrs:
+        if kind == "dots":
+            steps.append(Dots(run, args[0], args[1], extra))
+        elif kind == "lin":
+            steps.append(mk_lin(run, out, args, extra))
+        elif kind == "sop":
+            steps.append(mk_sop(run, out, args[0], args[1], extra, to_state.get(out)))
+        elif kind == "scale":
+            steps.append(mk_scale(run, out, args[0], cv[extra]))
+        elif kind == "mul":
+            steps.append(mk_mul(run, out, args[0], args[1]))
+        elif kind == "sqr":
+            steps.append(mk_sqr(run, out, args[0]))
+        elif kind == "div":
+            steps.append(mk_div(run, out, args[0], args[1], wp))
+        elif kind == "rdiv":
+            steps.append(mk_div(run, out, None, args[0], wp, cnum=cv[extra]))
+        elif kind == "pow":
+            e, data = extra
+            steps.append(mk_pow(run, out, args[0], cv[e], data, wp))
+        elif kind == "sqrt":
+            steps.append(mk_sqrt(run, out, args[0], wp))
+        elif kind == "exp":
+            steps.append(mk_exp(run, out, args[0], wp))
+        elif kind == "log":
+            steps.append(mk_log(run, out, args[0], wp))
+        elif kind in ("sincos", "sinhcosh"):
+            steps.append(mk_sincos(run, out[0], out[1], args[0], wp, kind == "sinhcosh"))
+        elif kind in ("tan", "tanh"):
+            steps.append(mk_tan(run, out[0], out[1], args[0], wp, kind == "tanh"))
+        elif kind == "atan":
+            steps.append(mk_atan(run, out[0], out[1], args[0], wp))
+        else:  # pragma: no cover
+            raise AssertionError(kind)
+    srcs = []
+    fused_out = {o for kind, o, *_ in instrs if kind == "sop" and o in to_state}
+    deferred = [(J[to_state[o]], to_state[o]) for o in fused_out]
+    nxt = run.nxt
+    for i, o in enumerate(plan.outputs):
+        if o in fused_out:
+            continue
+        if is_const[o]:
+            srcs.append((J[i], i, None, cv[o]))
+        else:
+            srcs.append((J[i], i, o, None))
+
+    def rest(k):  # the outputs not fused into their sop
+        k1 = k + 1
+        for zi, i, o, c in srcs:
+            if o is not None:
+                zi.append(div_round(J[o][k], k1, U[o] + s - U[i]))
+            elif k == 0 and c[1]:
+                cs, cm, ce, _ = c
+                m = div_round(Z(cm), k1, ce + s - U[i])
+                zi.append(-m if cs else m)
+            else:
+                zi.append(Z(0))
+
+    if order:  # order 0 sets every jet's exponent and the constants of the later orders
+        for st in steps:
+            st(0)
+        for zi, i in deferred:
+            zi.append(nxt[i])
+        rest(0)
+    if order > 1:
+        run_orders, env = _order_loop(steps, deferred, rest if srcs else None, checked)
+        run_orders(1, order, deadline, env)
+        if not checked and not Dots.all_fit([st for st in steps if st.__class__ is Dots], order):
+            return None
+    return [J[i] for i in range(nvars)], [U[i] for i in range(nvars)]

@@ -1,0 +1,379 @@
+"""The chunk engine of a heyoka run: a chunk of heyoka steps per step of the driver loop (:mod:`lieseries.driver`).
+
+A run never hangs and never returns a silently wrong state, and pays no Python call per step for it: heyoka
+integrates in chunks of steps (the first of 64 steps in double; later ones sized so that a chunk takes about 0.1 s;
+a short run is a single chunk), and the checks run between chunks. A chunk is one step of the driver loop
+(:class:`Chunks`), which owns the budgets, the output rows, the statuses and their messages (heyoka's advice in its
+table: how many steps finishing would take):
+
+- ``time_budget``: the wall-time budget ``max_time`` ran out (it bounds the integration, not the compilation of a
+  new integrator, which happens once per structure and precision);
+- ``step_budget``: ``max_steps`` steps were taken;
+- ``step_collapse``: the step size has collapsed so far that finishing would need more than the step budget (a
+  singularity ahead), or the problem is stiff: its steps are tiny (finishing needs more than 1e5 steps with the
+  default budget, or more than ``max_steps`` when given) while no component of the state changes by more than
+  1e-2 of its own size (at least 1/100 of the state's max-norm) per step -- the step is then limited by
+  stability, not accuracy;
+- ``non_finite``: heyoka stopped on a non-finite state (it overwrites the state with NaN); the last chunk is run
+  again from its start with a per-step copy of the state, so the last finite state is kept;
+- missed crossings: with non-terminal events, the event functions are evaluated at every step's end; a step
+  whose signs disagree with the crossings heyoka reported in it, or that starts or ends on a zero, is searched
+  again on its Taylor polynomial and the missing crossings are added (:class:`lieseries.heyoka_build.CrossingGuard`);
+- terminal events of the model (e.g. the edge of a sphere chart) end the run with their own status;
+- ``invariant_drift``: after a run that reached its final time, the Hamiltonian (conserved by every Hamiltonian
+  system) is evaluated at both ends; a change beyond min(sqrt(tol), 1000 tol per step) of its energy scale
+  (:func:`lieseries.energy.drift_threshold`) means the result is wrong, whatever the error control believed --
+  typically a motion much slower or faster than its time span (Taylor coefficients underflow), fixed by
+  rescaling time, or components of very different sizes (the tolerance is relative to the largest), fixed by
+  rescaling units. A plain repeated run first asks a cheaper check (:mod:`lieseries.taylor.plain`).
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+from fractions import Fraction
+
+import heyoka as hy
+import numpy as np
+
+from ..driver import Stop, StepResult, format_time, run_message
+from ..heyoka_build import Both
+from ..precision import short_decimal, to_fraction
+from .dense import DenseOutput
+from .plan import CHUNK_SECONDS, STIFF_CHANGE
+
+_OUTCOME = hy.taylor_outcome
+#: The outcomes that are not a terminal event (the others are an event's index i, or -i - 1).
+_NOT_EVENTS = frozenset(_OUTCOME.__members__.values())
+
+
+def step_range(steps, lo, hi, t_end, t_start):
+    """(smallest, largest) step of a chunk of ``steps`` steps from heyoka's answer (as :meth:`Chunks._account`)."""
+    if not steps:
+        return math.inf, 0.0
+    lo, hi = float(lo), float(hi)
+    if not lo <= hi:  # heyoka leaves out a step cut short at the final time: the chunk's mean step
+        lo = hi = abs(float(t_end) - float(t_start)) / steps
+    return lo, hi
+
+
+class Chunks:
+    """The step of a heyoka run for the driver loop (:func:`lieseries.driver.drive`): a chunk of steps run inside
+    heyoka (module docstring), and before it, when the last chunk used up its steps, the checks that need more than
+    heyoka's answer: ``min_step``, then one probe step that measures the step size and the change it makes (a
+    collapsing or stiff run, a budget that cannot suffice). The integrator holds the time and state; ``t_at`` and
+    ``z_at`` are where the last chunk (or probe) ended."""
+
+    free_first_step = True  # a run is at least one chunk: the budgets are read between chunks
+
+    def __init__(self, ta, call, event_info, recorders=(), guard=None, first=None):
+        plan = call.plan
+        self.ta, self.direction, self.event_info = ta, plan["direction"], event_info
+        self.recorders, self.guard, self.dense = recorders, guard, call.dense
+        self.max_steps, self.stiff_steps, self.min_step = call.max_steps, call.stiff_steps, call.min_step
+        self.chunk = call.first_chunk
+        # (heyoka's answer, seconds) of a first chunk already run from t0; with the time and state it reached
+        # when the integrator has gone back to the pool
+        self.first = first
+        grid = plan["grid_native"]
+        self.t0, self.t_end = plan["t0_native"], grid[-1]
+        self.t_at, self.z_at = self.t0, call.y0_native
+        self.steps, self.min_h, self.max_h = 0, math.inf, 0.0
+        self.outcome = None
+        self.change = self.h_last = math.nan
+        self.between = False  # the last chunk used up its steps: the checks run before the next one
+        self.user_terminal, self.terminal_check, self.touches = frozenset(), None, 0
+        self.c_outs = []  # heyoka's continuous outputs, one per chunk (dense)
+        self.queue = []  # (time, row) at the output times the steps so far covered, not yet taken by the driver
+        self.chunk_start = self.t0
+        # the output times after t0 whose rows come from the steps (None: only t0 and the final time); the driver
+        # gives the rows at t0 (y0)
+        self.pending = None
+        if not self.dense and not (len(grid) == 2 and grid[0] == self.t0):
+            self.pending = [g for g in grid if g != self.t0]
+
+    def step(self, t, z, t_end):
+        before = self.steps
+        self.t_at, self.z_at = t, z
+        if self.between:
+            self.between = False
+            if self.min_step is not None and self.min_h < self.min_step:
+                raise Stop("step_collapse", f"a step of {self.min_h:.3g} was taken, below `min_step` = "
+                           f"{self.min_step:.3g}", note=self._note())
+            outcome = self._probe(t_end)
+            if outcome != _OUTCOME.step_limit:
+                return self._result(before, self._end(outcome))
+            stop = self._too_slow(t_end)
+            if stop is not None:
+                return self._result(before, stop)
+        return self._result(before, self._end(self._chunk(t_end)))
+
+    def _result(self, before, stop):
+        t, z = self.t_at, self.z_at
+        queue, dense, pending = self.queue, self.dense, self.pending
+
+        def row(tk):
+            if queue and queue[0][0] == tk:
+                y = queue.pop(0)[1]
+                return z if tk == t else y
+            if tk == t:
+                # heyoka's time is double length: a chunk may end on tk's high part with a negative low part, short
+                # of tk for the step rows; the row is the state there, as at the run's end, and tk is taken
+                if pending and pending[0] == tk:
+                    pending.pop(0)
+                return z
+            if dense:
+                return DenseOutput(self.c_outs, None).at_native(tk)
+            raise RuntimeError(f"no row at t = {format_time(tk)} in a heyoka chunk")  # pragma: no cover
+
+        return StepResult(t, z, row=row, stop=stop, steps=self.steps - before)
+
+    def _chunk(self, t_end):
+        """Run one chunk of steps (or take the one already run) and return heyoka's outcome."""
+        ta = self.ta
+        budget = min(self.chunk, self.max_steps - self.steps)
+        marks = [len(r.sink) for r in self.recorders]
+        if self.first is not None:
+            (res, elapsed, *reached), self.first = self.first, None
+            self.chunk_start = self.t0
+        else:
+            tic = _time.perf_counter()
+            res = self._propagate(t_end, budget, None)
+            elapsed = _time.perf_counter() - tic
+            reached = ()
+        if res[0] == _OUTCOME.err_nf_state:
+            # run the failed chunk again, keeping a copy of every accepted state
+            ta.time, ta.state[:] = self.t_at, self.z_at
+            for rec, mark in zip(self.recorders, marks):
+                del rec.sink[mark:]  # the chunk runs again: its crossings are recorded again
+            if self.guard is not None:
+                self.guard.start(ta)
+            keeper = _Keeper(ta)
+            res = self._propagate(t_end, budget, keeper)
+            self._account(res, ta.time)
+            self.t_at, self.z_at = keeper.t, keeper.state
+            return res[0]
+        if reached:  # a plain run's first chunk that reached the final time
+            self._account(res, reached[0])
+            self.t_at, self.z_at = reached
+            return res[0]
+        self._account(res, ta.time)
+        self.t_at, self.z_at = ta.time, np.array(ta.state, copy=True)
+        if res[0] == _OUTCOME.step_limit:  # the next chunk: about CHUNK_SECONDS of work
+            per_step = elapsed / max(int(res[3]), 1)
+            self.chunk = int(min(4 * self.chunk, max(16, CHUNK_SECONDS / max(per_step, 1e-9)), 1 << 20))
+        return res[0]
+
+    def _probe(self, t_end):
+        """Take one step as part of the run; record its size and the relative change it made."""
+        ta = self.ta
+        before_t, before = self.t_at, self.z_at
+        res = self._propagate(t_end, 1, None)
+        if res[0] == _OUTCOME.err_nf_state:
+            self.steps += int(res[3])
+            return res[0]
+        self._account(res, ta.time)
+        # heyoka's own step size: the difference of the times reads 0 once the step is below the time's ulp
+        self.h_last = abs(float(ta.last_h)) if _finite(ta.last_h) else abs(float(ta.time) - float(before_t))
+        self.change = _relative_change(ta.state, before)
+        self.t_at, self.z_at = ta.time, np.array(ta.state, copy=True)
+        return res[0]
+
+    def _end(self, outcome):
+        """How the chunk (or probe) with ``outcome`` ended the step: None to go on, or a :class:`Stop`."""
+        self.outcome = outcome
+        if outcome == _OUTCOME.step_limit:
+            self.between = True
+            return None
+        if outcome == _OUTCOME.time_limit:
+            return None
+        if outcome == _OUTCOME.err_nf_state:
+            return Stop("non_finite", reason="non_finite.taylor")
+        if self.user_terminal and self._at_user_event(outcome) and (self.t_at == self.t0 or self._touch(outcome)):
+            return None  # the run starts on the event's surface, or touches it: go on (heyoka's cooldown)
+        # a terminal event: heyoka reports event i as outcome i, or -(i + 1) when it stopped the run
+        where = self._note()
+        idx = int(outcome.value) if outcome not in _NOT_EVENTS else None
+        info = self.event_info
+        if idx is not None and -len(info) <= idx < 0:
+            idx = -idx - 1
+        if idx is not None and 0 <= idx < len(info):
+            status, msg = info[idx]
+            return Stop(status, message=run_message("event", t=self.t_at, note=where, detail=msg))
+        return Stop("event", message=run_message("event", t=self.t_at, note=where,
+                                                 detail=f"heyoka stopped with outcome {outcome}"))
+
+    def _too_slow(self, t_end):
+        """After a probe: a Stop when finishing at this step size is out of reach (module docstring)."""
+        h = self.h_last
+        h_first = self.max_h  # the largest step of the run so far
+        left = abs(float(t_end) - float(self.t_at))
+        need = left / h if h > 0 else math.inf
+        if need > self.stiff_steps and h < 1e-2 * h_first:
+            return self._collapse("step_collapse.taylor")  # shrinking towards a singularity
+        if need > self.stiff_steps and self.change < STIFF_CHANGE and h < 1e-2 * left:
+            return self._collapse("step_collapse.stiff")  # tiny steps over which no component changes
+        if need > self.max_steps - self.steps:
+            return self._collapse("step_collapse.taylor") if h < 1e-2 * h_first else self.explain("step_budget")
+        return None
+
+    def explain(self, status, t=None):
+        """A budget stop at the last chunk's end, with the steps finishing would take (:data:`MESSAGES`)."""
+        if status != "step_budget":
+            return Stop(status, note=self._note())
+        need, hopeless = self._need()
+        return Stop(status, need, note=self._note(), reason="step_budget.hopeless" if hopeless else "step_budget.ahead")
+
+    def _collapse(self, reason):
+        need, _ = self._need()
+        return Stop("step_collapse", need, note=self._note(), reason=reason,
+                    fields={"h_first": self.max_h, "allowed": self.stiff_steps, "change": self.change})
+
+    def _note(self) -> str:
+        last = self.ta.last_h if self.ta is not None else math.nan
+        return f" (last step size {abs(float(last)) if _finite(last) else math.nan:.3g})"
+
+    def _need(self):
+        """The time left and the steps it takes at the last step size (exactly: the time left may be beyond the
+        double range, t = 1e400 in quad), and whether that is beyond any step budget."""
+        left = abs(to_fraction(self.t_end) - to_fraction(self.t_at))
+        hh = self.h_last
+        if hh != hh:
+            last = self.ta.last_h if self.ta is not None else math.nan
+            hh = abs(float(last)) if _finite(last) else math.nan
+        if not 0 < hh < math.inf:
+            return f"{short_decimal(left)} time units remain", False
+        steps = left / Fraction(hh)
+        return (f"{short_decimal(left)} time units remain, about {short_decimal(steps)} steps at this step size",
+                steps > 10**15)
+
+    def _at_user_event(self, outcome) -> bool:
+        if outcome in _NOT_EVENTS:
+            return False
+        idx = int(outcome.value)
+        return (idx if idx >= 0 else -idx - 1) in self.user_terminal
+
+    def _touch(self, outcome) -> bool:
+        """True when heyoka stopped on a user's terminal event where its expression does not change sign (just
+        before and just after the stop have the same sign): a tangency, not a crossing (what lie_integrate
+        finds)."""
+        if self.terminal_check is None:
+            return False
+        fn, uses_pars, base, bits = self.terminal_check
+        idx = int(outcome.value)
+        j = (idx if idx >= 0 else -idx - 1) - base
+        ta = self.ta
+        t = ta.time
+        delta = abs(ta.last_h) * 2.0 ** (-bits / 4)
+
+        def sign(tt):
+            ta.update_d_output(tt)
+            v = (fn(ta.d_output, pars=ta.pars) if uses_pars else fn(ta.d_output))[j]
+            return int(v > 0) - int(v < 0)
+
+        if sign(t - delta) * sign(t + delta) > 0:
+            self.touches += 1
+            return True
+        return False
+
+    def _propagate(self, t_end, budget, callback):
+        ta = self.ta
+        self.chunk_start = ta.time
+        if self.guard is not None:
+            callback = self.guard if callback is None else Both(self.guard, callback)
+        if self.pending is not None:
+            # Not propagate_grid: it needs the current time as its first grid point, and heyoka's time is double
+            # length (ta.time is its high part), so each chunk would first step back by the low part and the
+            # result would depend on where the chunks (sized by wall time) end. propagate_until continues exactly;
+            # a step callback takes the rows from each step's Taylor polynomial, as propagate_grid does (rows[0]
+            # stands for the chunk's start, as in propagate_grid's answer).
+            rows = _GridRows(self.pending, self.direction)
+            res = ta.propagate_until(t_end, max_steps=budget, write_tc=True,
+                                     callback=rows if callback is None else Both(rows, callback))
+            return (res[0], res[1], res[2], res[3], None, rows.rows)
+        return ta.propagate_until(t_end, max_steps=budget, c_output=self.dense, callback=callback)
+
+    def _account(self, res, t_end):
+        """The steps, step sizes and output rows of a chunk from ``self.chunk_start`` to ``t_end``."""
+        n = int(res[3])
+        self.steps += n
+        if n:
+            lo, hi = step_range(n, res[1], res[2], t_end, self.chunk_start)
+            self.min_h = min(self.min_h, lo)
+            self.max_h = max(self.max_h, hi)
+        pending = self.pending
+        if pending is not None:
+            out = res[-1][1:]  # the first row is the chunk's start
+            self.queue.extend(zip(pending[:len(out)], (np.array(r, copy=True) for r in out)))
+            del pending[: len(out)]
+        elif self.dense and res[4] is not None:
+            self.c_outs.append(res[4])
+
+
+class _GridRows:
+    """Step callback of a run with output times: the state at each output time the step covered, from the step's
+    Taylor polynomial (heyoka's dense output).
+
+    A time is taken in the first step whose end reaches it, the end read as heyoka's double-length time (hi, lo):
+    t < hi, or t == hi and lo >= 0 (forward; mirrored backward). This is propagate_grid's own rule, so the rows
+    are the same whether a chunk ran through propagate_grid (a plain run's first chunk) or through this callback."""
+
+    def __init__(self, pending, direction):
+        self.pending = pending
+        self.direction = direction
+        self.next = 0
+        self.rows = [None]
+
+    def __call__(self, ta) -> bool:
+        pending, k = self.pending, self.next
+        if k < len(pending):
+            now, d = ta.time, self.direction
+            while k < len(pending):
+                p = pending[k]
+                if not ((p - now) * d < 0 or (p == now and ta.dtime[1] * d >= 0)):
+                    break
+                self.rows.append(np.array(ta.update_d_output(p), copy=True))
+                k += 1
+            self.next = k
+        return True
+
+
+class _Keeper:
+    """Per-step callback of a re-run chunk: keeps the last accepted (finite) state."""
+
+    def __init__(self, ta):
+        self.state = np.array(ta.state, copy=True)
+        self.t = ta.time
+
+    def __call__(self, ta) -> bool:
+        np.copyto(self.state, ta.state)
+        self.t = ta.time
+        return True
+
+
+def _relative_change(a, b) -> float:
+    """Largest change of one component relative to its own size: max_i |a_i - b_i| / max(|a_i|, |b_i|, s / 100),
+    s the max-norm of the state.
+
+    Measured per component, so that a large conserved variable beside a small oscillating one does not hide the
+    oscillation (what a norm of the whole state would do); the floor s / 100 keeps components passing through
+    zero from looking fast."""
+    try:
+        fa = np.asarray(a, dtype=np.float64)
+        fb = np.asarray(b, dtype=np.float64)
+    except (TypeError, ValueError):
+        fa = np.array([float(v) for v in a])
+        fb = np.array([float(v) for v in b])
+    scale = np.maximum(np.maximum(np.abs(fa), np.abs(fb)), 1e-2 * float(np.max(np.abs(fa))))
+    moving = scale > 0
+    if not moving.any():
+        return 0.0
+    return float(np.max(np.abs(fa - fb)[moving] / scale[moving]))
+
+
+def _finite(v) -> bool:
+    try:
+        return bool(np.isfinite(float(v)))
+    except (TypeError, ValueError, OverflowError):
+        return False

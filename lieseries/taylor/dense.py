@@ -1,0 +1,38 @@
+"""Dense output of a heyoka run: ``sol(t)`` anywhere in the integrated interval."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..precision import Precision, to_fraction
+
+
+class DenseOutput:
+    """``sol(t)`` of a heyoka run: its continuous outputs (one per chunk of steps), picklable."""
+
+    def __init__(self, c_outs, prec: Precision | None):
+        self.c_outs = list(c_outs)
+        self.prec = prec
+        self.bounds = [tuple(sorted(float(b) for b in c.bounds)) for c in self.c_outs]
+
+    def at_native(self, t):
+        """The state at ``t`` (in the run's format) from the chunk that covers it."""
+        tv = float(t)
+        for (lo, hi), c in zip(self.bounds, self.c_outs):
+            if lo <= tv <= hi:
+                return np.array(c(t), copy=True)
+        return np.array(self.c_outs[-1](t), copy=True)
+
+    def __call__(self, t):
+        lo = min(b[0] for b in self.bounds)
+        hi = max(b[1] for b in self.bounds)
+        scalar = np.ndim(t) == 0
+        ts = [t] if scalar else list(np.asarray(t, dtype=object).ravel())
+        out = []
+        for tk in ts:
+            tf = to_fraction(tk, "t")
+            tv = float(tf)
+            if not (lo - 1e-15 * max(1.0, abs(lo)) <= tv <= hi + 1e-15 * max(1.0, abs(hi))):
+                raise ValueError(f"`t` = {tv} is outside the integrated interval [{lo}, {hi}]")
+            out.append(self.at_native(self.prec.time(tf)))
+        return out[0] if scalar else np.stack(out)

@@ -1,0 +1,119 @@
+"""What a call of :func:`lieseries.taylor.integrate` fixes before it runs: the precision it runs in, the warnings
+about coarse inputs, the budgets and chunk sizes, and the plan of a run (output grid, tolerance, the compiled
+integrator's cache entry), memoised for its hashable arguments.
+
+Caching
+-------
+Compiling a heyoka integrator (LLVM) costs milliseconds to seconds; running a short orbit costs microseconds.
+Integrators are therefore cached by (system structure, precision, tolerance, events, options)
+(:mod:`lieseries.heyoka_build`). Model parameters are heyoka runtime parameters, so two bodies with different
+inertia share one compiled integrator; only the parameter values are set per run.
+"""
+
+from __future__ import annotations
+
+import math
+from fractions import Fraction
+
+import heyoka as hy
+import numpy as np
+
+from .. import cache
+from ..driver import run_message
+from ..heyoka_build import build_integrator
+from ..precision import (
+    Precision,
+    check_tolerance,
+    data_bits,
+    to_fraction,
+    warn_if_coarse,
+)
+from ..timegrid import parse_times
+
+#: The default step budget (``max_steps``).
+DEFAULT_MAX_STEPS = 50_000_000
+#: With the default budget, a stiff run (:mod:`lieseries.taylor.chunks`) is stopped once it would need more steps
+#: than this.
+STIFF_STEPS = 100_000
+#: A step that changes no component by more than this fraction of its size (:mod:`lieseries.taylor.chunks`) is
+#: stability-limited: an accuracy-limited step of order ~20 at tol = eps moves the state by ~15% of its time scale.
+STIFF_CHANGE = 1e-2
+
+
+#: Steps in the first chunk of a run, by precision (later chunks grow fourfold, up to about CHUNK_SECONDS of work
+#: each): a step of the rigid body costs ~2 us in double and ~0.4 s at 1024 bits.
+FIRST_CHUNK = {"double": 64, "long double": 32, "quad": 8}
+FIRST_CHUNK_REAL = 2
+CHUNK_SECONDS = 0.1
+#: The first chunk in double of a call repeated after it succeeded (the same system, exact state and options: the
+#: same steps again): a run of up to 1024 steps is then one heyoka call (a few ms for the rigid body). A larger
+#: system gets fewer, about REPEAT_CHUNK_WORK / D steps for a decomposition of D nodes (the rigid body's has 81),
+#: and never fewer than the first chunk of a new call. A new call keeps the short first chunk, so that a run
+#: that collapses or overflows is seen between chunks early (what its status and message say).
+REPEAT_CHUNK = 1024
+REPEAT_CHUNK_WORK = 200_000
+
+
+def repeat_chunk(prec, template, first: int) -> int:
+    if prec.name != "double":
+        return first
+    return max(first, min(REPEAT_CHUNK, REPEAT_CHUNK_WORK // max(len(template.decomposition), 1)))
+
+
+_PLANS = cache.region("taylor.plans", 256)
+
+
+def make_plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events=(), max_time=None):
+    """What a run needs that depends only on hashable call arguments, computed once and memoised: the output
+    grid (exact and in the working format), the tolerance and the integrator's cache entry."""
+    key = None
+    scalar = (int, float, str, Fraction)
+    tkey = (type(t), t) if isinstance(t, scalar) else (  # the type: True == 1, and `t` = True is refused
+        ("grid", t.tobytes()) if type(t) is np.ndarray and t.dtype == np.float64 and t.ndim == 1 else None)
+    if (not user_events and tkey is not None and isinstance(t0, scalar)
+            and (tol is None or isinstance(tol, scalar))):
+        key = (id(system), prec.name, type(tol), tol, tkey, type(t0), t0, compact_mode, high_accuracy)
+        hit = _PLANS.get(key)
+        if hit is not None and hit[0] is system:
+            return hit[1]
+    # a scalar t (the cached plans) has no grid; a grid's output is sized by its rows (n values per time)
+    grid, direction, t0f = parse_times(t, t0, max_time=max_time, values_per_time=ps.dimension,
+                                       bytes_per_value=48 + prec.bits // 8 if prec.is_real
+                                       else np.dtype(prec.numpy_dtype).itemsize)
+    tolf = check_tolerance(tol, prec)
+    grid_native = [prec.time(g) for g in grid]
+    plan = dict(
+        grid=grid, direction=direction, t0f=t0f, tolf=tolf, grid_native=grid_native,
+        grid_exact=[to_fraction(g) for g in grid_native], t0_native=prec.time(t0f),
+        reached=run_message("success", t=grid_native[-1]),
+        tol_float=float(tolf), sqrt_tol=math.sqrt(float(tolf)),
+        build=build_integrator(system, prec, tolf, user_events=user_events, compact_mode=compact_mode,
+                               high_accuracy=high_accuracy),
+    )
+    if key is not None:
+        _PLANS.put(key, (system, plan))
+    return plan
+
+
+def warn_coarse_inputs(ps, y0, times, work_bits: int) -> bool:
+    """One :class:`~lieseries.precision.PrecisionWarning` per input that carries fewer bits than the run uses
+    (``times`` is ``(t, t0)``, each named on its own). True when there was one."""
+    if work_bits <= 53 and data_bits(y0) is None:
+        return False
+    t, t0 = times
+    coarse = [(data_bits(y0), "y0"), (data_bits(t), "t"), (data_bits(t0), "t0")]
+    if work_bits > 53:
+        coarse += [(bits, name) for name, bits in ps.coarse_data().items()]
+    coarse = [(bits, name) for bits, name in coarse if bits is not None and bits < work_bits]
+    for bits, name in coarse:
+        warn_if_coarse(bits, work_bits, name)
+    return bool(coarse)
+
+
+def time_array(natives, prec: Precision) -> np.ndarray:
+    if prec.is_real:
+        out = np.empty(len(natives), dtype=hy.real)
+        for i, v in enumerate(natives):
+            out[i] = v
+        return out
+    return np.array(natives, dtype=prec.numpy_dtype)
