@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import lieseries as ls
-from lieseries.precision import dps_to_bits, resolve_precision, to_fraction
+from lieseries.precision import data_bits, dps_to_bits, resolve_precision, to_fraction
 from problems import ctx_mpf, private_ctx
 
 
@@ -312,3 +312,23 @@ def test_a_chart_frame_for_six_constraints_is_refused_naming_frame():
                                 ["x1", "y1", "x2", "y2", "x3", "y3"],
                                 ["x1**2+y1**2-1", "(x2-x1)**2+(y2-y1)**2-1", "(x3-x2)**2+(y3-y2)**2-1"])
     assert rods._triangular((1, 3, 5)) and not cs._triangular((0, 3, 4, 6, 7, 8))
+
+
+def test_binary_data_of_a_body_carry_their_bits_into_its_derived_forms():
+    """g = 9.81 as a double carries 53 bits: the top warns naming `g` and its Lie estimates stay above 2^-53; the
+    same top derived by ``constrained_system()`` must do the same (J and the weights were passed on as exact
+    Fractions: a 30-digit run claimed 1e-40). A state of doubles handed to ``surface_point`` carries 53 bits into
+    the form's initial state too."""
+    top = ls.HeavyTop((2, 2, 1), com=(0, 0, "0.5"), g=9.81)
+    inter = top.constrained_system().intermediate()
+    q, qdot = top.surface_point(top.initial_state(omega=(1, "0.5", 5)))
+    with pytest.warns(ls.PrecisionWarning, match="`g`"):
+        sol = ls.lie_integrate(inter, inter.initial_state(q=q, qdot=qdot), t="0.05", dps=30)
+    assert sol.status == "success" and max(sol.stats.error_estimates) >= 2.0 ** -54
+    exact = ls.HeavyTop((2, 2, 1), com=(0, 0, "0.5"), g="9.81")
+    y = np.asarray(exact.initial_state(omega=(1, "0.1", 5)), dtype=float)   # 0.1 rounded to a double
+    q, qdot = exact.surface_point(y)
+    z0 = exact.constrained_system().intermediate().initial_state(q=q, qdot=qdot)
+    assert z0.data_bits == 53
+    q, qdot = exact.surface_point(exact.initial_state(omega=(1, "0.1", 5)))
+    assert data_bits(q + qdot) is None and qdot[2] == Fraction(1, 10)   # exact data stay exact
