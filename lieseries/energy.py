@@ -37,7 +37,9 @@ def drift_threshold(tol, steps):
     Lie-series run above ~300 digits: a threshold of 0.0 called every such run ``invariant_drift``)."""
     n = max(int(steps), 1)
     f = float(tol)
-    if f > 1e-280:
+    if f > 1e-280 or isinstance(tol, float):
+        # a float stays a float (heyoka's reals multiply with floats, not with mpf): the square of a 1024-bit
+        # run's sqrt(tol) is 5.6e-309, and its threshold, at least 1000 times that, is a normal double
         return min(math.sqrt(f), DRIFT_PER_STEP * f * n)
     t = mpmath.mpf(tol) if hasattr(tol, "_mpf_") else mpmath.mpf(tol.numerator) / tol.denominator
     return min(mpmath.sqrt(t), DRIFT_PER_STEP * t * n)
