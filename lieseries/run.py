@@ -28,6 +28,7 @@ from .precision import check_seconds, dps_to_bits, to_fraction
 from .precision import thread_mp as mp
 from .scenes import Scene, SceneError, effective_plan, load_scene
 from .studies.drift import invariant_function
+from .studies.reference import to_float
 from .studies.plugin import StudyContext, studies_registry
 
 __all__ = ["RunRow", "SceneResult", "environment", "run_scene", "scaled_error"]
@@ -185,8 +186,9 @@ def _reference_at(model, y0, t, dps, bits):
     return _numerical_reference(model, y0, t, dps, bits)
 
 
-def scaled_error(model, values, reference) -> float:
-    """Largest error relative to the natural scale of each compared quantity.
+def scaled_error(model, values, reference):
+    """Largest error relative to the natural scale of each compared quantity (a float, or an mpf below a float's
+    range).
 
     The model's ``error_groups``: rigid body: R against 1 (a rotation), M against |M_ref|. Sphere: x against
     |x_ref|, v against |v_ref|. Other systems: the state against its norm (1 when it vanishes). ``values`` and ``reference`` are the
@@ -202,7 +204,7 @@ def scaled_error(model, values, reference) -> float:
         if scale == 0:
             scale = mp.mpf(1)
         worst = max(worst, err / scale)
-    return float(worst)
+    return to_float(worst)  # an mpf below a float's range: a 400-digit run's 1e-402 was written 0.0
 
 
 def _quick_labels(scene, runp) -> dict:
