@@ -519,3 +519,21 @@ def test_a_run_at_400_digits_is_a_success_with_its_error_and_drift_at_400_digits
     data = json.loads((tmp_path / "rep" / "data.json").read_text())
     assert "e-40" in json.dumps(data["run"]["rows"][0]["error"])
     assert "e-40" in json.dumps(data["run"]["rows"][0]["scaled_error"])
+
+
+@pytest.mark.xfail(strict=True, reason="lie/integrator.py builds Stats with tol=float(tolm): 1e-400 is 0.0; keep "
+                   "an mpf below a float's range (as the error estimates do)")
+def test_a_lie_run_at_400_digits_reports_its_tolerance():
+    """``sol.stats.tol`` of a 400-digit Lie run read 0.0: a tolerance that claims every digit."""
+    body = ls.EulerPoisson((1, 2, "2.5"))
+    sol = ls.lie_integrate(body, body.initial_state(omega=(1, "0.1", "0.5")), t="0.05", dps=400)
+    assert sol.status == "success" and mp.mpf(10) ** -401 < sol.stats.tol < mp.mpf(10) ** -399
+
+
+@pytest.mark.xfail(strict=True, reason="validated.py builds Stats with tol=10.0 ** -dps: 0.0 above 323 digits; "
+                   "keep an mpf below a float's range")
+def test_a_validated_run_at_400_digits_reports_its_tolerance():
+    """``sol.stats.tol`` of a 400-digit validated run read 0.0."""
+    body = ls.EulerPoisson((1, 2, "2.5"))
+    sol = ls.validated_integrate(body, body.initial_state(omega=(1, "0.1", "0.5")), t="0.01", dps=400)
+    assert sol.status == "success" and mp.mpf(10) ** -401 < sol.stats.tol < mp.mpf(10) ** -399
