@@ -332,3 +332,18 @@ def test_binary_data_of_a_body_carry_their_bits_into_its_derived_forms():
     assert z0.data_bits == 53
     q, qdot = exact.surface_point(exact.initial_state(omega=(1, "0.1", 5)))
     assert data_bits(q + qdot) is None and qdot[2] == Fraction(1, 10)   # exact data stay exact
+
+
+def test_a_body_started_from_a_rotation_in_doubles_starts_its_derived_forms():
+    """R0 typed in doubles (0.8, 0.6: R0 R0^T = 1 to 4e-17) is accepted by the top; its surface_point carries 53
+    bits, but the derived forms checked it at the exact tolerance 1e-50 and refused it. In the frame R^-T E_k the
+    intermediate form's state is the top's own (pi = M)."""
+    top = ls.HeavyTop((2, 2, 1), com=(0, 0, "0.5"), g="9.81")
+    y0 = top.initial_state(omega=(1, "0.5", 5), R0=[[1, 0, 0], [0, 0.8, -0.6], [0, 0.6, 0.8]])
+    q, qdot = top.surface_point(y0)
+    cs = top.constrained_system()
+    z0 = cs.intermediate().initial_state(q=q, qdot=qdot)
+    assert z0.data_bits == 53 and list(z0.exact) == list(y0.exact)
+    assert cs.dirac().initial_state(q=q, qdot=qdot).data_bits == 53
+    with pytest.raises(ValueError, match="`q` is not on the constraint surface"):
+        cs.intermediate().initial_state(q=[Fraction(2)] + list(q[1:]), qdot=qdot)
