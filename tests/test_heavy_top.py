@@ -362,3 +362,12 @@ def test_orthogonality_is_conserved_from_a_rotation_in_doubles():
     sol = ls.integrate(top, y0, t=[Fraction(k, 8) for k in range(1, 9)], precision="quad")
     for row in top.invariants(sol.y)["orthogonality"]:
         assert abs(ctx_mpf(c, row) - start) < 1e-32
+
+
+def test_an_overflowing_weight_names_mass_g_and_com():
+    """mass g com_i is one runtime parameter: with mass = g = 1e300 it overflows a double, and the refusal named
+    `com` alone."""
+    top = ls.HeavyTop((2, 2, 1), com=(0, 0, "0.5"), g="1e300", mass="1e300")
+    with pytest.raises(ValueError, match=r"`mass \* g \* com` gives the runtime parameter 'mgc3', whose value ~1e600 "
+                                         "overflows double"):
+        ls.integrate(top, top.initial_state(omega=(1, "0.5", 5)), t=1)
