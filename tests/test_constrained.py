@@ -535,3 +535,12 @@ def test_lie_steps_a_lagrangian_scaled_beyond_a_doubles_range():
         assert sol.status == "success", sol.message
         ends.append([ctx_mpf(c, v) for v in model.configuration(sol)[-1]])
     assert max(abs(a - b) for a, b in zip(*ends)) < 1e-18
+
+
+def test_a_coordinate_named_like_a_momentum_is_refused_at_once():
+    """Coordinates x and p_x (or pi_x) were accepted; dirac() (or intermediate()) then failed with "`variables`
+    must have distinct names", which does not say what to rename."""
+    for other in ("p_x", "pi_x"):
+        with pytest.raises(ValueError, match=rf"`coordinates`: '{other}' is also the name the formulations give "
+                                             r"the momentum of 'x'"):
+            ls.ConstrainedSystem(f"(x_dot**2 + {other}_dot**2)/2", ["x", other], [f"x**2 + {other}**2 - 1"])
