@@ -4,6 +4,7 @@ plot is drawn). Used by the report and by the studies' report sections."""
 from __future__ import annotations
 
 import math
+import sys
 import textwrap
 from fractions import Fraction
 
@@ -171,6 +172,37 @@ def save_figure(plt, fig, path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def below_float_range(v) -> bool:
+    """Whether ``v`` is a positive number a double cannot draw: below its normal range (an mpf of 1e-402 is 0.0 as
+    a float, a subnormal keeps a few bits) or above it."""
+    try:
+        if v is None or not v > 0:
+            return False
+        f = float(v)
+    except (TypeError, ValueError):
+        return False
+    except OverflowError:
+        return True
+    return f < sys.float_info.min or math.isinf(f) and _exact_value(v) is not None
+
+
+def log10_or_nan(values):
+    """log10 of each value, a float for a number of any size (an mpf of 1e-402 gives -402.0, through its exact
+    value); NaN for None, non-positive and non-finite values. For axes whose values a double cannot draw."""
+    out = []
+    for v in values:
+        if below_float_range(v):
+            exact = _exact_value(v)
+            out.append(math.log10(exact.numerator) - math.log10(exact.denominator) if exact else float("nan"))
+            continue
+        try:
+            f = float(v) if v is not None and v > 0 else math.nan
+        except (TypeError, ValueError):
+            f = math.nan
+        out.append(math.log10(f) if 0 < f < math.inf else float("nan"))
+    return out
 
 
 def positive_or_nan(values):
