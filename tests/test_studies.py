@@ -296,6 +296,25 @@ def test_error_against_order_above_300_digits_fits_down_to_its_own_floor():
     assert abs(0.1 * 10 ** (-ev.rate) / rho - 1) < 0.01
 
 
+def test_error_against_order_plot_draws_errors_below_a_doubles_range(monkeypatch, tmp_path):
+    """The plot of a 400-digit error-against-order study left out every error below 1e-308 (0.0 as a float on a
+    log axis): the orders 240 and 280 (1e-352, 2.5e-402) were not drawn. The axis shows log10 there."""
+    from lieseries.studies import convergence, error_vs_order
+
+    body = ls.EulerPoisson((1, 2, 3))
+    ev = error_vs_order(body, body.initial_state(omega=(1, "0.1", "0.5")), "0.1", [40, 160, 240, 280], dps=400)
+    figures = []
+    monkeypatch.setattr(convergence, "save_figure", lambda plt, fig, path: figures.append(fig))
+    convergence.ErrorVsOrderStudy().plot([("rigid body", ev)], tmp_path / "x.png", None)
+    ax = figures[0].axes[0]
+    points = next(ln for ln in ax.get_lines() if ln.get_label().startswith("rigid body"))
+    log_axis = ax.get_yscale() == "log"  # the value drawn, or its log10 on a linear axis
+    drawn = {x: float(np.log10(y)) if log_axis else y for x, y in zip(points.get_xdata(), points.get_ydata())}
+    for order, err in zip(ev.orders, ev.errors):
+        want = float(mp.log10(err))
+        assert abs(drawn[order] - want) < 1e-6 * abs(want), (order, err, drawn[order])
+
+
 def _so3(inertia):
     M1, M2, M3 = hy.make_vars("M1", "M2", "M3")
     return ls.PoissonSystem(variables=[M1, M2, M3], tensor=[[0, -M3, M2], [M3, 0, -M1], [-M2, M1, 0]],
