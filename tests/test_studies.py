@@ -354,3 +354,23 @@ def test_formulations_study_above_300_digits_keeps_its_small_numbers():
     assert row.status == "success"
     for value in (row.error, row.G, row.Phi, row.energy):
         assert 0 <= value < mp.mpf(10) ** -300 and not (isinstance(value, float) and 0 < value < 1e-307), row
+
+
+def test_work_precision_plot_draws_errors_below_a_doubles_range(monkeypatch, tmp_path):
+    """A 400-digit run's error (1e-402) was drawn at 1e-300 (clamped for the log axis): a point 100 orders of
+    magnitude off. The axis shows log10 of the errors then."""
+    import importlib
+    from types import SimpleNamespace
+
+    work_precision = importlib.import_module("lieseries.studies.work_precision")  # the package's name is the function
+    row = dict(t=1.0, method="lie", build_time=None)
+    rows = [SimpleNamespace(label="Lie series", error=mp.mpf("1e-402"), run_time=0.5, **row),
+            SimpleNamespace(label="Lie series", error=mp.mpf("1e-60"), run_time=0.01, **row)]
+    figures = []
+    monkeypatch.setattr(work_precision, "save_figure", lambda plt, fig, path: figures.append(fig))
+    work_precision.WorkPrecisionStudy().plot([("rigid body", SimpleNamespace(rows=rows, t=1.0))], tmp_path / "x.png",
+                                             None)
+    ax = figures[0].axes[0]
+    line, = [ln for ln in ax.get_lines() if ln.get_label() == "Lie series"]
+    ys = [float(mp.log10(y)) if ax.get_yscale() == "log" else y for y in line.get_ydata()]
+    assert abs(ys[0] + 402) < 1e-9 and abs(ys[1] + 60) < 1e-9
