@@ -43,6 +43,7 @@ from ..formatting import fmt_int, fmt_num, fmt_sci, markdown_table
 from ..methods import method_label, normalize_method, reference_dps, run_method, scene_methods
 from ..methods.pricing import CostPart
 from ..models.constrained import ConstrainedSystem
+from ..models.constrained_derive import SYMBOLIC_DIRAC_MAX_CONSTRAINTS
 from ..precision import MIN_DPS, dps_to_bits, exact_states_read_at, to_fraction
 from ..precision import thread_mp as mp
 from .convergence import MAX_STUDY_DPS, error_vs_order, fit_geometric_rate
@@ -376,10 +377,7 @@ class FormulationsStudy(Study):
     quick_doc = "a fifth of the time, 5 samples; the radius up to half the order (at least 12) at most 40 digits"
 
     def check(self, opts, run, models, where):
-        if "local" in opts["formulations"] and opts["chart"] is None:
-            raise F.SceneError("`studies.formulations.chart` is required with 'local' in "
-                               "`studies.formulations.formulations`: a table {dependent coordinate = \"expression of "
-                               "the others\"}")
+        # the model first: a damped body was told to give a chart, then that it has no constrained system
         for path, _spec, model, _y0 in models:
             try:
                 system = _system_of(model)
@@ -390,6 +388,14 @@ class FormulationsStudy(Study):
                 raise F.SceneError(f"`studies.formulations` compares the formulations of a constrained system; "
                                    f"`{path}` is not one (use kind 'constrained', a model derived from it, or a "
                                    "rigid body or heavy top, derived from R)")
+            if "local" in opts["formulations"] and opts["chart"] is None:
+                many = len(system.constraints) > SYMBOLIC_DIRAC_MAX_CONSTRAINTS
+                raise F.SceneError(
+                    "`studies.formulations.chart` is required with 'local' in `studies.formulations.formulations` (by "
+                    "default all four): a table {dependent coordinate = \"expression of the others\"}"
+                    + (f"; with {len(system.constraints)} constraints give formulations = [\"dirac\", "
+                       "\"intermediate\"] (the rigid body's R^T R = 1 has no such chart, and 'reduced' is derived "
+                       f"for at most {SYMBOLIC_DIRAC_MAX_CONSTRAINTS} constraints)" if many else ""))
             try:
                 for name in opts["formulations"]:
                     _formulation(system, name, opts["chart"], opts["dependent"])
