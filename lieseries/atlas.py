@@ -16,6 +16,7 @@ import math
 import time as _time
 from dataclasses import replace
 
+import mpmath
 import numpy as np
 
 from .driver import Outcome, StepResult, Stop, drive
@@ -166,7 +167,8 @@ def _energy_guard(model, z0, last, y_end, bits, tol, steps, switches, status, me
     rel = abs(e1 - e0) / max(abs(e0), abs(e1), scale)
     return "invariant_drift", (
         f"{message[:-1]}, but the result is wrong: the energy H, which the equations conserve, went from "
-        f"{float(e0):.10g} to {float(e1):.10g} (relative change {float(rel):.2g}, more than {steps} steps at the "
+        f"{mpmath.nstr(e0, 10)} to {mpmath.nstr(e1, 10)} (relative change {mpmath.nstr(rel, 2)}, more than {steps} "
+        "steps at the "
         f"tolerance allow) over {steps} steps and {switches} chart switches. Each chart's error control is "
         "relative to the state's largest component: on a sphere whose radius is far from 1 (positions ~ radius, "
         "momenta ~ mass |v|) the momenta keep fewer digits than the tolerance asks. Rescale lengths (and time) so "

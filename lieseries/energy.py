@@ -37,7 +37,9 @@ def drift_threshold(tol, steps):
     Lie-series run above ~300 digits: a threshold of 0.0 called every such run ``invariant_drift``)."""
     n = max(int(steps), 1)
     f = float(tol)
-    if f > 1e-280:
+    if f > 1e-280 or isinstance(tol, float):
+        # a float stays a float (heyoka's reals multiply with floats, not with mpf): the square of a 1024-bit
+        # run's sqrt(tol) is 5.6e-309, and its threshold, at least 1000 times that, is a normal double
         return min(math.sqrt(f), DRIFT_PER_STEP * f * n)
     t = mpmath.mpf(tol) if hasattr(tol, "_mpf_") else mpmath.mpf(tol.numerator) / tol.denominator
     return min(mpmath.sqrt(t), DRIFT_PER_STEP * t * n)
@@ -345,7 +347,7 @@ def clear_energy_cache() -> None:
 
 def energy_exact(ps, y, bits: int):
     """(H(y), the energy scale sum_i |dH/dy_i y_i|) of ``ps`` at the exact value of ``y``, H in mpmath at ``bits``
-    bits (the scale as a float): the energy check of the mpmath engine and of atlas runs, whose states are not in
+    bits (the scale an mpf of 64 bits): the energy check of the mpmath engine and of atlas runs, whose states are not in
     one heyoka format or one chart."""
     from .expr import compile_expressions
     from .precision import bits_to_dps, to_fraction
@@ -355,7 +357,11 @@ def energy_exact(ps, y, bits: int):
     exact = getattr(y, "exact", None)  # an ExactState: its exact values, not their doubles
     z = list(exact) if exact is not None else [to_fraction(v) for v in np.asarray(y, dtype=object)]
     out = prog.evaluate(z, list(ps.parameter_values), max(bits_to_dps(bits), 15))
-    return out[0], math.fsum(abs(float(g) * float(v)) for g, v in zip(out[1:], z))
+    # the scale in mpf (64 bits, explicit): a state or an energy beyond a double's range (momenta of 1e400, an
+    # energy of 1e-400) overflowed to an OverflowError or underflowed to a scale of 0.0 (a right run then ended
+    # ``invariant_drift``)
+    return out[0], mpmath.fsum([abs(mpmath.fmul(g, mpmath.fdiv(v.numerator, v.denominator, prec=64), prec=64))
+                                for g, v in zip(out[1:], z)])
 
 
 def exact_energy_verdict(e0, e1, scale, tol, status, message, steps):
@@ -365,4 +371,4 @@ def exact_energy_verdict(e0, e1, scale, tol, status, message, steps):
         return status, message
     if abs(e1 - e0) <= drift_threshold(tol, steps) * max(abs(e0), abs(e1), scale):
         return status, message
-    return "invariant_drift", drift_message(message, float(e0), float(e1), steps)
+    return "invariant_drift", drift_message(message, e0, e1, steps)

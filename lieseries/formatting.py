@@ -4,6 +4,7 @@ plot is drawn). Used by the report and by the studies' report sections."""
 from __future__ import annotations
 
 import math
+import sys
 import textwrap
 from fractions import Fraction
 
@@ -41,12 +42,16 @@ def _exact_value(x):
     Fraction; None for an infinity, a NaN or a type without an exact value."""
     try:
         if hasattr(x, "_mpf_"):
-            man, exp = x.man_exp  # x = man 2^exp exactly; raises for inf and nan
-            return Fraction(int(man)) * Fraction(2) ** int(exp) if man is not None else None
+            sign, man, exp, _bc = x._mpf_  # (-1)^sign man 2^exp exactly (man_exp drops the sign: -1e5000 printed
+            if not man:                    # "1.00e+5000"); man 0 for zero, inf and nan
+                return None if exp else Fraction(0)
+            return (-1) ** sign * Fraction(int(man)) * Fraction(2) ** int(exp)
         if hasattr(x, "as_integer_ratio"):  # ints, Fractions, floats, numpy's long double
             return Fraction(*x.as_integer_ratio())
-        return None
-    except (TypeError, ValueError, OverflowError, AttributeError):
+        # heyoka's real and real128 print their value in decimal (a real of 1e-400 printed "0" through its float)
+        text = str(x).strip()
+        return Fraction(text) if text and text.lstrip("+-")[:1].isdigit() else None
+    except (TypeError, ValueError, OverflowError, AttributeError, ZeroDivisionError):
         return None
 
 
@@ -78,9 +83,17 @@ def fmt_num(x) -> str:
     if x is None:
         return ""
     try:
-        return f"{float(x):.6g}"
+        f = float(x)
     except (TypeError, ValueError):
         return str(x)
+    except OverflowError:  # a Fraction or an integer above 1.8e308
+        f = math.inf
+    if (f == 0 or math.isinf(f)) and not math.isnan(f):  # beyond a double's range as a float, perhaps not itself
+        exact = _exact_value(x)
+        if exact is not None and exact != 0:
+            mant, exp = _big_sci(exact, 6).split("e")
+            return f"{mant.rstrip('0').rstrip('.')}e{exp}"  # as %g writes it: 1e-400, -2.5e+400
+    return f"{f:.6g}"
 
 
 def fmt_p(p) -> str:
@@ -159,6 +172,37 @@ def save_figure(plt, fig, path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def below_float_range(v) -> bool:
+    """Whether ``v`` is a positive number a double cannot draw: below its normal range (an mpf of 1e-402 is 0.0 as
+    a float, a subnormal keeps a few bits) or above it."""
+    try:
+        if v is None or not v > 0:
+            return False
+        f = float(v)
+    except (TypeError, ValueError):
+        return False
+    except OverflowError:
+        return True
+    return f < sys.float_info.min or math.isinf(f) and _exact_value(v) is not None
+
+
+def log10_or_nan(values):
+    """log10 of each value, a float for a number of any size (an mpf of 1e-402 gives -402.0, through its exact
+    value); NaN for None, non-positive and non-finite values. For axes whose values a double cannot draw."""
+    out = []
+    for v in values:
+        if below_float_range(v):
+            exact = _exact_value(v)
+            out.append(math.log10(exact.numerator) - math.log10(exact.denominator) if exact else float("nan"))
+            continue
+        try:
+            f = float(v) if v is not None and v > 0 else math.nan
+        except (TypeError, ValueError):
+            f = math.nan
+        out.append(math.log10(f) if 0 < f < math.inf else float("nan"))
+    return out
 
 
 def positive_or_nan(values):

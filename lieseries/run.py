@@ -28,6 +28,7 @@ from .precision import check_seconds, dps_to_bits, to_fraction
 from .precision import thread_mp as mp
 from .scenes import Scene, SceneError, effective_plan, load_scene
 from .studies.drift import invariant_function
+from .studies.reference import numerical_reference_label, to_float
 from .studies.plugin import StudyContext, studies_registry
 
 __all__ = ["RunRow", "SceneResult", "environment", "run_scene", "scaled_error"]
@@ -163,18 +164,11 @@ def _has_closed_form(model) -> bool:
 
 
 def _numerical_reference(model, y0, t, dps, bits):
-    """The studies' numerical reference (heyoka, >= 256 bits, tol 2^-250) at ``t``, as a Reference."""
-    from .studies import (NUMERICAL_REFERENCE_BITS, NUMERICAL_REFERENCE_TOL, Reference, observable_names,
-                          observables)
-    from .taylor import integrate
+    """The studies' numerical reference (:func:`lieseries.studies.numerical_reference`) at ``t``, as a Reference."""
+    from .studies import Reference, numerical_reference, observable_names, observables
 
-    bits = max(NUMERICAL_REFERENCE_BITS, bits)
-    sol = integrate(model, y0, t=t, precision=bits, tol=NUMERICAL_REFERENCE_TOL)
-    if not sol.success:
-        raise RuntimeError(f"the numerical reference (heyoka, {bits} bits) did not reach t = {float(t)}: "
-                           f"{sol.message}")
-    return Reference(float(t), observables(model, sol.y[-1], dps), observable_names(model), "numerical",
-                     f"heyoka, {bits} bits, tol 2^-250", dps)
+    rows, label = numerical_reference(model, y0, t, bits)
+    return Reference(float(t), observables(model, rows[-1], dps), observable_names(model), "numerical", label, dps)
 
 
 def _reference_at(model, y0, t, dps, bits):
@@ -185,8 +179,9 @@ def _reference_at(model, y0, t, dps, bits):
     return _numerical_reference(model, y0, t, dps, bits)
 
 
-def scaled_error(model, values, reference) -> float:
-    """Largest error relative to the natural scale of each compared quantity.
+def scaled_error(model, values, reference):
+    """Largest error relative to the natural scale of each compared quantity (a float, or an mpf below a float's
+    range).
 
     The model's ``error_groups``: rigid body: R against 1 (a rotation), M against |M_ref|. Sphere: x against
     |x_ref|, v against |v_ref|. Other systems: the state against its norm (1 when it vanishes). ``values`` and ``reference`` are the
@@ -202,7 +197,7 @@ def scaled_error(model, values, reference) -> float:
         if scale == 0:
             scale = mp.mpf(1)
         worst = max(worst, err / scale)
-    return float(worst)
+    return to_float(worst)  # an mpf below a float's range: a 400-digit run's 1e-402 was written 0.0
 
 
 def _quick_labels(scene, runp) -> dict:
@@ -218,15 +213,13 @@ def _quick_labels(scene, runp) -> dict:
 
 
 def _grid_references(model, y0, grid, dps, bits):
-    """The reference's compared quantities at every output time: the closed form, or heyoka at 256+ bits."""
-    from .studies import observables, reference_solutions
+    """The reference's compared quantities at every output time: the closed form, or the numerical reference."""
+    from .studies import numerical_reference, observables, reference_solutions
 
     refs = reference_solutions(model, y0, grid, dps=dps) if _has_closed_form(model) else None
     if refs is None:
-        from .taylor import integrate
-
-        sol = integrate(model, y0, t=grid, precision=max(256, bits), tol=Fraction(1, 2**250))
-        refs = [observables(model, y, dps) for y in sol.y]
+        rows, _label = numerical_reference(model, y0, grid, bits)
+        refs = [observables(model, y, dps) for y in rows]
     return refs
 
 
@@ -281,7 +274,7 @@ def _do_run(scene, runp, built, bar, notes):
         if _has_closed_form(model):
             ref_label = f"{ref_at(tf).label}, {dps} digits"
         else:
-            ref_label = f"heyoka, {max(256, bits)} bits, tol 2^-250, {dps} digits"
+            ref_label = f"{numerical_reference_label(bits)}, {dps} digits"
         refs_grid = _grid_references(model, y0, grid, dps, bits) if want_traj else None
         done += 1
         inv0 = invariant_function(model, dps + 10)(y0)  # at the reference's digits (a 400-digit run's drift too)

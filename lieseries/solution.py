@@ -246,6 +246,12 @@ def _read_only(a):
     return a
 
 
+def _read_only_stats(stats):
+    """A read-only view of an ensemble's statistics, their arrays (``steps``) read-only too: through the view,
+    ``es.stats["steps"][0] = 99`` changed the result."""
+    return types.MappingProxyType({k: _read_only(v) for k, v in dict(stats).items()})
+
+
 def as_float_array(values) -> np.ndarray:
     """A float64 copy of an array in any precision (for plotting and tables)."""
     arr = np.asarray(values)
@@ -254,16 +260,17 @@ def as_float_array(values) -> np.ndarray:
     return np.vectorize(float, otypes=[np.float64])(arr) if arr.size else arr.astype(np.float64)
 
 
-class MemberEvents(list):
-    """An ensemble's events: one ``{name: {"t": times, "y": states}}`` per member (``events[i]``). Indexing it by
-    an event's name says how to get at that event."""
+class MemberEvents(tuple):
+    """An ensemble's events: one ``{name: {"t": times, "y": states}}`` per member (``events[i]``), a tuple (the
+    ensemble is immutable: a list let members be appended or replaced). Indexing it by an event's name says how
+    to get at that event."""
 
     def __getitem__(self, key):
         if isinstance(key, str):
             names = sorted({n for member in self if member for n in member})
             raise KeyError(f"an ensemble's `events` holds one record per member: use `events[i][{key!r}]` for "
                            f"member i (events recorded: {names})")
-        return list.__getitem__(self, key)
+        return tuple.__getitem__(self, key)
 
 
 class EnsembleSolution:
@@ -312,7 +319,7 @@ class EnsembleSolution:
         self.__dict__.update(
             t=_read_only(t), y=_read_only(y), status=_read_only(status), message=tuple(message),
             t_reached=_read_only(np.asarray(t_reached, dtype=object)), y_reached=_read_only(y_reached),
-            stats=types.MappingProxyType(dict(stats)), method=method, rows=_read_only(rows),
+            stats=_read_only_stats(stats), method=method, rows=_read_only(rows),
             events=None if events is None else MemberEvents(events), charts=_read_only(charts),
             chart_reached=_read_only(chart_reached))
 
@@ -322,7 +329,7 @@ class EnsembleSolution:
     def __setstate__(self, state):
         # numpy unpickles its arrays writable: read-only again
         state = {k: _read_only(v) for k, v in state.items()}
-        self.__dict__.update(state, stats=types.MappingProxyType(dict(state["stats"])))
+        self.__dict__.update(state, stats=_read_only_stats(state["stats"]))
 
     def __setattr__(self, name, value):
         raise AttributeError(f"an EnsembleSolution is immutable; `{name}` cannot be set")
@@ -369,6 +376,23 @@ class EnsembleSolution:
         if not parts:
             raise ValueError("`parts` must hold at least one EnsembleSolution")
         first, extra = parts[0], stats
+        for i, p in enumerate(parts):
+            if not isinstance(p, cls):
+                raise TypeError(f"`parts[{i}]` must be an EnsembleSolution; got {type(p).__name__}")
+            # chunks of other times or options joined silently: rows labelled with the first part's times
+            differs = next((what for what, same in (
+                ("output times `t`", p.t.dtype == first.t.dtype and p.t.shape == first.t.shape
+                 and bool(np.all(p.t == first.t))),
+                ("state size", p.y.shape[1:] == first.y.shape[1:]),
+                ("method", p.method == first.method),
+                ("precision", p.stats.get("precision") == first.stats.get("precision")),
+                ("tolerance", p.stats.get("tol") == first.stats.get("tol")),
+                ("events (recorded in one, not in the other)", (p.events is None) == (first.events is None)),
+                ("charts (an atlas run and a run in one chart)", (p.charts is None) == (first.charts is None)),
+            ) if not same), None)
+            if differs is not None:
+                raise ValueError(f"`parts[{i}]` differs from `parts[0]` in its {differs}: concatenate joins the "
+                                 "chunks of one ensemble run (the same system, times and options)")
         stats = dict(first.stats)
         stats["steps"] = np.concatenate([p.stats["steps"] for p in parts])
         stats["build_time"] = max(p.stats.get("build_time", 0.0) for p in parts)

@@ -296,14 +296,17 @@ chart = { z = "sqrt(1 - x**2 - y**2)" }
 def test_formulations_study_refuses_a_model_without_constraints_and_local_without_chart():
     top = HEAD + ('[model]\nkind = "heavy_top"\ninertia = [2, 2, 1]\ncom = [0, 0, "0.5"]\n[initial]\n'
                   'omega = [1, 0, 5]\n[studies.formulations]\nt = 1\n')
-    with pytest.raises(SceneError, match="`studies.formulations.chart` is required"):
-        parse_scene(top)
+    with pytest.raises(SceneError, match=r"`studies.formulations.chart` is required .* with 6 constraints give "
+                                         r'formulations = \["dirac", "intermediate"\]'):
+        parse_scene(top)  # the defaults, all four: the chart a top cannot have was asked for, with no way out
     with pytest.raises(SceneError, match=r"reduced\(\): a system with 6 constraints"):
         parse_scene(top + 'formulations = ["dirac", "reduced"]\n')  # the top derived from R: no reduced form
     damped = HEAD + ('[model]\nkind = "damped_euler_poisson"\ninertia = [1, 2, 3]\ndamping = 1\n[initial]\n'
                      'omega = [1, 0, 5]\n[studies.formulations]\nt = 1\nformulations = ["dirac"]\n')
     with pytest.raises(SceneError, match="`model`: a damped rigid body has no constrained_system"):
         parse_scene(damped)
+    with pytest.raises(SceneError, match="`model`: a damped rigid body has no constrained_system"):
+        parse_scene(damped.replace('formulations = ["dirac"]\n', ''))  # was told to give a chart first
     sphere = HEAD + ('[model]\nkind = "sphere"\n[initial]\nx = ["0.6", 0, "0.8"]\nv = [0, 1, 0]\n'
                      '[studies.formulations]\nt = 1\nformulations = ["dirac"]\n')
     with pytest.raises(SceneError, match="`model` is not one"):

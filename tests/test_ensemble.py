@@ -377,10 +377,36 @@ def test_models_systems_and_solutions_pickle():
             sol.status[0] = "success"
         with pytest.raises(TypeError):
             sol.stats["steps"] = None
+        with pytest.raises(ValueError, match="read-only"):  # through the read-only view: changed the steps
+            sol.stats["steps"][0] = 99
         assert isinstance(sol.message, tuple)
+    events = run(body, body_states(body, omegas(2)), 2.0, events=[ls.Event(hy.make_vars("M2"), name="m2")]).events
+    with pytest.raises(AttributeError):
+        events.append({})  # a list: members could be added to the record
     single = pickle.loads(pickle.dumps(ls.integrate(body, y0, 3.0)))
     with pytest.raises(ValueError, match="read-only"):
         single.y[0, 0] = 0.0
+
+
+
+def test_concatenate_joins_only_chunks_of_one_run():
+    """``EnsembleSolution.concatenate`` labelled every row with the first part's times: parts run to other times,
+    in another precision, or with events in one and not the other were joined silently. Refused, naming the
+    part and what differs; chunks of one run join."""
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Y0 = body_states(body, omegas(4))
+    a, b = run(body, Y0[:2], [5, 10]), run(body, Y0[2:], [5, 10])
+    whole = EnsembleSolution.concatenate([a, b], workers=2)
+    assert np.array_equal(whole.y, run(body, Y0, [5, 10]).y) and whole.stats["workers"] == 2
+    m2 = hy.make_vars("M2")
+    for other, what in ((run(body, Y0[2:], [5, 20]), "output times"),
+                        (run(body, body_states(body, omegas(2), "quad"), [5, 10], precision="quad"), "output times"),
+                        (run(body, Y0[2:], [5, 10], tol=1e-10), "tolerance"),
+                        (run(body, Y0[2:], [5, 10], events=[ls.Event(m2, name="m2")]), "events")):
+        with pytest.raises(ValueError, match=rf"`parts\[1\]` differs from `parts\[0\]` in its {what}"):
+            EnsembleSolution.concatenate([a, other])
+    with pytest.raises(TypeError, match=r"`parts\[1\]` must be an EnsembleSolution"):
+        EnsembleSolution.concatenate([a, b.member(0)])
 
 
 # -- Dask --------------------------------------------------------------------------------------------------------

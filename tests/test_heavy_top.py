@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import lieseries as ls
-from lieseries.precision import dps_to_bits, resolve_precision, to_fraction
+from lieseries.precision import data_bits, dps_to_bits, resolve_precision, to_fraction
 from problems import ctx_mpf, private_ctx
 
 
@@ -312,3 +312,62 @@ def test_a_chart_frame_for_six_constraints_is_refused_naming_frame():
                                 ["x1", "y1", "x2", "y2", "x3", "y3"],
                                 ["x1**2+y1**2-1", "(x2-x1)**2+(y2-y1)**2-1", "(x3-x2)**2+(y3-y2)**2-1"])
     assert rods._triangular((1, 3, 5)) and not cs._triangular((0, 3, 4, 6, 7, 8))
+
+
+def test_binary_data_of_a_body_carry_their_bits_into_its_derived_forms():
+    """g = 9.81 as a double carries 53 bits: the top warns naming `g` and its Lie estimates stay above 2^-53; the
+    same top derived by ``constrained_system()`` must do the same (J and the weights were passed on as exact
+    Fractions: a 30-digit run claimed 1e-40). A state of doubles handed to ``surface_point`` carries 53 bits into
+    the form's initial state too."""
+    top = ls.HeavyTop((2, 2, 1), com=(0, 0, "0.5"), g=9.81)
+    inter = top.constrained_system().intermediate()
+    q, qdot = top.surface_point(top.initial_state(omega=(1, "0.5", 5)))
+    with pytest.warns(ls.PrecisionWarning, match="`g`"):
+        sol = ls.lie_integrate(inter, inter.initial_state(q=q, qdot=qdot), t="0.05", dps=30)
+    assert sol.status == "success" and max(sol.stats.error_estimates) >= 2.0 ** -54
+    exact = ls.HeavyTop((2, 2, 1), com=(0, 0, "0.5"), g="9.81")
+    y = np.asarray(exact.initial_state(omega=(1, "0.1", 5)), dtype=float)   # 0.1 rounded to a double
+    q, qdot = exact.surface_point(y)
+    z0 = exact.constrained_system().intermediate().initial_state(q=q, qdot=qdot)
+    assert z0.data_bits == 53
+    q, qdot = exact.surface_point(exact.initial_state(omega=(1, "0.1", 5)))
+    assert data_bits(q + qdot) is None and qdot[2] == Fraction(1, 10)   # exact data stay exact
+
+
+def test_a_body_started_from_a_rotation_in_doubles_starts_its_derived_forms():
+    """R0 typed in doubles (0.8, 0.6: R0 R0^T = 1 to 4e-17) is accepted by the top; its surface_point carries 53
+    bits, but the derived forms checked it at the exact tolerance 1e-50 and refused it. In the frame R^-T E_k the
+    intermediate form's state is the top's own (pi = M)."""
+    top = ls.HeavyTop((2, 2, 1), com=(0, 0, "0.5"), g="9.81")
+    y0 = top.initial_state(omega=(1, "0.5", 5), R0=[[1, 0, 0], [0, 0.8, -0.6], [0, 0.6, 0.8]])
+    q, qdot = top.surface_point(y0)
+    cs = top.constrained_system()
+    z0 = cs.intermediate().initial_state(q=q, qdot=qdot)
+    assert z0.data_bits == 53 and list(z0.exact) == list(y0.exact)
+    assert cs.dirac().initial_state(q=q, qdot=qdot).data_bits == 53
+    with pytest.raises(ValueError, match="`q` is not on the constraint surface"):
+        cs.intermediate().initial_state(q=[Fraction(2)] + list(q[1:]), qdot=qdot)
+
+
+def test_orthogonality_is_conserved_from_a_rotation_in_doubles():
+    """R0 in doubles misses R0 R0^T = 1 by 4.4e-17. The flow R -> R exp(t hat(Omega)) keeps R R^T exactly (its
+    Casimirs) but not the entries of R^T R: ``orthogonality`` measured max |R^T R - 1|, which moved by 1.3e-17
+    over a quad run and was reported as that run's drift. Against the exact value of the start at 60 digits."""
+    top = ls.HeavyTop((2, 2, 1), com=(0, 0, "0.5"), g="9.81")
+    y0 = top.initial_state(omega=(1, "0.5", 5), R0=[[1, 0, 0], [0, 0.8, -0.6], [0, 0.6, 0.8]])
+    c = private_ctx(60)
+    R = [[ctx_mpf(c, y0.exact[3 * i + j]) for j in range(3)] for i in range(3)]
+    start = max(abs(c.fsum(R[i][k] * R[j][k] for k in range(3)) - (i == j)) for i in range(3) for j in range(3))
+    assert start > 1e-17
+    sol = ls.integrate(top, y0, t=[Fraction(k, 8) for k in range(1, 9)], precision="quad")
+    for row in top.invariants(sol.y)["orthogonality"]:
+        assert abs(ctx_mpf(c, row) - start) < 1e-32
+
+
+def test_an_overflowing_weight_names_mass_g_and_com():
+    """mass g com_i is one runtime parameter: with mass = g = 1e300 it overflows a double, and the refusal named
+    `com` alone."""
+    top = ls.HeavyTop((2, 2, 1), com=(0, 0, "0.5"), g="1e300", mass="1e300")
+    with pytest.raises(ValueError, match=r"`mass \* g \* com` gives the runtime parameter 'mgc3', whose value ~1e600 "
+                                         "overflows double"):
+        ls.integrate(top, top.initial_state(omega=(1, "0.5", 5)), t=1)

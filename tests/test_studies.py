@@ -294,3 +294,83 @@ def test_error_against_order_above_300_digits_fits_down_to_its_own_floor():
 
     rho = theoretical_radius(body, y0)  # from ls.exact's elliptic functions: 2.9098
     assert abs(0.1 * 10 ** (-ev.rate) / rho - 1) < 0.01
+
+
+def test_error_against_order_plot_draws_errors_below_a_doubles_range(monkeypatch, tmp_path):
+    """The plot of a 400-digit error-against-order study left out every error below 1e-308 (0.0 as a float on a
+    log axis): the orders 240 and 280 (1e-352, 2.5e-402) were not drawn. The axis shows log10 there."""
+    from lieseries.studies import convergence, error_vs_order
+
+    body = ls.EulerPoisson((1, 2, 3))
+    ev = error_vs_order(body, body.initial_state(omega=(1, "0.1", "0.5")), "0.1", [40, 160, 240, 280], dps=400)
+    figures = []
+    monkeypatch.setattr(convergence, "save_figure", lambda plt, fig, path: figures.append(fig))
+    convergence.ErrorVsOrderStudy().plot([("rigid body", ev)], tmp_path / "x.png", None)
+    ax = figures[0].axes[0]
+    points = next(ln for ln in ax.get_lines() if ln.get_label().startswith("rigid body"))
+    log_axis = ax.get_yscale() == "log"  # the value drawn, or its log10 on a linear axis
+    drawn = {x: float(np.log10(y)) if log_axis else y for x, y in zip(points.get_xdata(), points.get_ydata())}
+    for order, err in zip(ev.orders, ev.errors):
+        want = float(mp.log10(err))
+        assert abs(drawn[order] - want) < 1e-6 * abs(want), (order, err, drawn[order])
+
+
+def _so3(inertia):
+    M1, M2, M3 = hy.make_vars("M1", "M2", "M3")
+    return ls.PoissonSystem(variables=[M1, M2, M3], tensor=[[0, -M3, M2], [M3, 0, -M1], [-M2, M1, 0]],
+                            hamiltonian=0.5 * (hy.par[0] * M1**2 + hy.par[1] * M2**2 + hy.par[2] * M3**2),
+                            parameters={f"1/I{i + 1}": 1 / to_fraction(v) for i, v in enumerate(inertia)})
+
+
+def test_numerical_reference_resolves_runs_of_more_than_256_bits():
+    """A system without a closed form is measured against a numerical reference: its tolerance was 2^-250 at any
+    precision (130 digits asked, 1e-77 given: every run more precise than that was reported with the reference's
+    error), and above 1024 bits heyoka refused it with a traceback. The free body on so(3)* against the closed
+    form of M = I Omega(t)."""
+    from lieseries.studies import reference_solution
+    from problems import ctx_mpf, private_ctx
+
+    inertia, omega = (1, 2, "2.5"), (1, "0.1", "0.5")
+    so3 = _so3(inertia)
+    M0 = [to_fraction(i) * to_fraction(w) for i, w in zip(inertia, omega)]
+    for dps in (130, 350):
+        ref = reference_solution(so3, M0, "0.5", dps=dps)
+        c = private_ctx(dps + 20)
+        om = exact.angular_velocity(inertia, omega, "0.5", dps=dps + 20)
+        want = [ctx_mpf(c, i) * ctx_mpf(c, w) for i, w in zip(inertia, om)]
+        assert max(abs(ctx_mpf(c, a) - b) for a, b in zip(ref.values, want)) < c.mpf(10) ** (5 - dps), ref.label
+
+
+def test_formulations_study_above_300_digits_keeps_its_small_numbers():
+    """A 320-digit Lie run of the pendulum's Dirac form: its energy drift was measured from the exact initial
+    state read at 256 bits (1e-87 for every run), and |G|, |Phi| and the drift, about 1e-322, were subnormal
+    floats of a few bits (or 0.0 further down). They are mpf there, below 1e-300."""
+    from lieseries.studies import compare_formulations
+
+    pend = ls.ConstrainedSystem("m/2*(x_dot**2 + y_dot**2) - m*g*y", ["x", "y"], ["x**2 + y**2 - l**2"],
+                                parameters={"m": 1, "g": "9.81", "l": 1})
+    row, = compare_formulations(pend, ("0.6", "-0.8"), ("0.8", "0.6"), "0.05", [{"method": "lie", "dps": 320}],
+                                formulations=["dirac"], samples=2).rows
+    assert row.status == "success"
+    for value in (row.error, row.G, row.Phi, row.energy):
+        assert 0 <= value < mp.mpf(10) ** -300 and not (isinstance(value, float) and 0 < value < 1e-307), row
+
+
+def test_work_precision_plot_draws_errors_below_a_doubles_range(monkeypatch, tmp_path):
+    """A 400-digit run's error (1e-402) was drawn at 1e-300 (clamped for the log axis): a point 100 orders of
+    magnitude off. The axis shows log10 of the errors then."""
+    import importlib
+    from types import SimpleNamespace
+
+    work_precision = importlib.import_module("lieseries.studies.work_precision")  # the package's name is the function
+    row = dict(t=1.0, method="lie", build_time=None)
+    rows = [SimpleNamespace(label="Lie series", error=mp.mpf("1e-402"), run_time=0.5, **row),
+            SimpleNamespace(label="Lie series", error=mp.mpf("1e-60"), run_time=0.01, **row)]
+    figures = []
+    monkeypatch.setattr(work_precision, "save_figure", lambda plt, fig, path: figures.append(fig))
+    work_precision.WorkPrecisionStudy().plot([("rigid body", SimpleNamespace(rows=rows, t=1.0))], tmp_path / "x.png",
+                                             None)
+    ax = figures[0].axes[0]
+    line, = [ln for ln in ax.get_lines() if ln.get_label() == "Lie series"]
+    ys = [float(mp.log10(y)) if ax.get_yscale() == "log" else y for y in line.get_ydata()]
+    assert abs(ys[0] + 402) < 1e-9 and abs(ys[1] + 60) < 1e-9

@@ -1,5 +1,6 @@
 """ls.integrate (heyoka): the sphere against the exact great circle in every precision; outcomes; bad input."""
 
+import math
 from fractions import Fraction
 
 import heyoka as hy
@@ -550,3 +551,27 @@ def test_a_repeated_call_refuses_what_a_fresh_call_refuses():
     assert ls.integrate(body, y0, t=1).success
     with pytest.raises(TypeError, match="`t`"):
         ls.integrate(body, y0, t=True)
+
+
+def test_drift_threshold_of_a_float_below_1e_280_is_a_float():
+    """The energy check of a heyoka run squares its float sqrt(tol): above ~930 bits a float below 1e-280, which
+    raised AttributeError (the mpf branch read .numerator); heyoka's reals multiply with floats, not with mpf."""
+    from lieseries.energy import drift_threshold
+
+    thr = drift_threshold(math.sqrt(2.0 ** -1023) ** 2, 2)
+    assert isinstance(thr, float) and thr == 2000 * math.sqrt(2.0 ** -1023) ** 2
+
+
+@pytest.mark.slow  # 2.4 s: compiling the 1024-bit integrator
+def test_a_run_at_the_largest_heyoka_precision_succeeds_right():
+    """1024 bits (MAX_BITS, tol 2^-1023 = 1.1e-308): the energy check squared sqrt(tol) into a float below 1e-280
+    and raised AttributeError (every run above ~930 bits). Against the closed form at 330 digits."""
+    from lieseries import exact
+    from problems import ctx_mpf, private_ctx
+
+    body = ls.EulerPoisson((1, 2, "2.5"))
+    sol = ls.integrate(body, body.initial_state(omega=(1, "0.1", "0.5")), t="0.25", precision=1024)
+    assert sol.status == "success", sol.message
+    ref = exact.euler_poisson((1, 2, "2.5"), (1, "0.1", "0.5"), "0.25", dps=330)
+    c = private_ctx(330)
+    assert max(abs(ctx_mpf(c, a) - ctx_mpf(c, b)) for a, b in zip(sol.y[-1], ref)) < c.mpf(10) ** -305

@@ -524,7 +524,7 @@ def test_a_run_at_400_digits_is_a_success_with_its_error_and_drift_at_400_digits
     """Above a double's range: the energy guard's threshold (1e-400 as a float was 0.0: every such run was
     `invariant_drift`), the final error against the closed form (printed "0"), the initial invariants of an exact
     state (read at 256 bits: a drift of 2e-83; and a state of dyadic numbers must not be read at their own short
-    significands) and data.json (1e-402 written as 0.0) keep their size."""
+    significands) and data.json (1e-402 written as 0.0) keep their size, and so does the error scaled to each quantity's size."""
     import json
 
     from lieseries.report import write_report
@@ -538,9 +538,29 @@ def test_a_run_at_400_digits_is_a_success_with_its_error_and_drift_at_400_digits
     row, = res.run["rows"]
     assert row.status == "success", row.message
     assert 0 < row.error < mp.mpf(10) ** -399 and all(0 <= d < mp.mpf(10) ** -398 for d in row.drift.values())
+    assert 0 < row.scaled_error < mp.mpf(10) ** -399  # written 0.0 (float of an mpf below a float's range)
     write_report(res, tmp_path / "rep")
     md = (tmp_path / "rep" / "report.md").read_text()
     line = next(ln for ln in md.splitlines() if ln.startswith("| Lie series 400 dps"))
     assert "e-40" in line and "| 0 " not in line
     data = json.loads((tmp_path / "rep" / "data.json").read_text())
     assert "e-40" in json.dumps(data["run"]["rows"][0]["error"])
+    assert "e-40" in json.dumps(data["run"]["rows"][0]["scaled_error"])
+
+
+@pytest.mark.xfail(strict=True, reason="lie/integrator.py builds Stats with tol=float(tolm): 1e-400 is 0.0; keep "
+                   "an mpf below a float's range (as the error estimates do)")
+def test_a_lie_run_at_400_digits_reports_its_tolerance():
+    """``sol.stats.tol`` of a 400-digit Lie run read 0.0: a tolerance that claims every digit."""
+    body = ls.EulerPoisson((1, 2, "2.5"))
+    sol = ls.lie_integrate(body, body.initial_state(omega=(1, "0.1", "0.5")), t="0.05", dps=400)
+    assert sol.status == "success" and mp.mpf(10) ** -401 < sol.stats.tol < mp.mpf(10) ** -399
+
+
+@pytest.mark.xfail(strict=True, reason="validated.py builds Stats with tol=10.0 ** -dps: 0.0 above 323 digits; "
+                   "keep an mpf below a float's range")
+def test_a_validated_run_at_400_digits_reports_its_tolerance():
+    """``sol.stats.tol`` of a 400-digit validated run read 0.0."""
+    body = ls.EulerPoisson((1, 2, "2.5"))
+    sol = ls.validated_integrate(body, body.initial_state(omega=(1, "0.1", "0.5")), t="0.01", dps=400)
+    assert sol.status == "success" and mp.mpf(10) ** -401 < sol.stats.tol < mp.mpf(10) ** -399

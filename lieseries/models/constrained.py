@@ -170,6 +170,11 @@ class ConstrainedSystem:
             raise ValueError("`coordinates` must not be empty")
         if len(set(names)) != len(names):
             raise ValueError(f"`coordinates` must be distinct; got {names}")
+        for c in names:  # the forms name the momentum of x p_x (Dirac, reduced) and pi_x (intermediate)
+            clash = next((m for m in (f"p_{c}", f"pi_{c}") if m in names), None)
+            if clash is not None:
+                raise ValueError(f"`coordinates`: {clash!r} is also the name the formulations give the momentum of "
+                                 f"{c!r}; rename that coordinate")
         return tuple(names)
 
     def _check_parameters(self, parameters):

@@ -336,7 +336,10 @@ class ConstrainedDirac(Model):
         binary = {}
         for nm, val in (("q", q), ("qdot", qdot)):
             binary.update(binary_inputs(val, nm))
-        bits = min(binary.values()) if binary else None
+        # values already marked binary (BinaryFraction: a body's surface_point of a state built from R0 in
+        # doubles) carry their bits too: such a point was refused at the exact tolerance 1e-50
+        marked = data_bits([q, qdot])
+        bits = min(list(binary.values()) + ([int(marked)] if marked is not None else []), default=None)
         self._check_surface(qf, vf, bits)
         return qf, vf, bits
 

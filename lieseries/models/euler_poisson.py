@@ -29,8 +29,8 @@ import numpy as np
 
 from ..caller import stacklevel
 from ..poisson import PoissonSystem
-from ..precision import (binary_inputs, data_bits, export_mpf, resolve_precision, short_decimal, state_bits,
-                         to_fraction)
+from ..precision import (BinaryFraction, binary_inputs, data_bits, export_mpf, resolve_precision, short_decimal,
+                         state_bits, to_fraction)
 from .. import fields as F
 from .base import Model, make_state
 from .constrained import ConstrainedSystem
@@ -408,7 +408,8 @@ class EulerPoisson(Model):
         """Conserved quantities, evaluated in mpmath a little above the state's precision.
 
         Returns a dict of mpf (a dict of lists for a 2-d array of states): ``energy`` H, ``M2`` = |M|^2,
-        ``L1, L2, L3`` the lab angular momentum R M, ``orthogonality`` = max |R^T R - 1|, ``det_R``.
+        ``L1, L2, L3`` the lab angular momentum R M, ``orthogonality`` = max |R R^T - 1| (conserved; equal to
+        max |R^T R - 1| for a rotation), ``det_R``.
         """
         rows, bits, was_1d = self._rows(y)
         keys = ("energy", "M2", "L1", "L2", "L3", "orthogonality", "det_R")
@@ -424,8 +425,11 @@ class EulerPoisson(Model):
                 res["M2"].append(mp.fsum(m * m for m in M))
                 for i in range(3):
                     res[f"L{i + 1}"].append(mp.fsum(R[i][j] * M[j] for j in range(3)))
+                # R R^T, the Casimirs of the bracket: conserved for any R. The entries of R^T R are not when R is
+                # not exactly a rotation (R0 in doubles): their largest moved by 1.3e-17 over a quad run, reported
+                # as that run's drift
                 res["orthogonality"].append(
-                    max(abs(mp.fsum(R[k][i] * R[k][j] for k in range(3)) - (i == j)) for i in range(3) for j in range(3))
+                    max(abs(mp.fsum(R[i][k] * R[j][k] for k in range(3)) - (i == j)) for i in range(3) for j in range(3))
                 )
                 res["det_R"].append(_det3(R))
         return export_mpf({k: v[0] for k, v in res.items()} if was_1d else res)
@@ -482,18 +486,29 @@ class EulerPoisson(Model):
         frame = [[f"({e})/{det}" if e else "0" for e in row] for row in frame]
         system = ConstrainedSystem(lagrangian, [e for row in R for e in row], constraints, parameters=params,
                                    name=f"{self.poisson.name} from R", frame=frame, momenta=["M1", "M2", "M3"])
+        # J and the weights are exact functions of the body's data: binary data (inertia=(1.1, 2, 2.5), g=9.81)
+        # carry their bits into every derived form, as they do into this model
+        system.input_bits.update(self.poisson.coarse_data())
         self.__dict__["constrained"] = system
         return system
 
     def surface_point(self, y) -> tuple:
         """(q, qdot) of :meth:`constrained_system` at the state ``y``: q = R (row-major), qdot = R hat(Omega),
-        Omega = I^-1 M; exact Fractions from the state's exact value."""
+        Omega = I^-1 M; exact Fractions from the state's exact value (marked with the bits of a state of doubles,
+        or of one built from binary input, as the state itself is)."""
         z = self.check_state(y, "y")
         R = [z[3 * i:3 * i + 3] for i in range(3)]
         om = [sum(self._Iinv[i][j] * z[9 + j] for j in range(3)) for i in range(3)]
         hat = [[0, -om[2], om[1]], [om[2], 0, -om[0]], [-om[1], om[0], 0]]
         qdot = [sum(R[i][k] * hat[k][j] for k in range(3)) for i in range(3) for j in range(3)]
-        return [R[i][j] for i in range(3) for j in range(3)], qdot
+        q = [R[i][j] for i in range(3) for j in range(3)]
+        bits = data_bits(y)
+        if bits is None:
+            return q, qdot
+        # a state of doubles (or one built from binary input) carries its bits into q and qdot, so that a form
+        # started from them does not claim more digits than y has
+        sources = getattr(bits, "sources", ()) or ("y",)
+        return ([BinaryFraction(v, bits, sources) for v in q], [BinaryFraction(v, bits, sources) for v in qdot])
 
     # -- how studies, runs and reports treat it ----------------------------------------------------------------
     closed_form = "free_rigid_body"

@@ -75,7 +75,7 @@ class HeavyTop(EulerPoisson):
         params = dict(zip(base.parameter_names, base.parameter_values))
         params.update({f"mgc{i + 1}": w for i, w in enumerate(weight)})
         sources = {k: "inertia" for k in base.parameter_names}
-        sources.update({f"mgc{i + 1}": "com" for i in range(3)})
+        sources.update({f"mgc{i + 1}": "mass * g * com" for i in range(3)})  # "`com` gives" blamed com alone
         return PoissonSystem(
             z, base.tensor, base.hamiltonian + potential, parameters=params,
             name=f"heavy top ({self.bracket})", input_bits={**base.coarse_data(), **self._heavy_bits},

@@ -7,8 +7,8 @@ import json
 from pathlib import Path
 
 from ..folder import ReportFolder
-from ..formatting import (MARKERS, fmt_int, fmt_num, fmt_sci, markdown_table, plain_table, positive_or_nan, pyplot,
-                          save_figure, wrap)
+from ..formatting import (MARKERS, below_float_range, fmt_int, fmt_num, fmt_sci, log10_or_nan, markdown_table,
+                          plain_table, positive_or_nan, pyplot, save_figure, wrap)
 from ..studies.plugin import ReportContext, studies_registry
 from .files import json_default, write_csv, write_json
 
@@ -39,11 +39,16 @@ def plot_trajectory(result, path: Path) -> None:
         ax.legend(loc="best", fontsize=8)
         ax.grid(alpha=0.3)
         ax2 = axes[1][j]
+        # errors a double cannot draw (a 400-digit run's 1e-402 is 0.0: its line was left out, its legend kept):
+        # the axis shows their log10 instead
+        tiny = any(below_float_range(v) for errs in tr["errors"].values() for v in errs)
         for k, (lab, errs) in enumerate(tr["errors"].items()):
-            ax2.semilogy(tr["error_times"][lab], positive_or_nan(errs), marker=MARKERS[k % len(MARKERS)],
-                         markersize=3, linewidth=1, label=lab)
+            draw = ax2.plot if tiny else ax2.semilogy
+            draw(tr["error_times"][lab], log10_or_nan(errs) if tiny else positive_or_nan(errs),
+                 marker=MARKERS[k % len(MARKERS)], markersize=3, linewidth=1, label=lab)
         ax2.set_xlabel("time t")
-        ax2.set_ylabel("max-abs error against the reference")
+        ax2.set_ylabel("log10 of the max-abs error against the reference" if tiny
+                       else "max-abs error against the reference")
         ax2.set_title(f"{mlabel}: error along the run")
         if tr["errors"]:
             ax2.legend(loc="best", fontsize=8)

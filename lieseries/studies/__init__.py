@@ -15,6 +15,8 @@ from .reference import (  # noqa: F401
     unregister_closed_form,
     NUMERICAL_REFERENCE_BITS,
     NUMERICAL_REFERENCE_TOL,
+    numerical_reference,
+    numerical_reference_label,
     Reference,
     has_exact_solution,
     loglog_slope,

@@ -22,7 +22,8 @@ from fractions import Fraction
 
 from .. import fields as F
 from ..methods.pricing import CostPart
-from ..formatting import MARKERS, fmt_num, fmt_sci, markdown_table, positive_or_nan, pyplot, save_figure
+from ..formatting import (MARKERS, below_float_range, fmt_num, fmt_sci, log10_or_nan, markdown_table, positive_or_nan,
+                          pyplot, save_figure)
 from ..poisson import as_poisson_system
 from ..precision import thread_mp as mp
 from ..precision import MAX_DPS, MAX_ORDER, MIN_DPS, check_count, to_fraction
@@ -401,28 +402,38 @@ class ErrorVsOrderStudy(Study):
 
         plt = pyplot()
         fig, ax = plt.subplots(figsize=(7.5, 5.5))
+        # errors a double cannot draw (above ~300 digits: 1e-400 is 0.0, and a log axis left them out): the axis
+        # then shows log10 of the errors, from their exact values, and the lines in log10 directly
+        tiny = any(below_float_range(e) for _, ev in items for e in ev.errors)
+        draw = ax.plot if tiny else ax.semilogy
+
+        def logs(values):  # a line given by its log10 values
+            return list(values) if tiny else [10 ** v for v in values]
+
         for k, (mlabel, ev) in enumerate(items):
             color = f"C{k}"
-            ax.semilogy(ev.orders, positive_or_nan(ev.errors), marker=MARKERS[k % len(MARKERS)], linestyle="none",
-                        color=color, markersize=4, label=f"{mlabel}: truncation error at t = {ev.t:.4g}")
+            draw(ev.orders, log10_or_nan(ev.errors) if tiny else positive_or_nan(ev.errors),
+                 marker=MARKERS[k % len(MARKERS)], linestyle="none", color=color, markersize=4,
+                 label=f"{mlabel}: truncation error at t = {ev.t:.4g}")
             if ev.rate is not None and ev.fit_orders:
                 xs = [min(ev.fit_orders), max(ev.fit_orders)]
-                ax.semilogy(xs, [10 ** (ev.intercept + ev.rate * x) for x in xs], "-", color=color, linewidth=1,
-                            label=f"fit: rho = {ev.radius_measured:.4g}")
+                draw(xs, logs(ev.intercept + ev.rate * x for x in xs), "-", color=color, linewidth=1,
+                     label=f"fit: rho = {ev.radius_measured:.4g}")
                 if ev.radius_theory:
                     slope = math.log10(abs(ev.t) / ev.radius_theory)
                     mid = 0.5 * (xs[0] + xs[1])
                     anchor = ev.intercept + ev.rate * mid
-                    ax.semilogy(xs, [10 ** (anchor + slope * (x - mid)) for x in xs], ":", color="k",
-                                linewidth=1.2, label=f"theory: (t / rho)^N, rho = {ev.radius_theory:.4g}")
+                    draw(xs, logs(anchor + slope * (x - mid) for x in xs), ":", color="k",
+                         linewidth=1.2, label=f"theory: (t / rho)^N, rho = {ev.radius_theory:.4g}")
         floor = min(ev.floor for _, ev in items)
         smallest = min((e for _, ev in items for e in ev.errors if e and e > 0), default=floor)
-        # drawn when the data come near it (it would only stretch the axis otherwise) and a float can draw it
-        if floor > smallest * 1e-4 and float(floor) > 0:
-            ax.axhline(float(floor), color="grey", linestyle="--", linewidth=0.8,
-                       label=f"precision floor {fmt_sci(floor, 1)}")
+        # drawn when the data come near it (it would only stretch the axis otherwise)
+        if floor > smallest * 1e-4 and (tiny or float(floor) > 0):
+            ax.axhline(log10_or_nan([floor])[0] if tiny else float(floor), color="grey", linestyle="--",
+                       linewidth=0.8, label=f"precision floor {fmt_sci(floor, 1)}")
         ax.set_xlabel("truncation order N")
-        ax.set_ylabel("max-abs error of the truncated Lie series")
+        ax.set_ylabel("log10 of the max-abs error of the truncated Lie series" if tiny
+                      else "max-abs error of the truncated Lie series")
         ax.set_title("Lie series: error against order (slope gives the radius of convergence)", fontsize=10)
         ax.legend(loc="best", fontsize=8)
         ax.grid(alpha=0.3, which="both")

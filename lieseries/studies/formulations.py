@@ -43,10 +43,12 @@ from ..formatting import fmt_int, fmt_num, fmt_sci, markdown_table
 from ..methods import method_label, normalize_method, reference_dps, run_method, scene_methods
 from ..methods.pricing import CostPart
 from ..models.constrained import ConstrainedSystem
-from ..precision import MIN_DPS, dps_to_bits, to_fraction
+from ..models.constrained_derive import SYMBOLIC_DIRAC_MAX_CONSTRAINTS
+from ..precision import MIN_DPS, dps_to_bits, exact_states_read_at, to_fraction
 from ..precision import thread_mp as mp
 from .convergence import MAX_STUDY_DPS, error_vs_order, fit_geometric_rate
 from .plugin import Study, register_study
+from .reference import numerical_reference, numerical_reference_label, to_float
 
 __all__ = ["FormulationRow", "FormulationComparison", "compare_formulations", "FormulationsStudy", "FORMULATIONS",
            "FormulationRadius", "formulation_radii", "radius_verdict", "radius_text", "RADIUS_AGREEMENT",
@@ -216,13 +218,8 @@ def compare_formulations(system, q, qdot, t, methods, *, formulations=FORMULATIO
 
     def reference(t_end):
         if t_end not in refs:
-            from ..taylor import integrate  # the driver layer below studies
-
-            sol = integrate(dirac, y0_ref, t=t_end, precision=bits)
-            if not sol.success:
-                raise RuntimeError(f"the reference (Dirac, heyoka {bits} bits) did not reach t = {float(t_end)}: "
-                                   f"{sol.message}")
-            refs[t_end] = _qv(dirac, sol.y[-1])
+            rows_ref, _label = numerical_reference(dirac, y0_ref, t_end, bits)  # the Lie series above 1024 bits
+            refs[t_end] = _qv(dirac, rows_ref[-1])
         return refs[t_end]
 
     rows, notes = [], []
@@ -232,7 +229,8 @@ def compare_formulations(system, q, qdot, t, methods, *, formulations=FORMULATIO
         for name in formulations:
             model = _formulation(system, name, chart, dependent)
             y0 = model.initial_state(q, qdot)
-            e0 = _mpf(model.invariants(y0)["energy"])
+            with exact_states_read_at(dps_to_bits(ref_dps)):  # not at 256 bits: a drift of 1e-87 for every run
+                e0 = _mpf(model.invariants(y0)["energy"])
             for spec in methods:
                 if progress is not None:
                     progress(done, total, f"{name}: {spec['method']}")
@@ -254,16 +252,18 @@ def compare_formulations(system, q, qdot, t, methods, *, formulations=FORMULATIO
                 qr, vr = reference(t_end)
                 qs, vs = _qv(model, rec.states[-1])
                 err = max(abs(_mpf(a - b)) for a, b in zip(qs + vs, qr + vr))
+                # below a float's range (a 400-digit run) they stay mpf: 0.0 would claim every digit
                 rows.append(FormulationRow(name, model.poisson.dimension, rec.label, rec.status, float(t_end),
-                                           float(err), float(g), float(phi), float(en), rec.steps, rec.run_time,
+                                           to_float(err), to_float(g), to_float(phi), to_float(en), rec.steps,
+                                           rec.run_time,
                                            rec.message, [float(c) for c in qs], [float(c) for c in vs]))
                 done += 1
     if any(r.status == CHART_END for r in rows):
         notes.append("A run with status chart_edge reached the edge of its chart (reduced, intermediate: where "
                      "the block of dG/dq of the dependent coordinates becomes singular; local: the chart's own "
                      "edge) and stopped there; its error is measured at the time it reached.")
-    return FormulationComparison(float(tf), rows, f"the Dirac formulation by heyoka at {bits} bits (the most "
-                                 f"precise run), at the time each run reached", notes)
+    return FormulationComparison(float(tf), rows, f"the Dirac formulation by {numerical_reference_label(bits)} "
+                                 "(the most precise run), at the time each run reached", notes)
 
 
 # -- the radius of convergence of the Lie series, per formulation -------------------------------------------------
@@ -377,10 +377,7 @@ class FormulationsStudy(Study):
     quick_doc = "a fifth of the time, 5 samples; the radius up to half the order (at least 12) at most 40 digits"
 
     def check(self, opts, run, models, where):
-        if "local" in opts["formulations"] and opts["chart"] is None:
-            raise F.SceneError("`studies.formulations.chart` is required with 'local' in "
-                               "`studies.formulations.formulations`: a table {dependent coordinate = \"expression of "
-                               "the others\"}")
+        # the model first: a damped body was told to give a chart, then that it has no constrained system
         for path, _spec, model, _y0 in models:
             try:
                 system = _system_of(model)
@@ -391,6 +388,14 @@ class FormulationsStudy(Study):
                 raise F.SceneError(f"`studies.formulations` compares the formulations of a constrained system; "
                                    f"`{path}` is not one (use kind 'constrained', a model derived from it, or a "
                                    "rigid body or heavy top, derived from R)")
+            if "local" in opts["formulations"] and opts["chart"] is None:
+                many = len(system.constraints) > SYMBOLIC_DIRAC_MAX_CONSTRAINTS
+                raise F.SceneError(
+                    "`studies.formulations.chart` is required with 'local' in `studies.formulations.formulations` (by "
+                    "default all four): a table {dependent coordinate = \"expression of the others\"}"
+                    + (f"; with {len(system.constraints)} constraints give formulations = [\"dirac\", "
+                       "\"intermediate\"] (the rigid body's R^T R = 1 has no such chart, and 'reduced' is derived "
+                       f"for at most {SYMBOLIC_DIRAC_MAX_CONSTRAINTS} constraints)" if many else ""))
             try:
                 for name in opts["formulations"]:
                     _formulation(system, name, opts["chart"], opts["dependent"])

@@ -12,12 +12,14 @@ Particle on the sphere (:class:`~lieseries.Sphere`, :class:`~lieseries.SphereDir
     (x, v) instead of the chart coordinates makes the 5-dimensional and the Dirac form directly comparable and
     needs no chart at the final time.
 Any other system
-    The state, against heyoka in 256-bit arithmetic with tolerance 2^-250 (a numerical reference, labelled so).
+    The state, against heyoka in 256-bit arithmetic with tolerance 2^-250, or more bits for more digits (the Lie
+    series above heyoka's 1024 bits): a numerical reference, labelled so (:func:`numerical_reference`).
 """
 
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 from fractions import Fraction
 
@@ -28,12 +30,14 @@ from typing import Callable
 from .. import exact
 from ..models.base import as_model, state_fractions
 from ..poisson import as_poisson_system
-from ..precision import MAX_DPS, check_count, dps_to_bits, export_mpf, to_fraction
+from ..precision import MAX_BITS, MAX_DPS, bits_to_dps, check_count, dps_to_bits, export_mpf, to_fraction
 from ..precision import thread_mp as mp
 
 __all__ = [
     "NUMERICAL_REFERENCE_BITS",
     "NUMERICAL_REFERENCE_TOL",
+    "numerical_reference",
+    "numerical_reference_label",
     "Reference",
     "reference_solution",
     "reference_solutions",
@@ -49,9 +53,40 @@ __all__ = [
     "unregister_closed_form",
 ]
 
-#: Precision (bits) and tolerance of the numerical reference used when a system has no closed form.
+#: Precision (bits) and tolerance of the numerical reference used when a system has no closed form: at least
+#: these bits, and a tolerance 6 bits above the precision's last place (2^-250 at 256 bits).
 NUMERICAL_REFERENCE_BITS = 256
 NUMERICAL_REFERENCE_TOL = Fraction(1, 2**250)
+
+
+def numerical_reference_label(bits: int) -> str:
+    """What :func:`numerical_reference` runs at ``bits``."""
+    bits = max(NUMERICAL_REFERENCE_BITS, int(bits))
+    if bits <= MAX_BITS:
+        return f"heyoka, {bits} bits, tol 2^-{bits - 6}"
+    return f"the Lie series at dps {bits_to_dps(bits)}"
+
+
+def numerical_reference(system, y0, times, bits: int):
+    """(states at ``times``, label): the most precise run the engines give, for a system without a closed form:
+    heyoka at ``bits`` (at least NUMERICAL_REFERENCE_BITS) with tol 2^-(bits - 6), or above heyoka's
+    ``MAX_BITS`` the Lie series at that many digits. ``times``: a final time or a grid. (A tolerance fixed at
+    2^-250 made a 464-bit reference right to 1e-77 only, and every run more precise than that was reported with
+    the reference's error; a reference above 1024 bits was refused by heyoka with a traceback.) Raises
+    RuntimeError when the reference does not reach the end."""
+    bits = max(NUMERICAL_REFERENCE_BITS, int(bits))
+    label = numerical_reference_label(bits)
+    if bits <= MAX_BITS:
+        from ..taylor import integrate
+
+        sol = integrate(system, y0, t=times, precision=bits, tol=Fraction(1, 2 ** (bits - 6)))
+    else:
+        from ..lie.integrator import lie_integrate
+
+        sol = lie_integrate(system, y0, t=times, dps=bits_to_dps(bits))
+    if not sol.success:
+        raise RuntimeError(f"the numerical reference ({label}) did not reach the end: {sol.message}")
+    return sol.y, label
 
 
 def _mpf(q: Fraction):
@@ -60,13 +95,14 @@ def _mpf(q: Fraction):
 
 
 def to_float(x):
-    """A float from an mpf; the mpf itself when it is not zero but lies below a float's range (an error of 1e-402
+    """A float from an mpf; the mpf itself when it is not zero but lies below a float's normal range (an error of 1e-402
     read as 0.0 would claim an exact result; :func:`lieseries.formatting.fmt_sci` prints it with its exponent)."""
     try:
         f = float(x)
     except (TypeError, ValueError, OverflowError):  # pragma: no cover - defensive
         return float("nan")
-    return x if f == 0 and x != 0 else f
+    # a subnormal float keeps a few bits only (a G of 5e-322 is 1e-322 +- 5e-324): below the normal range too
+    return x if (f == 0 and x != 0) or 0 < abs(f) < sys.float_info.min else f
 
 
 # -- what is compared ------------------------------------------------------------------------------------------
@@ -278,15 +314,8 @@ def reference_solution(system, y0, t, dps: int = 40, reference=None) -> Referenc
     if form is not None:
         vals = form.at(as_model(system), fr, tf, dps)
         return Reference(float(tf), vals, names, "exact", form.label, dps)
-    from ..taylor import integrate
-
-    bits = max(NUMERICAL_REFERENCE_BITS, dps_to_bits(dps) + 16)
-    sol = integrate(system, fr, t=tf, precision=bits, tol=NUMERICAL_REFERENCE_TOL)
-    if not sol.success:
-        raise RuntimeError(f"the numerical reference (heyoka, {bits} bits) did not reach t = {float(tf)}: "
-                           f"{sol.message}")
-    vals = observables(system, sol.y[-1], dps)
-    return Reference(float(tf), vals, names, "numerical", f"heyoka, {bits} bits, tol 2^-250", dps)
+    rows, label = numerical_reference(system, fr, tf, dps_to_bits(dps) + 16)
+    return Reference(float(tf), observables(system, rows[-1], dps), names, "numerical", label, dps)
 
 
 def reference_solutions(system, y0, ts, dps: int = 30) -> list:

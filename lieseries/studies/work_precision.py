@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 from fractions import Fraction
 
 from .. import fields as F
-from ..formatting import MARKERS, fmt_int, fmt_num, fmt_sci, markdown_table, pyplot, save_figure
+from ..formatting import (MARKERS, below_float_range, fmt_int, fmt_num, fmt_sci, log10_or_nan, markdown_table, pyplot,
+                          save_figure)
 from ..methods import (RunRecord, default_methods, expand_methods, method_label, method_plugin, reference_dps,
                        run_method, scene_methods, setting)
 from ..methods.pricing import CostPart
@@ -226,25 +227,32 @@ class WorkPrecisionStudy(Study):
                 key = r.label if len(items) == 1 else f"{mlabel}: {r.label}"
                 series.setdefault(key, []).append(r)
         shown_build = False
+        # errors a double cannot draw (a 400-digit run's 1e-402) were drawn at 1e-300: the axis then shows log10
+        tiny = any(below_float_range(r.error) for rows in series.values() for r in rows)
+        draw = ax.semilogx if tiny else ax.loglog
+
+        def ys_of(rows):
+            return log10_or_nan([r.error for r in rows]) if tiny else [max(r.error, 1e-300) for r in rows]
+
         for k, (key, rows) in enumerate(series.items()):
             color = f"C{k % 10}"
             marker = MARKERS[k % len(MARKERS)]
             xs = [r.run_time for r in rows]
-            ys = [max(r.error, 1e-300) for r in rows]
+            ys = ys_of(rows)
             t_study = items[0][1].t
             span = {r.t for r in rows}
             if span and all(abs(ts - t_study) > 1e-12 * max(1.0, abs(t_study)) for ts in span):
                 key = f"{key} (to t = {max(span):.3g} only)"  # a capped method (odefun) must say so on the plot
-            ax.loglog(xs, ys, marker=marker, color=color, linewidth=1, markersize=6, label=key)
+            draw(xs, ys, marker=marker, color=color, linewidth=1, markersize=6, label=key)
             if rows[0].method == "taylor":
                 bx = [r.run_time + (r.build_time or 0.0) for r in rows if r.build_time]
-                by = [max(r.error, 1e-300) for r in rows if r.build_time]
+                by = ys_of([r for r in rows if r.build_time])
                 if bx:
-                    ax.loglog(bx, by, marker=marker, color=color, markerfacecolor="none", linestyle="none",
-                              markersize=6, label=None if shown_build else "hollow: run + build time (heyoka)")
+                    draw(bx, by, marker=marker, color=color, markerfacecolor="none", linestyle="none",
+                         markersize=6, label=None if shown_build else "hollow: run + build time (heyoka)")
                     shown_build = True
         ax.set_xlabel("run time [s] (best of repeats; build time apart)")
-        ax.set_ylabel("max-abs error at the final time")
+        ax.set_ylabel("log10 of the max-abs error at the final time" if tiny else "max-abs error at the final time")
         t = items[0][1].t if items else 0
         ax.set_title(f"Work-precision diagram, t = {t:.4g}", fontsize=10)
         ax.legend(loc="best", fontsize=7)
