@@ -640,12 +640,13 @@ def flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECES
                 vals = evaluate(jprog, box(dt * piece, dt * (piece + 1)), pars, consts, arb(1))
             except Singular:
                 return None
-            M = arb_mat([vals[i * n:(i + 1) * n] for i in range(n)])  # Df(B_i); dt comes in with 1/j
-            S, T = eye, eye
-            for j in range(1, terms + 1):
+            M = arb_mat(n, n, vals)  # Df(B_i); dt comes in with 1/j
+            T = M * steps[1]
+            S = eye + T
+            for j in range(2, terms + 1):
                 T = T * M * steps[j]
                 S = S + T
-            J = (S + tail) * J
+            J = S + tail if piece == 0 else (S + tail) * J
         if not all(J[i, j].is_finite() for i in range(n) for j in range(n)):
             return None
         return J
