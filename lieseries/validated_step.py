@@ -467,7 +467,7 @@ def prove_step(prog, jprog, CZ, centre, terms, pars, consts, jconsts, span, flin
         vals = evaluate(jprog, R, pars, jconsts, arb(1))
         L = arb_mat([[abs(v if isinstance(v, arb) else arb(v)).upper() for v in vals[i * n:(i + 1) * n]]
                      for i in range(n)])
-        if not all(L[i, j].is_finite() for i in range(n) for j in range(n)):
+        if not all(x.is_finite() for x in (L * arb_mat([[1]] * n)).entries()):  # row sums of upper bounds
             return None
         D = taylor_coefficients(prog, B, pars, consts, K + 1, flint)  # B is wide: Picard iteration
         if not all(d[K + 1].is_finite() for d in D):
@@ -701,8 +701,8 @@ def step_estimate(g, N, tol, flint) -> float:
         h = arb(nth_root(tol * (N + 1) / gN, N + 1))
 
         def estimate(h):
-            return max((sum((x * h ** (N + k + 1) / (N + k + 1) for k, x in enumerate(row)), arb(0)) for row in hi),
-                       key=float)
+            powers = [h ** (N + k + 1) / (N + k + 1) for k in range(len(hi[0]))]
+            return max((sum((x * p for x, p in zip(row, powers)), arb(0)) for row in hi), key=float)
 
         return 0.97 * float(h.mid()) * nth_root(tol / estimate(h), N + 1)
     finally:
