@@ -24,11 +24,11 @@ from .methods import (
     run_method,
 )
 from .models.base import as_model
-from .precision import check_seconds, dps_to_bits, to_fraction
+from .precision import check_seconds, dps_to_bits, float_or_mpf, to_fraction
 from .precision import thread_mp as mp
 from .scenes import Scene, SceneError, effective_plan, load_scene
 from .studies.drift import invariant_function
-from .studies.reference import numerical_reference_label, to_float
+from .studies.reference import numerical_reference_label
 from .studies.plugin import StudyContext, studies_registry
 
 __all__ = ["RunRow", "SceneResult", "environment", "run_scene", "scaled_error"]
@@ -197,7 +197,7 @@ def scaled_error(model, values, reference):
         if scale == 0:
             scale = mp.mpf(1)
         worst = max(worst, err / scale)
-    return to_float(worst)  # an mpf below a float's range: a 400-digit run's 1e-402 was written 0.0
+    return float_or_mpf(worst)  # an mpf below a float's range: a 400-digit run's 1e-402 was written 0.0
 
 
 def _quick_labels(scene, runp) -> dict:

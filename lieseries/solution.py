@@ -34,7 +34,7 @@ class Stats:
     ----------
     method : str            "taylor (heyoka)" or "lie series (mpmath)"
     precision : str         precision name ("double", "quad", "real237", "50 dps", ...)
-    tol : float             the tolerance the run was asked for
+    tol : float             the tolerance the run was asked for (an mpf below a float's range: 1e-400 is not 0.0)
     steps : int             number of steps taken
     order : int             Taylor/Lie order (the largest used, for a variable-order run)
     build_time : float      seconds spent compiling the integrator (0 when it came from the cache)

@@ -522,8 +522,6 @@ def test_energy_guard_reads_energies_beyond_a_doubles_range():
     assert status == "invariant_drift" and "from -6.8e-400 to -6.9e-400" in message
 
 
-@pytest.mark.xfail(strict=True, reason="lie/integrator.py: the step rule's radius of a jet whose coefficients are "
-                   "beyond a double's range (momenta of 1e400) reads ~0, and the run ends step_collapse at t = 0")
 def test_lie_steps_a_lagrangian_scaled_beyond_a_doubles_range():
     """L and L * 1e400 have the same motion; lie_integrate should run the scaled one as it runs the plain one."""
     c = private_ctx(30)

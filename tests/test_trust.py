@@ -548,8 +548,6 @@ def test_a_run_at_400_digits_is_a_success_with_its_error_and_drift_at_400_digits
     assert "e-40" in json.dumps(data["run"]["rows"][0]["scaled_error"])
 
 
-@pytest.mark.xfail(strict=True, reason="lie/integrator.py builds Stats with tol=float(tolm): 1e-400 is 0.0; keep "
-                   "an mpf below a float's range (as the error estimates do)")
 def test_a_lie_run_at_400_digits_reports_its_tolerance():
     """``sol.stats.tol`` of a 400-digit Lie run read 0.0: a tolerance that claims every digit."""
     body = ls.EulerPoisson((1, 2, "2.5"))

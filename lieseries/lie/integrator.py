@@ -49,6 +49,7 @@ from ..precision import (
     check_seconds,
     dps_to_bits,
     export_mpf,
+    float_or_mpf,
     mp_context,
     to_fraction,
     to_mpf,
@@ -183,7 +184,7 @@ def _solution(out, engine, prec, tolm, N, bits, grid, n, dense) -> Solution:
     if engine.max_ratio is not None:
         extra["max_step_over_radius"] = engine.max_ratio
     nsteps = out.steps
-    stats = Stats(method="lie series (mpmath)", precision=f"{prec.dps} dps", tol=float(tolm), order=N, steps=nsteps,
+    stats = Stats(method="lie series (mpmath)", precision=f"{prec.dps} dps", tol=float_or_mpf(tolm), order=N, steps=nsteps,
                   run_time=out.run_time, min_step=float(out.hmin) if nsteps else float("nan"),
                   max_step=float(out.hmax) if nsteps else float("nan"), error_estimates=tuple(out.estimates),
                   extra=extra)

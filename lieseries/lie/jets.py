@@ -69,7 +69,9 @@ def radius_from_logs(points) -> float:
     = exp(-slope). A series whose coefficients alternate between the growth of a singularity and much smaller values
     (an even function, 1/cos t: the odd orders come from other, entire components) is measured by the former, not
     by an average of both, which put 1/cos's radius pi/2 at 3.7 and claimed convergence where the series diverges.
-    Coefficients that do not decay: the root test on the last one. ``inf`` for no points."""
+    Coefficients that do not decay: their growth rate from the first point to the last (the root test on the last
+    one alone, |c_k|^(-1/k), depends on the variables' scale: momenta of 1e400 made a radius of 1e-34, and the run
+    collapsed at its first step); the root test on a single point. ``inf`` for no points."""
     pts = sorted(points)
     if not pts:
         return math.inf
@@ -82,16 +84,23 @@ def radius_from_logs(points) -> float:
     while len(hull) >= 2 and hull[1][1] >= hull[0][1]:  # the rising start (the envelope's first points)
         hull.pop(0)
     if len(hull) == 1:
-        k, lg = hull[-1]
-        return math.exp(min(-lg / k, 700.0)) if k > 0 else math.inf
+        return _growth_radius(pts)
     n = len(hull)
     kbar = sum(k for k, _ in hull) / n
     lbar = sum(lg for _, lg in hull) / n
     slope = sum((k - kbar) * (lg - lbar) for k, lg in hull) / sum((k - kbar) ** 2 for k, _ in hull)
     if slope >= 0:
-        k, lg = pts[-1]
-        return math.exp(min(-lg / k, 700.0))
+        return _growth_radius(pts)
     return math.exp(min(-slope, 700.0))
+
+
+def _growth_radius(pts) -> float:
+    """exp(-rate) for the rate at which ln ||c_k|| grows from the first point to the last: the radius of C rho^-k
+    whatever C (the variables' scale); the root test |c_k|^(-1/k) for a single point."""
+    (k0, lg0), (k1, lg1) = pts[0], pts[-1]
+    if k1 > k0:
+        return math.exp(max(min(-(lg1 - lg0) / (k1 - k0), 700.0), -700.0))
+    return math.exp(max(min(-lg1 / k1, 700.0), -700.0)) if k1 > 0 else math.inf
 
 
 #: Working digits above ``MAX_DPS`` that the engines may add as guard digits to a user's ``dps``.

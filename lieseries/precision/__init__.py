@@ -25,7 +25,7 @@ from .carried import (EXACT_BITS, EXACT_STATE_BITS, BinaryFraction, CarriedBits,
                       carried_bits, data_bits, exact_states_read_at, infer_precision, state_bits, warn_if_coarse)
 from .checks import (check_callable, check_count, check_dps, check_flag, check_order, check_progress, check_seconds,
                      check_time, check_tolerance)
-from .conversions import bits_to_dps, dps_to_bits, short_decimal, to_fraction, to_mpf, to_raw
+from .conversions import bits_to_dps, dps_to_bits, float_or_mpf, short_decimal, to_fraction, to_mpf, to_raw
 from .formats import (EXACT_GUARD_DIGITS, LIE_GUARD_DIGITS, VALIDATED_GUARD_BITS, NamedValues, Precision,
                       precision_of_dtype, resolve_precision)
 from .mpcontext import export_mpf, mp_context, thread_mp
@@ -77,4 +77,5 @@ __all__ = [
     "NamedValues",
     "precision_of_dtype",
     "infer_precision",
+    "float_or_mpf",
 ]

@@ -8,6 +8,7 @@ import decimal
 import math
 import numbers
 import re
+import sys
 from fractions import Fraction
 
 import heyoka as hy
@@ -197,3 +198,14 @@ def to_mpf(value, argname: str = "value", ctx=None) -> mp.mpf:
     :func:`mp_context`), rounded once to that context's working precision (:func:`to_raw`)."""
     ctx = mp.mp if ctx is None else ctx
     return ctx.make_mpf(to_raw(value, ctx.prec, argname))
+
+
+def float_or_mpf(x):
+    """A float from a number (an mpf, a Fraction); the number itself when it is not zero but lies below a float's normal range (an error of 1e-402
+    read as 0.0 would claim an exact result; :func:`lieseries.formatting.fmt_sci` prints it with its exponent)."""
+    try:
+        f = float(x)
+    except (TypeError, ValueError, OverflowError):  # pragma: no cover - defensive
+        return float("nan")
+    # a subnormal float keeps a few bits only (a G of 5e-322 is 1e-322 +- 5e-324): below the normal range too
+    return x if (f == 0 and x != 0) or 0 < abs(f) < sys.float_info.min else f

@@ -44,11 +44,11 @@ from ..methods import method_label, normalize_method, reference_dps, run_method,
 from ..methods.pricing import CostPart
 from ..models.constrained import ConstrainedSystem
 from ..models.constrained_derive import SYMBOLIC_DIRAC_MAX_CONSTRAINTS
-from ..precision import MIN_DPS, dps_to_bits, exact_states_read_at, to_fraction
+from ..precision import MIN_DPS, dps_to_bits, exact_states_read_at, float_or_mpf, to_fraction
 from ..precision import thread_mp as mp
 from .convergence import MAX_STUDY_DPS, error_vs_order, fit_geometric_rate
 from .plugin import Study, register_study
-from .reference import numerical_reference, numerical_reference_label, to_float
+from .reference import numerical_reference, numerical_reference_label
 
 __all__ = ["FormulationRow", "FormulationComparison", "compare_formulations", "FormulationsStudy", "FORMULATIONS",
            "FormulationRadius", "formulation_radii", "radius_verdict", "radius_text", "RADIUS_AGREEMENT",
@@ -254,7 +254,7 @@ def compare_formulations(system, q, qdot, t, methods, *, formulations=FORMULATIO
                 err = max(abs(_mpf(a - b)) for a, b in zip(qs + vs, qr + vr))
                 # below a float's range (a 400-digit run) they stay mpf: 0.0 would claim every digit
                 rows.append(FormulationRow(name, model.poisson.dimension, rec.label, rec.status, float(t_end),
-                                           to_float(err), to_float(g), to_float(phi), to_float(en), rec.steps,
+                                           float_or_mpf(err), float_or_mpf(g), float_or_mpf(phi), float_or_mpf(en), rec.steps,
                                            rec.run_time,
                                            rec.message, [float(c) for c in qs], [float(c) for c in vs]))
                 done += 1

@@ -19,7 +19,6 @@ Any other system
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass
 from fractions import Fraction
 
@@ -30,7 +29,7 @@ from typing import Callable
 from .. import exact
 from ..models.base import as_model, state_fractions
 from ..poisson import as_poisson_system
-from ..precision import MAX_BITS, MAX_DPS, bits_to_dps, check_count, dps_to_bits, export_mpf, to_fraction
+from ..precision import MAX_BITS, MAX_DPS, bits_to_dps, check_count, dps_to_bits, export_mpf, float_or_mpf, to_fraction
 from ..precision import thread_mp as mp
 
 __all__ = [
@@ -92,17 +91,6 @@ def numerical_reference(system, y0, times, bits: int):
 def _mpf(q: Fraction):
     """``q`` in this thread's mpmath context, at its current precision."""
     return mp.mpf(q.numerator) / q.denominator
-
-
-def to_float(x):
-    """A float from an mpf; the mpf itself when it is not zero but lies below a float's normal range (an error of 1e-402
-    read as 0.0 would claim an exact result; :func:`lieseries.formatting.fmt_sci` prints it with its exponent)."""
-    try:
-        f = float(x)
-    except (TypeError, ValueError, OverflowError):  # pragma: no cover - defensive
-        return float("nan")
-    # a subnormal float keeps a few bits only (a G of 5e-322 is 1e-322 +- 5e-324): below the normal range too
-    return x if (f == 0 and x != 0) or 0 < abs(f) < sys.float_info.min else f
 
 
 # -- what is compared ------------------------------------------------------------------------------------------
@@ -339,7 +327,7 @@ def max_difference(values, reference, dps: int) -> float:
     thread's mpmath context (each left operand converted into it: a global mpf on the left would compute at the
     global precision)."""
     with mp.workdps(dps):
-        return to_float(max(abs(mp.mpf(a) - b) for a, b in zip(values, reference)))
+        return float_or_mpf(max(abs(mp.mpf(a) - b) for a, b in zip(values, reference)))
 
 
 def state_error(system, y, reference: Reference) -> float:
