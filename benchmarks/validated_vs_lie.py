@@ -1,23 +1,28 @@
 """What certified digits cost: ls.validated_integrate (Arb balls) against ls.lie_integrate (mpmath), one process.
 
-1. Taylor coefficients of one step, rigid body I = (1, 2, 3), omega0 = (1, 0.1, 0.5), order 59 (the order both
-   engines use at 50 digits): Picard iteration on Arb power series (balls, 50 digits and 32 guard bits) against
-   the centre polynomial both engines now take from the fixed-point jets (``centre_coefficients``: the jets and
-   their exact conversion to Arb), median of repeated calls.
+1. Taylor coefficients of one step, rigid body I = (1, 2, 3), omega0 = (1, 0.1, 0.5), order 59 (lie_integrate's
+   order at 50 digits; the validated engine's default is 8 more): Picard iteration on Arb power series (balls,
+   50 digits and 32 guard bits) against the centre polynomial both engines take from the fixed-point jets
+   (``centre_coefficients``: the jets and their exact conversion), median of repeated calls.
 2. The whole run to T = 10 at 50 digits (``--pairs`` alternated pairs, the ratio of each pair: other jobs on the
-   machine slow both calls of a pair alike): wall time of both, their steps, the validated run's certified digits and
-   its widest final ball, and lie_integrate's actual error against the closed form (80 digits).
+   machine slow both calls of a pair alike; ``--clock cpu`` times the process's CPU): the time of both, their steps,
+   the validated run's certified digits and its widest final ball, and lie_integrate's actual error against the
+   closed form (80 digits). ``--before PATH`` adds an earlier ``validated.py`` (e.g. a checkout's), loaded into the
+   same process and alternated with the two, for before / after ratios in the same conditions.
 3. How tight one step's remainder bound is: a single step of order 59 at 40 digits to t = h, its bound on the
    centre's solution minus the Taylor polynomial (``stats.extra["tail_bounds"]``) against the true difference
    (closed form minus the order-59 polynomial, both at 90 digits).
 
-    .venv/bin/python benchmarks/validated_vs_lie.py [--T 10] [--dps 50] [--repeat 5] [--pairs 3]
+    .venv/bin/python benchmarks/validated_vs_lie.py [--T 10] [--dps 50] [--repeat 5] [--pairs 3] [--clock cpu]
+        [--before ../main/lieseries/validated.py]
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import statistics
+import sys
 import time
 
 import mpmath as mp
@@ -50,23 +55,45 @@ def coefficient_times(dps: int, order: int, repeat: int) -> dict:
     return {"arb_picard_ms": 1e3 * statistics.median(arb_t), "fixed_jets_ms": 1e3 * statistics.median(jet_t)}
 
 
-def whole_runs(T, dps: int, pairs: int = 3) -> dict:
+def load_before(path):
+    """An earlier validated.py as the module ``lieseries.validated_before`` (its relative imports resolve in this
+    checkout's package)."""
+    spec = importlib.util.spec_from_file_location("lieseries.validated_before", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def whole_runs(T, dps: int, pairs: int = 3, clock=time.perf_counter, before=None) -> dict:
     body = ls.EulerPoisson(INERTIA)
     y0 = body.initial_state(omega=OMEGA)
     ls.lie_integrate(body, y0, t=1, dps=dps)  # warm-up: compiled programs, jet plans
     validated_integrate(body, y0, t=1, dps=dps)
-    ratios, t_lies, t_vals = [], [], []
+    if before is not None:
+        before.validated_integrate(body, y0, t=1, dps=dps)
+    ratios, t_lies, t_vals, ratios_before, t_befores = [], [], [], [], []
     for _ in range(pairs):
-        tic = time.perf_counter()
+        tic = clock()
         lie = ls.lie_integrate(body, y0, t=T, dps=dps)
-        t_lie = time.perf_counter() - tic
-        tic = time.perf_counter()
+        t_lie = clock() - tic
+        tic = clock()
         val = validated_integrate(body, y0, t=T, dps=dps)
-        t_val = time.perf_counter() - tic
+        t_val = clock() - tic
         ratios.append(t_val / t_lie)
         t_lies.append(t_lie)
         t_vals.append(t_val)
+        if before is not None:
+            tic = clock()
+            old = before.validated_integrate(body, y0, t=T, dps=dps)
+            t_befores.append(clock() - tic)
+            ratios_before.append(t_befores[-1] / t_lie)
     t_lie, t_val = statistics.median(t_lies), statistics.median(t_vals)
+    extra = {}
+    if before is not None:
+        extra = {"before_s": statistics.median(t_befores), "before_ratio": statistics.median(ratios_before),
+                 "before_ratio_min": min(ratios_before), "before_ratio_max": max(ratios_before),
+                 "before_steps": old.stats.steps, "before_digits": float(certified_digits(old)[-1])}
     ref = exact.euler_poisson(INERTIA, OMEGA, T, dps=dps + 30)
     with mp.workdps(dps + 30):
         err = max(abs(mp.mpf(to_fraction(a).numerator) / to_fraction(a).denominator - b)
@@ -76,7 +103,7 @@ def whole_runs(T, dps: int, pairs: int = 3) -> dict:
         "ratio_max": max(ratios), "lie_steps": lie.stats.steps,
         "validated_steps": val.stats.steps, "validated_status": val.status,
         "certified_digits": float(certified_digits(val)[-1]), "widest_final_ball": float(max(radii(val)[-1])),
-        "lie_error": float(err),
+        "lie_error": float(err), **extra,
     }
 
 
@@ -105,19 +132,28 @@ def main(argv=None) -> dict:
     ap.add_argument("--dps", type=int, default=50)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--pairs", type=int, default=3, help="alternated lie / validated pairs (default 3)")
+    ap.add_argument("--clock", choices=["wall", "cpu"], default="wall",
+                    help="wall time, or the process's CPU time (a shared machine)")
+    ap.add_argument("--before", default=None, help="an earlier validated.py to alternate with (before / after)")
     args = ap.parse_args(argv)
+    clock = time.perf_counter if args.clock == "wall" else time.process_time
+    before = load_before(args.before) if args.before else None
     order = max(8, int(mp.ceil(mp.log(10) * args.dps / 2)) + 1)
     co = coefficient_times(args.dps, order, args.repeat)
     print(f"Taylor coefficients, order {order}, {args.dps} digits: Arb Picard iteration "
           f"{co['arb_picard_ms']:.1f} ms, fixed-point jets into Arb {co['fixed_jets_ms']:.1f} ms "
           f"(Arb / jets = {co['arb_picard_ms'] / co['fixed_jets_ms']:.2f})")
-    run = whole_runs(args.T, args.dps, args.pairs)
+    run = whole_runs(args.T, args.dps, args.pairs, clock, before)
     print(f"T = {args.T}, {args.dps} digits: lie_integrate {run['lie_s']:.2f} s ({run['lie_steps']} steps, error "
           f"{run['lie_error']:.1e}), validated_integrate {run['validated_s']:.2f} s ({run['validated_steps']} "
           f"steps, {run['validated_status']}, {run['certified_digits']:.1f} certified digits, widest final ball "
           f"{run['widest_final_ball']:.1e})")
     print(f"validated / lie = {run['ratio_min']:.2f} - {run['ratio_max']:.2f}x (median {run['ratio']:.2f}, "
-          f"{args.pairs} alternated pairs; target <= 2)")
+          f"{args.pairs} alternated pairs, {args.clock} clock; target <= 2)")
+    if before is not None:
+        print(f"before ({args.before}): {run['before_s']:.2f} s ({run['before_steps']} steps, "
+              f"{run['before_digits']:.2f} certified digits), before / lie = {run['before_ratio_min']:.2f} - "
+              f"{run['before_ratio_max']:.2f}x (median {run['before_ratio']:.2f}), in the same rounds")
     tight = remainder_tightness()
     for h, (bound, true) in tight.items():
         print(f"one step to t = {h} (order 59, 40 digits): remainder bound {bound:.2e}, true {true:.2e}, "

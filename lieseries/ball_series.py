@@ -14,7 +14,8 @@ from fractions import Fraction
 
 from .lie.jets import DeadlineExceeded
 
-__all__ = ["SUPPORTED_OPS", "flint_module", "working_precision", "Singular", "ball_constant", "evaluate",
+__all__ = ["SUPPORTED_OPS", "flint_module", "working_precision", "Singular", "ball_constant", "exact_constant",
+           "evaluate",
            "check_ops", "taylor_coefficients", "taylor_coefficients_checked", "norm_bound"]
 
 #: Operations of a vector field that the validated engine evaluates in ball arithmetic.
@@ -146,16 +147,23 @@ def _apply_op(op, a, data, one):
 
 
 def ball_constant(c, flint):
+    """A program's constant as a ball (exact values rounded outward at the working precision)."""
+    q = exact_constant(c, flint)
+    if q is not None:
+        return flint.arb(q)
+    return flint.arb.pi() if c[0] == "pi" else flint.arb.const_e()
+
+
+def exact_constant(c, flint):
+    """A program's constant as an fmpq (exactly), or None for pi and e."""
     kind, value = c
     if kind == "rational":
-        return flint.arb(flint.fmpq(*value))
+        return flint.fmpq(*value)
     if kind == "binary":
         sign, man, exp, _ = value
         q = Fraction(int(man) << exp) if exp >= 0 else Fraction(int(man), 1 << -exp)
-        return flint.arb(flint.fmpq(-q.numerator if sign else q.numerator, q.denominator))
-    if kind == "pi":
-        return flint.arb.pi()
-    return flint.arb.const_e()
+        return flint.fmpq(-q.numerator if sign else q.numerator, q.denominator)
+    return None
 
 
 def evaluate(prog, values, pars, consts, one):
@@ -180,7 +188,9 @@ _INLINE = {"add": " + ", "mul": " * "}
 
 def _compile(prog):
     """``run(values, pars, consts, one)``: the program as one Python function of local variables (slot i is
-    ``v<i>``); arithmetic written out, other operations through :func:`_apply_op`."""
+    ``v<i>``); arithmetic written out, other operations through :func:`_apply_op`. Factors that are the exact
+    constant 1 are left out of products (an exact 1 changes no ball, series or rational)."""
+    ones = {slot for slot, c in prog.constants if _is_one(c)}
     lines = ["def run(x, p, c, one):"]
     if prog.nvars:
         lines.append("    " + "".join(f"v{i}, " for i in range(prog.nvars)) + "= x")
@@ -190,6 +200,8 @@ def _compile(prog):
         lines.append(f"    v{slot} = c[{k}][1]")
     for op, out, args, data in prog.nodes:
         a = [f"v{i}" for i in args]
+        if op == "mul" and ones.intersection(args):
+            a = [f"v{i}" for i in args if i not in ones] or [f"v{args[0]}"]
         if op in _INLINE:
             expr = a[0]
             for x in a[1:]:
@@ -207,6 +219,17 @@ def _compile(prog):
     namespace = {"apply_op": _apply_op, "data": {n.out: n.data for n in prog.nodes}}
     exec(compile("\n".join(lines), f"<validated program {len(prog.nodes)} nodes>", "exec"), namespace)
     return namespace["run"]
+
+
+def _is_one(c) -> bool:
+    """The program constant ``c`` is exactly 1."""
+    kind, value = c
+    if kind == "rational":
+        return value[0] == value[1]
+    if kind == "binary":
+        sign, man, exp, _ = value
+        return not sign and int(man) == 1 and exp == 0
+    return False
 
 
 def _interpret(prog, values, pars, consts, one):

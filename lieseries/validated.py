@@ -21,6 +21,9 @@ states is carried in Lohner's form m + A r (a centre point, an orthogonal matrix
 4. encloses the Jacobian of the flow over the step (the variational equation over 8 or 16 pieces of the step,
    each in its own narrower box) and moves the set by the mean-value theorem and a QR step.
 
+Steps 1-4 but the set's update live in :mod:`lieseries.validated_step` (the proof of one step); this module runs
+them: the initial balls, the set m + A r, the step-size control, chart switches, the driver engine.
+
 Nothing else is assumed: when no step down to the smallest is proved, or the widths grow beyond ``max_width``,
 the run stops with status ``validation_failed`` and keeps only what it has proved.
 ``sol.stats.extra["widths"]`` records the widest ball at every output time so the growth can be measured.
@@ -44,7 +47,6 @@ from .models.base import Model
 from .poisson import as_poisson_system
 from .precision import (
     VALIDATED_GUARD_BITS,
-    Precision,
     check_count,
     check_dps,
     check_order,
@@ -60,6 +62,9 @@ from .driver import StepResult, Stop, drive
 from .lie.jets import DeadlineExceeded
 from .solution import ChartRows, Solution, Stats
 from .timegrid import parse_times
+from .validated_step import (BOX_ORDER, DEFECT_EXTRA, JACOBIAN_PIECES, WIDE_JACOBIAN_PIECES, centre_polynomial,
+                             defect_coefficients, defect_terms, exact_data, flow_jacobian, jacobian_program,
+                             jet_stepper, nth_root, prove_step, step_estimate)
 
 __all__ = ["validated_integrate", "ball_taylor_coefficients", "centre_coefficients", "SUPPORTED_OPS", "midpoints",
            "radii", "certified_digits"]
@@ -69,487 +74,19 @@ GUARD_BITS = VALIDATED_GUARD_BITS
 #: Each step's remainder bound, relative to the state's size, is at most this times 10^-dps.
 REMAINDER_FACTOR = 1e-4
 
-def _centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadline=None):
-    """The Taylor polynomial of order ``order`` of the flow from the point m, as a :class:`_Centre` of exact
-    binary balls (radius 0), and the jets it came from (None after the fallback).
+#: The default order is the Jorba-Zou choice, ceil(ln(10) dps / 2) + 1, plus this: a validated step has costs that
+#: do not grow with the order (the a priori box, the flow's Jacobian, the set's update), so longer steps of a
+#: higher order pay (the rigid body to T = 10: 25 -> 20 steps at 50 digits, 27 -> 17 at 20 digits, 24 -> 22 at 100
+#: digits, as many certified digits or more; benchmarks/validated_vs_lie.py).
+EXTRA_ORDER = 8
 
-    Nothing about these coefficients needs proving: the remainder bound (:func:`_defect`) holds for any
-    polynomial p with p(0) = m, and only its size depends on p being close to the flow. They come from the Lie
-    engine's fixed-point jets (``stepper``, a :class:`~lieseries.lie.fixed.FixedStepper` of the chart's field:
-    integers ``M`` with c_k = M * 2^(u - s k), taken into Arb exactly as the coefficients in the jets' scaled time
-    sigma = 2^-s tau: no composition), or from Picard iteration on Arb series when the jets fail (s = 0).
-    ``span``: the time left (the stepper's time scale covers it when the solution is a polynomial). Past
-    ``deadline`` (a perf_counter value) both stop with :class:`~lieseries.lie.jets.DeadlineExceeded`."""
-    arb = flint.arb
-    try:
-        jets = stepper.expand([mpmath.make_mpf(mpmath.libmp.from_man_exp(*(int(q) for q in v.mid().man_exp())))
-                               for v in m], span, deadline)
-        rows, s = _exact_rows(jets.M, jets.U, order, flint), jets.s
-    except (ZeroDivisionError, ValueError, ArithmeticError):
-        jets, s = None, 0
-        rows = [[arb(c.mid()) for c in row] for row in taylor_coefficients(prog, m, pars, consts, order, flint,
-                                                                deadline=deadline)]
-    return _Centre([[mi] + row[1:] for mi, row in zip(m, rows)], s, flint), jets
-
-
-class _Centre:
-    """The centre polynomials p_i(tau) = sum_k rows[i][k] sigma^k in the scaled time sigma = 2^-s tau (exact
-    balls; rows[i][0] is the centre itself)."""
-
-    def __init__(self, rows, s, flint):
-        self.rows, self.s, self.flint = rows, s, flint
-        self.down = flint.arb(2) ** -s  # sigma per unit of tau (exact)
-        self.polys = [flint.arb_poly(row) for row in rows]
-
-    def sigma(self, tau):
-        """The scaled time of the ball ``tau`` (exactly: a power of two)."""
-        return tau * self.down
-
-    def at(self, tau):
-        """p(tau) for a ball ``tau``: an enclosure of the polynomials' range over it."""
-        x = self.sigma(tau)
-        return [p(x) for p in self.polys]
-
-    def guess(self, order, width, lip):
-        """Balls around the coefficients c_1..c_{order-1} in tau of the polynomials (at 64 bits): a guess of the
-        coefficients from a box of radius ``width`` around the centre (:func:`taylor_coefficients_checked`), ``lip`` about
-        the norm of the field's Jacobian there. A change d of the first k coefficients moves c_k by about
-        lip d_{k-1} / k, so radii r_k = (2^-52 |z| + width) (4 lip)^k / k! (2^-52: far above the rounding at
-        64 bits) leave room for what the field's evaluation carries from order to order (its leading part
-        r_k / 4; where the coefficients grow faster, as near the sphere's chart edges, the check's retries widen
-        the guess). Beyond the polynomial's order the guess is centred at 0."""
-        flint = self.flint
-        arb = flint.arb
-        saved = flint.ctx.prec
-        flint.ctx.prec = 64
-        try:
-            size = max(abs(row[0]).upper() for row in self.rows)
-            r = size * 2.0**-52 + width
-            out = [[] for _ in self.rows]
-            for k in range(1, order):
-                r = (r * (4 * lip) / k).upper()
-                ck = self.down ** k
-                for row, o in zip(self.rows, out):  # beyond the polynomial's order: around 0
-                    o.append(arb((row[k] * ck).mid() if k < len(row) else 0, r))
-            return out
-        finally:
-            flint.ctx.prec = saved
-
-    def unscaled(self):
-        """The coefficients c_k of p in tau, exactly: ``out[i][k]``."""
-        flint = self.flint
-        saved = flint.ctx.prec
-        flint.ctx.prec = max(64, max(c.mid().man_exp()[0].bit_length() for row in self.rows for c in row)
-                             + 64 + abs(self.s) * len(self.rows[0]))
-        try:
-            return [[c * flint.arb(2) ** (-self.s * k) for k, c in enumerate(row)] for row in self.rows]
-        finally:
-            flint.ctx.prec = saved
-
-
-def _exact_rows(M, U, order, flint):
-    """The coefficients M[i][k] 2^U[i] as rows of exact arbs, padded to ``order`` + 1 (integers into series and
-    scaled by 2^U[i] at a precision above every mantissa: exact)."""
-    arb, arb_series = flint.arb, flint.arb_series
-    saved = flint.ctx.prec
-    flint.ctx.prec = max(64, max(int(max(map(abs, Mi))).bit_length() for Mi in M) + 64)
-    try:
-        rows = []
-        for Mi, u in zip(M, U):
-            row = (arb_series([int(c) for c in Mi], prec=order + 1) * arb(2) ** u).coeffs()
-            rows.append(row + [arb(0)] * (order + 1 - len(row)))
-    finally:
-        flint.ctx.prec = saved
-    return rows
-
-
-def _field_series(prog, polys, pars, consts, length, flint, base=None):
-    """Coefficients 0..length-1 of f(p(base + tau)) in tau, for the polynomials p = ``polys`` (base: a ball,
-    default 0): ``out[i][k]``."""
-    arb, arb_series = flint.arb, flint.arb_series
-    if base is None:
-        series = [arb_series(row, prec=length) for row in polys]
-    else:
-        x = arb_series([base, arb(1)], prec=length)
-        series = []
-        for row in polys:
-            acc = arb_series([row[-1]], prec=length)
-            for c in reversed(row[:-1]):
-                acc = acc * x + c
-            series.append(acc)
-    f = evaluate(prog, series, pars, consts, arb_series([arb(1)], prec=length))
-    out = []
-    for fi in f:
-        got = list(fi.coeffs()) if isinstance(fi, arb_series) else [fi if isinstance(fi, arb) else arb(fi)]
-        out.append(got[:length] + [arb(0)] * (length - len(got)))
-    return out
-
-
-#: Orders beyond N at which the defect's Taylor coefficients are computed at the step's start; the Lagrange term
-#: over the whole step comes after them (so its overestimate is damped by (h / radius of convergence)^EXTRA).
-DEFECT_EXTRA = 8
-
-
-def _defect_coefficients(prog, centre, pars, consts, flint):
-    """Coefficients g_0..g_{N+EXTRA-1} in the scaled time sigma = 2^-s tau, at the step's start, of the defect
-    g = f(p) - dp/dtau of the :class:`_Centre` p (order N): balls around ~0 below N (rounding of the jets), the
-    field's own terms from N on (dp/dtau = 2^-s dp/dsigma)."""
-    arb, arb_series = flint.arb, flint.arb_series
-    P, down = centre.rows, centre.down
-    L = len(P[0]) - 1 + DEFECT_EXTRA
-    F = evaluate(prog, [arb_series(row, prec=L) for row in P], pars, consts, arb_series([arb(1)], prec=L))
-    out = []
-    for fi, row in zip(F, P):
-        if not isinstance(fi, arb_series):  # a constant component of the field
-            fi = arb_series([fi if isinstance(fi, arb) else arb(fi)], prec=L)
-        got = list((fi - arb_series(row, prec=L + 1).derivative() * down).coeffs())
-        out.append(got[:L] + [arb(0)] * (L - len(got)))
-    return out
-
-
-def _defect_terms(g, flint):
-    """Per component, the upper bounds |g_k| / (k + 1) that :func:`_defect` sums (at 64 bits: upper bounds)."""
-    saved = flint.ctx.prec
-    flint.ctx.prec = 64
-    try:
-        return [[(abs(x) / (k + 1)).upper() for k, x in enumerate(gi)] for gi in g]
-    finally:
-        flint.ctx.prec = saved
-
-
-def _defect(terms, top, flint):
-    """Per component, the polynomial d_i(t) = sum_k |g_k| t^k / (k+1) + |top_i| t^L / (L+1) (``terms``: upper
-    bounds of |g_k| / (k+1) of the coefficients g at the step's start, :func:`_defect_terms`; ``top``: the L-th
-    coefficient of g over the whole step, L = len(terms[i])): |tau| d_i(|tau|) bounds int_0^|tau| |g_i(s)| ds
-    (nonnegative coefficients: its value at a point is tight). In the scaled time: sigma and g's coefficients in
-    sigma give the bound divided by 2^s."""
-    return [flint.arb_poly(gi + [(abs(ti) / (len(gi) + 1)).upper()]) for gi, ti in zip(terms, top)]
-
-
-def _horner(C, tau):
-    """The Taylor polynomials sum_j C[i][j] tau^j (tau a ball: an enclosure of their range over it)."""
-    out = []
-    for cs in C:
-        acc = cs[-1]
-        for c in reversed(cs[:-1]):
-            acc = acc * tau + c
-        out.append(acc)
-    return out
-
-
-#: The majorant is computed in floating point when the run's working precision is at most this many bits (its
-#: integers convert to floats, and its floor, below, stays far under 10^-dps).
-MAJORANT_MAX_BITS = 700
-#: Every value of the majorant series is raised to at least this (a majorant stays one; no float underflows).
-MAJORANT_FLOOR = 1e-280
-_PASCAL: dict = {}
-
-
-def _lagrange_majorant(prog, P, jets, h, par_values, L, flint):
-    """Per component, an upper bound (an arb) of |[f(p(xi + tau))]_L| (the L-th Taylor coefficient in tau) over
-    every xi between 0 and h, for the centre polynomial p (``P``, from the integer ``jets``: c_k = M 2^(u - s k)) and a
-    polynomial field f; None when the field is not a polynomial or the numbers leave the float range.
-
-    In the time u = tau / |h|, the shifted polynomial's coefficients are bounded by those of a(1 + u) with
-    a_k = |c_k| |h|^k (binomial expansion, |xi| <= |h|), and a polynomial field's Taylor coefficients of order L by
-    those of its majorant (constants and parameters by their absolute values, subtractions as additions) on these
-    nonnegative series. Everything is nonnegative, so floating point errs by a relative 2^-52 per operation and
-    term (a few parts in 10^12 here; the result is raised by 1%), underflow is kept off by a floor that only
-    raises values, and overflow gives None. The bound of order L in tau is the one in u divided by |h|^L."""
-    if jets is None or max(int(max(map(abs, Mi))).bit_length() for Mi in jets.M) > MAJORANT_MAX_BITS:
-        return None
-    hq = abs(Fraction(h))
-    if hq == 0:
-        return None
-    ops = {"add", "sub", "neg", "mul", "powi"}
-    if any(node.op not in ops or (node.op == "powi" and int(node.data) < 0) for node in prog.nodes):
-        return None
-    N = len(jets.M[0]) - 1
-    up = 1 + 2.0**-50
-    try:
-        hs = float(hq) * 2.0 ** -jets.s * up
-        hpow = np.cumprod(np.concatenate(([1.0], np.full(N, hs))))
-        T = _PASCAL.get(N)
-        if T is None:
-            T = _PASCAL[N] = np.array([[math.comb(k, j) for k in range(N + 1)] for j in range(N + 1)], dtype=float)
-        vals = [None] * prog.nslots  # series (arrays of L + 1) or constants (floats)
-
-        def series(v):
-            out = np.zeros(L + 1)
-            out[: min(len(v), L + 1)] = v[: L + 1]
-            return np.maximum(out, MAJORANT_FLOOR)
-
-        def scalar(x):
-            return max(abs(x) * up, MAJORANT_FLOOR)
-
-        for i, (Mi, u) in enumerate(zip(jets.M, jets.U)):
-            a = np.ldexp(np.abs(np.fromiter(map(float, Mi), float, len(Mi))), u) * hpow * up
-            a[0] = abs(float(P[i][0].mid())) * up  # the centre itself (the jets hold it rounded)
-            vals[i] = series(T @ a * up)
-        for j, q in enumerate(par_values):
-            vals[prog.nvars + j] = scalar(float(abs(Fraction(q))))
-        for slot, (kind, value) in prog.constants:
-            if kind == "rational":
-                x = abs(Fraction(*value))
-            elif kind == "binary":
-                x = abs(math.ldexp(float(value[1]), value[2]))
-            else:
-                x = 3.2 if kind == "pi" else 2.8
-            vals[slot] = scalar(float(x))
-        for node in prog.nodes:
-            a = [vals[x] for x in node.args]
-            if node.op in ("add", "sub"):
-                # a constant c is the series (|c|, 0, 0, ...): it adds to the first coefficient only
-                c = sum(x for x in a if isinstance(x, float))
-                s = [x for x in a if not isinstance(x, float)]
-                if not s:
-                    v = c
-                else:
-                    v = s[0].copy()
-                    for x in s[1:]:
-                        v += x
-                    v[0] += c
-            elif node.op == "neg":
-                v = a[0]
-            else:  # products: the constant factors multiply, the series convolve
-                factors = a if node.op == "mul" else [a[0]] * int(node.data)
-                c, v = 1.0, None
-                for x in factors:
-                    if isinstance(x, float):
-                        c *= x
-                    else:
-                        v = x if v is None else np.convolve(v, x)[: L + 1]
-                v = c if v is None else v * c
-            # an overflow (inf, or nan from inf * 0) reaches the outputs it feeds: checked there
-            vals[node.out] = (max(v * up, MAJORANT_FLOOR) if isinstance(v, float)
-                              else np.maximum(v * up, MAJORANT_FLOOR))
-        tops = [MAJORANT_FLOOR if isinstance(vals[o], float) else float(vals[o][L]) * 1.01 for o in prog.outputs]
-    except (OverflowError, ValueError):
-        return None
-    if not all(math.isfinite(t) for t in tops):
-        return None
-    arb = flint.arb
-    hL = arb(flint.fmpq(hq.numerator, hq.denominator)) ** L
-    return [(arb(t) / hL).upper() for t in tops]
-
-
-def _enclosure_box(P, flint):
-    """A box around the polynomial range P over a step, a little wider, for the a priori check."""
-    arb = flint.arb
-    return [arb(p.mid(), p.rad() * 1.25 + (abs(p.mid()) + p.rad() + 1) * arb(2) ** -30) for p in P]
-
-
-def _prove_step(prog, jprog, CZ, centre, terms, pars, consts, jconsts, span, flint, majorant=None):
-    """(``tail``, the box B that holds every solution over the step, the coefficients from B through c_{K+1}) for
-    a step over ``span`` (the ball [0, h]), or None when the step is not proved. ``tail(tau)``: per component, an
-    upper bound of |phi_tau(m) - p(tau)| for the centre's solution, |tau| <= h.
-
-    ``CZ``: the Taylor coefficients c_0..c_K from the whole enclosure Z of the state (K = BOX_ORDER). B is a box
-    around their polynomials' range over the step; by the high-order enclosure theorem (docs/theory.md),
-    sum_{j<=K} c_j(Z) [0, h]^j + c_{K+1}(B) [0, h]^(K+1) inside B proves that every solution from Z exists over
-    the step and stays in B. B is wide, so its coefficients are computed at 64 bits (outward rounding keeps them
-    rigorous).
-
-    The centre's solution x from m = p(0) and the centre polynomial p (``centre``, a :class:`_Centre`) differ by
-    e = x - p with e' = g + A(s) e, g = f(p) - p' the defect (its coefficients in the centre's scaled time at the
-    step's start, as ``terms`` from :func:`_defect_terms`) and A(s) a mean of Df
-    over the segment from p(s) to x(s), inside the box R = B united with the range of p over the step. So
-    |e(tau)| <= exp(|tau| L) G(tau) componentwise, L = |Df(R)| entrywise and G the integral of |g| over the step
-    bounded by :func:`_defect` with the Lagrange term taken over the whole step (from a majorant series in
-    floating point, :func:`_lagrange_majorant`, when ``majorant`` = (the centre's integer jets, |h|, the
-    parameters) is given and the field is a polynomial; else by ball series at 64 bits)."""
-    arb, arb_mat = flint.arb, flint.arb_mat
-    K = len(CZ[0]) - 1
-    n = len(centre.rows)
-    Lg = len(terms[0])  # the order of the Lagrange term
-    Pz = _horner(CZ, span)
-    B = _enclosure_box(Pz, flint)
-    saved = flint.ctx.prec
-    flint.ctx.prec = 64
-    try:
-        R = [b.union(p) for b, p in zip(B, centre.at(span))]
-        vals = evaluate(jprog, R, pars, jconsts, arb(1))
-        L = arb_mat([[abs(v if isinstance(v, arb) else arb(v)).upper() for v in vals[i * n:(i + 1) * n]]
-                     for i in range(n)])
-        if not all(L[i, j].is_finite() for i in range(n) for j in range(n)):
-            return None
-        D = taylor_coefficients(prog, B, pars, consts, K + 1, flint)  # B is wide: Picard iteration
-        if not all(d[K + 1].is_finite() for d in D):
-            return None
-        if not all(b.contains(p + d[K + 1] * span ** (K + 1)) for b, p, d in zip(B, Pz, D)):
-            return None
-        top = None if majorant is None else _lagrange_majorant(prog, centre.rows, *majorant, Lg, flint)
-        if top is None:  # coefficient Lg in sigma, over the step in sigma
-            top = [row[-1] for row in _field_series(prog, centre.rows, pars, consts, Lg + 1, flint,
-                                                    base=centre.sigma(span))]
-        else:  # coefficient Lg in tau, times 2^(s Lg): in sigma
-            up = arb(2) ** (centre.s * Lg)
-            top = [(t * up).upper() for t in top]
-    except (ZeroDivisionError, ValueError):
-        return None
-    finally:
-        flint.ctx.prec = saved
-    if not all(t.is_finite() for t in top):
-        return None
-
-    back = arb(2) ** centre.s  # the bound in sigma, in tau
-    saved = flint.ctx.prec
-    flint.ctx.prec = 64
-    try:
-        defect = _defect(terms, top, flint)
-    finally:
-        flint.ctx.prec = saved
-
-    def tail(tau):
-        saved = flint.ctx.prec
-        flint.ctx.prec = 64
-        try:
-            x = abs(centre.sigma(tau))
-            E = _exp_times(L * abs(tau), arb_mat([[(d(x) * x).upper() * back] for d in defect]), flint)
-            return [E[i, 0].upper() for i in range(n)]
-        finally:
-            flint.ctx.prec = saved
-
-    return tail, B, D
-
-
-def _exp_times(M, g, flint):
-    """exp(M) g for a matrix M and a column g with nonnegative entries (balls of exact values): the series
-    sum_j M^j g / j! by matrix-vector products, its tail bounded entrywise by mu^(j+1) / (j+1)! / (1 - mu / (j+2))
-    ||g||_inf (mu = ||M||_inf: every entry of M^i g is at most mu^i ||g||_inf), stopped below 2^-40 of ||g||_inf
-    (a bound, not a tight value: cheaper than the matrix exponential, which it uses when mu >= 16)."""
-    arb, arb_mat = flint.arb, flint.arb_mat
-    n = g.nrows()
-    mu = max([arb(0)] + [sum((M[i, j] for j in range(n)), arb(0)).upper() for i in range(n)])
-    if not mu < 16:  # a long series: Arb's matrix exponential (scaling and squaring)
-        return M.exp() * g
-    size = max([arb(0)] + [g[i, 0].upper() for i in range(n)])
-    S = T = g
-    j, rest = 0, size  # rest: mu^(j+1) / (j+1)! ||g||, the first term left out
-    while True:
-        rest = (rest * mu / (j + 1)).upper()
-        if mu < j + 2 and rest / (1 - mu / (j + 2)) <= size * 2.0**-40:
-            break
-        j += 1
-        T = M * T / j
-        S = S + T
-    tail = (rest / (1 - mu / (j + 2))).upper()
-    return S + arb_mat([[arb(0, tail)] for _ in range(n)])
-
-
-_JACOBIANS = cache.region("validated.jacobians", 64)
-#: Terms of the interval-matrix exponential that encloses the flow's Jacobian over one piece of a step, and the
-#: number of pieces a step is cut into for it (twice as many when the set is wider than 10^-dps, as from uncertain
-#: data, where the Jacobian's own width multiplies the set's spread: measured on the rigid body from data known to
-#: a double's width, the final ball narrows from 1.2e-14 to 9.4e-15 for 17% more time).
-JACOBIAN_TERMS = 10
-#: Fewer terms when their tail bound is below this (relative to the identity: the Jacobian multiplies the set's
-#: spread only; its width comes mostly from the range of Df over each piece: the rigid body's widest final ball at
-#: 50 digits, T = 10, is 6.5599e-53 with a tail below 2^-30 as below 2^-40, with two matrix products fewer a piece).
-JACOBIAN_EPS = 2.0**-30
-JACOBIAN_PIECES = 8
-#: More pieces, up to MAX_JACOBIAN_PIECES, when |Df| |tau| over the step exceeds JACOBIAN_MU per piece.
-JACOBIAN_MU = 1.0
-MAX_JACOBIAN_PIECES = 1024
-#: Order of the Taylor polynomials from the whole enclosure that the a priori box is built around.
-BOX_ORDER = 12
-
-
-def _jacobian_program(ps):
-    """The Jacobian of the vector field, d f_i / d z_j (row-major), compiled once per structure."""
-    prog = _JACOBIANS.get(ps.key)
-    if prog is None:
-        import heyoka as hy
-
-        from .expr import compile_expressions
-
-        exprs = [hy.diff(fi, vj) for fi in ps.vector_field for vj in ps.variables]
-        prog = compile_expressions(ps.variables, exprs, len(ps.parameter_values))
-        check_ops(prog)
-        _JACOBIANS[ps.key] = prog
-    return prog
-
-
-def _flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECES):
-    """An enclosure of every Jacobian d phi_tau(y) / dy of the flow over time ``tau`` (an exact ball) for all
-    starting points y in the enclosure Z, or None when the bound below does not apply.
-
-    ``CZ``: Taylor coefficients c_0..c_K from Z, ``D``: those from the a priori box B (through c_{K+1}). The step is
-    cut into ``pieces`` pieces; over piece i every solution lies in B_i = sum_j c_j(Z) T_i^j +
-    c_{K+1}(B) T_i^(K+1) (T_i the piece's time interval; Taylor's theorem), much narrower than B; the polynomial
-    part is evaluated in mean-value form about the piece's middle time (narrower than Horner's scheme on T_i).
-    d phi / dy solves V' = Df(z(t)) V, so over piece i it is multiplied by a matrix of the Peano-Baker series
-    sum_j (dt Df(B_i))^j / j!, truncated after K terms (the fewest whose tail bound is below JACOBIAN_EPS, at most
-    JACOBIAN_TERMS) with the tail bounded entrywise by
-    mu^(K+1) / (K+1)! / (1 - mu / (K+2)), mu an upper bound of |dt| ||Df||_inf over every solution on the piece:
-    the same for all pieces, from Df over the whole step's box (docs/theory.md). Computed at 64 bits: the Jacobian
-    multiplies the enclosure's tiny spread only."""
-    arb, arb_mat = flint.arb, flint.arb_mat
-    n = len(CZ)
-    K = len(CZ[0]) - 1
-    eye = arb_mat([[1 if i == j else 0 for j in range(n)] for i in range(n)])
-    saved = flint.ctx.prec
-    flint.ctx.prec = 64
-    try:
-        # a badly scaled field (|Df| |tau| large: a fast oscillation in a slow state) needs more pieces: the
-        # series of each piece converges like mu^j / j!, and mu near JACOBIAN_TERMS makes the enclosure explode
-        polys = [flint.arb_poly(cz) for cz in CZ]
-        slopes = [p.derivative() for p in polys]
-
-        def box(lo, hi):
-            """Every solution from Z over the times between lo and hi: the polynomials in mean-value form (the
-            range of q_y over the interval lies in q_y(centre) + q_y'(interval) (interval - centre) for each
-            polynomial q_y with coefficients in CZ) plus the remainder term."""
-            centre = (lo + hi) / 2
-            seg = centre + arb(0, abs(hi - lo) / 2)
-            return [p(centre) + dp(seg) * (seg - centre) + d[K + 1] * seg ** (K + 1)
-                    for p, dp, d in zip(polys, slopes, D)]
-
-        try:
-            whole = evaluate(jprog, box(arb(0), tau), pars, consts, arb(1))
-        except Singular:
-            return None
-        norm = max(sum((abs(v if isinstance(v, arb) else arb(v)).upper() for v in whole[i * n:(i + 1) * n]),
-                       arb(0)) for i in range(n)) * abs(tau)
-        if not norm.is_finite():
-            return None
-        pieces = max(pieces, min(MAX_JACOBIAN_PIECES, math.ceil(float(norm.upper()) / JACOBIAN_MU)))
-        dt = tau / pieces
-        # every solution over a piece lies in the whole step's box: the same mu bounds every piece
-        mu = (norm / pieces).upper()
-        if not mu < JACOBIAN_TERMS + 2:
-            return None
-        # the fewest terms whose tail bound is below JACOBIAN_EPS (at most JACOBIAN_TERMS)
-        mu_f = float(mu.upper())
-        terms, term = JACOBIAN_TERMS, mu_f  # term: mu^(j+1) / (j+1)!
-        for j in range(1, JACOBIAN_TERMS):
-            term *= mu_f / (j + 1)
-            if term / (1 - mu_f / (j + 2)) < JACOBIAN_EPS:
-                terms = j
-                break
-        fact = arb(1)
-        for j in range(2, terms + 2):
-            fact *= j
-        eps = (mu ** (terms + 1) / fact / (1 - mu / (terms + 2))).upper()
-        tail = arb_mat([[arb(0, eps)] * n for _ in range(n)])
-        J = eye
-        for piece in range(pieces):
-            try:
-                vals = evaluate(jprog, box(dt * piece, dt * (piece + 1)), pars, consts, arb(1))
-            except Singular:
-                return None
-            M = arb_mat([vals[i * n:(i + 1) * n] for i in range(n)]) * dt
-            S, T = eye, eye
-            for j in range(1, terms + 1):
-                T = T * M / j
-                S = S + T
-            J = (S + tail) * J
-        if not all(J[i, j].is_finite() for i in range(n) for j in range(n)):
-            return None
-        return J
-    finally:
-        flint.ctx.prec = saved
-
+#: A step whose remainder bound exceeds the tolerance is retried at this fraction of the length the bound's
+#: power law (h^(N+1)) points to; the next steps' estimates are scaled by what the last one needed, and grow back
+#: by STEP_GROWTH a step while their first attempt is proved. Efficiency only: every step is proved.
+RETRY_MARGIN = 0.97
+STEP_GROWTH = 1.02
+#: A step whose a priori box (or Jacobian) is not proved is retried at this fraction of its length.
+UNPROVED_SHRINK = 0.5
 
 #: A run that switches charts this many times stops (it would be cycling).
 MAX_SWITCHES = 10_000
@@ -565,17 +102,9 @@ def _chart_context(model, flint):
     consts = [(slot, ball_constant(c, flint)) for slot, c in prog.constants]
     events = _model_events(model, ps)
     ev_consts = [(slot, ball_constant(c, flint)) for slot, c in events[0].constants] if events else []
-    jprog = _jacobian_program(ps)
+    jprog = jacobian_program(ps)
     jconsts = [(slot, ball_constant(c, flint)) for slot, c in jprog.constants]
     return ps, prog, pars, consts, events, ev_consts, jprog, jconsts
-
-
-def _jet_stepper(ps, order, dps):
-    """The fixed-point jets of a chart's field for the centre polynomials (:func:`_centre_polynomial`), at the
-    run's precision (``dps`` + 10 digits: the ball arithmetic's 32 guard bits)."""
-    from .lie.fixed import FixedStepper
-
-    return FixedStepper(ps.program, list(ps.parameter_values), order, Precision.of(dps=dps, guard_digits=10))
 
 
 def _lohner_set(z, flint):
@@ -624,34 +153,6 @@ def _event_in(events, B, pars, consts, one):
         if not (v > 0 or v < 0):
             return status, message
     return None
-
-
-def _root(x, k: int) -> float:
-    """x^(1/k) as a float, for a positive ball x of any size (a float of x itself may underflow)."""
-    return float((x.log() / k).exp().mid())
-
-
-def _step_estimate(g, N, tol, flint) -> float:
-    """The step at which the defect's terms from order N on, sum_k |g_k| h^(k+1) / (k+1) (what the remainder
-    bound comes to for a step well inside the radius of convergence), reach ~tol: a first guess from g_N, refined
-    once. The attempt that follows proves or shortens it; this choice affects efficiency, never rigour."""
-    arb = flint.arb
-    saved = flint.ctx.prec
-    flint.ctx.prec = 64
-    try:
-        hi = [[arb(abs(x).mid()) for x in gi[N:]] for gi in g]
-        gN = max((row[0] for row in hi), key=float)
-        if gN.is_zero():
-            return math.inf
-        h = arb(_root(tol * (N + 1) / gN, N + 1))
-
-        def estimate(h):
-            return max((sum((x * h ** (N + k + 1) / (N + k + 1) for k, x in enumerate(row)), arb(0)) for row in hi),
-                       key=float)
-
-        return 0.97 * float(h.mid()) * _root(tol / estimate(h), N + 1)
-    finally:
-        flint.ctx.prec = saved
 
 
 def _check_regular(prog, z, pars, consts, flint):
@@ -746,13 +247,13 @@ def centre_coefficients(system, y0, order: int, dps: int = 30, step=None) -> lis
         z = [flint.arb(v.mid()) for v in _initial_balls(system, y0, ps.dimension, flint)]
         pars = [flint.arb(flint.fmpq(p.numerator, p.denominator)) for p in ps.parameter_values]
         consts = [(slot, ball_constant(c, flint)) for slot, c in prog.constants]
-        stepper = _jet_stepper(ps, order, dps)
+        stepper = jet_stepper(ps, order, dps)
         if step is not None:
             stepper.h_last = float(to_fraction(step, "step"))
             if not stepper.h_last > 0:
                 raise ValueError(f"`step` must be a positive step length; got {step!r}")
             stepper.s = 0  # not a first expansion: the time scale follows the step
-        return _centre_polynomial(stepper, prog, z, pars, consts, order, flint, mpmath.mpf(1))[0].unscaled()
+        return centre_polynomial(stepper, prog, z, pars, consts, order, flint, mpmath.mpf(1))[0].unscaled()
 
 
 def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = None, t0=0, max_steps: int = 100_000,
@@ -772,7 +273,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     dps : int
         Digits of the ball arithmetic (32 guard bits above); the enclosures aim at widths near 10^-dps.
     order : int, optional
-        Series order (default ceil(ln(10) dps / 2) + 1, the Jorba-Zou choice).
+        Series order (default ceil(ln(10) dps / 2) + 1 + :data:`EXTRA_ORDER`: the Jorba-Zou choice plus 8).
     max_steps, max_time :
         Budgets (statuses ``step_budget``, ``time_budget``); the clock is read between steps and after every order
         of a step's series, so a long step stops within about one order's work of ``max_time``.
@@ -797,7 +298,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     if max_width is not None and not to_fraction(max_width, "max_width") > 0:
         raise ValueError(f"`max_width` must be a positive radius (the widest ball the run may carry); got "
                          f"{max_width!r}. Leave it out for the default, 1e-3 x max(1, |z|)")
-    N = check_order(order) if order is not None else max(8, math.ceil(math.log(10) * dps / 2) + 1)
+    N = check_order(order) if order is not None else max(8, math.ceil(math.log(10) * dps / 2) + 1) + EXTRA_ORDER
     ps = as_poisson_system(system)
     check_ops(ps.program)
     if atlas is None:
@@ -872,6 +373,7 @@ class _ValidatedEngine:
         self.width_cap, self.deadline, self.h_min, self.direction, self.atlas = (
             width_cap, deadline, h_min, direction, atlas)
         self.tails = []
+        self.h_scale = 1.0  # the step estimate's correction (efficiency only)
         arb = flint.arb
         self.unit = arb(10) ** -dps
         # per-step remainder bound, relative: far below 10^-dps, because every step's remainder is then carried
@@ -886,7 +388,8 @@ class _ValidatedEngine:
         self.chart = getattr(current, "chart", None)
         (self.ps, self.prog, self.pars, self.consts, self.events, self.ev_consts, self.jprog,
          self.jconsts) = _chart_context(current, self.flint)
-        self.stepper = _jet_stepper(self.ps, self.N, self.dps)
+        self.stepper = jet_stepper(self.ps, self.N, self.dps)
+        self.exact = exact_data(self.ps, self.prog, self.flint)
         # the set of states is m + A r: a centre point, a matrix (the identity to start) and a box around 0
         self.m, self.A, self.r = _lohner_set(z, self.flint)
 
@@ -909,11 +412,11 @@ class _ValidatedEngine:
         scale = max([1.0] + [abs(float(zi.mid())) for zi in z])
         tol = self.rem_tol * scale
         wide = any(zi.rad() > self.unit * scale for zi in z)  # wider than 10^-dps of the state's size
-        pieces = 2 * JACOBIAN_PIECES if wide else JACOBIAN_PIECES
+        pieces = WIDE_JACOBIAN_PIECES if wide else JACOBIAN_PIECES
         try:
-            C, jets = _centre_polynomial(self.stepper, prog, self.m, pars, consts, N, flint,
+            C, jets = centre_polynomial(self.stepper, prog, self.m, pars, consts, N, flint,
                                          mpmath.mpf(float(abs(t_end - tcur))), self.deadline)  # centre
-            g = _defect_coefficients(prog, C, pars, consts, flint)  # in the centre's scaled time
+            g = defect_coefficients(prog, C, pars, consts, flint, self.exact)  # in the centre's scaled time
             # from the whole set (checked from a guess around the centre polynomial)
             guess = C.guess(BOX_ORDER, max(zi.rad() for zi in z), norm_bound(jprog, self.m, pars, jconsts, flint))
             CZ = taylor_coefficients_checked(prog, z, guess, pars, consts, BOX_ORDER, flint)
@@ -925,8 +428,11 @@ class _ValidatedEngine:
                        f"({e}): the solution is at or near a singularity of the field (widest ball "
                        f"{max(float(zi.rad()) for zi in z):.3g})") from None
         left = abs(t_end - tcur)
-        h_f = min(_step_estimate(g, N, tol * C.down, flint) * 2.0 ** C.s, float(left))
-        terms = _defect_terms(g, flint)
+        # the estimate reads the defect at the step's start only: scaled by what the last steps learnt
+        h_est = step_estimate(g, N, tol * C.down, flint) * 2.0 ** C.s
+        h_f = min(h_est * self.h_scale, float(left))
+        first, evented, unproved = True, False, False
+        terms = defect_terms(g, N, flint)
         proved = None
         event_hit = None
         h_event_start = h_f
@@ -941,7 +447,7 @@ class _ValidatedEngine:
             hs = h * direction
             hb = arb(flint.fmpq(hs.numerator, hs.denominator))
             span = hb / 2 + arb(0, abs(hb) / 2)  # the ball [0, h] (or [h, 0])
-            got = _prove_step(prog, jprog, CZ, C, terms, pars, consts, jconsts, span, flint,
+            got = prove_step(prog, jprog, CZ, C, terms, pars, consts, jconsts, span, flint,
                               majorant=(jets, h, self.ps.parameter_values) if jets is not None else None)
             tail, B, D = got if got is not None else (None, None, None)
             hit = (_event_in(self.events, B, pars, self.ev_consts, arb(1)) if self.events and got is not None
@@ -953,16 +459,21 @@ class _ValidatedEngine:
                 if float(h) < 1e-3 * h_event_start:
                     break
                 h_f = float(h) / 2
+                evented = True
                 continue
-            J = _flow_jacobian(jprog, CZ, D, pars, jconsts, hb, flint, pieces) if got is not None else None
+            J = flow_jacobian(jprog, CZ, D, pars, jconsts, hb, flint, pieces) if got is not None else None
             bounds_h = tail(hb) if J is not None else None
             worst = max(bounds_h, key=float) if J is not None else None
             if J is not None and worst <= tol:
                 proved = (h, hs, tail, D, J, bounds_h)
                 break
             # the remainder scales like h^(N+1): aim just below the tolerance (halve when unproved)
-            shrink = 0.5 if worst is None or not worst.is_finite() else min(0.9 * _root(tol / worst, N + 1), 0.9)
+            if worst is None or not worst.is_finite():  # no a priori box, or no Jacobian: shorter
+                shrink, unproved = UNPROVED_SHRINK, True
+            else:
+                shrink = min(RETRY_MARGIN * nth_root(tol / worst, N + 1), RETRY_MARGIN)
             h_f = float(h) * shrink
+            first = False
         if proved is None and event_hit is not None:
             # the driver switches charts (atlas) or stops here
             raise Stop(event_hit[0], f"{event_hit[1]} within the next step (every row up to here is a proven "
@@ -973,6 +484,9 @@ class _ValidatedEngine:
                        f"wide: widest ball {max(float(zi.rad()) for zi in z):.3g})")
         h, hs, tail, D, J, bounds_h = proved
         self.stepper.h_last = float(h)  # the next centre's jets hold what a step of about this length needs
+        if h != left and not evented and not unproved and 0 < h_est < math.inf:
+            # a step cut short by its remainder bound alone: the next estimate is scaled alike
+            self.h_scale = min(1.0, self.h_scale * STEP_GROWTH) if first else float(h) / h_est
         tnew = tcur + hs
         A, r = self.A, self.r
 
@@ -991,7 +505,7 @@ class _ValidatedEngine:
 
         def row(tk):
             phi_k, _, ta = point(tk - tcur)
-            Jk = J if tk == tnew else _flow_jacobian(jprog, CZ, D, pars, jconsts, ta, flint, pieces)
+            Jk = J if tk == tnew else flow_jacobian(jprog, CZ, D, pars, jconsts, ta, flint, pieces)
             if Jk is None:  # the field's Jacobian cannot be bounded over the shorter span: stop here
                 raise Stop("validation_failed", f"the flow's Jacobian up to the output time {float(tk):.17g} cannot "
                            "be bounded (the field is singular or too steep near the enclosure)")
@@ -1003,10 +517,16 @@ class _ValidatedEngine:
         # Lohner's QR step: the new set is m' + A' r' with m' the centre of phi, A' the orthogonal factor of
         # mid(J A) (exact floats) and r' = (A'^-1 J A) r + A'^-1 (phi - m'), A'^-1 enclosed in ball arithmetic
         self.m = [arb(v.mid()) for v in phi]
-        Q, _ = np.linalg.qr(np.array([[float(JA[i, j].mid()) for j in range(n)] for i in range(n)]))
-        self.A = flint.arb_mat([[float(Q[i, j]) for j in range(n)] for i in range(n)])
-        Ainv = self.A.inv()
-        self.r = (Ainv * JA) * r + Ainv * flint.arb_mat([[phi[i] - self.m[i]] for i in range(n)])
+        Q, _ = np.linalg.qr(np.array([float(x) for x in JA.mid().entries()]).reshape(n, n))
+        self.A = flint.arb_mat(Q.tolist())
+        spread = flint.arb_mat([[phi[i] - self.m[i]] for i in range(n)])
+        saved = flint.ctx.prec
+        flint.ctx.prec = 64  # r is far below the state's size: 64 bits of it are plenty (and stay rigorous)
+        try:
+            Ainv = self.A.inv()
+            self.r = (Ainv * JA) * r + Ainv * spread
+        finally:
+            flint.ctx.prec = saved
         self.tails.append(tail_h)
         cap = self.width_cap if self.width_cap is not None else arb(scale) / 1000
         widest = max(znew, key=lambda v: float(v.rad()))

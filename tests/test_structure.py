@@ -76,7 +76,8 @@ def test_layers_point_one_way():
 LAYERS = [
     ("utilities", {"progress", "interrupts", "formatting", "folder", "cache", "caller"}),
     ("core", {"precision", "fields", "expr", "poisson", "solution", "events", "timegrid", "balls", "models"}),
-    ("engines", {"energy", "atlas", "ensemble", "taylor", "heyoka_build", "lie", "ball_series", "exact", "validated", "driver"}),
+    ("engines", {"energy", "atlas", "ensemble", "taylor", "heyoka_build", "lie", "ball_series", "exact", "validated",
+                 "validated_step", "driver"}),
     ("methods", {"methods"}),
     ("studies", {"studies"}),
     ("scenes", {"scenes"}),

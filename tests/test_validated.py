@@ -421,6 +421,7 @@ def test_lagrange_majorant_bounds_the_shifted_coefficient_at_every_point_of_the_
     # majorant must bound it at sample points (computed exactly enough in 300-bit balls), and stay within a small
     # factor of the ball evaluation over the whole step (not vacuous)
     from lieseries import validated as V
+    from lieseries import validated_step as S
 
     body = ls.EulerPoisson(RIGID_INERTIA)
     ps = body.poisson
@@ -429,28 +430,68 @@ def test_lagrange_majorant_bounds_the_shifted_coefficient_at_every_point_of_the_
     with V.working_precision(V.dps_to_bits(dps) + V.GUARD_BITS, cap=order + 20) as fl:
         z = V._initial_balls(body, body.initial_state(omega=RIGID_OMEGA), ps.dimension, fl)
         _, prog, pars, consts, *_ = V._chart_context(body, fl)
-        stepper = V._jet_stepper(ps, order, dps)
-        centre, jets = V._centre_polynomial(stepper, prog, [fl.arb(v.mid()) for v in z], pars, consts, order, fl, 10)
+        stepper = S.jet_stepper(ps, order, dps)
+        centre, jets = S.centre_polynomial(stepper, prog, [fl.arb(v.mid()) for v in z], pars, consts, order, fl, 10)
         C = centre.unscaled()
-        L = order + V.DEFECT_EXTRA
+        L = order + S.DEFECT_EXTRA
         for h in (Fraction(3, 8), Fraction(-7, 8), Fraction(1, 1000)):
-            bound = V._lagrange_majorant(prog, C, jets, h, ps.parameter_values, L, fl)
+            bound = S.lagrange_majorant(prog, C, jets, h, ps.parameter_values, L, fl)
             assert bound is not None
             hb = fl.arb(fl.fmpq(h.numerator, h.denominator))
             span = hb / 2 + fl.arb(0, abs(hb) / 2)
             fl.ctx.prec = 300
             for xi in (0, h / 3, h / 2, h):
                 point = fl.arb(fl.fmpq(xi.numerator, xi.denominator))
-                true = [row[-1] for row in V._field_series(prog, C, pars, consts, L + 1, fl, base=point)]
+                true = [row[-1] for row in S.field_series(prog, C, pars, consts, L + 1, fl, base=point)]
                 assert all(abs(t).upper() <= b for t, b in zip(true, bound))
             fl.ctx.prec = 64
-            balls = [row[-1] for row in V._field_series(prog, C, pars, consts, L + 1, fl, base=span)]
+            balls = [row[-1] for row in S.field_series(prog, C, pars, consts, L + 1, fl, base=span)]
             assert all(b <= 100 * abs(x).upper() for b, x in zip(bound, balls))
             fl.ctx.prec = V.dps_to_bits(dps) + V.GUARD_BITS
         # a field that is not a polynomial (the sphere's charts divide) is left to the ball evaluation
         s = ls.Sphere(atlas=False)
         sprog = s.poisson.program
-        assert V._lagrange_majorant(sprog, C, jets, Fraction(1, 4), s.poisson.parameter_values, L, fl) is None
+        assert S.lagrange_majorant(sprog, C, jets, Fraction(1, 4), s.poisson.parameter_values, L, fl) is None
+
+
+def test_exact_defect_holds_the_centre_polynomials_defect(bigint):
+    # a polynomial field's defect g = f(p) - p' is computed in exact rational arithmetic from the jets' integers:
+    # its bound below order N must hold every |g_k| and its balls from N on must hold g_k, both against the
+    # defect on 600-bit ball series; the bound below N stays within a factor 2 of the largest |g_k| (the jets'
+    # rounding), far below the tolerance of a step
+    from lieseries import validated as V
+    from lieseries import validated_step as S
+
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    ps = body.poisson
+    dps, order = 30, 40
+    with V.working_precision(V.dps_to_bits(dps) + V.GUARD_BITS, cap=order + 20) as fl:
+        _, prog, pars, consts, *_ = V._chart_context(body, fl)
+        exact = S.exact_data(ps, prog, fl)
+        assert exact is not None
+        assert S.exact_data(ls.Sphere(atlas=False).poisson, ls.Sphere(atlas=False).poisson.program, fl) is None
+        stepper = S.jet_stepper(ps, order, dps)
+        for omega in (RIGID_OMEGA, ("-0.3", "2.5", "1e-3")):
+            z = V._initial_balls(body, body.initial_state(omega=omega), ps.dimension, fl)
+            m = [fl.arb(v.mid()) for v in z]
+            centre, jets = S.centre_polynomial(stepper, prog, m, pars, consts, order, fl, 10)
+            assert jets is not None and centre.exact is not None
+            lows, highs = S.defect_coefficients(prog, centre, pars, consts, fl, exact)
+            saved, fl.ctx.prec = fl.ctx.prec, 600
+            try:
+                _, _, pars6, consts6, *_ = V._chart_context(body, fl)  # the parameters' balls at 600 bits
+                ref = S.defect_coefficients(prog, centre, pars6, consts6, fl)
+                full = S.field_series(prog, centre.rows, pars6, consts6, order, fl)
+                for i in range(ps.dimension):
+                    g_low = [abs(f - centre.rows[i][k + 1] * (k + 1) * centre.down) for k, f in enumerate(full[i])]
+                    assert max(x.rad() for x in g_low) < fl.arb(2) ** -500
+                    assert all(x.upper() <= lows[i] for x in g_low)
+                    assert lows[i] <= 2 * max(x.upper() for x in g_low) + fl.arb(2) ** -500
+                    assert lows[i] < fl.arb(10) ** -(dps + 8)
+                    assert all(a.overlaps(b) for a, b in zip(highs[i], ref[1][i]))
+                    assert all(a.rad() < abs(a.mid()) * 2.0 ** -50 for a in highs[i] if a.mid() != 0)
+            finally:
+                fl.ctx.prec = saved
 
 
 def test_ball_taylor_coefficients_contain_those_from_every_point_of_the_box(monkeypatch):
@@ -459,6 +500,7 @@ def test_ball_taylor_coefficients_contain_those_from_every_point_of_the_box(monk
     # 90 digits
     from lieseries import ball_series
     from lieseries import validated as V
+    from lieseries import validated_step as S
 
     body = ls.EulerPoisson(RIGID_INERTIA)
     ps = body.poisson
@@ -480,7 +522,7 @@ def test_ball_taylor_coefficients_contain_those_from_every_point_of_the_box(monk
         z = [fl.arb(fl.fmpq(c.numerator, c.denominator)) + fl.arb(0, fl.arb(fl.fmpq(1, 10**20))) for c in centre]
         m = [fl.arb(v.mid()) for v in z]
         _, prog, pars, consts, _, _, jprog, jconsts = V._chart_context(body, fl)
-        C, _ = V._centre_polynomial(V._jet_stepper(ps, 40, dps), prog, m, pars, consts, 40, fl, 10)
+        C, _ = S.centre_polynomial(S.jet_stepper(ps, 40, dps), prog, m, pars, consts, 40, fl, 10)
         guess = C.guess(order, max(v.rad() for v in z), V.norm_bound(jprog, m, pars, jconsts, fl))
         picard = V.taylor_coefficients(prog, z, pars, consts, order, fl, bits=64)
         with monkeypatch.context() as mpatch:
@@ -504,6 +546,7 @@ def test_the_remainder_factor_exp_times_bounds_the_matrix_exponential_from_above
     import random
 
     from lieseries import validated as V
+    from lieseries import validated_step as S
 
     rng = random.Random(7)
     n = 12
@@ -511,7 +554,7 @@ def test_the_remainder_factor_exp_times_bounds_the_matrix_exponential_from_above
         for scale in (0.01, 0.5, 1, 3, 10, 40):
             M = fl.arb_mat([[fl.arb(rng.random() * scale / n) for _ in range(n)] for _ in range(n)])
             g = fl.arb_mat([[fl.arb(rng.random())] for _ in range(n)])
-            got = [V._exp_times(M, g, fl)[i, 0].upper() for i in range(n)]
+            got = [S.exp_times(M, g, fl)[i, 0].upper() for i in range(n)]
             fl.ctx.prec = 300
             exact = fl.arb_mat([[M[i, j] for j in range(n)] for i in range(n)]).exp() * g
             assert all(b >= exact[i, 0].upper() for i, b in enumerate(got))

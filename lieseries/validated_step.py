@@ -1,0 +1,709 @@
+"""The proof of one validated step (:mod:`lieseries.validated` runs them): the centre's Taylor polynomial and its
+defect, the a priori box and the remainder bound, the flow's Jacobian over the step, in Arb ball arithmetic.
+
+One step from t to t + h of the set m + A r (docs/theory.md, "Certified enclosures"):
+
+* :func:`centre_polynomial` -- the Taylor polynomial p of order N of the flow from the centre m, from the Lie
+  engine's fixed-point jets (:func:`jet_stepper`), as exact binary numbers (:class:`Centre`);
+* :func:`defect_coefficients` -- the defect g = f(p) - p' at the step's start: exact in rational arithmetic for a
+  polynomial field (:func:`exact_data`), on ball series otherwise; :func:`defect_terms` and
+  :func:`step_estimate` read it;
+* :func:`prove_step` -- the a priori box B by the high-order enclosure theorem (Picard iteration from B) and the
+  remainder bound |x - p| <= exp(|tau| L) int |g|, its Lagrange term from :func:`lagrange_majorant` (a float
+  majorant series, polynomial fields) or from :func:`field_series` over the step;
+* :func:`flow_jacobian` -- the Jacobian of the flow over the step, by the Peano-Baker series over pieces of it.
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+from fractions import Fraction
+
+import mpmath
+import numpy as np
+
+from . import cache
+from .ball_series import Singular, check_ops, evaluate, exact_constant, taylor_coefficients
+from .precision import Precision
+
+__all__ = ["Centre", "centre_polynomial", "field_series", "defect_coefficients", "defect_terms",
+           "defect_polynomials", "lagrange_majorant", "prove_step", "exp_times", "jacobian_program",
+           "flow_jacobian", "exact_data", "jet_stepper", "nth_root", "step_estimate", "DEFECT_EXTRA", "BOX_ORDER",
+           "JACOBIAN_TERMS", "JACOBIAN_EPS", "JACOBIAN_PIECES", "WIDE_JACOBIAN_PIECES", "JACOBIAN_MU",
+           "MAX_JACOBIAN_PIECES", "JET_EXTRA_DPS"]
+
+
+def centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadline=None):
+    """The Taylor polynomial of order ``order`` of the flow from the point m, as a :class:`Centre` of exact
+    binary numbers, and the jets it came from (None after the fallback).
+
+    Nothing about these coefficients needs proving: the remainder bound (:func:`defect_polynomials`) holds for any
+    polynomial p with p(0) = m, and only its size depends on p being close to the flow. They come from the Lie
+    engine's fixed-point jets (``stepper``, a :class:`~lieseries.lie.fixed.FixedStepper` of the chart's field:
+    integers ``M`` with c_k = M * 2^(u - s k), taken exactly as the coefficients in the jets' scaled time
+    sigma = 2^-s tau: no composition), or from Picard iteration on Arb series when the jets fail (s = 0).
+    ``span``: the time left (the stepper's time scale covers it when the solution is a polynomial). Past
+    ``deadline`` (a perf_counter value) both stop with :class:`~lieseries.lie.jets.DeadlineExceeded`."""
+    arb = flint.arb
+    try:
+        jets = stepper.expand([mpmath.make_mpf(mpmath.libmp.from_man_exp(*(int(q) for q in v.mid().man_exp())))
+                               for v in m], span, deadline)
+    except (ZeroDivisionError, ValueError, ArithmeticError):
+        rows = [[arb(c.mid()) for c in row] for row in taylor_coefficients(prog, m, pars, consts, order, flint,
+                                                                deadline=deadline)]
+        return Centre([flint.arb_poly([mi] + row[1:]) for mi, row in zip(m, rows)], m, 0, order, flint), None
+    fmpq, fmpq_poly, fmpz_poly = flint.fmpq, flint.fmpq_poly, flint.fmpz_poly
+    exact = []
+    for Mi, u, mi in zip(jets.M, jets.U, m):
+        ints = [int(c) for c in Mi]
+        ints[0] = 0  # p(0) = m exactly (the jets hold the state rounded)
+        man, exp = (int(v) for v in mi.mid().man_exp())
+        exact.append(fmpq_poly(fmpz_poly(ints)) * _fmpq_two(u, fmpq) + fmpq(man) * _fmpq_two(exp, fmpq))
+    saved = flint.ctx.prec
+    # above every numerator (integers below 2^(bits) times powers of two): the balls are exact
+    flint.ctx.prec = max(64, max(int(max(map(abs, Mi))).bit_length() for Mi in jets.M) + 64,
+                         max(int(v.mid().man_exp()[0]).bit_length() for v in m) + 64)
+    try:
+        polys = [flint.arb_poly(q) for q in exact]
+    finally:
+        flint.ctx.prec = saved
+    return Centre(polys, m, jets.s, order, flint, exact), jets
+
+
+def _fmpq_two(e, fmpq):
+    """2^e as an fmpq."""
+    return fmpq(1 << e) if e >= 0 else fmpq(1, 1 << -e)
+
+
+class Centre:
+    """The centre polynomials p_i(tau) = sum_k c_ik sigma^k of order ``order`` in the scaled time
+    sigma = 2^-s tau: ``polys`` (exact arb_polys), ``exact`` (the same as fmpq_polys, or None), ``mids`` the centre
+    itself (p(0))."""
+
+    def __init__(self, polys, mids, s, order, flint, exact=None):
+        self.polys, self.mids, self.s, self.order, self.flint, self.exact = polys, mids, s, order, flint, exact
+        self.down = flint.arb(2) ** -s  # sigma per unit of tau (exact)
+        self._rows = None
+
+    @property
+    def rows(self):
+        """The coefficients as exact balls, ``rows[i][k]`` (k <= order)."""
+        if self._rows is None:
+            arb = self.flint.arb
+            self._rows = []
+            for p, mi in zip(self.polys, self.mids):
+                row = [mi] + list(p.coeffs())[1:self.order + 1]
+                self._rows.append(row + [arb(0)] * (self.order + 1 - len(row)))
+        return self._rows
+
+    def sigma(self, tau):
+        """The scaled time of the ball ``tau`` (exactly: a power of two)."""
+        return tau * self.down
+
+    def at(self, tau):
+        """p(tau) for a ball ``tau``: an enclosure of the polynomials' range over it."""
+        x = self.sigma(tau)
+        return [p(x) for p in self.polys]
+
+    def guess(self, order, width, lip):
+        """Balls around the coefficients c_1..c_{order-1} in tau of the polynomials (at 64 bits): a guess of the
+        coefficients from a box of radius ``width`` around the centre (:func:`taylor_coefficients_checked`), ``lip`` about
+        the norm of the field's Jacobian there. A change d of the first k coefficients moves c_k by about
+        lip d_{k-1} / k, so radii r_k = (2^-52 |z| + width) (4 lip)^k / k! (2^-52: far above the rounding at
+        64 bits) leave room for what the field's evaluation carries from order to order (its leading part
+        r_k / 4; where the coefficients grow faster, as near the sphere's chart edges, the check's retries widen
+        the guess). Beyond the polynomial's order the guess is centred at 0."""
+        flint = self.flint
+        arb = flint.arb
+        saved = flint.ctx.prec
+        flint.ctx.prec = 64
+        try:
+            size = max(abs(mi).upper() for mi in self.mids)
+            r = size * 2.0**-52 + width
+            rows = [p.truncate(min(order, self.order + 1)).coeffs() for p in self.polys]
+            if self.s:
+                ck = [self.down ** k for k in range(order)]
+                rows = [[c * x for c, x in zip(row, ck)] for row in rows]
+            radii = []
+            for k in range(1, order):
+                r = (r * (4 * lip) / k).upper()
+                radii.append(r)
+            # beyond the polynomial's order (or a zero coefficient): around 0
+            return [[arb(row[k].mid() if k < len(row) else 0, rk) for k, rk in enumerate(radii, 1)] for row in rows]
+        finally:
+            flint.ctx.prec = saved
+
+    def unscaled(self):
+        """The coefficients c_k of p in tau, exactly: ``out[i][k]``."""
+        flint = self.flint
+        saved = flint.ctx.prec
+        flint.ctx.prec = max(64, max(c.mid().man_exp()[0].bit_length() for row in self.rows for c in row)
+                             + 64 + abs(self.s) * len(self.rows[0]))
+        try:
+            return [[c * flint.arb(2) ** (-self.s * k) for k, c in enumerate(row)] for row in self.rows]
+        finally:
+            flint.ctx.prec = saved
+
+
+def field_series(prog, polys, pars, consts, length, flint, base=None):
+    """Coefficients 0..length-1 of f(p(base + tau)) in tau, for the polynomials p = ``polys`` (base: a ball,
+    default 0): ``out[i][k]``."""
+    arb, arb_series = flint.arb, flint.arb_series
+    if base is None:
+        series = [arb_series(row, prec=length) for row in polys]
+    else:
+        x = arb_series([base, arb(1)], prec=length)
+        series = []
+        for row in polys:
+            acc = arb_series([row[-1]], prec=length)
+            for c in reversed(row[:-1]):
+                acc = acc * x + c
+            series.append(acc)
+    f = evaluate(prog, series, pars, consts, arb_series([arb(1)], prec=length))
+    out = []
+    for fi in f:
+        got = list(fi.coeffs()) if isinstance(fi, arb_series) else [fi if isinstance(fi, arb) else arb(fi)]
+        out.append(got[:length] + [arb(0)] * (length - len(got)))
+    return out
+
+
+#: Orders beyond N at which the defect's Taylor coefficients are computed at the step's start; the Lagrange term
+#: over the whole step comes after them (so its overestimate is damped by (h / radius of convergence)^EXTRA).
+DEFECT_EXTRA = 8
+
+
+def defect_coefficients(prog, centre, pars, consts, flint, exact=None):
+    """The defect g = f(p) - dp/dtau of the :class:`Centre` p (order N) at the step's start, in the scaled time
+    sigma = 2^-s tau (dp/dtau = 2^-s dp/dsigma), as ``(low, high)``: per component, ``low[i]`` an upper bound of
+    |g_k| for every k < N (the rounding of the jets: p is close to the flow's Taylor polynomial) and ``high[i]``
+    balls holding g_N..g_{N+EXTRA-1} (the field's own terms).
+
+    ``exact``: the parameters and constants as fmpqs (:func:`exact_data`) when the field is a polynomial with
+    exact constants; with the centre's exact polynomials (the jets' integers), f(p) is then computed in exact
+    rational arithmetic (FLINT's fmpq series) and g is exact before it is bounded; otherwise on Arb series at the
+    working precision."""
+    arb = flint.arb
+    N = centre.order
+    L = N + DEFECT_EXTRA
+    if flint.ctx.cap < L + 1:  # series beyond the cap are cut silently: the terms from N on would be lost
+        raise AssertionError("the series cap must exceed the defect's length")  # pragma: no cover - set by the run
+    saved = flint.ctx.prec
+    if exact is not None and centre.exact is not None:
+        fmpq, series = flint.fmpq, flint.fmpq_series
+        F = evaluate(prog, [series(q, prec=L) for q in centre.exact], exact[0], exact[1], series([1], prec=L))
+        down = _fmpq_two(-centre.s, fmpq)
+        lows, highs = [], []
+        flint.ctx.prec = 64
+        try:
+            for fi, q in zip(F, centre.exact):
+                if not isinstance(fi, series):  # a constant component of the field
+                    fi = series([fi], prec=L)
+                g = fi - series(q.derivative(), prec=L) * down
+                num, den = g.numer().coeffs(), arb(g.denom())
+                # |g_k| < 2^height for k < N: a factor below 2 on the jets' rounding, far under the tolerance
+                low = flint.fmpz_poly(num[:N]).height_bits() if len(num) else 0
+                lows.append((arb(2) ** low / den).upper() if low else arb(0))
+                highs.append([arb(num[k]) / den if k < len(num) else arb(0) for k in range(N, L)])
+        finally:
+            flint.ctx.prec = saved
+        return lows, highs
+    arb_series = flint.arb_series
+    P, down = centre.rows, centre.down
+    F = evaluate(prog, [arb_series(row, prec=L) for row in P], pars, consts, arb_series([arb(1)], prec=L))
+    lows, highs = [], []
+    for fi, row in zip(F, P):
+        if not isinstance(fi, arb_series):  # a constant component of the field
+            fi = arb_series([fi if isinstance(fi, arb) else arb(fi)], prec=L)
+        got = list((fi - arb_series(row, prec=L + 1).derivative() * down).coeffs())
+        got = got[:L] + [arb(0)] * (L - len(got))
+        flint.ctx.prec = 64
+        try:
+            lows.append(max([arb(0)] + [abs(x).upper() for x in got[:N]]))
+        finally:
+            flint.ctx.prec = saved
+        highs.append(got[N:])
+    return lows, highs
+
+
+def defect_terms(g, N, flint):
+    """(low, high): per component, the bound of |g_k| below N and the upper bounds |g_k| / (k + 1) from N on that
+    :func:`defect_polynomials` sums (at 64 bits: upper bounds), from :func:`defect_coefficients`."""
+    lows, highs = g
+    saved = flint.ctx.prec
+    flint.ctx.prec = 64
+    try:
+        return lows, [[(abs(x) / (k + 1)).upper() for k, x in enumerate(gi, N)] for gi in highs]
+    finally:
+        flint.ctx.prec = saved
+
+
+def defect_polynomials(terms, top, N, flint):
+    """Per component, the polynomial d_i(t) = low_i sum_{k<N} t^k / (k+1) + sum_{k>=N} |g_k| t^k / (k+1)
+    + |top_i| t^L / (L+1) (``terms`` = (low, high) from :func:`defect_terms`; ``top``: the L-th coefficient of g
+    over the whole step, L = N + len(high[i])): |tau| d_i(|tau|) bounds int_0^|tau| |g_i(s)| ds (nonnegative
+    coefficients: its value at a point is tight). In the scaled time: sigma and g's coefficients in sigma give the
+    bound divided by 2^s."""
+    lows, highs = terms
+    arb, arb_poly = flint.arb, flint.arb_poly
+    base = _LOW_SUMS.get(N)
+    if base is None:
+        base = _LOW_SUMS[N] = arb_poly([(arb(1) / (k + 1)).upper() for k in range(N)])
+    out = []
+    for low, gi, ti in zip(lows, highs, top):
+        L = N + len(gi)
+        out.append(base * low + arb_poly([0] * N + gi + [(abs(ti) / (L + 1)).upper()]))
+    return out
+
+
+#: sum_{k<N} t^k / (k + 1) with upper-bound coefficients, per N (64 bits).
+_LOW_SUMS: dict = {}
+
+
+def _horner(C, tau):
+    """The Taylor polynomials sum_j C[i][j] tau^j (tau a ball: an enclosure of their range over it)."""
+    out = []
+    for cs in C:
+        acc = cs[-1]
+        for c in reversed(cs[:-1]):
+            acc = acc * tau + c
+        out.append(acc)
+    return out
+
+
+#: The majorant is computed in floating point when the run's working precision is at most this many bits (its
+#: integers convert to floats, and its floor, below, stays far under 10^-dps).
+MAJORANT_MAX_BITS = 700
+#: Every value of the majorant series is raised to at least this (a majorant stays one; no float underflows).
+MAJORANT_FLOOR = 1e-280
+#: The scaled coefficients |c_k| |h|^k must be at least this (or 0): the majorant is not used otherwise.
+MAJORANT_TINY = 1e-290
+_PASCAL: dict = {}
+
+
+def lagrange_majorant(prog, P, jets, h, par_values, L, flint):
+    """Per component, an upper bound (an arb) of |[f(p(xi + tau))]_L| (the L-th Taylor coefficient in tau) over
+    every xi between 0 and h, for the centre polynomial p (its coefficients from the integer ``jets``:
+    c_k = M 2^(u - s k), the centre itself as ``P[i][0]``) and a polynomial field f; None when the field is not a
+    polynomial or the numbers leave the float range.
+
+    In the time u = tau / |h|, the shifted polynomial's coefficients are bounded by those of a(1 + u) with
+    a_k = |c_k| |h|^k (binomial expansion, |xi| <= |h|), and a polynomial field's Taylor coefficients of order L by
+    those of its majorant (constants and parameters by their absolute values, subtractions as additions) on these
+    nonnegative series. Everything is nonnegative, so floating point errs by a relative 2^-52 per operation and
+    term (a few parts in 10^12 here; the result is raised by 1%), underflow is kept off by a floor that only
+    raises values, and overflow gives None. The bound of order L in tau is the one in u divided by |h|^L."""
+    if jets is None or max(int(max(map(abs, Mi))).bit_length() for Mi in jets.M) > MAJORANT_MAX_BITS:
+        return None
+    hq = abs(Fraction(h))
+    if hq == 0:
+        return None
+    ops = {"add", "sub", "neg", "mul", "powi"}
+    if any(node.op not in ops or (node.op == "powi" and int(node.data) < 0) for node in prog.nodes):
+        return None
+    N = len(jets.M[0]) - 1
+    up = 1 + 2.0**-50
+    try:
+        hs = float(hq) * 2.0 ** -jets.s * up
+        hpow = np.cumprod(np.concatenate(([1.0], np.full(N, hs))))
+        T = _PASCAL.get(N)
+        if T is None:
+            T = _PASCAL[N] = np.array([[math.comb(k, j) for k in range(N + 1)] for j in range(N + 1)], dtype=float)
+        vals = [None] * prog.nslots  # series (arrays of L + 1) or constants (floats)
+
+        def series(v):
+            out = np.zeros(L + 1)
+            out[: min(len(v), L + 1)] = v[: L + 1]
+            return np.maximum(out, MAJORANT_FLOOR)
+
+        def scalar(x):
+            return max(abs(x) * up, MAJORANT_FLOOR)
+
+        M = np.abs(np.array([list(map(float, Mi)) for Mi in jets.M]))
+        A = np.ldexp(M, np.array(jets.U)[:, None]) * hpow * up
+        A[:, 0] = [abs(float(row[0].mid())) * up for row in P]  # the centre itself (the jets hold it rounded)
+        if np.any((A < MAJORANT_TINY) & (M != 0)):
+            # a coefficient near or below the float range: a dropped term, times the binomials (up to 2^N),
+            # could exceed the floor
+            return None
+        for i, v in enumerate(A @ T.T * up):
+            vals[i] = series(v)
+        for j, q in enumerate(par_values):
+            vals[prog.nvars + j] = scalar(float(abs(Fraction(q))))
+        for slot, (kind, value) in prog.constants:
+            if kind == "rational":
+                x = abs(Fraction(*value))
+            elif kind == "binary":
+                x = abs(math.ldexp(float(value[1]), value[2]))
+            else:
+                x = 3.2 if kind == "pi" else 2.8
+            vals[slot] = scalar(float(x))
+        top_only = _top_only(prog)
+        for node in prog.nodes:
+            a = [vals[x] for x in node.args]
+            if node.out in top_only:
+                # only coefficient L is read downstream (through sums): a _Top, no series
+                if node.op in ("add", "sub", "neg"):  # a constant adds to coefficient 0 only
+                    v = sum(x.value if isinstance(x, _Top) else x[L] for x in a if not isinstance(x, float))
+                else:
+                    factors = a if node.op == "mul" else [a[0]] * int(node.data)
+                    c, ser = 1.0, [x for x in factors if not isinstance(x, float)]
+                    for x in factors:
+                        if isinstance(x, float):
+                            c *= x
+                    if not ser:
+                        v = 0.0
+                    else:
+                        w = ser[0]
+                        for x in ser[1:-1]:
+                            w = np.convolve(w, x)[: L + 1]
+                        v = (float(w[L]) if len(ser) == 1 else float(np.dot(w, ser[-1][::-1]))) * c
+                vals[node.out] = _Top(max(v * up, MAJORANT_FLOOR))
+                continue
+            if node.op in ("add", "sub"):
+                # a constant c is the series (|c|, 0, 0, ...): it adds to the first coefficient only
+                c = sum(x for x in a if isinstance(x, float))
+                s = [x for x in a if not isinstance(x, float)]
+                if not s:
+                    v = c
+                else:
+                    v = s[0].copy()
+                    for x in s[1:]:
+                        v += x
+                    v[0] += c
+            elif node.op == "neg":
+                v = a[0]
+            else:  # products: the constant factors multiply, the series convolve
+                factors = a if node.op == "mul" else [a[0]] * int(node.data)
+                c, v = 1.0, None
+                for x in factors:
+                    if isinstance(x, float):
+                        c *= x
+                    else:
+                        v = x if v is None else np.convolve(v, x)[: L + 1]
+                v = c if v is None else v * c
+            # an overflow (inf, or nan from inf * 0) reaches the outputs it feeds: checked there
+            vals[node.out] = (max(v * up, MAJORANT_FLOOR) if isinstance(v, float)
+                              else np.maximum(v * up, MAJORANT_FLOOR))
+        tops = [MAJORANT_FLOOR if isinstance(vals[o], float) else
+                (vals[o].value if isinstance(vals[o], _Top) else float(vals[o][L])) * 1.01 for o in prog.outputs]
+    except (OverflowError, ValueError):
+        return None
+    if not all(math.isfinite(t) for t in tops):
+        return None
+    arb = flint.arb
+    hL = arb(flint.fmpq(hq.numerator, hq.denominator)) ** L
+    return [(arb(t) / hL).upper() for t in tops]
+
+
+class _Top:
+    """Coefficient L alone of a nonnegative majorant series (a float), where nothing downstream needs the rest."""
+
+    __slots__ = ("value",)
+
+    def __init__(self, value):
+        self.value = value
+
+
+_TOP_ONLY: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _top_only(prog):
+    """The slots of ``prog`` whose majorant series only the coefficient L of the outputs reads: outputs, and the
+    arguments of sums, differences and negations that are themselves read so (a product's factors need their whole
+    series)."""
+    got = _TOP_ONLY.get(prog)
+    if got is None:
+        top, full = set(prog.outputs), set()
+        for node in reversed(prog.nodes):  # every consumer of a slot comes after it
+            if node.out in full or node.out not in top:
+                if node.out in full:
+                    full.update(node.args)
+                continue
+            if node.op in ("add", "sub", "neg"):
+                top.update(x for x in node.args if x not in full)
+            else:
+                full.update(node.args)
+        got = _TOP_ONLY[prog] = frozenset(top - full - set(range(prog.nvars + prog.npars))
+                                          - {slot for slot, _ in prog.constants})
+    return got
+
+
+def _enclosure_box(P, flint):
+    """A box around the polynomial range P over a step, a little wider, for the a priori check."""
+    arb = flint.arb
+    return [arb(p.mid(), p.rad() * 1.25 + (abs(p.mid()) + p.rad() + 1) * arb(2) ** -30) for p in P]
+
+
+def prove_step(prog, jprog, CZ, centre, terms, pars, consts, jconsts, span, flint, majorant=None):
+    """(``tail``, the box B that holds every solution over the step, the coefficients from B through c_{K+1}) for
+    a step over ``span`` (the ball [0, h]), or None when the step is not proved. ``tail(tau)``: per component, an
+    upper bound of |phi_tau(m) - p(tau)| for the centre's solution, |tau| <= h.
+
+    ``CZ``: the Taylor coefficients c_0..c_K from the whole enclosure Z of the state (K = BOX_ORDER). B is a box
+    around their polynomials' range over the step; by the high-order enclosure theorem (docs/theory.md),
+    sum_{j<=K} c_j(Z) [0, h]^j + c_{K+1}(B) [0, h]^(K+1) inside B proves that every solution from Z exists over
+    the step and stays in B. B is wide, so its coefficients are computed at 64 bits (outward rounding keeps them
+    rigorous).
+
+    The centre's solution x from m = p(0) and the centre polynomial p (``centre``, a :class:`Centre`) differ by
+    e = x - p with e' = g + A(s) e, g = f(p) - p' the defect (its coefficients in the centre's scaled time at the
+    step's start, as ``terms`` from :func:`defect_terms`) and A(s) a mean of Df
+    over the segment from p(s) to x(s), inside the box R = B united with the range of p over the step. So
+    |e(tau)| <= exp(|tau| L) G(tau) componentwise, L = |Df(R)| entrywise and G the integral of |g| over the step
+    bounded by :func:`defect_polynomials` with the Lagrange term taken over the whole step (from a majorant series in
+    floating point, :func:`lagrange_majorant`, when ``majorant`` = (the centre's integer jets, |h|, the
+    parameters) is given and the field is a polynomial; else by ball series at 64 bits)."""
+    arb, arb_mat = flint.arb, flint.arb_mat
+    K = len(CZ[0]) - 1
+    n = len(centre.polys)
+    Lg = centre.order + len(terms[1][0])  # the order of the Lagrange term
+    Pz = _horner(CZ, span)
+    B = _enclosure_box(Pz, flint)
+    saved = flint.ctx.prec
+    flint.ctx.prec = 64
+    try:
+        R = [b.union(p) for b, p in zip(B, centre.at(span))]
+        vals = evaluate(jprog, R, pars, jconsts, arb(1))
+        L = arb_mat([[abs(v if isinstance(v, arb) else arb(v)).upper() for v in vals[i * n:(i + 1) * n]]
+                     for i in range(n)])
+        if not all(x.is_finite() for x in (L * arb_mat([[1]] * n)).entries()):  # row sums of upper bounds
+            return None
+        D = taylor_coefficients(prog, B, pars, consts, K + 1, flint)  # B is wide: Picard iteration
+        if not all(d[K + 1].is_finite() for d in D):
+            return None
+        if not all(b.contains(p + d[K + 1] * span ** (K + 1)) for b, p, d in zip(B, Pz, D)):
+            return None
+        top = (None if majorant is None
+               else lagrange_majorant(prog, [[mi] for mi in centre.mids], *majorant, Lg, flint))
+        if top is None:  # coefficient Lg in sigma, over the step in sigma
+            top = [row[-1] for row in field_series(prog, centre.rows, pars, consts, Lg + 1, flint,
+                                                    base=centre.sigma(span))]
+        else:  # coefficient Lg in tau, times 2^(s Lg): in sigma
+            up = arb(2) ** (centre.s * Lg)
+            top = [(t * up).upper() for t in top]
+    except (ZeroDivisionError, ValueError):
+        return None
+    finally:
+        flint.ctx.prec = saved
+    if not all(t.is_finite() for t in top):
+        return None
+
+    back = arb(2) ** centre.s  # the bound in sigma, in tau
+    saved = flint.ctx.prec
+    flint.ctx.prec = 64
+    try:
+        defect = defect_polynomials(terms, top, centre.order, flint)
+    finally:
+        flint.ctx.prec = saved
+
+    def tail(tau):
+        saved = flint.ctx.prec
+        flint.ctx.prec = 64
+        try:
+            x = abs(centre.sigma(tau))
+            E = exp_times(L * abs(tau), arb_mat([[(d(x) * x).upper() * back] for d in defect]), flint)
+            return [E[i, 0].upper() for i in range(n)]
+        finally:
+            flint.ctx.prec = saved
+
+    return tail, B, D
+
+
+def exp_times(M, g, flint):
+    """exp(M) g for a matrix M and a column g with nonnegative entries (balls of exact values): the series
+    sum_j M^j g / j! by matrix-vector products, its tail bounded entrywise by mu^(j+1) / (j+1)! / (1 - mu / (j+2))
+    ||g||_inf (mu = ||M||_inf: every entry of M^i g is at most mu^i ||g||_inf), stopped below 2^-40 of ||g||_inf
+    (a bound, not a tight value: cheaper than the matrix exponential, which it uses when mu >= 16)."""
+    arb, arb_mat = flint.arb, flint.arb_mat
+    n = g.nrows()
+    mu = max([arb(0)] + [sum((M[i, j] for j in range(n)), arb(0)).upper() for i in range(n)])
+    if not mu < 16:  # a long series: Arb's matrix exponential (scaling and squaring)
+        return M.exp() * g
+    size = max([arb(0)] + [g[i, 0].upper() for i in range(n)])
+    S = T = g
+    j, rest = 0, size  # rest: mu^(j+1) / (j+1)! ||g||, the first term left out
+    while True:
+        rest = (rest * mu / (j + 1)).upper()
+        if mu < j + 2 and rest / (1 - mu / (j + 2)) <= size * 2.0**-40:
+            break
+        j += 1
+        T = M * T / j
+        S = S + T
+    tail = (rest / (1 - mu / (j + 2))).upper()
+    return S + arb_mat([[arb(0, tail)] for _ in range(n)])
+
+
+_JACOBIANS = cache.region("validated.jacobians", 64)
+#: Terms of the interval-matrix exponential that encloses the flow's Jacobian over one piece of a step, and the
+#: number of pieces a step is cut into for it (three times as many when the set is wider than 10^-dps, as from
+#: uncertain data, where the Jacobian's own width multiplies the set's spread: measured on the rigid body at 50
+#: digits from data known to a double's width, the final ball at T = 10 is 1.0e-14 with 16 pieces, 8.9e-15 with 24,
+#: for a few percent more time).
+JACOBIAN_TERMS = 10
+#: Fewer terms when their tail bound is below this (relative to the identity: the Jacobian multiplies the set's
+#: spread only; its width comes mostly from the range of Df over each piece: the rigid body's widest final ball at
+#: 50 digits, T = 10, is 6.5599e-53 with a tail below 2^-30 as below 2^-40, with two matrix products fewer a piece).
+JACOBIAN_EPS = 2.0**-30
+JACOBIAN_PIECES = 8
+WIDE_JACOBIAN_PIECES = 24
+#: More pieces, up to MAX_JACOBIAN_PIECES, when |Df| |tau| over the step exceeds JACOBIAN_MU per piece.
+JACOBIAN_MU = 1.0
+MAX_JACOBIAN_PIECES = 1024
+#: Order of the Taylor polynomials from the whole enclosure that the a priori box is built around (10 saves some
+#: of the box's Picard iteration on the rigid body, but its box fails more often on longer steps elsewhere: the full
+#: inertia tensor to T = 10 at 50 digits takes 21 steps instead of 19, the sphere 248 instead of 217).
+BOX_ORDER = 12
+
+
+def jacobian_program(ps):
+    """The Jacobian of the vector field, d f_i / d z_j (row-major), compiled once per structure."""
+    prog = _JACOBIANS.get(ps.key)
+    if prog is None:
+        import heyoka as hy
+
+        from .expr import compile_expressions
+
+        exprs = [hy.diff(fi, vj) for fi in ps.vector_field for vj in ps.variables]
+        prog = compile_expressions(ps.variables, exprs, len(ps.parameter_values))
+        check_ops(prog)
+        _JACOBIANS[ps.key] = prog
+    return prog
+
+
+def flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECES):
+    """An enclosure of every Jacobian d phi_tau(y) / dy of the flow over time ``tau`` (an exact ball) for all
+    starting points y in the enclosure Z, or None when the bound below does not apply.
+
+    ``CZ``: Taylor coefficients c_0..c_K from Z, ``D``: those from the a priori box B (through c_{K+1}). The step is
+    cut into ``pieces`` pieces; over piece i every solution lies in B_i = sum_j c_j(Z) T_i^j +
+    c_{K+1}(B) T_i^(K+1) (T_i the piece's time interval; Taylor's theorem), much narrower than B; the polynomial
+    part is evaluated in mean-value form about the piece's middle time (narrower than Horner's scheme on T_i).
+    d phi / dy solves V' = Df(z(t)) V, so over piece i it is multiplied by a matrix of the Peano-Baker series
+    sum_j (dt Df(B_i))^j / j!, truncated after K terms (the fewest whose tail bound is below JACOBIAN_EPS, at most
+    JACOBIAN_TERMS) with the tail bounded entrywise by
+    mu^(K+1) / (K+1)! / (1 - mu / (K+2)), mu an upper bound of |dt| ||Df||_inf over every solution on the piece:
+    the same for all pieces, from Df over the whole step's box (docs/theory.md). Computed at 64 bits: the Jacobian
+    multiplies the enclosure's tiny spread only."""
+    arb, arb_mat = flint.arb, flint.arb_mat
+    n = len(CZ)
+    K = len(CZ[0]) - 1
+    eye = arb_mat([[1 if i == j else 0 for j in range(n)] for i in range(n)])
+    saved = flint.ctx.prec
+    flint.ctx.prec = 64
+    try:
+        # a badly scaled field (|Df| |tau| large: a fast oscillation in a slow state) needs more pieces: the
+        # series of each piece converges like mu^j / j!, and mu near JACOBIAN_TERMS makes the enclosure explode
+        polys = [flint.arb_poly(cz) for cz in CZ]
+        slopes = [p.derivative() for p in polys]
+
+        def box(lo, hi):
+            """Every solution from Z over the times between lo and hi: the polynomials in mean-value form (the
+            range of q_y over the interval lies in q_y(centre) + q_y'(interval) (interval - centre) for each
+            polynomial q_y with coefficients in CZ) plus the remainder term."""
+            centre = (lo + hi) / 2
+            seg = centre + arb(0, abs(hi - lo) / 2)
+            return [p(centre) + dp(seg) * (seg - centre) + d[K + 1] * seg ** (K + 1)
+                    for p, dp, d in zip(polys, slopes, D)]
+
+        try:
+            whole = evaluate(jprog, box(arb(0), tau), pars, consts, arb(1))
+        except Singular:
+            return None
+        norm = max(sum((abs(v if isinstance(v, arb) else arb(v)).upper() for v in whole[i * n:(i + 1) * n]),
+                       arb(0)) for i in range(n)) * abs(tau)
+        if not norm.is_finite():
+            return None
+        pieces = max(pieces, min(MAX_JACOBIAN_PIECES, math.ceil(float(norm.upper()) / JACOBIAN_MU)))
+        dt = tau / pieces
+        # every solution over a piece lies in the whole step's box: the same mu bounds every piece
+        mu = (norm / pieces).upper()
+        if not mu < JACOBIAN_TERMS + 2:
+            return None
+        # the fewest terms whose tail bound is below JACOBIAN_EPS (at most JACOBIAN_TERMS)
+        mu_f = float(mu.upper())
+        terms, term = JACOBIAN_TERMS, mu_f  # term: mu^(j+1) / (j+1)!
+        for j in range(1, JACOBIAN_TERMS):
+            term *= mu_f / (j + 1)
+            if term / (1 - mu_f / (j + 2)) < JACOBIAN_EPS:
+                terms = j
+                break
+        fact = arb(1)
+        for j in range(2, terms + 2):
+            fact *= j
+        eps = (mu ** (terms + 1) / fact / (1 - mu / (terms + 2))).upper()
+        tail = arb_mat([[arb(0, eps)] * n for _ in range(n)])
+        steps = [None] + [dt / j for j in range(1, terms + 1)]  # the series' term j is (dt Df)^j / j!
+        J = eye
+        for piece in range(pieces):
+            try:
+                vals = evaluate(jprog, box(dt * piece, dt * (piece + 1)), pars, consts, arb(1))
+            except Singular:
+                return None
+            M = arb_mat(n, n, vals)  # Df(B_i); dt comes in with 1/j
+            T = M * steps[1]
+            S = eye + T
+            for j in range(2, terms + 1):
+                T = T * M * steps[j]
+                S = S + T
+            J = S + tail if piece == 0 else (S + tail) * J
+        if not all(J[i, j].is_finite() for i in range(n) for j in range(n)):
+            return None
+        return J
+    finally:
+        flint.ctx.prec = saved
+
+
+def exact_data(ps, prog, flint):
+    """(parameters, constants) as fmpqs for the exact defect (:func:`defect_coefficients`), or None when the field
+    is not a polynomial (only sums, products and powers of nonnegative integer exponents) with rational or binary
+    constants."""
+    if not all(node.op in ("add", "sub", "neg", "mul") or (node.op == "powi" and int(node.data) >= 0)
+               for node in prog.nodes):
+        return None
+    consts = [(slot, exact_constant(c, flint)) for slot, c in prog.constants]
+    if any(c is None for _, c in consts):
+        return None
+    return [flint.fmpq(p.numerator, p.denominator) for p in ps.parameter_values], consts
+
+
+def jet_stepper(ps, order, dps):
+    """The fixed-point jets of a chart's field for the centre polynomials (:func:`centre_polynomial`), at
+    ``dps`` + 6 digits and the jets' own guard bits (34 at order 67): their rounding, which the defect bounds,
+    stays about ten digits below a step's tolerance of 10^-4 x 10^-dps, and the centre (at dps digits and 32
+    guard bits) is exact at their precision."""
+    from .lie.fixed import FixedStepper
+
+    return FixedStepper(ps.program, list(ps.parameter_values), order, Precision.of(dps=dps, guard_digits=JET_EXTRA_DPS))
+
+
+#: Digits of the centre's jets above the run's (:func:`jet_stepper`).
+JET_EXTRA_DPS = 6
+
+
+def nth_root(x, k: int) -> float:
+    """x^(1/k) as a float, for a positive ball x of any size (a float of x itself may underflow)."""
+    return float((x.log() / k).exp().mid())
+
+
+def step_estimate(g, N, tol, flint) -> float:
+    """The step at which the defect's terms from order N on, sum_k |g_k| h^(k+1) / (k+1) (what the remainder
+    bound comes to for a step well inside the radius of convergence), reach ~tol: a first guess from g_N, refined
+    once. The attempt that follows proves or shortens it; this choice affects efficiency, never rigour."""
+    arb = flint.arb
+    saved = flint.ctx.prec
+    flint.ctx.prec = 64
+    try:
+        hi = [[arb(abs(x).mid()) for x in gi] for gi in g[1]]
+        gN = max((row[0] for row in hi), key=float)
+        if gN.is_zero():
+            return math.inf
+        h = arb(nth_root(tol * (N + 1) / gN, N + 1))
+
+        def estimate(h):
+            powers = [h ** (N + k + 1) / (N + k + 1) for k in range(len(hi[0]))]
+            return max((sum((x * p for x, p in zip(row, powers)), arb(0)) for row in hi), key=float)
+
+        return 0.97 * float(h.mid()) * nth_root(tol / estimate(h), N + 1)
+    finally:
+        flint.ctx.prec = saved
