@@ -52,6 +52,7 @@ from .precision import (
     check_order,
     check_seconds,
     data_bits,
+    float_or_mpf,
     dps_to_bits,
     to_fraction,
     warn_if_coarse,
@@ -345,7 +346,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
         message = out.message
         widths = [max(_float_up(v.rad()) for v in row) for row in out.rows_y]
         n = engine.ps.dimension
-        stats = Stats(method="validated lie series (arb)", precision=f"{dps} dps", tol=10.0 ** -dps, order=N,
+        stats = Stats(method="validated lie series (arb)", precision=f"{dps} dps", tol=_tolerance(dps), order=N,
                       steps=out.steps, run_time=out.run_time,
                       extra={"widths": widths, "tail_bounds": engine.tails,
                              "max_width": max(widths) if widths else 0.0, "chart_switches": out.switches})
@@ -582,3 +583,8 @@ def certified_digits(sol) -> np.ndarray:
         scale = functools.reduce(lambda a, b: b if b > a else a, [abs(v.mid()) for v in row], flint.arb(1))
         out.append(float((-(flint.arb(widest) / scale).log() / flint.arb(10).log()).mid()))
     return np.array(out, dtype=float)
+
+
+def _tolerance(dps: int):
+    """10**-dps as the statistics give it: a float, an mpf below a float's range (10.0 ** -400 is 0.0)."""
+    return float_or_mpf(mpmath.mpf(10) ** -dps if dps > 300 else 10.0 ** -dps)

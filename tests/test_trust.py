@@ -555,8 +555,6 @@ def test_a_lie_run_at_400_digits_reports_its_tolerance():
     assert sol.status == "success" and mp.mpf(10) ** -401 < sol.stats.tol < mp.mpf(10) ** -399
 
 
-@pytest.mark.xfail(strict=True, reason="validated.py builds Stats with tol=10.0 ** -dps: 0.0 above 323 digits; "
-                   "keep an mpf below a float's range")
 def test_a_validated_run_at_400_digits_reports_its_tolerance():
     """``sol.stats.tol`` of a 400-digit validated run read 0.0."""
     body = ls.EulerPoisson((1, 2, "2.5"))
