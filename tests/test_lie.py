@@ -225,6 +225,28 @@ def test_lie_tolerance_holds_for_each_component_of_a_badly_scaled_sphere():
     assert error(long, "2e7") < 1e-18  # before: 2.65e-13
 
 
+@pytest.mark.parametrize("eps", ["1e-3", "1e-8"])
+def test_lie_tolerance_holds_for_a_component_far_below_1(eps):
+    """The pendulum H = p^2 / (2 eps) - eps cos q has the motion of eps = 1 (q' = p / eps = omega) in other units:
+    p ~ eps. A tolerance absolute below 1 left p with tol / eps relative, and its error, over eps, went into q at
+    once (omega off by 6e-30 at 30 digits, for any eps below ~1e-3; the estimates said 1.7e-31). Each component's
+    tolerance is relative to its own scale: the run keeps its digits, against eps = 1 at 60 digits."""
+    q, p = hy.make_vars("q", "p")
+    c = private_ctx(80)
+
+    def end(e, dps):
+        s = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / (2 * hy.par[0]) - hy.par[0] * hy.cos(q),
+                             parameters={"eps": e})
+        sol = ls.lie_integrate(s, [1, Fraction(1, 2) * e], t=10, dps=dps)
+        assert sol.status == "success", sol.message
+        return sol, ctx_mpf(c, sol.y[-1][0]), ctx_mpf(c, sol.y[-1][1]) / ctx_mpf(c, e)
+
+    _, q_ref, omega_ref = end(Fraction(1), 60)
+    sol, q_end, omega_end = end(Fraction(eps), 30)
+    assert abs(q_end - q_ref) < 5e-31 and abs(omega_end - omega_ref) < 5e-31  # before: 1.7e-30 and 6.0e-30
+    assert max(sol.stats.error_estimates) <= 1e-30
+
+
 def test_lie_integrate_ends_with_a_status_where_the_equations_end():
     """H = p^2/2 + q^1.5 from (1, 0): q reaches 0 at T = int_0^1 dq / sqrt(2 (1 - q^1.5)) (energy 1), beyond which
     q^1.5 is not real. The run ends with ``non_finite`` before T and keeps its rows (it raised ValueError)."""

@@ -6,22 +6,25 @@ Order. When not given, N = ceil(-ln(tol) / 2) + 1 (Jorba & Zou, Exp. Math. 14 (2
 rho / e^2 the truncation error of an order-N step is then near tol, and this N minimises the work per unit time
 for a Taylor method whose cost grows like N^2. For 50 digits N = 59, for 100 digits N = 117.
 
-Step. At each step the coefficients c_0..c_N of the series at the current state are computed (jets, O(N^2) per
-node of the vector field). The step is the largest h with |c_k,i| h^k <= tol * s_i for every component i and the
-last two orders k = N-1, N (the tail of a converging series is governed by its last terms; using two of them
-tolerates a coefficient that vanishes by symmetry), where s_i = max(1, max_k |c_k,i| h^k) is the component's own
-size over the step: the tolerance is relative for each component above 1 and absolute below (relative to the
-largest component, a momentum of size 1 beside positions of size 1e6 kept only tol * 1e6 of its digits, and its
-error grew into the positions over the run). The step is capped at half the radius
-of convergence estimated from the coefficients, so that a step never reaches the singularity where the series
-diverges. The last step is shortened to land on the final time; output times inside a step are evaluated from
-that step's polynomial (dense output of the same accuracy).
+Step. At each step the coefficients c_0..c_N of the series at the current state are computed (jets, O(N^2) per node
+of the vector field). The step is the largest h with |c_k,i| h^k <= tol * s_i for every component i and the last
+two orders k = N-1, N (the tail of a converging series is governed by its last terms; using two of them tolerates a
+coefficient that vanishes by symmetry), where s_i is the component's own scale: the larger of its size over the
+step, sum_k |c_k,i| h^k (below 1 its terms k = 0, 1, which bound it from below), and its largest |value| at the
+steps' starts so far (a component passing through zero keeps the scale of its swing). The tolerance is relative for
+every component, in any units: relative to the largest component, a momentum of size 1 beside positions of size 1e6
+kept only tol * 1e6 of its digits; absolute below 1, a momentum of size 1e-5 kept only tol / 1e-5 of them, and when
+the velocity is the momentum over 1e-5 its error went into the positions at once (3.5 digits lost at 30 digits, the
+estimates saying 2e-32). A component that is zero so far and over the step asks nothing. The step is capped at half
+the radius of convergence estimated from the coefficients, so that a step never reaches the singularity where the
+series diverges. The last step is shortened to land on the final time; output times inside a step are evaluated
+from that step's polynomial (dense output of the same accuracy).
 
 Error estimate. Every step records the geometric-tail estimate of its truncation error
-(:func:`lieseries.lie.operator.tail_estimate`), per component and relative to s_i (absolute below 1), the
-largest over the components; ``sol.stats.error_estimates`` holds them all. They are local: the error of the
-result is their sum carried along by the flow (for a rotation, a momentum's error turns into a phase error that
-grows with the angle covered).
+(:func:`lieseries.lie.operator.tail_estimate`), per component and relative to its scale s_i over the step
+taken, the largest over the components; ``sol.stats.error_estimates`` holds them all. They are local: the error
+of the result is their sum carried along by the flow (for a rotation, a momentum's error turns into a phase error
+that grows with the angle covered).
 
 All work is done with ``guard`` extra digits (default 10) and results are rounded to ``dps``.
 """
@@ -100,8 +103,8 @@ def lie_integrate(
     dps : int
         Decimal digits of the arithmetic and of the results.
     tol : float, optional
-        Local error tolerance per step and per component (absolute for components of size <= 1, relative above).
-        Default 10**-dps.
+        Local error tolerance per step, relative to each component's own scale (its size over the step, or its
+        largest value so far when that is larger: module docstring). Default 10**-dps.
     order : int, optional
         Series order; default from ``tol`` (module docstring).
     dense : bool
@@ -123,7 +126,7 @@ def lie_integrate(
     -------
     Solution
         ``y`` rows are numpy object arrays of mpf; ``stats.error_estimates`` has one estimate per step (its
-        truncation error relative to each component's size, absolute below 1; the largest over the components);
+        truncation error relative to each component's scale; the largest over the components);
         ``stats.extra["max_step_over_radius"]`` is the largest step over the estimated radius of convergence
         (at most 1/2 by construction). When the data carry fewer bits than the run (binary floats), every
         per-step estimate is at least the relative uncertainty of the data (``stats.extra["data_bits"]``), and
@@ -254,6 +257,26 @@ class _LieEngine:
         self.segments = [] if dense else None
         self.max_ratio = None  # the largest step over the estimated radius of convergence
         self.first = True
+        self.lpeak = None  # log2 of each component's largest |value| at the steps' starts so far
+
+    def _log2_scales(self, jet, h):
+        """log2 of each component's scale for a step of length ``h``: the larger of its size over the step (the
+        sum of |c_k,i| h^k) and its largest |value| at the steps' starts so far; ``-inf`` for a component that is
+        zero so far and over the step. ``jet.log2_scales`` reads the size at 1 and above (0 below): below 1 the
+        size is bounded below by its terms k = 0, 1 (and by every term, for a component zero so far whose first
+        two terms vanish)."""
+        out = []
+        col1 = None
+        lh = _log2(h)
+        for i, (lsize, lpeak) in enumerate(zip(jet.log2_scales(h), self.lpeak)):
+            if lsize <= 0:  # a size of at most 1: its largest value so far and its first term
+                if col1 is None:
+                    col1 = jet.log2_column(1)
+                lsize = col1[i] + lh
+                if lsize == -math.inf and lpeak == -math.inf:  # zero so far, with no first-order term
+                    lsize = max((jet.log2_column(k)[i] + k * lh for k in range(2, self.N + 1)), default=-math.inf)
+            out.append(max(lsize, lpeak))
+        return out
 
     def step(self, tcur, z, tend):
         from .jets import DeadlineExceeded
@@ -282,10 +305,13 @@ class _LieEngine:
         lh = min(lh, lrho - 1)  # rho / 2
         h = span if lh == math.inf else min(_pow2(lh), span)  # a polynomial of degree < N - 1: one step to the end
         h = min(h, jet.max_step)  # the jets hold what steps up to max_step need
-        # per component: the tolerance is relative to the component's own size over the step (absolute below
-        # 1), not to the largest component -- a momentum of size 1 beside positions of size 1e6 would keep
-        # only tol * 1e6 of its digits, and its error grows into the positions over the run
-        lscales = jet.log2_scales(h)
+        # per component: the tolerance is relative to the component's own scale (module docstring), not to the
+        # largest component nor absolute below 1 -- a momentum of size 1 beside positions of size 1e6 would keep
+        # only tol * 1e6 of its digits, one of size 1e-5 only tol / 1e-5 of them, and its error grows into the
+        # positions over the run (when the velocity is the momentum over 1e-5, at once)
+        lz = [_log2(v) for v in z]
+        self.lpeak = lz if self.lpeak is None else [max(a, b) for a, b in zip(self.lpeak, lz)]
+        lscales = self._log2_scales(jet, h)
         last = {k: jet.log2_column(k) for k in (N - 1, N) if k >= 1}
         lmin = math.inf
         for k, col in last.items():
@@ -294,13 +320,14 @@ class _LieEngine:
                     lmin = min(lmin, (ltol + lsc - lc) / k)
         if lmin < _log2(h):
             h = _pow2(lmin)
+            lscales = self._log2_scales(jet, h)  # (the estimate is relative to the sizes over the step taken)
         if h <= abs(tcur) * self.collapse or h == 0:
             raise Stop("step_collapse", f"it fell to {mp.nstr(h, 3)}, and the series' radius of convergence there "
                        f"is ~{mp.nstr(rho, 3)}: the solution is singular nearby")
         lh = _log2(h)
         hs = h * sgn
         # the geometric-tail estimate (operator.tail_estimate) of the last two orders, per component, relative to
-        # its size over the step; the largest
+        # its scale; the largest
         lq = lh - lrho if lrho != math.inf else None
         lerr = -math.inf
         for i, lsc in enumerate(lscales):
