@@ -21,10 +21,12 @@ series diverges. The last step is shortened to land on the final time; output ti
 from that step's polynomial (dense output of the same accuracy).
 
 Error estimate. Every step records the geometric-tail estimate of its truncation error
-(:func:`lieseries.lie.operator.tail_estimate`), per component and relative to its scale s_i over the step
-taken, the largest over the components; ``sol.stats.error_estimates`` holds them all. They are local: the error
-of the result is their sum carried along by the flow (for a rotation, a momentum's error turns into a phase error
-that grows with the angle covered).
+(:func:`lieseries.lie.operator.tail_estimate`: the last two terms carried on at the ratio h / rho), per component
+and relative to its scale s_i, the largest over the components; where the last eight orders'
+terms decay more slowly than h / rho says (a radius fitted too long), also each component's own last terms carried
+on at their own rate (``_envelope_tail``: the pendulum in a chart had steps whose error was 227x the estimate);
+``sol.stats.error_estimates`` holds them all. They are local: the error of the result is their sum carried along by
+the flow (for a rotation, a momentum's error turns into a phase error that grows with the angle covered).
 
 All work is done with ``guard`` extra digits (default 10) and results are rounded to ``dps``.
 """
@@ -60,6 +62,7 @@ from ..precision import (
 from ..precision import thread_mp as mp
 from ..solution import Solution, Stats
 from ..timegrid import parse_times
+from .jets import radius_from_logs
 from .operator import (
     GUARD_DIGITS,
     coarse_bits,
@@ -319,8 +322,7 @@ class _LieEngine:
                 if lc != -math.inf:
                     lmin = min(lmin, (ltol + lsc - lc) / k)
         if lmin < _log2(h):
-            h = _pow2(lmin)
-            lscales = self._log2_scales(jet, h)  # (the estimate is relative to the sizes over the step taken)
+            h = _pow2(lmin)  # (a few percent shorter: the sizes over it, which the estimate reads, barely change)
         if h <= abs(tcur) * self.collapse or h == 0:
             raise Stop("step_collapse", f"it fell to {mp.nstr(h, 3)}, and the series' radius of convergence there "
                        f"is ~{mp.nstr(rho, 3)}: the solution is singular nearby")
@@ -329,6 +331,7 @@ class _LieEngine:
         # the geometric-tail estimate (operator.tail_estimate) of the last two orders, per component, relative to
         # its scale; the largest
         lq = lh - lrho if lrho != math.inf else None
+        tails = _slow_tails(jet, N, lq, lh, last)
         lerr = -math.inf
         for i, lsc in enumerate(lscales):
             la_last = last[N][i] + N * lh
@@ -336,10 +339,10 @@ class _LieEngine:
             if lq is None:
                 lnxt = la_last
             else:
-                lnxt = max(la_prev + lq, la_last) + lq
+                lnxt = max(la_prev + lq, la_last) + lq - math.log2(1 - 2.0 ** lq)
+                if tails is not None:
+                    lnxt = max(lnxt, _envelope_tail([(k, col[i] + k * lh) for k, col in tails.items()]))
             lerr = max(lerr, lnxt - lsc)
-        if lerr != -math.inf and lq is not None:
-            lerr -= math.log2(1 - 2.0 ** lq)
         # a float where one holds it; an mpf below a float's range (above ~300 digits: 2.0 ** -1100 is 0.0, an
         # estimate that would claim every digit)
         err = math.inf if lerr >= 1024 else 2.0 ** lerr if lerr > -1000 else mp.mpf(2) ** lerr
@@ -372,6 +375,46 @@ class _LieEngine:
             end = None if hit is None else (hit[0], hit[1], " (end of the step that crossed it)")
         # output times inside the step: the step's polynomial evaluated in integers, as the step's end
         return StepResult(tnew, znew, h=h, row=lambda tk: jet.evaluate(tk - tcur), error=err, stop=end)
+
+
+#: The last orders whose terms the error estimate reads when they decay more slowly than h / rho says.
+TAIL_WINDOW = 8
+
+_LN2 = math.log(2)
+
+
+def _slow_tails(jet, N, lq, lh, last):
+    """{k: log2 |c_k,i| of every component} for the last TAIL_WINDOW orders when their terms |c_k| h^k decay more
+    slowly than ``lq`` = log2(h / rho) says (by more than half a bit an order), else None. The radius is fitted over
+    the orders N/2..N; where the early ones grow more slowly than the last (a pendulum's momentum in a chart), it
+    came out 3x too long and the geometric tail 100x too small, so those steps' tails are read from their own last
+    terms (:func:`_envelope_tail`). One fit of the norms decides: a step whose radius is right pays nothing more."""
+    if lq is None:
+        return None
+    window = range(max(1, N - TAIL_WINDOW + 1), N + 1)
+    pts = [(k, (v + k * lh) * _LN2) for k, v in zip(window, jet.log2_norms(window[0], N + 1)) if v != -math.inf]
+    if len(pts) < 2:
+        return None
+    r = radius_from_logs(pts)  # in units of h: the decay of the terms per order is 1 / r
+    if r == math.inf or (r > 0 and -math.log2(r) <= lq + 0.5):
+        return None
+    return {k: (last[k] if k in last else jet.log2_column(k)) for k in window}
+
+
+def _envelope_tail(terms):
+    """log2 of the tail beyond the last order from one component's last terms [(k, log2 |c_k| h^k)]: their decay
+    rate q per order fitted to their upper envelope (:func:`~lieseries.lie.jets.radius_from_logs`: a term that
+    nearly vanishes does not count), the envelope's value one order on, over 1 - q; ``inf`` when they do not decay,
+    ``-inf`` for fewer than two nonzero terms."""
+    nxt = max(k for k, _ in terms) + 1
+    pts = [(k, la) for k, la in terms if la != -math.inf]
+    if len(pts) < 2:
+        return -math.inf
+    r = radius_from_logs([(k, la * _LN2) for k, la in pts])
+    lqe = -math.log2(r) if r > 0 else math.inf
+    if lqe >= 0:
+        return math.inf
+    return max(la + lqe * (nxt - k) for k, la in pts) - math.log2(1 - 2.0 ** lqe)
 
 
 def _log2(x):
