@@ -9,12 +9,13 @@ for a Taylor method whose cost grows like N^2. For 50 digits N = 59, for 100 dig
 Step. At each step the coefficients c_0..c_N of the series at the current state are computed (jets, O(N^2) per node
 of the vector field). The step is the largest h with |c_k,i| h^k <= tol * s_i for every component i and the last
 two orders k = N-1, N (the tail of a converging series is governed by its last terms; using two of them tolerates a
-coefficient that vanishes by symmetry), where s_i is the component's own scale: the larger of its size over the
-step, sum_k |c_k,i| h^k (below 1 its terms k = 0, 1, which bound it from below), and its largest |value| at the
-steps' starts so far (a component passing through zero keeps the scale of its swing). The tolerance is relative for
-every component, in any units: relative to the largest component, a momentum of size 1 beside positions of size 1e6
-kept only tol * 1e6 of its digits; absolute below 1, a momentum of size 1e-5 kept only tol / 1e-5 of them, and when
-the velocity is the momentum over 1e-5 its error went into the positions at once (3.5 digits lost at 30 digits, the
+coefficient that vanishes by symmetry; a component whose last two both vanish, by a symmetry of period 4, is held
+by its last nonzero order), where s_i is the component's own scale: the larger of its size over the step, sum_k
+|c_k,i| h^k (below 1 its terms k = 0, 1, which bound it from below), and its largest |value| at the steps' starts
+so far (a component passing through zero keeps the scale of its swing). The tolerance is relative for every
+component, in any units: relative to the largest component, a momentum of size 1 beside positions of size 1e6 kept
+only tol * 1e6 of its digits; absolute below 1, a momentum of size 1e-5 kept only tol / 1e-5 of them, and when the
+velocity is the momentum over 1e-5 its error went into the positions at once (3.5 digits lost at 30 digits, the
 estimates saying 2e-32). A component that is zero so far and over the step asks nothing. The step is capped at half
 the radius of convergence estimated from the coefficients, so that a step never reaches the singularity where the
 series diverges. The last step is shortened to land on the final time; output times inside a step are evaluated
@@ -316,11 +317,16 @@ class _LieEngine:
         self.lpeak = lz if self.lpeak is None else [max(a, b) for a, b in zip(self.lpeak, lz)]
         lscales = self._log2_scales(jet, h)
         last = {k: jet.log2_column(k) for k in (N - 1, N) if k >= 1}
+        # a component whose last two orders both vanish (a symmetry of period 4: from rest at q = 0, q'' = 1 - q^2
+        # has q in the orders 2, 6, 10, ... only, p in 1, 5, 9, ...) is held by its last nonzero order
+        quiet = _last_nonzero(jet, N, last) if lrho != math.inf else {}
         lmin = math.inf
         for k, col in last.items():
             for lc, lsc in zip(col, lscales):
                 if lc != -math.inf:
                     lmin = min(lmin, (ltol + lsc - lc) / k)
+        for i, (k, lc) in quiet.items():
+            lmin = min(lmin, (ltol + lscales[i] - lc) / k)
         if lmin < _log2(h):
             h = _pow2(lmin)  # (a few percent shorter: the sizes over it, which the estimate reads, barely change)
         if h <= abs(tcur) * self.collapse or h == 0:
@@ -342,6 +348,9 @@ class _LieEngine:
                 lnxt = max(la_prev + lq, la_last) + lq - math.log2(1 - 2.0 ** lq)
                 if tails is not None:
                     lnxt = max(lnxt, _envelope_tail([(k, col[i] + k * lh) for k, col in tails.items()]))
+                if i in quiet:
+                    k, lc = quiet[i]
+                    lnxt = max(lnxt, lc + k * lh + lq * (N + 1 - k) - math.log2(1 - 2.0 ** lq))
             lerr = max(lerr, lnxt - lsc)
         # a float where one holds it; an mpf below a float's range (above ~300 digits: 2.0 ** -1100 is 0.0, an
         # estimate that would claim every digit)
@@ -399,6 +408,21 @@ def _slow_tails(jet, N, lq, lh, last):
     if r == math.inf or (r > 0 and -math.log2(r) <= lq + 0.5):
         return None
     return {k: (last[k] if k in last else jet.log2_column(k)) for k in window}
+
+
+def _last_nonzero(jet, N, last):
+    """{i: (k, log2 |c_k,i|)}: for each component whose orders in ``last`` (N-1, N) all vanish, its last nonzero
+    order k from N/2 on (components zero there too are left out)."""
+    quiet = [i for i in range(len(last[N])) if all(col[i] == -math.inf for col in last.values())]
+    out = {}
+    for k in range(min(last) - 1, max(1, N // 2) - 1, -1):
+        if len(out) == len(quiet):
+            break
+        col = jet.log2_column(k)
+        for i in quiet:
+            if i not in out and col[i] != -math.inf:
+                out[i] = (k, col[i])
+    return out
 
 
 def _envelope_tail(terms):
