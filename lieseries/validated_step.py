@@ -639,18 +639,7 @@ def flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECES
         mu = (norm / pieces).upper()
         if not mu < JACOBIAN_TERMS + 2:
             return None
-        # the fewest terms whose tail bound is below JACOBIAN_EPS (at most JACOBIAN_TERMS)
-        mu_f = float(mu.upper())
-        terms, term = JACOBIAN_TERMS, mu_f  # term: mu^(j+1) / (j+1)!
-        for j in range(1, JACOBIAN_TERMS):
-            term *= mu_f / (j + 1)
-            if term / (1 - mu_f / (j + 2)) < JACOBIAN_EPS:
-                terms = j
-                break
-        fact = arb(1)
-        for j in range(2, terms + 2):
-            fact *= j
-        eps = (mu ** (terms + 1) / fact / (1 - mu / (terms + 2))).upper()
+        terms, eps = _series_terms(mu, arb)
         tail = arb_mat([[arb(0, eps)] * n for _ in range(n)])
         steps = [None] + [dt / j for j in range(1, terms + 1)]  # the series' term j is (dt Df)^j / j!
         J = eye
@@ -671,6 +660,23 @@ def flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECES
         return J
     finally:
         flint.ctx.prec = saved
+
+
+def _series_terms(mu, arb):
+    """(K, bound): the fewest terms K of the Peano-Baker series whose tail bound is below JACOBIAN_EPS (at most
+    JACOBIAN_TERMS), and the rigorous bound mu^(K+1) / (K+1)! / (1 - mu / (K+2)) of that tail's entries (an
+    upper bound, at the current ball precision)."""
+    mu_f = float(mu.upper())
+    terms, term = JACOBIAN_TERMS, mu_f  # term: mu^(j+1) / (j+1)!
+    for j in range(1, JACOBIAN_TERMS):
+        term *= mu_f / (j + 1)
+        if term / (1 - mu_f / (j + 2)) < JACOBIAN_EPS:
+            terms = j
+            break
+    fact = arb(1)
+    for j in range(2, terms + 2):
+        fact *= j
+    return terms, (mu ** (terms + 1) / fact / (1 - mu / (terms + 2))).upper()
 
 
 def exact_data(ps, prog, flint):
