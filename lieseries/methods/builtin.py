@@ -85,7 +85,7 @@ def _rows_with_reached(sol):
 
 
 def _run_taylor(system, y0, tf, grid, spec, label, repeat):
-    from ..taylor import integrate
+    from ..api import integrate
 
     prec = resolve_precision(spec["precision"])
     tol = spec["tol"]
@@ -265,7 +265,7 @@ def _taylor_digits(spec) -> int:
 
 
 def _taylor_atlas(model, y0, t_arg, spec):
-    from ..taylor import integrate
+    from ..api import integrate
 
     prec = resolve_precision(spec["precision"])
     return lambda: integrate(model, y0, t=t_arg, tol=spec["tol"], precision=prec, atlas=True)

@@ -76,7 +76,7 @@ def numerical_reference(system, y0, times, bits: int):
     bits = max(NUMERICAL_REFERENCE_BITS, int(bits))
     label = numerical_reference_label(bits)
     if bits <= MAX_BITS:
-        from ..taylor import integrate
+        from ..api import integrate
 
         sol = integrate(system, y0, t=times, precision=bits, tol=Fraction(1, 2 ** (bits - 6)))
     else:
