@@ -20,6 +20,7 @@ import inspect
 import numpy as np
 
 from .. import cache
+from ..atlas import run_atlas
 from ..energy import clear_energy_cache
 from ..events import resolve_events
 from ..heyoka_build import build_integrator, integrator_count
@@ -124,7 +125,6 @@ def _integrate(
                 raise ValueError(f"`min_step` must be positive; got {min_step!r}")
         ps = as_poisson_system(system)
         if atlas:
-            from ..atlas import run_atlas
 
             warn_coarse_inputs(ps, y0, [t, t0], prec.bits)
             return run_atlas(integrate, system, y0, t, t0=t0, bits=prec.bits, dense=dense, tol=tol,
