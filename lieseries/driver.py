@@ -39,6 +39,7 @@ import time as _time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+from .energy import energy_exact, exact_energy_verdict
 from .precision import short_decimal, to_fraction
 from .solution import STATUSES
 
@@ -266,7 +267,6 @@ def energy_guard(out: Outcome, ps, y0, y_end, bits: int, tol) -> None:
     """The energy guard of a run that reached its final time: ``invariant_drift`` (with its message) when the
     Hamiltonian of ``ps``, at the exact values of ``y0`` and ``y_end`` in mpmath at ``bits`` bits, changed by more
     than :func:`lieseries.energy.drift_threshold` times the energy scale of ``y0``."""
-    from .energy import energy_exact, exact_energy_verdict
 
     if out.status != "success" or not ps.is_hamiltonian:
         return

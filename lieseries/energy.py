@@ -18,6 +18,8 @@ import mpmath
 import numpy as np
 
 from . import cache
+from .expr import compile_expressions
+from .precision import bits_to_dps, resolve_precision, to_fraction
 
 __all__ = ["drift_threshold", "DRIFT_PER_STEP", "energy_check", "energy_drift", "energy_function", "energy_verdict",
            "energy_quick", "quick_check",
@@ -217,7 +219,6 @@ def energy_drift(ps, tol, Y0, Y1, parameters=None, steps=None) -> dict:
     rows' step counts; sqrt(tol) when not given) times its scale, as :func:`energy_verdict` decides for one run.
     ``Y0``, ``Y1``: float64 arrays (k, n); ``parameters``: per-row exact parameter values (k rows), or None for
     the system's own. One vectorised call of the compiled functions for all rows."""
-    from .precision import resolve_precision
 
     prec = resolve_precision("double")
     h_fn, scale_fn, npar, _ = _compiled(ps, prec)
@@ -349,8 +350,6 @@ def energy_exact(ps, y, bits: int):
     """(H(y), the energy scale sum_i |dH/dy_i y_i|) of ``ps`` at the exact value of ``y``, H in mpmath at ``bits``
     bits (the scale an mpf of 64 bits): the energy check of the mpmath engine and of atlas runs, whose states are not in
     one heyoka format or one chart."""
-    from .expr import compile_expressions
-    from .precision import bits_to_dps, to_fraction
 
     exprs = [ps.hamiltonian] + [hy.diff(ps.hamiltonian, v) for v in ps.variables]
     prog = compile_expressions(ps.variables, exprs, len(ps.parameter_values))

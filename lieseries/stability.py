@@ -46,8 +46,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import exact
+from .lie.integrator import lie_integrate
+from .lie.operator import lie_series
+from .models.base import as_model
+from .precision import to_fraction
 from .precision import thread_mp as mp
-from .scenes import jsonable
+from .run import environment, run_scene
+from .scenes import SceneError, extreme_scenes, jsonable, load_scene
+from .studies.convergence import error_vs_order
+from .studies.reference import loglog_slope, theoretical_radius
 
 __all__ = ["StabilityRow", "StabilityCase", "Stability", "stability", "run_case", "failed_case",
            "saddle_rate"]
@@ -355,7 +363,6 @@ def _analysis_drift(scene, result, rows, opts):
     items = result.studies.get("drift", [])
     if not items:
         return "The drift study did not run.", {}
-    from .studies.reference import loglog_slope
 
     mlabel, dr = items[0]
     keys = [k for k in ("energy", "orthogonality") if k in dr.errors]
@@ -410,9 +417,6 @@ def _smallest_orbit_radius(model, y0):
     """For a free rigid body, the smallest radius of convergence along the real orbit: the poles of Omega(t) lie
     at Im t = +-K'/lam (plus the real period shifts), so every point of the orbit is at least K'/lam from one (pi /
     2 lam on the separatrix); None for other models and regimes."""
-    from . import exact
-    from .precision import to_fraction
-
     if getattr(model, "closed_form", None) != "free_rigid_body":  # the model says the free body describes it
         return None
     I = model.inertia_exact
@@ -429,12 +433,6 @@ def _smallest_orbit_radius(model, y0):
 
 
 def _analysis_divergence(scene, result, rows, opts):
-    from .lie.integrator import lie_integrate
-    from .lie.operator import lie_series
-    from .precision import to_fraction
-    from .studies.convergence import error_vs_order
-    from .studies.reference import theoretical_radius
-
     st = scene.stability
     built = dict(scene.build_models())
     mlabel = st["headline_model"]
@@ -534,8 +532,6 @@ def run_case(scene, quick: bool = False, progress=None) -> StabilityCase:
     progress : callable, optional
         ``progress(done, total, label)`` for the scene's run.
     """
-    from .run import run_scene
-    from .scenes import SceneError, load_scene
 
     scene = load_scene(scene)
     if scene.stability is None:
@@ -573,7 +569,6 @@ def _atlas(scene, result, rows, opts):
 
 def _atlas_analysis(scene, result, rows, opts):
     """Chart switches and errors of the atlas runs, next to the Dirac form's."""
-    from .models.base import as_model
 
     atlas_models = [label for label, model in scene.build_models() if as_model(model).runs_on_atlas]
     notes = []
@@ -648,8 +643,6 @@ def stability(cases=None, quick: bool = False, progress=None, on_case=None) -> S
     Stability
         A case whose scene raised is kept, with the error in its notes and no rows.
     """
-    from .run import environment
-    from .scenes import extreme_scenes, load_scene
 
     if cases is None:
         cases = [name for name, _ in extreme_scenes()]

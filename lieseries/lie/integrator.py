@@ -47,12 +47,14 @@ from ..precision import (
     check_dps,
     check_order,
     check_seconds,
+    data_bits,
     dps_to_bits,
     export_mpf,
     float_or_mpf,
     mp_context,
     to_fraction,
     to_mpf,
+    warn_if_coarse,
 )
 from ..precision import thread_mp as mp
 from ..solution import Solution, Stats
@@ -405,6 +407,7 @@ class _Dense:
         ts = [t] if scalar else list(np.asarray(t, dtype=object).ravel())
         rows = []
         sgn, segments = self.sgn, self.segments
+        warn_if_coarse(data_bits(ts), dps_to_bits(self.dps), "t")  # the double 0.3: 0.29999999999999998889...
         with mp.workdps(self.dps + GUARD_DIGITS):
             lo = segments[0][0] if segments else None
             hi = segments[-1][1] if segments else None

@@ -23,7 +23,8 @@ from fractions import Fraction
 
 from ..lie.integrator import lie_integrate
 from ..precision import resolve_precision, to_fraction
-from ..taylor import STIFF_STEPS, integrate
+from ..api import integrate
+from ..taylor import STIFF_STEPS
 from ..validated import validated_integrate
 from .registry import REPEAT_BUDGET
 

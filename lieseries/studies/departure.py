@@ -28,7 +28,7 @@ from ..methods.pricing import CostPart
 from ..models.euler_poisson import EulerPoisson
 from ..precision import MAX_SAMPLES, MIN_DPS, check_count, check_time, resolve_precision, to_fraction
 from ..precision import thread_mp as mp
-from ..taylor import integrate
+from ..api import integrate
 from .plugin import Study, register_study
 
 #: Most digits of the map's closed-form reference and exact initial data (the API's and the scene's bound).

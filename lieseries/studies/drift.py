@@ -184,7 +184,7 @@ def drift(system, y0, t, precision="double", samples: int = 200, tol=None, *, en
     -------
     Drift
     """
-    from ..taylor import integrate
+    from ..api import integrate
 
     prec = resolve_precision(precision)
     tf = check_time(t, "t", positive=True)
