@@ -326,20 +326,14 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
         out = drive(engine, t0f, z, [(g, g) for g in grid], direction=direction, max_steps=max_steps,
                     max_time=max_time, start=start, kept="Every row up to here is a proven enclosure.",
                     atlas=atlas, max_switches=MAX_SWITCHES, reached="; every row is a proven enclosure")
-        message = out.message
-        widths = [max(_float_up(v.rad()) for v in row) for row in out.rows_y]
-        n = engine.ps.dimension
-        stats = Stats(method="validated lie series (arb)", precision=f"{dps} dps", tol=_tolerance(dps), order=N,
-                      steps=out.steps, run_time=out.run_time,
-                      extra={"widths": widths, "tail_bounds": engine.tails,
-                             "max_width": max(widths) if widths else 0.0, "chart_switches": out.switches})
-        y, y_reached = _ball_arrays(out.rows_y, out.z, n)
+        stats = _run_stats(out, engine, N, dps)
+        y, y_reached = _ball_arrays(out.rows_y, out.z, engine.ps.dimension)
     tarr = np.array([float(v) for v in out.rows_t])
     if atlas:
-        return Solution(tarr, ChartRows(y, out.rows_chart), stats, out.status, message, t_reached=out.t,
+        return Solution(tarr, ChartRows(y, out.rows_chart), stats, out.status, out.message, t_reached=out.t,
                         t_requested=grid, y_reached=ChartRows(y_reached, engine.chart),
                         charts=np.array(out.rows_chart, dtype=int), chart_reached=engine.chart)
-    return Solution(tarr, y, stats, out.status, message, t_reached=out.t, t_requested=grid, y_reached=y_reached)
+    return Solution(tarr, y, stats, out.status, out.message, t_reached=out.t, t_requested=grid, y_reached=y_reached)
 
 
 def _check_atlas(system, atlas) -> bool:
@@ -373,6 +367,16 @@ def _start_chart(system, z, flint):
     if best != system.chart:
         z, current = _switch_chart(system, current, best, z, flint), system.for_chart(best, edge=system.ATLAS_SWITCH)
     return z, current
+
+
+def _run_stats(out, engine, N, dps) -> Stats:
+    """A validated run's statistics: its steps and time, and in ``extra`` the widest ball at each output time, the
+    remainder bound of each step and the chart switches."""
+    widths = [max(_float_up(v.rad()) for v in row) for row in out.rows_y]
+    return Stats(method="validated lie series (arb)", precision=f"{dps} dps", tol=_tolerance(dps), order=N,
+                 steps=out.steps, run_time=out.run_time,
+                 extra={"widths": widths, "tail_bounds": engine.tails,
+                        "max_width": max(widths) if widths else 0.0, "chart_switches": out.switches})
 
 
 def _ball_arrays(rows, z_end, n):
