@@ -399,6 +399,39 @@ def _analysis_stiff(scene, result, rows, opts):
     return finding, details
 
 
+def _divergence_orders(scene, opts) -> list:
+    """The orders of the divergence analysis: the stability table's, else the scene's error-vs-order range
+    (default 2..40 by 2); halved at most (and at least 12) in quick mode."""
+    orders = scene.stability["orders"]
+    if orders is None:
+        ev = scene.studies.get("error_vs_order") or {}
+        top = ev.get("max_order") or 40
+        orders = list(range(ev.get("min_order", 2) or 2, top + 1, ev.get("step", 2) or 2))
+    if opts.get("quick"):
+        top = max(12, max(orders) // 2)
+        orders = [o for o in orders if o <= top]
+    return orders
+
+
+def _smallest_orbit_radius(model, y0):
+    """For a free rigid body, the smallest radius of convergence along the real orbit: the poles of Omega(t) lie
+    at Im t = +-K'/lam (plus the real period shifts), so every point of the orbit is at least K'/lam from one (pi /
+    2 lam on the separatrix); None for other models and regimes."""
+    if getattr(model, "closed_form", None) != "free_rigid_body":  # the model says the free body describes it
+        return None
+    I = model.inertia_exact
+    Iinv = model.inverse_inertia_exact
+    fr = [to_fraction(v) for v in y0]
+    omega = [sum(Iinv[i][j] * fr[9 + j] for j in range(3)) for i in range(3)]
+    inertia = [I[i][i] for i in range(3)] if model.diagonal else I
+    c = exact.rigid_body_constants(inertia, omega, dps=30)
+    if c.branch in ("above", "below") and c.Kp is not None:
+        return float(c.Kp / c.lam)
+    if c.branch == "separatrix":
+        return float(mp.pi / 2 / c.lam)
+    return None
+
+
 def _analysis_divergence(scene, result, rows, opts):
     st = scene.stability
     built = dict(scene.build_models())
@@ -407,14 +440,7 @@ def _analysis_divergence(scene, result, rows, opts):
     dps = int(st["dps"])
     y0 = scene.initial_state(model)
     rho_true = theoretical_radius(model, y0, dps=dps)
-    orders = st["orders"]
-    if orders is None:
-        ev = scene.studies.get("error_vs_order") or {}
-        top = ev.get("max_order") or 40
-        orders = list(range(ev.get("min_order", 2) or 2, top + 1, ev.get("step", 2) or 2))
-    if opts.get("quick"):
-        top = max(12, max(orders) // 2)
-        orders = [o for o in orders if o <= top]
+    orders = _divergence_orders(scene, opts)
     N = max(orders)
     series = lie_series(model, y0, order=N, dps=dps)
     rho_est = series.radius()
@@ -439,20 +465,7 @@ def _analysis_divergence(scene, result, rows, opts):
     if ratio is None:
         notes.append("`sol.stats.extra['max_step_over_radius']` is not provided by this lie_integrate; the check "
                      "uses the largest step over the smallest true radius only.")
-    # independent check: the poles of Omega(t) lie at Im t = +-K'/lam (plus the real period shifts), so every
-    # point of the real orbit is at least K'/lam from a pole: the smallest radius along the orbit
-    min_radius = None
-    if getattr(model, "closed_form", None) == "free_rigid_body":  # the model says the free body describes it
-        I = model.inertia_exact
-        Iinv = model.inverse_inertia_exact
-        fr = [to_fraction(v) for v in y0]
-        omega = [sum(Iinv[i][j] * fr[9 + j] for j in range(3)) for i in range(3)]
-        inertia = [I[i][i] for i in range(3)] if model.diagonal else I
-        c = exact.rigid_body_constants(inertia, omega, dps=30)
-        if c.branch in ("above", "below") and c.Kp is not None:
-            min_radius = float(c.Kp / c.lam)
-        elif c.branch == "separatrix":
-            min_radius = float(mp.pi / 2 / c.lam)
+    min_radius = _smallest_orbit_radius(model, y0)  # an independent check of the steps
     step_over_min = sol.stats.max_step / min_radius if (min_radius and sol.stats.steps) else None
     grows = ev_out.errors[-1] > ev_out.errors[0] if ev_out.errors else None
     finding = (
