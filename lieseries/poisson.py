@@ -616,9 +616,8 @@ class PoissonSystem:
     def antisymmetry_residual(self, points, dps: int = 50) -> mp.mpf:
         """Largest ``|P_ij + P_ji|`` over the sample ``points``, evaluated with ``dps`` digits."""
         n = self.dimension
-        exprs = [
-            self.tensor[i][j] + self.tensor[j][i] for i in range(n) for j in range(i, n)
-        ]
+        P = self.tensor  # (a property building the whole n x n list: read once)
+        exprs = [P[i][j] + P[j][i] for i in range(n) for j in range(i, n)]
         vals = self._evaluate(exprs, points, dps)
         return max((abs(v) for row in vals for v in row), default=mp.mpf(0))
 
