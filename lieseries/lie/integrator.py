@@ -2,17 +2,18 @@
 
 Step and order rules
 --------------------
-Order. When not given, N = ceil(L / 2) + 1 + min(floor(L / 8), floor(3000 / B)), with L = -ln(tol) and B the
+Order. When not given, N = ceil(L / 2) + 1 + min(floor(L / 8), floor((768 / B)^2)), with L = -ln(tol) and B the
 working bits. Jorba and Zou's ceil(L / 2) + 1 (Exp. Math. 14 (2005) 99) minimises the work per unit time of a
 Taylor method whose step costs b N^2: steps of about rho e^(-L/N) (rho the radius of convergence) cost b N^2
 e^(L/N) per unit time, least at N = L / 2. A step of this engine also costs a N (the per-order work of Python
-around the big-integer products, the same at every precision) besides b N^2 (the products, whose cost grows with
-B), and (a N + b N^2) e^(L/N) is least near N = L / 2 + r / 2 with r = a / b: an offset that shrinks as the bits
-grow, floor(3000 / B) (the measured optimum: about 20 orders at 30 digits, 15 at 50, 8 at 100, 0-4 at 200;
-``benchmarks/lie_order.py``). It is at most L / 8, which keeps the step below e^(-1.6) rho (e^(-2) rho at the
-Jorba-Zou order): the tail beyond the last order, which the step rule does not bound, stays a small fraction of
-it (the errors of longer steps at low precision grew past the tolerance). For 30 digits N = 36 + 8, for 50 digits
-59 + 14, for 100 digits 117 + 8, for 200 digits 232 + 4; above about 3000 bits the Jorba-Zou order.
+around the big-integer products, the same at every precision) besides b N^2 (the products, whose cost grows like
+B^2 at these sizes: GMP's schoolbook multiplication), and (a N + b N^2) e^(L/N) is least near N = L / 2 + r / 2
+with r = a / b: an offset that falls like 1 / B^2, floor((768 / B)^2) (fitted to the measured optimum: about 14
+orders at 50 digits, a few at 100, none to speak of at 200; ``benchmarks/lie_order.py``). It is at most L / 8,
+which keeps the step below e^(-1.6) rho (e^(-2) rho at the Jorba-Zou order): the tail beyond the last order, which
+the step rule does not bound, stays a small part of the error (the errors of longer steps at low precision grew up
+to tenfold). For 30 digits N = 36 + 8, for 50 digits 59 + 14, for 100 digits 117 + 4, for 200 digits 232 + 1; from
+about 800 bits the Jorba-Zou order.
 
 Step. At each step the coefficients c_0..c_N of the series at the current state are computed (jets, O(N^2) per
 node of the vector field). The step is the largest h with |c_k,i| h^k <= tol * s_i for every component i and the
@@ -75,16 +76,16 @@ from .operator import (
 __all__ = ["lie_integrate", "default_order"]
 
 
-#: The automatic order's offset above the Jorba-Zou order is at most ORDER_OFFSET_BITS / (working bits) orders
+#: The automatic order's offset above the Jorba-Zou order is at most (ORDER_OFFSET_BITS / working bits)^2 orders
 #: (module docstring).
-ORDER_OFFSET_BITS = 3000
+ORDER_OFFSET_BITS = 768
 
 
 def default_order(tol, bits: int) -> int:
     """The automatic order for a tolerance and ``bits`` working bits (module docstring): the Jorba-Zou order
-    ceil(L / 2) + 1, L = -ln(tol), at least 4, plus min(floor(L / 8), floor(ORDER_OFFSET_BITS / bits))."""
+    ceil(L / 2) + 1, L = -ln(tol), at least 4, plus min(floor(L / 8), floor((ORDER_OFFSET_BITS / bits)^2))."""
     L = -float(mp.log(tol))
-    return max(4, math.ceil(L / 2) + 1) + min(int(L // 8), ORDER_OFFSET_BITS // max(1, int(bits)))
+    return max(4, math.ceil(L / 2) + 1) + min(int(L // 8), ORDER_OFFSET_BITS**2 // max(1, int(bits)) ** 2)
 
 
 def lie_integrate(
