@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import lieseries as ls  # noqa: E402
 from lieseries import exact  # noqa: E402
-from lieseries.lie.integrator import default_order  # noqa: E402
+from lieseries.lie.integrator import default_order, jorba_zou_order  # noqa: E402
 from lieseries.precision import LIE_GUARD_DIGITS, Precision, to_fraction  # noqa: E402
 
 OMEGA = (1, "0.1", "0.5")
@@ -80,7 +80,7 @@ def main(argv=None):
     offsets = sorted(set(args.offsets) | {0})
     for dps in args.digits:
         tol = mp.mpf(10) ** -dps
-        jz = default_order(tol, 10**9)  # (no offset at a billion bits)
+        jz = jorba_zou_order(tol)
         auto = default_order(tol, Precision.of(dps=dps, guard_digits=LIE_GUARD_DIGITS).working_bits) - jz
         runs = {}
         for c in offsets:

@@ -73,7 +73,7 @@ from .operator import (
     prepare,
 )
 
-__all__ = ["lie_integrate", "default_order"]
+__all__ = ["lie_integrate", "default_order", "jorba_zou_order"]
 
 
 #: The automatic order's offset above the Jorba-Zou order is at most (ORDER_OFFSET_BITS / working bits)^2 orders
@@ -81,11 +81,16 @@ __all__ = ["lie_integrate", "default_order"]
 ORDER_OFFSET_BITS = 768
 
 
+def jorba_zou_order(tol) -> int:
+    """The Jorba-Zou order for a tolerance: ceil(-ln(tol) / 2) + 1, at least 4 (heyoka's order too)."""
+    return max(4, math.ceil(-float(mp.log(tol)) / 2) + 1)
+
+
 def default_order(tol, bits: int) -> int:
     """The automatic order for a tolerance and ``bits`` working bits (module docstring): the Jorba-Zou order
-    ceil(L / 2) + 1, L = -ln(tol), at least 4, plus min(floor(L / 8), floor((ORDER_OFFSET_BITS / bits)^2))."""
+    plus min(floor(L / 8), floor((ORDER_OFFSET_BITS / bits)^2)), L = -ln(tol)."""
     L = -float(mp.log(tol))
-    return max(4, math.ceil(L / 2) + 1) + min(int(L // 8), ORDER_OFFSET_BITS**2 // max(1, int(bits)) ** 2)
+    return jorba_zou_order(tol) + min(int(L // 8), ORDER_OFFSET_BITS**2 // max(1, int(bits)) ** 2)
 
 
 def lie_integrate(
