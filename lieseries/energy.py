@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import threading
+import weakref
 
 import heyoka as hy
 import mpmath
@@ -344,6 +345,10 @@ def clear_energy_cache() -> None:
     """Forget the compiled energy functions."""
     with _LOCK:
         _ENERGY.clear()
+        _EXACT_PROGRAMS.clear()
+
+
+_EXACT_PROGRAMS = weakref.WeakKeyDictionary()  # system -> the program of H and its gradient (energy_exact)
 
 
 def energy_exact(ps, y, bits: int):
@@ -351,8 +356,12 @@ def energy_exact(ps, y, bits: int):
     bits (the scale an mpf of 64 bits): the energy check of the mpmath engine and of atlas runs, whose states are not in
     one heyoka format or one chart."""
 
-    exprs = [ps.hamiltonian] + [hy.diff(ps.hamiltonian, v) for v in ps.variables]
-    prog = compile_expressions(ps.variables, exprs, len(ps.parameter_values))
+    prog = _EXACT_PROGRAMS.get(ps)
+    if prog is None:  # (the gradient and the compiled-program lookup cost a third of a call: once per system)
+        exprs = [ps.hamiltonian] + [hy.diff(ps.hamiltonian, v) for v in ps.variables]
+        prog = compile_expressions(ps.variables, exprs, len(ps.parameter_values))
+        with _LOCK:
+            _EXACT_PROGRAMS[ps] = prog
     exact = getattr(y, "exact", None)  # an ExactState: its exact values, not their doubles
     z = list(exact) if exact is not None else [to_fraction(v) for v in np.asarray(y, dtype=object)]
     out = prog.evaluate(z, list(ps.parameter_values), max(bits_to_dps(bits), 15))
