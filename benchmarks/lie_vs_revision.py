@@ -3,7 +3,8 @@
 The revision's package is extracted (`git archive`) into a temporary folder under another name and imported beside
 this one; the rigid body I = (1, 2, 3), omega0 = (1, 0.1, 0.5) is integrated to T by each in turn (`--reps` pairs
 after one warm-up call each, the order of the pair alternating), and the ratio of each pair is printed with its
-range, on the process's CPU time by default. The final states are compared bit for bit.
+range, on the process's CPU time by default. The final states are compared bit for bit, and when they differ (a
+change of the steps or the order) both errors against the closed form (``ls.exact``, 20 more digits) are printed.
 
     .venv/bin/python benchmarks/lie_vs_revision.py main                 # 50 digits, this checkout against main
     .venv/bin/python benchmarks/lie_vs_revision.py HEAD~3 --digits 50 100 --reps 9
@@ -22,10 +23,13 @@ import tempfile
 import time
 from pathlib import Path
 
+import mpmath as mp
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import lieseries as ls  # noqa: E402
+from lieseries.precision import to_fraction  # noqa: E402
 
 
 def load_revision(rev: str, folder: Path):
@@ -59,6 +63,8 @@ def main(argv=None):
                 runs[name] = (lambda pkg=pkg, body=body, y0=y0: pkg.lie_integrate(body, y0, t=args.T, dps=dps))
             end = {name: run().y[-1] for name, run in runs.items()}  # warm-up
             same = all(a == b for a, b in zip(end["rev"], end["this"]))
+            errors = "" if same else "; errors " + ", ".join(
+                f"{name} {mp.nstr(_error(end[name], dps, args.T), 3)}" for name in ("rev", "this"))
             times = {"rev": [], "this": []}
             for r in range(args.reps):
                 for name in (("rev", "this") if r % 2 == 0 else ("this", "rev")):
@@ -69,7 +75,14 @@ def main(argv=None):
             print(f"  {dps} digits: {args.rev} {statistics.median(times['rev']):.4f} s, this "
                   f"{statistics.median(times['this']):.4f} s; this / {args.rev} = {min(ratios):.3f} - "
                   f"{max(ratios):.3f} (median {statistics.median(ratios):.3f}, {args.reps} alternated pairs); final "
-                  f"states {'bit-identical' if same else 'DIFFERENT'}")
+                  f"states {'bit-identical' if same else 'DIFFERENT'}{errors}")
+
+
+def _error(state, dps, T):
+    """The largest error of a final state against the closed form."""
+    ref = ls.exact.euler_poisson((1, 2, 3), (1, "0.1", "0.5"), T, dps=dps + 20)
+    with mp.workdps(dps + 20):
+        return max(abs(mp.mpf(q.numerator) / q.denominator - b) for q, b in zip(map(to_fraction, state), ref))
 
 
 if __name__ == "__main__":

@@ -35,7 +35,7 @@ from .solution import EnsembleSolution, Solution, Stats
 from .lie.integrator import lie_integrate
 from .lie.operator import LieSeries, lie_series
 from .lie.symbolic import rigid_body_series
-from .taylor import integrate
+from .api import integrate
 from .validated import validated_integrate
 
 __all__ = [

@@ -39,6 +39,7 @@ import time as _time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+from .energy import energy_exact, exact_energy_verdict
 from .precision import short_decimal, to_fraction
 from .solution import STATUSES
 
@@ -180,77 +181,39 @@ def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float
     sgn = 1 if direction >= 0 else -1
     pending = list(pending)
     t_end = pending[-1][0] if pending else t0
-    out = Outcome("success", "", t0, z0, 0)
+    run = _Run(engine, pending, sgn, Outcome("success", "", t0, z0, 0), atlas, max_switches,
+               {"kept": kept, "max_time": max_time or 0, "max_steps": max_steps})
+    out = run.out
     t, z = t0, z0
-
-    def emit(limit, row):
-        while pending and (pending[0][0] - limit) * sgn <= 0:
-            tk, label = pending.pop(0)
-            out.rows_y.append(z if row is None else row(tk))  # may raise Stop: the rows before it stay
-            out.rows_t.append(label)
-            out.rows_chart.append(getattr(engine, "chart", None))
-
-    def switch(t, z):
-        """The state in a better chart, or None (no atlas, no better chart, or too many switches)."""
-        if not atlas or out.switches >= max_switches:
-            return None
-        znew = engine.switch_chart(t, z)
-        if znew is not None:
-            out.switches += 1
-        return znew
-
     if not getattr(engine, "emits_rows", False):
-        emit(t, None)
-    fields = {"kept": kept, "max_time": max_time or 0, "max_steps": max_steps}
-    explain = getattr(engine, "explain", None)
+        run.emit(t, lambda tk: z0)
     span = t_end - t0
     # an engine that emits its rows gives the row at t0 in its first step, which runs whatever the budgets (it
     # bounds itself: an atlas segment gets the budgets as given); so does a heyoka run's first chunk
     budgets = not getattr(engine, "free_first_step", getattr(engine, "emits_rows", False))
     while direction and (t_end - t) * sgn > 0:
-        over = None
-        if budgets and out.steps >= max_steps:
-            over = "step_budget"
-        elif budgets and max_time is not None and _time.perf_counter() - start > max_time:
-            over = "time_budget"
-        if over is not None:
-            stop = explain(over, t) if explain is not None else Stop(over)
-            out.status, out.message = stop.status, stop.text(t, fields)
+        if budgets and run.over_budget(t, max_steps, max_time, start):
             break
         budgets = True
         try:
             res = engine.step(t, z, t_end)
-            if res.rows is not None:
-                for _tk, y in res.rows:
-                    out.rows_t.append(pending.pop(0)[1])
-                    out.rows_y.append(y)
-                    out.rows_chart.append(getattr(engine, "chart", None))
-            else:
-                emit(res.t, res.row)
+            run.take_rows(res)
         except Stop as stop:
-            znew = switch(t, z) if stop.status == "chart_edge" else None
-            if znew is not None:  # the chart was ending before the step: go on in the new one
-                z = znew
-                continue
-            out.status, out.message = stop.status, stop.text(t, fields)
-            break
-        out.steps += res.steps
-        if res.error is not None:
-            out.estimates.append(res.error)
-        if res.h is not None:
-            out.hmin = res.h if out.hmin is None else min(out.hmin, res.h)
-            out.hmax = res.h if out.hmax is None else max(out.hmax, res.h)
+            znew = run.end(stop, t, z)
+            if znew is None:
+                break
+            z = znew  # the chart was ending before the step: go on in the new one
+            continue
+        run.count(res)
         t, z = res.t, res.z
         if progress is not None:
             progress(float((t - t0) / span))
         if res.stop is not None:
             stop = res.stop if isinstance(res.stop, Stop) else Stop(res.stop[0], res.stop[1], note=res.stop[2])
-            znew = switch(t, z) if stop.status == "chart_edge" else None
-            if znew is not None:  # the step crossed into the chart's edge: go on in the new chart
-                z = znew
-                continue
-            out.status, out.message = stop.status, stop.text(t, fields)
-            break
+            znew = run.end(stop, t, z)
+            if znew is None:
+                break
+            z = znew  # the step crossed into the chart's edge: go on in the new chart
     out.t, out.z = t, z
     if out.status == "success":
         out.message = reached_message or run_message("success", t=t_end, detail=reached)
@@ -262,11 +225,74 @@ def drive(engine, t0, z0, pending, *, direction, max_steps: int, max_time: float
     return out
 
 
+class _Run:
+    """The bookkeeping of one :func:`drive`: rows at the output times, budgets, statistics, stops and chart
+    switches."""
+
+    def __init__(self, engine, pending, sgn, out, atlas, max_switches, fields):
+        self.engine, self.pending, self.sgn, self.out = engine, pending, sgn, out
+        self.atlas, self.max_switches, self.fields = atlas, max_switches, fields
+        self.explain = getattr(engine, "explain", None)
+
+    def emit(self, limit, row):
+        """The rows at the pending times up to ``limit`` from the step's evaluator ``row``."""
+        pending, out, sgn = self.pending, self.out, self.sgn
+        while pending and (pending[0][0] - limit) * sgn <= 0:
+            tk, label = pending.pop(0)
+            out.rows_y.append(row(tk))  # may raise Stop: the rows before it stay
+            out.rows_t.append(label)
+            out.rows_chart.append(getattr(self.engine, "chart", None))
+
+    def take_rows(self, res) -> None:
+        """A step's rows: evaluated by the engine already (``res.rows``), or from its evaluator."""
+        if res.rows is None:  # (no evaluator: the step's end only, the state it reached)
+            self.emit(res.t, res.row if res.row is not None else (lambda tk: res.z))
+            return
+        out = self.out
+        for _tk, y in res.rows:
+            out.rows_t.append(self.pending.pop(0)[1])
+            out.rows_y.append(y)
+            out.rows_chart.append(getattr(self.engine, "chart", None))
+
+    def over_budget(self, t, max_steps, max_time, start) -> bool:
+        """Whether a budget ran out before the next step (the run's status and message set)."""
+        over = None
+        if self.out.steps >= max_steps:
+            over = "step_budget"
+        elif max_time is not None and _time.perf_counter() - start > max_time:
+            over = "time_budget"
+        if over is None:
+            return False
+        stop = self.explain(over, t) if self.explain is not None else Stop(over)
+        self.out.status, self.out.message = stop.status, stop.text(t, self.fields)
+        return True
+
+    def count(self, res) -> None:
+        """A step's statistics: steps, error estimate, the smallest and largest step."""
+        out = self.out
+        out.steps += res.steps
+        if res.error is not None:
+            out.estimates.append(res.error)
+        if res.h is not None:
+            out.hmin = res.h if out.hmin is None else min(out.hmin, res.h)
+            out.hmax = res.h if out.hmax is None else max(out.hmax, res.h)
+
+    def end(self, stop, t, z):
+        """The state in a better chart when ``stop`` is a chart's edge and one can be had (the run goes on);
+        else None, the run's status and message set from ``stop``."""
+        if stop.status == "chart_edge" and self.atlas and self.out.switches < self.max_switches:
+            znew = self.engine.switch_chart(t, z)
+            if znew is not None:
+                self.out.switches += 1
+                return znew
+        self.out.status, self.out.message = stop.status, stop.text(t, self.fields)
+        return None
+
+
 def energy_guard(out: Outcome, ps, y0, y_end, bits: int, tol) -> None:
     """The energy guard of a run that reached its final time: ``invariant_drift`` (with its message) when the
     Hamiltonian of ``ps``, at the exact values of ``y0`` and ``y_end`` in mpmath at ``bits`` bits, changed by more
     than :func:`lieseries.energy.drift_threshold` times the energy scale of ``y0``."""
-    from .energy import energy_exact, exact_energy_verdict
 
     if out.status != "success" or not ps.is_hamiltonian:
         return

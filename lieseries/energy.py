@@ -12,12 +12,15 @@ from __future__ import annotations
 
 import math
 import threading
+import weakref
 
 import heyoka as hy
 import mpmath
 import numpy as np
 
 from . import cache
+from .expr import compile_expressions
+from .precision import bits_to_dps, resolve_precision, to_fraction
 
 __all__ = ["drift_threshold", "DRIFT_PER_STEP", "energy_check", "energy_drift", "energy_function", "energy_verdict",
            "energy_quick", "quick_check",
@@ -217,7 +220,6 @@ def energy_drift(ps, tol, Y0, Y1, parameters=None, steps=None) -> dict:
     rows' step counts; sqrt(tol) when not given) times its scale, as :func:`energy_verdict` decides for one run.
     ``Y0``, ``Y1``: float64 arrays (k, n); ``parameters``: per-row exact parameter values (k rows), or None for
     the system's own. One vectorised call of the compiled functions for all rows."""
-    from .precision import resolve_precision
 
     prec = resolve_precision("double")
     h_fn, scale_fn, npar, _ = _compiled(ps, prec)
@@ -343,17 +345,23 @@ def clear_energy_cache() -> None:
     """Forget the compiled energy functions."""
     with _LOCK:
         _ENERGY.clear()
+        _EXACT_PROGRAMS.clear()
+
+
+_EXACT_PROGRAMS = weakref.WeakKeyDictionary()  # system -> the program of H and its gradient (energy_exact)
 
 
 def energy_exact(ps, y, bits: int):
     """(H(y), the energy scale sum_i |dH/dy_i y_i|) of ``ps`` at the exact value of ``y``, H in mpmath at ``bits``
     bits (the scale an mpf of 64 bits): the energy check of the mpmath engine and of atlas runs, whose states are not in
     one heyoka format or one chart."""
-    from .expr import compile_expressions
-    from .precision import bits_to_dps, to_fraction
 
-    exprs = [ps.hamiltonian] + [hy.diff(ps.hamiltonian, v) for v in ps.variables]
-    prog = compile_expressions(ps.variables, exprs, len(ps.parameter_values))
+    prog = _EXACT_PROGRAMS.get(ps)
+    if prog is None:  # (the gradient and the compiled-program lookup cost a third of a call: once per system)
+        exprs = [ps.hamiltonian] + [hy.diff(ps.hamiltonian, v) for v in ps.variables]
+        prog = compile_expressions(ps.variables, exprs, len(ps.parameter_values))
+        with _LOCK:
+            _EXACT_PROGRAMS[ps] = prog
     exact = getattr(y, "exact", None)  # an ExactState: its exact values, not their doubles
     z = list(exact) if exact is not None else [to_fraction(v) for v in np.asarray(y, dtype=object)]
     out = prog.evaluate(z, list(ps.parameter_values), max(bits_to_dps(bits), 15))

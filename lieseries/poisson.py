@@ -71,6 +71,40 @@ def _as_expr(e, argname: str) -> hy.expression:
     raise TypeError(f"`{argname}` must be a heyoka expression or a number; got {type(e).__name__}")
 
 
+def _read_variables(variables) -> list:
+    """The state variables as heyoka variables (names made into variables), checked non-empty and distinct."""
+    if isinstance(variables, (str, bytes)) or not hasattr(variables, "__len__"):
+        raise TypeError("`variables` must be a sequence of names or heyoka variables")
+    if len(variables) == 0:
+        raise ValueError("`variables` must not be empty")
+    vs = []
+    for i, v in enumerate(variables):
+        if isinstance(v, str):
+            v = hy.make_vars(v)
+        if not isinstance(v, hy.expression):
+            raise TypeError(f"`variables[{i}]` must be a name or a heyoka variable; got {type(v).__name__}")
+        vs.append(v)
+    names = [str(v) for v in vs]
+    if len(set(names)) != len(names):
+        raise ValueError(f"`variables` must have distinct names; got {names}")
+    return vs
+
+
+def _read_tensor(tensor, n: int) -> list:
+    """The Poisson tensor as n x n expressions, None where an entry is zero."""
+    try:
+        rows = [list(r) for r in tensor]
+    except TypeError:
+        raise TypeError("`tensor` must be an n x n nested sequence of expressions") from None
+    if len(rows) != n or any(len(r) != n for r in rows):
+        shape = (len(rows), sorted({len(r) for r in rows}))
+        raise ValueError(f"`tensor` must be {n} x {n} to match `variables`; got rows x columns {shape}")
+    return [
+        [None if _is_zero(rows[i][j]) else _as_expr(rows[i][j], f"tensor[{i}][{j}]") for j in range(n)]
+        for i in range(n)
+    ]
+
+
 class PoissonSystem:
     """A Hamiltonian system ``dz/dt = {z, H} = P(z) grad H`` with a possibly non-canonical, degenerate bracket.
 
@@ -121,36 +155,35 @@ class PoissonSystem:
         jacobi: bool | None = None,
         parameter_sources: Mapping | None = None,
     ):
-        if isinstance(variables, (str, bytes)) or not hasattr(variables, "__len__"):
-            raise TypeError("`variables` must be a sequence of names or heyoka variables")
-        if len(variables) == 0:
-            raise ValueError("`variables` must not be empty")
-        vs = []
-        for i, v in enumerate(variables):
-            if isinstance(v, str):
-                v = hy.make_vars(v)
-            if not isinstance(v, hy.expression):
-                raise TypeError(f"`variables[{i}]` must be a name or a heyoka variable; got {type(v).__name__}")
-            vs.append(v)
-        names = [str(v) for v in vs]
-        if len(set(names)) != len(names):
-            raise ValueError(f"`variables` must have distinct names; got {names}")
-        n = len(vs)
-        try:
-            rows = [list(r) for r in tensor]
-        except TypeError:
-            raise TypeError("`tensor` must be an n x n nested sequence of expressions") from None
-        if len(rows) != n or any(len(r) != n for r in rows):
-            shape = (len(rows), sorted({len(r) for r in rows}))
-            raise ValueError(f"`tensor` must be {n} x {n} to match `variables`; got rows x columns {shape}")
-        self._tensor = [
-            [None if _is_zero(rows[i][j]) else _as_expr(rows[i][j], f"tensor[{i}][{j}]") for j in range(n)]
-            for i in range(n)
-        ]
-        self._variables = vs
-        self._names = tuple(names)
+        self._variables = _read_variables(variables)
+        self._names = tuple(str(v) for v in self._variables)
+        n = len(self._variables)
+        self._tensor = _read_tensor(tensor, n)
         self._hamiltonian = _as_expr(hamiltonian, "hamiltonian")
+        self._set_parameters(parameters, parameter_sources, input_bits)
+        self._constants_checked = False
+        self._native_params = {}
+        self._check_parameter_count(extra_field)
+        self._casimirs = {str(k): _as_expr(c, f"casimirs[{k!r}]") for k, c in (casimirs or {}).items()}
+        if "energy" in self._casimirs:
+            raise ValueError("`casimirs` must not use the name 'energy': `invariants` gives H under that name")
+        self._invariant_program = None
+        if extra_field is not None:
+            if len(extra_field) != n:
+                raise ValueError(f"`extra_field` must have {n} entries, one per variable; got {len(extra_field)}")
+            extra_field = [None if _is_zero(e) else _as_expr(e, f"extra_field[{i}]") for i, e in enumerate(extra_field)]
+        self._extra = extra_field
+        self.name = str(name)
+        self._field = None
+        self._ode = None
+        self._key = None
+        self._check_expressions(extra_field)
+        self._check_antisymmetry()
+        self._check_structure(jacobi)
 
+    # -- checks at construction ----------------------------------------------------------------------------------
+    def _set_parameters(self, parameters, parameter_sources, input_bits):
+        """The runtime parameters' names, labels (for messages), exact values and the bits binary inputs carry."""
         if parameters is None:
             parameters = {}
         if isinstance(parameters, Mapping):
@@ -170,8 +203,9 @@ class PoissonSystem:
         for k, b in (input_bits or {}).items():
             if b is not None:
                 self._coarse[str(k)] = int(b)
-        self._constants_checked = False
-        self._native_params = {}
+
+    def _check_parameter_count(self, extra_field):
+        """The expressions use no runtime parameter beyond those given."""
         used = hy.get_params(
             [self._hamiltonian]
             + [e for r in self._tensor for e in r if e is not None]
@@ -183,24 +217,13 @@ class PoissonSystem:
                 f"the expressions use {npar_used} runtime parameters (hy.par[0..{npar_used - 1}]) but "
                 f"`parameters` gives {len(self._param_values)} values"
             )
-        self._casimirs = {str(k): _as_expr(c, f"casimirs[{k!r}]") for k, c in (casimirs or {}).items()}
-        if "energy" in self._casimirs:
-            raise ValueError("`casimirs` must not use the name 'energy': `invariants` gives H under that name")
-        self._invariant_program = None
-        if extra_field is not None:
-            if len(extra_field) != n:
-                raise ValueError(f"`extra_field` must have {n} entries, one per variable; got {len(extra_field)}")
-            extra_field = [None if _is_zero(e) else _as_expr(e, f"extra_field[{i}]") for i, e in enumerate(extra_field)]
-        self._extra = extra_field
-        self.name = str(name)
-        self._field = None
-        self._ode = None
-        self._key = None
-        self._check_expressions(extra_field)
-        self._check_antisymmetry()
+
+    def _check_structure(self, jacobi):
+        """The Jacobi identity and the Casimirs, when asked (``jacobi=True``) or by default in small dimensions (a
+        function the mpmath compiler lacks then skips them)."""
         if jacobi is not None and not isinstance(jacobi, bool):
             raise TypeError(f"`jacobi` must be True, False or None (automatic); got {jacobi!r}")
-        if jacobi or (jacobi is None and n <= JACOBI_AUTO_DIMENSION):
+        if jacobi or (jacobi is None and len(self._variables) <= JACOBI_AUTO_DIMENSION):
             try:
                 self.check_jacobi()
                 self.check_casimirs()
@@ -208,7 +231,6 @@ class PoissonSystem:
                 if jacobi is True:
                     raise
 
-    # -- checks at construction ----------------------------------------------------------------------------------
     def _check_expressions(self, extra_field):
         """Every expression uses declared variables only, and none depends on time."""
         from .expr import uses_time
@@ -594,9 +616,8 @@ class PoissonSystem:
     def antisymmetry_residual(self, points, dps: int = 50) -> mp.mpf:
         """Largest ``|P_ij + P_ji|`` over the sample ``points``, evaluated with ``dps`` digits."""
         n = self.dimension
-        exprs = [
-            self.tensor[i][j] + self.tensor[j][i] for i in range(n) for j in range(i, n)
-        ]
+        P = self.tensor  # (a property building the whole n x n list: read once)
+        exprs = [P[i][j] + P[j][i] for i in range(n) for j in range(i, n)]
         vals = self._evaluate(exprs, points, dps)
         return max((abs(v) for row in vals for v in row), default=mp.mpf(0))
 

@@ -28,7 +28,7 @@ from .precision import check_seconds, dps_to_bits, float_or_mpf, to_fraction
 from .precision import thread_mp as mp
 from .scenes import Scene, SceneError, effective_plan, load_scene
 from .studies.drift import invariant_function
-from .studies.reference import numerical_reference_label
+from .studies.reference import max_difference, numerical_reference_label, observables
 from .studies.plugin import StudyContext, studies_registry
 
 __all__ = ["RunRow", "SceneResult", "environment", "run_scene", "scaled_error"]
@@ -240,8 +240,6 @@ def _error_along(run, measured, grid, refs_grid, charts, dps):
 
 
 def _do_run(scene, runp, built, bar, notes):
-    from .studies import max_difference, observables
-
     tf = to_fraction(runp["t"], "run.t")
     n_out = runp["samples"]
     grid = [tf * k / (n_out - 1) for k in range(1, n_out)]
@@ -271,29 +269,17 @@ def _do_run(scene, runp, built, bar, notes):
                 _refs[time_] = _reference_at(_model, _y0, time_, dps, bits)
             return _refs[time_]
 
-        if _has_closed_form(model):
-            ref_label = f"{ref_at(tf).label}, {dps} digits"
-        else:
-            ref_label = f"{numerical_reference_label(bits)}, {dps} digits"
+        ref_label = (f"{ref_at(tf).label}, {dps} digits" if _has_closed_form(model)
+                     else f"{numerical_reference_label(bits)}, {dps} digits")
         refs_grid = _grid_references(model, y0, grid, dps, bits) if want_traj else None
         done += 1
         inv0 = invariant_function(model, dps + 10)(y0)  # at the reference's digits (a 400-digit run's drift too)
         inv_names = list(inv0)
         initial_invariants[mlabel] = {k: float(v) for k, v in inv0.items()}
-        traj = None
-        if want_traj:
-            qname, names = as_model(model).plot_quantity()
-            traj = {"quantity": qname, "names": list(names),
-                    "times": [0.0] + [float(g) for g in grid[: len(refs_grid)]],
-                    "values": [], "errors": {}, "error_times": {}}
+        traj = _new_trajectory(model, grid[: len(refs_grid)]) if want_traj else None
         for i_spec, spec in enumerate(specs):
             bar(done, total, f"{mlabel}: {method_label(spec)}")
-            if atlas:
-                run, extra = run_atlas_method(model, y0, tf, spec, times=grid, repeat=runp["repeat"], bits=bits)
-                extra = extra or {}
-            else:
-                run = run_method(model, y0, tf, spec, times=grid, repeat=runp["repeat"])
-                extra = dict(run.extra)
+            run, extra = _run_spec(model, y0, tf, spec, grid, runp["repeat"], bits, atlas)
             if i_spec in quick_of:
                 extra["quick_mode"] = quick_of[i_spec]
             done += 1
@@ -305,25 +291,9 @@ def _do_run(scene, runp, built, bar, notes):
             err = max_err = scaled = None
             drift = {k: None for k in inv_names}
             if run.ok:
-                ref = ref_at(run.t_exact)
-                obs = observables(measured, run.y_final, ref.dps)
-                err = max_difference(obs, ref.values, ref.dps)
-                with mp.workdps(ref.dps):
-                    scaled = scaled_error(model, obs, ref.values)
-                digits = method_plugin(run.method).state_digits(spec)
-                inv = _invariants_of(measured, run.states, digits)
-                if inv is not None:
-                    drift = {k: max_difference(inv[k], [inv0[k]] * len(inv[k]), max(dps, digits) + 10)
-                             for k in inv_names}
+                err, scaled, drift = _final_errors(run, model, measured, spec, ref_at(run.t_exact), inv0, dps)
                 if refs_grid is not None:
-                    charts = extra.get("charts")
-                    errs, etimes, echarts = _error_along(run, measured, grid, refs_grid, charts, dps)
-                    if errs:
-                        max_err = max(errs)
-                        traj["errors"][run.label] = errs
-                        traj["error_times"][run.label] = etimes
-                        if charts is not None:
-                            traj.setdefault("charts", {})[run.label] = echarts
+                    max_err = _errors_along_grid(run, measured, grid, refs_grid, extra.get("charts"), dps, traj)
             rows.append(run.measured(model=mlabel, error=err, max_error=max_err, drift=drift, scaled_error=scaled,
                                      extra={k: v for k, v in extra.items() if k != "charts"}))
         if traj is not None:
@@ -333,6 +303,49 @@ def _do_run(scene, runp, built, bar, notes):
     bar(total, total, "run done")
     return {"t": float(tf), "samples": n_out, "reference": ref_label, "invariants": inv_names or [],
             "initial_invariants": initial_invariants, "rows": rows}, trajectories
+
+
+def _new_trajectory(model, times):
+    """A model's trajectory for the report: what it plots, at t = 0 and ``times`` (values and errors to come)."""
+    qname, names = as_model(model).plot_quantity()
+    return {"quantity": qname, "names": list(names), "times": [0.0] + [float(g) for g in times],
+            "values": [], "errors": {}, "error_times": {}}
+
+
+def _run_spec(model, y0, tf, spec, grid, repeat, bits, atlas):
+    """One method's run on a model (across its charts for an atlas model): the run record and its extra data."""
+    if atlas:
+        run, extra = run_atlas_method(model, y0, tf, spec, times=grid, repeat=repeat, bits=bits)
+        return run, extra or {}
+    run = run_method(model, y0, tf, spec, times=grid, repeat=repeat)
+    return run, dict(run.extra)
+
+
+def _final_errors(run, model, measured, spec, ref, inv0, dps):
+    """A finished run against the reference ``ref`` where it ended: the error of its observables, the model's
+    scaled error, and each invariant's largest drift from ``inv0`` over its states (None when it kept none)."""
+    obs = observables(measured, run.y_final, ref.dps)
+    err = max_difference(obs, ref.values, ref.dps)
+    with mp.workdps(ref.dps):
+        scaled = scaled_error(model, obs, ref.values)
+    digits = method_plugin(run.method).state_digits(spec)
+    inv = _invariants_of(measured, run.states, digits)
+    if inv is None:
+        return err, scaled, {k: None for k in inv0}
+    drift = {k: max_difference(inv[k], [inv0[k]] * len(inv[k]), max(dps, digits) + 10) for k in inv0}
+    return err, scaled, drift
+
+
+def _errors_along_grid(run, measured, grid, refs_grid, charts, dps, traj):
+    """A run's errors on the output grid, recorded in the trajectory ``traj``: the largest, or None."""
+    errs, etimes, echarts = _error_along(run, measured, grid, refs_grid, charts, dps)
+    if not errs:
+        return None
+    traj["errors"][run.label] = errs
+    traj["error_times"][run.label] = etimes
+    if charts is not None:
+        traj.setdefault("charts", {})[run.label] = echarts
+    return max(errs)
 
 
 def run_scene(scene, quick: bool = False, progress=True, max_time=None) -> SceneResult:

@@ -46,8 +46,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import exact
+from .lie.integrator import lie_integrate
+from .lie.operator import lie_series
+from .models.base import as_model
+from .precision import to_fraction
 from .precision import thread_mp as mp
-from .scenes import jsonable
+from .run import environment, run_scene
+from .scenes import SceneError, extreme_scenes, jsonable, load_scene
+from .studies.convergence import error_vs_order
+from .studies.reference import loglog_slope, theoretical_radius
 
 __all__ = ["StabilityRow", "StabilityCase", "Stability", "stability", "run_case", "failed_case",
            "saddle_rate"]
@@ -355,7 +363,6 @@ def _analysis_drift(scene, result, rows, opts):
     items = result.studies.get("drift", [])
     if not items:
         return "The drift study did not run.", {}
-    from .studies.reference import loglog_slope
 
     mlabel, dr = items[0]
     keys = [k for k in ("energy", "orthogonality") if k in dr.errors]
@@ -392,22 +399,10 @@ def _analysis_stiff(scene, result, rows, opts):
     return finding, details
 
 
-def _analysis_divergence(scene, result, rows, opts):
-    from . import exact
-    from .lie.integrator import lie_integrate
-    from .lie.operator import lie_series
-    from .precision import to_fraction
-    from .studies.convergence import error_vs_order
-    from .studies.reference import theoretical_radius
-
-    st = scene.stability
-    built = dict(scene.build_models())
-    mlabel = st["headline_model"]
-    model = built[mlabel]
-    dps = int(st["dps"])
-    y0 = scene.initial_state(model)
-    rho_true = theoretical_radius(model, y0, dps=dps)
-    orders = st["orders"]
+def _divergence_orders(scene, opts) -> list:
+    """The orders of the divergence analysis: the stability table's, else the scene's error-vs-order range
+    (default 2..40 by 2); halved at most (and at least 12) in quick mode."""
+    orders = scene.stability["orders"]
     if orders is None:
         ev = scene.studies.get("error_vs_order") or {}
         top = ev.get("max_order") or 40
@@ -415,6 +410,37 @@ def _analysis_divergence(scene, result, rows, opts):
     if opts.get("quick"):
         top = max(12, max(orders) // 2)
         orders = [o for o in orders if o <= top]
+    return orders
+
+
+def _smallest_orbit_radius(model, y0):
+    """For a free rigid body, the smallest radius of convergence along the real orbit: the poles of Omega(t) lie
+    at Im t = +-K'/lam (plus the real period shifts), so every point of the orbit is at least K'/lam from one (pi /
+    2 lam on the separatrix); None for other models and regimes."""
+    if getattr(model, "closed_form", None) != "free_rigid_body":  # the model says the free body describes it
+        return None
+    I = model.inertia_exact
+    Iinv = model.inverse_inertia_exact
+    fr = [to_fraction(v) for v in y0]
+    omega = [sum(Iinv[i][j] * fr[9 + j] for j in range(3)) for i in range(3)]
+    inertia = [I[i][i] for i in range(3)] if model.diagonal else I
+    c = exact.rigid_body_constants(inertia, omega, dps=30)
+    if c.branch in ("above", "below") and c.Kp is not None:
+        return float(c.Kp / c.lam)
+    if c.branch == "separatrix":
+        return float(mp.pi / 2 / c.lam)
+    return None
+
+
+def _analysis_divergence(scene, result, rows, opts):
+    st = scene.stability
+    built = dict(scene.build_models())
+    mlabel = st["headline_model"]
+    model = built[mlabel]
+    dps = int(st["dps"])
+    y0 = scene.initial_state(model)
+    rho_true = theoretical_radius(model, y0, dps=dps)
+    orders = _divergence_orders(scene, opts)
     N = max(orders)
     series = lie_series(model, y0, order=N, dps=dps)
     rho_est = series.radius()
@@ -439,20 +465,7 @@ def _analysis_divergence(scene, result, rows, opts):
     if ratio is None:
         notes.append("`sol.stats.extra['max_step_over_radius']` is not provided by this lie_integrate; the check "
                      "uses the largest step over the smallest true radius only.")
-    # independent check: the poles of Omega(t) lie at Im t = +-K'/lam (plus the real period shifts), so every
-    # point of the real orbit is at least K'/lam from a pole: the smallest radius along the orbit
-    min_radius = None
-    if getattr(model, "closed_form", None) == "free_rigid_body":  # the model says the free body describes it
-        I = model.inertia_exact
-        Iinv = model.inverse_inertia_exact
-        fr = [to_fraction(v) for v in y0]
-        omega = [sum(Iinv[i][j] * fr[9 + j] for j in range(3)) for i in range(3)]
-        inertia = [I[i][i] for i in range(3)] if model.diagonal else I
-        c = exact.rigid_body_constants(inertia, omega, dps=30)
-        if c.branch in ("above", "below") and c.Kp is not None:
-            min_radius = float(c.Kp / c.lam)
-        elif c.branch == "separatrix":
-            min_radius = float(mp.pi / 2 / c.lam)
+    min_radius = _smallest_orbit_radius(model, y0)  # an independent check of the steps
     step_over_min = sol.stats.max_step / min_radius if (min_radius and sol.stats.steps) else None
     grows = ev_out.errors[-1] > ev_out.errors[0] if ev_out.errors else None
     finding = (
@@ -519,8 +532,6 @@ def run_case(scene, quick: bool = False, progress=None) -> StabilityCase:
     progress : callable, optional
         ``progress(done, total, label)`` for the scene's run.
     """
-    from .run import run_scene
-    from .scenes import SceneError, load_scene
 
     scene = load_scene(scene)
     if scene.stability is None:
@@ -558,7 +569,6 @@ def _atlas(scene, result, rows, opts):
 
 def _atlas_analysis(scene, result, rows, opts):
     """Chart switches and errors of the atlas runs, next to the Dirac form's."""
-    from .models.base import as_model
 
     atlas_models = [label for label, model in scene.build_models() if as_model(model).runs_on_atlas]
     notes = []
@@ -633,8 +643,6 @@ def stability(cases=None, quick: bool = False, progress=None, on_case=None) -> S
     Stability
         A case whose scene raised is kept, with the error in its notes and no rows.
     """
-    from .run import environment
-    from .scenes import extreme_scenes, load_scene
 
     if cases is None:
         cases = [name for name, _ in extreme_scenes()]

@@ -302,11 +302,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     N = check_order(order) if order is not None else max(8, math.ceil(math.log(10) * dps / 2) + 1) + EXTRA_ORDER
     ps = as_poisson_system(system)
     check_ops(ps.program)
-    if atlas is None:
-        atlas = bool(getattr(system, "atlas", False))  # a Sphere says (True unless built with atlas=False)
-    if atlas and not hasattr(system, "chart_change_expressions"):
-        raise ValueError(f"`atlas` needs a model with an atlas of charts (Sphere); {type(system).__name__} has one "
-                         "global chart")
+    atlas = _check_atlas(system, atlas)
     bits = dps_to_bits(dps) + GUARD_BITS
     # the rows: n balls per time (an arb object, its midpoint's limbs and its radius)
     grid, direction, t0f = parse_times(t, t0, values_per_time=ps.dimension, bytes_per_value=64 + bits // 8,
@@ -322,47 +318,77 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
         arb = flint.arb
         z = _initial_balls(system, y0, ps.dimension, flint)
         width_cap = None if max_width is None else arb(flint.fmpq(*to_fraction(max_width, "max_width").as_integer_ratio()))
-        widest0 = max(z, key=lambda v: float(v.rad()))
-        cap0 = width_cap if width_cap is not None else arb(max([1.0] + [abs(float(v.mid())) for v in z])) / 1000
-        if widest0.rad() > cap0:
-            raise ValueError(
-                f"`y0` has a ball of radius {float(widest0.rad()):.3g}, already wider than `max_width` = "
-                f"{float(cap0):.3g} ({'given' if width_cap is not None else 'the default, 1e-3 x max(1, |z|)'}): "
-                "the run would stop at once with validation_failed. Pass a larger `max_width` to follow so wide a "
-                "set (its enclosures widen fast and the steps shrink), or give a narrower uncertainty"
-            )
-        current = system
-        if atlas:
-            current = system.for_chart(system.chart, edge=system.ATLAS_SWITCH)
-            best = system.best_chart([_exact_mid(v) for v in z])
-            if best != system.chart:
-                z, current = _switch_chart(system, current, best, z, flint), system.for_chart(best, edge=system.ATLAS_SWITCH)
+        _check_start_width(z, width_cap, flint)
+        z, current = _start_chart(system, z, flint) if atlas else (z, system)
         # the shortest step tried: 2^-40 of the run's time span (a time, whatever the size of the state)
         engine = _ValidatedEngine(system, current, z, N, dps, flint, width_cap, deadline,
                                   float(abs(grid[-1] - t0f)) * 2.0**-40, direction, atlas)
         out = drive(engine, t0f, z, [(g, g) for g in grid], direction=direction, max_steps=max_steps,
                     max_time=max_time, start=start, kept="Every row up to here is a proven enclosure.",
                     atlas=atlas, max_switches=MAX_SWITCHES, reached="; every row is a proven enclosure")
-        message = out.message
-        widths = [max(_float_up(v.rad()) for v in row) for row in out.rows_y]
-        n = engine.ps.dimension
-        stats = Stats(method="validated lie series (arb)", precision=f"{dps} dps", tol=_tolerance(dps), order=N,
-                      steps=out.steps, run_time=out.run_time,
-                      extra={"widths": widths, "tail_bounds": engine.tails,
-                             "max_width": max(widths) if widths else 0.0, "chart_switches": out.switches})
-        y = np.empty((len(out.rows_y), n), dtype=object)
-        for i, row in enumerate(out.rows_y):
-            for j, v in enumerate(row):
-                y[i, j] = v
-        y_reached = np.empty(n, dtype=object)
-        for j, v in enumerate(out.z):
-            y_reached[j] = v
+        stats = _run_stats(out, engine, N, dps)
+        y, y_reached = _ball_arrays(out.rows_y, out.z, engine.ps.dimension)
     tarr = np.array([float(v) for v in out.rows_t])
     if atlas:
-        return Solution(tarr, ChartRows(y, out.rows_chart), stats, out.status, message, t_reached=out.t,
+        return Solution(tarr, ChartRows(y, out.rows_chart), stats, out.status, out.message, t_reached=out.t,
                         t_requested=grid, y_reached=ChartRows(y_reached, engine.chart),
                         charts=np.array(out.rows_chart, dtype=int), chart_reached=engine.chart)
-    return Solution(tarr, y, stats, out.status, message, t_reached=out.t, t_requested=grid, y_reached=y_reached)
+    return Solution(tarr, y, stats, out.status, out.message, t_reached=out.t, t_requested=grid, y_reached=y_reached)
+
+
+def _check_atlas(system, atlas) -> bool:
+    """Whether the run switches charts: the model's own choice by default; refused for a model without charts."""
+    if atlas is None:
+        atlas = bool(getattr(system, "atlas", False))  # a Sphere says (True unless built with atlas=False)
+    if atlas and not hasattr(system, "chart_change_expressions"):
+        raise ValueError(f"`atlas` needs a model with an atlas of charts (Sphere); {type(system).__name__} has one "
+                         "global chart")
+    return atlas
+
+
+def _check_start_width(z, width_cap, flint):
+    """Refuse initial balls already wider than the run's width cap (it would stop at once)."""
+    widest0 = max(z, key=lambda v: float(v.rad()))
+    cap0 = width_cap if width_cap is not None else flint.arb(max([1.0] + [abs(float(v.mid())) for v in z])) / 1000
+    if widest0.rad() > cap0:
+        raise ValueError(
+            f"`y0` has a ball of radius {float(widest0.rad()):.3g}, already wider than `max_width` = "
+            f"{float(cap0):.3g} ({'given' if width_cap is not None else 'the default, 1e-3 x max(1, |z|)'}): "
+            "the run would stop at once with validation_failed. Pass a larger `max_width` to follow so wide a "
+            "set (its enclosures widen fast and the steps shrink), or give a narrower uncertainty"
+        )
+
+
+def _start_chart(system, z, flint):
+    """An atlas run's start: the balls z and the model of the chart of the largest coordinate (z rewritten there
+    when that is not the model's own chart)."""
+    current = system.for_chart(system.chart, edge=system.ATLAS_SWITCH)
+    best = system.best_chart([_exact_mid(v) for v in z])
+    if best != system.chart:
+        z, current = _switch_chart(system, current, best, z, flint), system.for_chart(best, edge=system.ATLAS_SWITCH)
+    return z, current
+
+
+def _run_stats(out, engine, N, dps) -> Stats:
+    """A validated run's statistics: its steps and time, and in ``extra`` the widest ball at each output time, the
+    remainder bound of each step and the chart switches."""
+    widths = [max(_float_up(v.rad()) for v in row) for row in out.rows_y]
+    return Stats(method="validated lie series (arb)", precision=f"{dps} dps", tol=_tolerance(dps), order=N,
+                 steps=out.steps, run_time=out.run_time,
+                 extra={"widths": widths, "tail_bounds": engine.tails,
+                        "max_width": max(widths) if widths else 0.0, "chart_switches": out.switches})
+
+
+def _ball_arrays(rows, z_end, n):
+    """The rows and the state reached as object arrays of balls, filled entry by entry."""
+    y = np.empty((len(rows), n), dtype=object)
+    for i, row in enumerate(rows):
+        for j, v in enumerate(row):
+            y[i, j] = v
+    y_reached = np.empty(n, dtype=object)
+    for j, v in enumerate(z_end):
+        y_reached[j] = v
+    return y, y_reached
 
 
 class _ValidatedEngine:
@@ -406,20 +432,58 @@ class _ValidatedEngine:
         return z
 
     def step(self, tcur, z, t_end):
-        flint, N, direction = self.flint, self.N, self.direction
+        flint = self.flint
         arb = flint.arb
-        prog, pars, consts, jprog, jconsts = self.prog, self.pars, self.consts, self.jprog, self.jconsts
+        jprog, pars, jconsts = self.jprog, self.pars, self.jconsts
         n = len(z)
         scale = max([1.0] + [abs(float(zi.mid())) for zi in z])
         tol = self.rem_tol * scale
         wide = any(zi.rad() > self.unit * scale for zi in z)  # wider than 10^-dps of the state's size
         pieces = WIDE_JACOBIAN_PIECES if wide else JACOBIAN_PIECES
+        C, jets, g, CZ = self._expand(tcur, z, t_end)
+        h, hs, tail, D, J, bounds_h = self._prove(z, abs(t_end - tcur), C, jets, g, CZ, tol, pieces)
+        tnew = tcur + hs
+        A, r = self.A, self.r
+
+        def point(tau: Fraction):
+            """Enclosure at tcur + tau of the solution from the centre m: its polynomial plus the bound of
+            their difference."""
+            ta = arb(flint.fmpq(tau.numerator, tau.denominator))
+            bounds = bounds_h if tau == hs else tail(ta)  # the step's own end: bounded when it was proved
+            out = [p + arb(0, e) for p, e in zip(C.at(ta), bounds)]
+            return out, max(float(e) for e in bounds), ta
+
+        def whole(phi, JA):
+            """The box of phi + JA r: every solution from the set m + A r (mean-value theorem)."""
+            spread = JA * r
+            return [phi[i] + spread[i, 0] for i in range(n)]
+
+        def row(tk):
+            phi_k, _, ta = point(tk - tcur)
+            Jk = J if tk == tnew else flow_jacobian(jprog, CZ, D, pars, jconsts, ta, flint, pieces)
+            if Jk is None:  # the field's Jacobian cannot be bounded over the shorter span: stop here
+                raise Stop("validation_failed", f"the flow's Jacobian up to the output time {float(tk):.17g} cannot "
+                           "be bounded (the field is singular or too steep near the enclosure)")
+            return whole(phi_k, Jk * A)
+
+        phi, tail_h, _ = point(hs)
+        JA = J * A
+        znew = whole(phi, JA)
+        self._lohner_update(phi, JA)
+        self.tails.append(tail_h)
+        return StepResult(tnew, znew, h=h, row=row, stop=self._width_stop(znew, scale))
+
+    def _expand(self, tcur, z, t_end):
+        """The step's series: the centre's polynomial C (and its jets, or None), its defect g in the centre's scaled
+        time, and the coefficients CZ up to BOX_ORDER from the whole set (checked from a guess around C)."""
+        flint, prog, pars, consts = self.flint, self.prog, self.pars, self.consts
         try:
-            C, jets = centre_polynomial(self.stepper, prog, self.m, pars, consts, N, flint,
+            C, jets = centre_polynomial(self.stepper, prog, self.m, pars, consts, self.N, flint,
                                          mpmath.mpf(float(abs(t_end - tcur))), self.deadline)  # centre
             g = defect_coefficients(prog, C, pars, consts, flint, self.exact)  # in the centre's scaled time
             # from the whole set (checked from a guess around the centre polynomial)
-            guess = C.guess(BOX_ORDER, max(zi.rad() for zi in z), norm_bound(jprog, self.m, pars, jconsts, flint))
+            guess = C.guess(BOX_ORDER, max(zi.rad() for zi in z),
+                            norm_bound(self.jprog, self.m, pars, self.jconsts, flint))
             CZ = taylor_coefficients_checked(prog, z, guess, pars, consts, BOX_ORDER, flint)
         except DeadlineExceeded:
             raise Stop("time_budget", note=" (inside a step)") from None
@@ -428,7 +492,16 @@ class _ValidatedEngine:
             raise Stop("validation_failed", f"the vector field cannot be evaluated on the enclosure of the state "
                        f"({e}): the solution is at or near a singularity of the field (widest ball "
                        f"{max(float(zi.rad()) for zi in z):.3g})") from None
-        left = abs(t_end - tcur)
+        return C, jets, g, CZ
+
+    def _prove(self, z, left, C, jets, g, CZ, tol, pieces):
+        """The longest step up to ``left`` that is proved (its a priori box, a remainder bound within ``tol``, the
+        flow's Jacobian), from the estimate the defect gives, shortened until proved: (h, h signed, the remainder
+        bound as a function of the time, the a priori box, the flow's Jacobian, the bound at h). Learns the next
+        estimate's scale; stops the run at an event ahead, or when no step down to ``h_min`` is proved."""
+        flint, N, direction = self.flint, self.N, self.direction
+        arb = flint.arb
+        prog, pars, consts, jprog, jconsts = self.prog, self.pars, self.consts, self.jprog, self.jconsts
         # the estimate reads the defect at the step's start only: scaled by what the last steps learnt
         h_est = step_estimate(g, N, tol * C.down, flint) * 2.0 ** C.s
         h_f = min(h_est * self.h_scale, float(left))
@@ -483,41 +556,18 @@ class _ValidatedEngine:
             raise Stop("validation_failed", f"no step down to {self.h_min:.3g} has an a priori enclosure with a "
                        "small enough remainder (the field is singular near the enclosure, or the enclosure is too "
                        f"wide: widest ball {max(float(zi.rad()) for zi in z):.3g})")
-        h, hs, tail, D, J, bounds_h = proved
+        h = proved[0]
         self.stepper.h_last = float(h)  # the next centre's jets hold what a step of about this length needs
         if h != left and not evented and not unproved and 0 < h_est < math.inf:
             # a step cut short by its remainder bound alone: the next estimate is scaled alike
             self.h_scale = min(1.0, self.h_scale * STEP_GROWTH) if first else float(h) / h_est
-        tnew = tcur + hs
-        A, r = self.A, self.r
+        return proved
 
-        def point(tau: Fraction):
-            """Enclosure at tcur + tau of the solution from the centre m: its polynomial plus the bound of
-            their difference."""
-            ta = arb(flint.fmpq(tau.numerator, tau.denominator))
-            bounds = bounds_h if tau == hs else tail(ta)  # the step's own end: bounded when it was proved
-            out = [p + arb(0, e) for p, e in zip(C.at(ta), bounds)]
-            return out, max(float(e) for e in bounds), ta
-
-        def whole(phi, JA):
-            """The box of phi + JA r: every solution from the set m + A r (mean-value theorem)."""
-            spread = JA * r
-            return [phi[i] + spread[i, 0] for i in range(n)]
-
-        def row(tk):
-            phi_k, _, ta = point(tk - tcur)
-            Jk = J if tk == tnew else flow_jacobian(jprog, CZ, D, pars, jconsts, ta, flint, pieces)
-            if Jk is None:  # the field's Jacobian cannot be bounded over the shorter span: stop here
-                raise Stop("validation_failed", f"the flow's Jacobian up to the output time {float(tk):.17g} cannot "
-                           "be bounded (the field is singular or too steep near the enclosure)")
-            return whole(phi_k, Jk * A)
-
-        phi, tail_h, _ = point(hs)
-        JA = J * A
-        znew = whole(phi, JA)
-        # Lohner's QR step: the new set is m' + A' r' with m' the centre of phi, A' the orthogonal factor of
-        # mid(J A) (exact floats) and r' = (A'^-1 J A) r + A'^-1 (phi - m'), A'^-1 enclosed in ball arithmetic
-        self.m = [arb(v.mid()) for v in phi]
+    def _lohner_update(self, phi, JA):
+        """Lohner's QR step: the new set is m' + A' r' with m' the centre of phi, A' the orthogonal factor of
+        mid(J A) (exact floats) and r' = (A'^-1 J A) r + A'^-1 (phi - m'), A'^-1 enclosed in ball arithmetic."""
+        flint, n, r = self.flint, len(phi), self.r
+        self.m = [flint.arb(v.mid()) for v in phi]
         Q, _ = np.linalg.qr(np.array([float(x) for x in JA.mid().entries()]).reshape(n, n))
         self.A = flint.arb_mat(Q.tolist())
         spread = flint.arb_mat([[phi[i] - self.m[i]] for i in range(n)])
@@ -528,14 +578,15 @@ class _ValidatedEngine:
             self.r = (Ainv * JA) * r + Ainv * spread
         finally:
             flint.ctx.prec = saved
-        self.tails.append(tail_h)
-        cap = self.width_cap if self.width_cap is not None else arb(scale) / 1000
+
+    def _width_stop(self, znew, scale):
+        """The driver's stop when a ball of the new state is not finite or wider than ``max_width``, else None."""
+        cap = self.width_cap if self.width_cap is not None else self.flint.arb(scale) / 1000
         widest = max(znew, key=lambda v: float(v.rad()))
-        end = None
         if not all(v.is_finite() for v in znew) or widest.rad() > cap:
-            end = ("validation_failed", f"the widest ball has radius {float(widest.rad()):.3g}, beyond max_width "
-                   f"({float(cap):.3g})", "")
-        return StepResult(tnew, znew, h=h, row=row, stop=end)
+            return ("validation_failed", f"the widest ball has radius {float(widest.rad()):.3g}, beyond max_width "
+                    f"({float(cap):.3g})", "")
+        return None
 
 
 def midpoints(sol, as_mpf: bool = False) -> np.ndarray:

@@ -278,6 +278,8 @@ MAJORANT_MAX_BITS = 700
 MAJORANT_FLOOR = 1e-280
 #: The scaled coefficients |c_k| |h|^k must be at least this (or 0): the majorant is not used otherwise.
 MAJORANT_TINY = 1e-290
+#: Every float operation of the majorant is raised by this factor (its relative rounding error is below 2^-52).
+MAJORANT_UP = 1 + 2.0**-50
 _PASCAL: dict = {}
 
 
@@ -301,92 +303,11 @@ def lagrange_majorant(prog, P, jets, h, par_values, L, flint):
     ops = {"add", "sub", "neg", "mul", "powi"}
     if any(node.op not in ops or (node.op == "powi" and int(node.data) < 0) for node in prog.nodes):
         return None
-    N = len(jets.M[0]) - 1
-    up = 1 + 2.0**-50
     try:
-        hs = float(hq) * 2.0 ** -jets.s * up
-        hpow = np.cumprod(np.concatenate(([1.0], np.full(N, hs))))
-        T = _PASCAL.get(N)
-        if T is None:
-            T = _PASCAL[N] = np.array([[math.comb(k, j) for k in range(N + 1)] for j in range(N + 1)], dtype=float)
-        vals = [None] * prog.nslots  # series (arrays of L + 1) or constants (floats)
-
-        def series(v):
-            out = np.zeros(L + 1)
-            out[: min(len(v), L + 1)] = v[: L + 1]
-            return np.maximum(out, MAJORANT_FLOOR)
-
-        def scalar(x):
-            return max(abs(x) * up, MAJORANT_FLOOR)
-
-        M = np.abs(np.array([list(map(float, Mi)) for Mi in jets.M]))
-        A = np.ldexp(M, np.array(jets.U)[:, None]) * hpow * up
-        A[:, 0] = [abs(float(row[0].mid())) * up for row in P]  # the centre itself (the jets hold it rounded)
-        if np.any((A < MAJORANT_TINY) & (M != 0)):
-            # a coefficient near or below the float range: a dropped term, times the binomials (up to 2^N),
-            # could exceed the floor
+        vals = _majorant_inputs(prog, P, jets, hq, par_values, L)
+        if vals is None:
             return None
-        for i, v in enumerate(A @ T.T * up):
-            vals[i] = series(v)
-        for j, q in enumerate(par_values):
-            vals[prog.nvars + j] = scalar(float(abs(Fraction(q))))
-        for slot, (kind, value) in prog.constants:
-            if kind == "rational":
-                x = abs(Fraction(*value))
-            elif kind == "binary":
-                x = abs(math.ldexp(float(value[1]), value[2]))
-            else:
-                x = 3.2 if kind == "pi" else 2.8
-            vals[slot] = scalar(float(x))
-        top_only = _top_only(prog)
-        for node in prog.nodes:
-            a = [vals[x] for x in node.args]
-            if node.out in top_only:
-                # only coefficient L is read downstream (through sums): a _Top, no series
-                if node.op in ("add", "sub", "neg"):  # a constant adds to coefficient 0 only
-                    v = sum(x.value if isinstance(x, _Top) else x[L] for x in a if not isinstance(x, float))
-                else:
-                    factors = a if node.op == "mul" else [a[0]] * int(node.data)
-                    c, ser = 1.0, [x for x in factors if not isinstance(x, float)]
-                    for x in factors:
-                        if isinstance(x, float):
-                            c *= x
-                    if not ser:
-                        v = 0.0
-                    else:
-                        w = ser[0]
-                        for x in ser[1:-1]:
-                            w = np.convolve(w, x)[: L + 1]
-                        v = (float(w[L]) if len(ser) == 1 else float(np.dot(w, ser[-1][::-1]))) * c
-                vals[node.out] = _Top(max(v * up, MAJORANT_FLOOR))
-                continue
-            if node.op in ("add", "sub"):
-                # a constant c is the series (|c|, 0, 0, ...): it adds to the first coefficient only
-                c = sum(x for x in a if isinstance(x, float))
-                s = [x for x in a if not isinstance(x, float)]
-                if not s:
-                    v = c
-                else:
-                    v = s[0].copy()
-                    for x in s[1:]:
-                        v += x
-                    v[0] += c
-            elif node.op == "neg":
-                v = a[0]
-            else:  # products: the constant factors multiply, the series convolve
-                factors = a if node.op == "mul" else [a[0]] * int(node.data)
-                c, v = 1.0, None
-                for x in factors:
-                    if isinstance(x, float):
-                        c *= x
-                    else:
-                        v = x if v is None else np.convolve(v, x)[: L + 1]
-                v = c if v is None else v * c
-            # an overflow (inf, or nan from inf * 0) reaches the outputs it feeds: checked there
-            vals[node.out] = (max(v * up, MAJORANT_FLOOR) if isinstance(v, float)
-                              else np.maximum(v * up, MAJORANT_FLOOR))
-        tops = [MAJORANT_FLOOR if isinstance(vals[o], float) else
-                (vals[o].value if isinstance(vals[o], _Top) else float(vals[o][L])) * 1.01 for o in prog.outputs]
+        tops = _majorant_outputs(prog, vals, L)
     except (OverflowError, ValueError):
         return None
     if not all(math.isfinite(t) for t in tops):
@@ -394,6 +315,104 @@ def lagrange_majorant(prog, P, jets, h, par_values, L, flint):
     arb = flint.arb
     hL = arb(flint.fmpq(hq.numerator, hq.denominator)) ** L
     return [(arb(t) / hL).upper() for t in tops]
+
+
+def _majorant_inputs(prog, P, jets, hq, par_values, L):
+    """The majorant's values before the field's nodes: per variable, the series a(1 + u) up to order L (the
+    shifted centre polynomial's bound in u = tau / |h|); parameters and constants as their absolute values (floats).
+    None when a coefficient is too close to the float range for the floor to stay a bound."""
+    up = MAJORANT_UP
+    N = len(jets.M[0]) - 1
+    hs = float(hq) * 2.0 ** -jets.s * up
+    hpow = np.cumprod(np.concatenate(([1.0], np.full(N, hs))))
+    T = _PASCAL.get(N)
+    if T is None:
+        T = _PASCAL[N] = np.array([[math.comb(k, j) for k in range(N + 1)] for j in range(N + 1)], dtype=float)
+    vals = [None] * prog.nslots  # series (arrays of L + 1) or constants (floats)
+
+    def series(v):
+        out = np.zeros(L + 1)
+        out[: min(len(v), L + 1)] = v[: L + 1]
+        return np.maximum(out, MAJORANT_FLOOR)
+
+    def scalar(x):
+        return max(abs(x) * up, MAJORANT_FLOOR)
+
+    M = np.abs(np.array([list(map(float, Mi)) for Mi in jets.M]))
+    A = np.ldexp(M, np.array(jets.U)[:, None]) * hpow * up
+    A[:, 0] = [abs(float(row[0].mid())) * up for row in P]  # the centre itself (the jets hold it rounded)
+    if np.any((A < MAJORANT_TINY) & (M != 0)):
+        # a coefficient near or below the float range: a dropped term, times the binomials (up to 2^N),
+        # could exceed the floor
+        return None
+    for i, v in enumerate(A @ T.T * up):
+        vals[i] = series(v)
+    for j, q in enumerate(par_values):
+        vals[prog.nvars + j] = scalar(float(abs(Fraction(q))))
+    for slot, (kind, value) in prog.constants:
+        if kind == "rational":
+            x = abs(Fraction(*value))
+        elif kind == "binary":
+            x = abs(math.ldexp(float(value[1]), value[2]))
+        else:
+            x = 3.2 if kind == "pi" else 2.8
+        vals[slot] = scalar(float(x))
+    return vals
+
+
+def _majorant_outputs(prog, vals, L):
+    """The field's nodes on the majorant's values (``vals``, filled in place): per output, the bound of its
+    coefficient L in u (inf or nan after an overflow)."""
+    up = MAJORANT_UP
+    top_only = _top_only(prog)
+    for node in prog.nodes:
+        a = [vals[x] for x in node.args]
+        if node.out in top_only:
+            # only coefficient L is read downstream (through sums): a _Top, no series
+            if node.op in ("add", "sub", "neg"):  # a constant adds to coefficient 0 only
+                v = sum(x.value if isinstance(x, _Top) else x[L] for x in a if not isinstance(x, float))
+            else:
+                factors = a if node.op == "mul" else [a[0]] * int(node.data)
+                c, ser = 1.0, [x for x in factors if not isinstance(x, float)]
+                for x in factors:
+                    if isinstance(x, float):
+                        c *= x
+                if not ser:
+                    v = 0.0
+                else:
+                    w = ser[0]
+                    for x in ser[1:-1]:
+                        w = np.convolve(w, x)[: L + 1]
+                    v = (float(w[L]) if len(ser) == 1 else float(np.dot(w, ser[-1][::-1]))) * c
+            vals[node.out] = _Top(max(v * up, MAJORANT_FLOOR))
+            continue
+        if node.op in ("add", "sub"):
+            # a constant c is the series (|c|, 0, 0, ...): it adds to the first coefficient only
+            c = sum(x for x in a if isinstance(x, float))
+            s = [x for x in a if not isinstance(x, float)]
+            if not s:
+                v = c
+            else:
+                v = s[0].copy()
+                for x in s[1:]:
+                    v += x
+                v[0] += c
+        elif node.op == "neg":
+            v = a[0]
+        else:  # products: the constant factors multiply, the series convolve
+            factors = a if node.op == "mul" else [a[0]] * int(node.data)
+            c, v = 1.0, None
+            for x in factors:
+                if isinstance(x, float):
+                    c *= x
+                else:
+                    v = x if v is None else np.convolve(v, x)[: L + 1]
+            v = c if v is None else v * c
+        # an overflow (inf, or nan from inf * 0) reaches the outputs it feeds: checked there
+        vals[node.out] = (max(v * up, MAJORANT_FLOOR) if isinstance(v, float)
+                          else np.maximum(v * up, MAJORANT_FLOOR))
+    return [MAJORANT_FLOOR if isinstance(vals[o], float) else
+            (vals[o].value if isinstance(vals[o], _Top) else float(vals[o][L])) * 1.01 for o in prog.outputs]
 
 
 class _Top:
@@ -620,18 +639,7 @@ def flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECES
         mu = (norm / pieces).upper()
         if not mu < JACOBIAN_TERMS + 2:
             return None
-        # the fewest terms whose tail bound is below JACOBIAN_EPS (at most JACOBIAN_TERMS)
-        mu_f = float(mu.upper())
-        terms, term = JACOBIAN_TERMS, mu_f  # term: mu^(j+1) / (j+1)!
-        for j in range(1, JACOBIAN_TERMS):
-            term *= mu_f / (j + 1)
-            if term / (1 - mu_f / (j + 2)) < JACOBIAN_EPS:
-                terms = j
-                break
-        fact = arb(1)
-        for j in range(2, terms + 2):
-            fact *= j
-        eps = (mu ** (terms + 1) / fact / (1 - mu / (terms + 2))).upper()
+        terms, eps = _series_terms(mu, arb)
         tail = arb_mat([[arb(0, eps)] * n for _ in range(n)])
         steps = [None] + [dt / j for j in range(1, terms + 1)]  # the series' term j is (dt Df)^j / j!
         J = eye
@@ -652,6 +660,23 @@ def flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECES
         return J
     finally:
         flint.ctx.prec = saved
+
+
+def _series_terms(mu, arb):
+    """(K, bound): the fewest terms K of the Peano-Baker series whose tail bound is below JACOBIAN_EPS (at most
+    JACOBIAN_TERMS), and the rigorous bound mu^(K+1) / (K+1)! / (1 - mu / (K+2)) of that tail's entries (an
+    upper bound, at the current ball precision)."""
+    mu_f = float(mu.upper())
+    terms, term = JACOBIAN_TERMS, mu_f  # term: mu^(j+1) / (j+1)!
+    for j in range(1, JACOBIAN_TERMS):
+        term *= mu_f / (j + 1)
+        if term / (1 - mu_f / (j + 2)) < JACOBIAN_EPS:
+            terms = j
+            break
+    fact = arb(1)
+    for j in range(2, terms + 2):
+        fact *= j
+    return terms, (mu ** (terms + 1) / fact / (1 - mu / (terms + 2))).upper()
 
 
 def exact_data(ps, prog, flint):

@@ -163,3 +163,21 @@ def test_every_warning_names_the_callers_line():
             call()
         assert w, what
         assert {x.filename for x in w} == {__file__}, (what, [(x.filename, x.lineno) for x in w])
+
+
+def test_dense_output_at_a_binary_time_says_so():
+    """sol(0.3) of a 40-digit Lie run or a quad heyoka run is the state at the double 0.29999999999999998889...:
+    one PrecisionWarning naming `t`, as `t=0.3` in the call gives; none for '0.3' or a Fraction, nor in double."""
+    body = ls.EulerPoisson(BODY)
+    y0 = body.initial_state(omega=(1, "0.1", "0.5"))
+    lie = ls.lie_integrate(body, y0, t=1, dps=40, dense=True)
+    quad = ls.integrate(body, y0, t=1, precision="quad", dense=True)
+    double = ls.integrate(body, y0, t=1, dense=True)
+    for sol in (lie, quad):
+        _out, msgs = _precision_warnings(lambda: sol(0.3))
+        assert len(msgs) == 1 and "`t`" in msgs[0], msgs
+        _out, msgs = _precision_warnings(lambda: sol([0.25, 0.3]))  # 0.25 is exact: 0.3 is not
+        assert len(msgs) == 1, msgs
+        assert _precision_warnings(lambda: sol("0.3"))[1] == []
+        assert _precision_warnings(lambda: sol(Fraction(3, 10)))[1] == []
+    assert _precision_warnings(lambda: double(0.3))[1] == []

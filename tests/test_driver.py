@@ -45,6 +45,20 @@ def test_rows_at_the_requested_times_are_the_exact_solution():
     assert out.steps == math.ceil(2.3 / 0.25) and out.t == 2.3 and abs(out.z - math.exp(2.3)) < 1e-13
 
 
+def test_an_engine_without_an_evaluator_gives_the_step_end_at_the_step_end():
+    """A step without ``row`` (the protocol's "only the step's end"): the row at a time the step reaches is the
+    state it reached (the loop read the state before the step there)."""
+
+    class EndOnly(Exponential):
+        def step(self, t, z, t_end):
+            res = super().step(t, z, t_end)
+            return StepResult(res.t, res.z, h=res.h, error=0.0)
+
+    out = drive(EndOnly(h=0.5), 0.0, 1.0, _grid([0, Fraction(1, 2), 1]), direction=1, max_steps=100)
+    assert out.status == "success"
+    assert [abs(y - math.exp(float(tk))) < 1e-15 * math.exp(1) for y, tk in zip(out.rows_y, [0, 0.5, 1])] == [True] * 3
+
+
 def test_backward_rows_and_progress():
     seen = []
     out = drive(Exponential(), 0.0, 1.0, _grid([0, -0.5, -1]), direction=-1, max_steps=100, progress=seen.append)

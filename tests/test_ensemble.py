@@ -19,7 +19,7 @@ EPS = 2.0**-52
 
 
 def run(system, Y0, t, **kw):
-    return integrate_ensemble(system, Y0, t, single_run=ls.integrate, **kw)
+    return integrate_ensemble(system, Y0, t, **kw)
 
 
 def omegas(k, seed=0):
@@ -281,13 +281,18 @@ def test_progress_and_single_run_options():
     assert close(es2.y, es.y[:2], 0) <= 64 * EPS
 
 
-def test_nothing_to_integrate_and_without_single_run():
+def test_nothing_to_integrate_and_integrate_ensemble_called_directly():
     body = ls.EulerPoisson(inertia=(1, 2, 3))
     Y0 = body_states(body, omegas(2))
     es = run(body, Y0, 0.0)
     assert es.success and np.array_equal(es.y[:, 0], Y0) and np.array_equal(es.y_reached, Y0)
-    with pytest.raises(RuntimeError, match="single_run"):
-        integrate_ensemble(body, body_states(body, omegas(2), precision=80), 1.0, precision=80)
+    # members that need single runs (80 bits) run them: integrate_ensemble called directly needed
+    # `single_run=ls.integrate` (it raised RuntimeError without)
+    Y80 = body_states(body, omegas(2), precision=80)
+    es = integrate_ensemble(body, Y80, 1.0, precision=80)
+    assert es.success and es.stats["single_runs"] == 2
+    for i in range(2):
+        assert list(es.y_reached[i]) == list(ls.integrate(body, Y80[i], 1.0, precision=80).y_final)
 
 
 def test_precision_from_the_data_and_coarse_data_warned():

@@ -78,6 +78,7 @@ LAYERS = [
     ("core", {"precision", "fields", "expr", "poisson", "solution", "events", "timegrid", "balls", "models"}),
     ("engines", {"energy", "atlas", "ensemble", "taylor", "heyoka_build", "lie", "ball_series", "exact", "validated",
                  "validated_step", "driver"}),
+    ("api", {"api"}),
     ("methods", {"methods"}),
     ("studies", {"studies"}),
     ("scenes", {"scenes"}),

@@ -21,7 +21,7 @@ Paths
     every member is a single run (heyoka's batch mode keeps no per-lane record of crossings), in any precision,
     over ``workers`` threads; ``sol.events[i]`` holds member i's crossings.
 bits (arbitrary precision)
-    every member is a single run (``single_run``, normally :func:`lieseries.integrate`), one after another, or over
+    every member is a single run (:func:`lieseries.taylor.integrate`), one after another, or over
     ``workers`` threads when ``workers`` > 1 (each with its own copy of the cached integrator).
 
 Statuses and the guards

@@ -217,7 +217,7 @@ class EnsemblePlan:
 
 
 def plan_ensemble(system, Y0, t, *, tol, precision, t0, params, workers, client, max_steps, max_time, chunk_size,
-                  batch_size, progress, single_run, min_step, compact_mode, high_accuracy, dense, atlas,
+                  batch_size, progress, min_step, compact_mode, high_accuracy, dense, atlas,
                   events) -> EnsemblePlan:
     """Check every input (errors name the argument) and round the initial states once: the plan of the run."""
     structure, members = split_structure(system)
@@ -288,4 +288,4 @@ def plan_ensemble(system, Y0, t, *, tol, precision, t0, params, workers, client,
         tgrid=[to_fraction(prec.time(g)) for g in grid], t0n=to_fraction(prec.time(t0f)),
         workers=workers, chunk_size=chunk_size, batch_size=batch_size, B=B, max_steps=max_steps,
         max_time=max_time, min_step=min_step, compact_mode=compact_mode, high_accuracy=high_accuracy, atlas=atlas,
-        events=events, single_run=single_run, progress=progress, opts=opts)
+        events=events, progress=progress, opts=opts)

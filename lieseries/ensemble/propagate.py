@@ -13,6 +13,7 @@ import numpy as np
 from ..driver import run_message
 from ..energy import drift_message, energy_check, energy_drift
 from ..solution import EnsembleSolution
+from ..taylor import integrate as run_single
 from .batch import BATCH_STEPS, run_batches
 from .build import build_batch_integrator, build_scalar_integrator
 from .cluster import run_dask
@@ -39,7 +40,6 @@ def integrate_ensemble(
     chunk_size=None,
     batch_size=None,
     progress=None,
-    single_run=None,
     min_step=None,
     compact_mode=None,
     high_accuracy: bool = False,
@@ -78,10 +78,6 @@ def integrate_ensemble(
     progress : callable, optional
         Called as ``progress(fraction_done)`` (the fraction of members finished) as batches, single runs and
         chunks finish, as for :func:`lieseries.integrate`.
-    single_run : callable, optional
-        The single-run driver (``lieseries.integrate``, which passes itself): runs the members of the other
-        precisions and the members handed over by the batch path. Without it, every member must be decided in
-        batch mode, or a RuntimeError says which member needed a single run.
     min_step, compact_mode, high_accuracy
         As for :func:`lieseries.integrate` (with ``min_step`` every member runs as a single run).
     atlas : bool, optional
@@ -101,7 +97,7 @@ def integrate_ensemble(
     """
     plan = plan_ensemble(system, Y0, t, tol=tol, precision=precision, t0=t0, params=params, workers=workers,
                          client=client, max_steps=max_steps, max_time=max_time, chunk_size=chunk_size,
-                         batch_size=batch_size, progress=progress, single_run=single_run, min_step=min_step,
+                         batch_size=batch_size, progress=progress, min_step=min_step,
                          compact_mode=compact_mode, high_accuracy=high_accuracy, dense=dense, atlas=atlas,
                          events=events)
     progress = None if progress is None else Monotone(progress)
@@ -172,20 +168,14 @@ def _run_path(plan, res, progress) -> PathRun:
 
 
 def _hand_over(plan, res, path, progress) -> None:
-    """The members the path handed over, each as its single run (``plan.single_run``)."""
+    """The members the path handed over, each as its single run (:func:`lieseries.taylor.integrate`)."""
     handed = path.handed
     if not handed:
         return
-    if plan.single_run is None:
-        why = f"precision {plan.prec.name}" if path.name == "single" else "batch mode could not decide it"
-        raise RuntimeError(
-            f"member {handed[0]} (of {len(handed)}) needs a single run ({why}): call "
-            "lieseries.integrate(system, Y0, ...), or pass `single_run=lieseries.integrate`"
-        )
     members, pars = plan.members, plan.pars
     systems = [member_system(members[i] if members else plan.structure, plan.ps, None if pars is None else pars[i])
                for i in handed]
-    sols = run_singles(plan.single_run, systems, [plan.Ynat[i] for i in handed], plan.t, plan.opts,
+    sols = run_singles(run_single, systems, [plan.Ynat[i] for i in handed], plan.t, plan.opts,
                        plan.workers if path.name == "single" else 1, progress, plan.k, plan.k - len(handed))
     for i, sol in zip(handed, sols):
         res.take(i, sol, plan.tgrid)
@@ -223,7 +213,7 @@ def _check_energy(plan, res, path) -> None:
 
 def _on_cluster(client, plan, progress) -> EnsembleSolution:
     opts = dict(tol=plan.tol, precision=plan.prec, max_steps=plan.max_steps, max_time=plan.max_time,
-                batch_size=plan.batch_size, single_run=plan.single_run, min_step=plan.min_step,
+                batch_size=plan.batch_size, min_step=plan.min_step,
                 compact_mode=plan.compact_mode, high_accuracy=plan.high_accuracy, atlas=plan.atlas,
                 events=plan.events)
     return run_dask(client, chunk_task, plan.structure, plan.Ynat, plan.pars, plan.t, plan.t0, opts,

@@ -173,7 +173,7 @@ def mk_sop(run, out, prods, lins, offset, state=None):
                 terms.append((A, B, None if cm == 1 else (-1 if cm == -1 else cm), x - x0))
             st.update(fin=uo - x0 if state is None else x0 + run.s - U[state],
                       off=to_int(offset, x0) if offset is not None else 0)
-            step.terms, step.fin = terms, st["fin"]
+            attrs["terms"], attrs["fin"] = terms, st["fin"]  # (step.terms, step.fin)
         tot = st["off"] if k == 0 else 0
         dv = run.dv
         for A, B, cm, d in terms:
@@ -188,6 +188,9 @@ def mk_sop(run, out, prods, lins, offset, state=None):
             C.append(round_shift(tot, st["fin"]))
         else:  # appended after the order's last step: every step of order k sees k + 1 state coefficients
             nxt[state] = div_round(tot, k + 1, st["fin"])
+    # the step writes its attributes through its __dict__: a closure over `step` itself would make a
+    # reference cycle holding the expansion's jets until the cyclic garbage collector runs
+    attrs = step.__dict__
     step.kind, step.C, step.state = "sop", C, state
     return step
 

@@ -444,124 +444,139 @@ class _Plan:
 
     def __init__(self, program):
         self.program = program
-        is_const = list(program.is_const)
+        self.is_const = list(program.is_const)
         self.consts = []
         self.const_nodes = []
-        instrs = []
-        alias = {}
-        paired = {}
-        one = [None]
-
-        def new_slot(const):
-            is_const.append(const)
-            return len(is_const) - 1
-
-        def const_node(op, args, data=None):
-            s = new_slot(True)
-            self.const_nodes.append(Node(op, s, tuple(args), data))
-            return s
-
-        def one_slot():
-            if one[0] is None:
-                one[0] = new_slot(True)
-                self.consts.append((one[0], Constant("rational", (1, 1))))
-            return one[0]
-
-        def emit_mul(out, x, y):
-            if x == y:
-                instrs.append(("sqr", out, (x,), None))
-            else:
-                instrs.append(("mul", out, (x, y), None))
-
+        self.instrs = []
+        self.alias = {}
+        self._paired = {}  # (sincos | sinhcosh, argument slot) -> {function name: slot}
+        self._one = None  # the slot of the constant 1, once needed
         for op, out, args, data in program.var_nodes:
-            args = [alias.get(x, x) for x in args]
-            isc = [is_const[x] for x in args]
+            args = [self.alias.get(x, x) for x in args]
             if op in ("add", "sub", "neg"):
-                if op == "add":
-                    negs = [False] * len(args)
-                elif op == "sub":
-                    negs = [False, True]
-                else:
-                    negs = [True]
-                vt = [(x, n) for x, n, c in zip(args, negs, isc) if not c]
-                ct = [(x, n) for x, n, c in zip(args, negs, isc) if c]
-                if len(vt) == 1 and not ct and not vt[0][1]:
-                    alias[out] = vt[0][0]
-                    continue
-                instrs.append(("lin", out, tuple(vt), tuple(ct)))
+                self._lower_linear(op, out, args)
             elif op == "mul":
-                vs = [x for x, c in zip(args, isc) if not c]
-                cs = [x for x, c in zip(args, isc) if c]
-                cslot = None
-                if cs:
-                    cslot = cs[0] if len(cs) == 1 else const_node("mul", cs)
-                if len(vs) == 1:
-                    instrs.append(("scale", out, (vs[0],), cslot))
-                    continue
-                cur = vs[0]
-                for i, v in enumerate(vs[1:]):
-                    last = i == len(vs) - 2
-                    dst = out if (last and cslot is None) else new_slot(False)
-                    emit_mul(dst, cur, v)
-                    cur = dst
-                if cslot is not None:
-                    instrs.append(("scale", out, (cur,), cslot))
+                self._lower_mul(out, args)
             elif op == "div":
-                a, b = args
-                ca, cb = isc
-                if cb:
-                    inv = const_node("div", (one_slot(), b))
-                    instrs.append(("scale", out, (a,), inv))
-                elif ca:
-                    instrs.append(("rdiv", out, (b,), a))
-                else:
-                    instrs.append(("div", out, (a, b), None))
+                self._lower_div(out, args)
             elif op == "powi":
-                a = args[0]
-                n = data
-                bits = bin(n)[3:]
-                cur = a
-                for i, bit in enumerate(bits):
-                    last = i == len(bits) - 1
-                    dst = out if (last and bit == "0") else new_slot(False)
-                    instrs.append(("sqr", dst, (cur,), None))
-                    cur = dst
-                    if bit == "1":
-                        dst = out if last else new_slot(False)
-                        emit_mul(dst, cur, a)
-                        cur = dst
+                self._lower_powi(out, args[0], data)
             elif op == "pow":
                 a, e = args
-                if not is_const[e]:  # the compiler never emits this
+                if not self.is_const[e]:  # the compiler never emits this
                     raise AssertionError("pow with a non-constant exponent")
-                instrs.append(("pow", out, (a,), (e, data)))
+                self.instrs.append(("pow", out, (a,), (e, data)))
             elif op in ("sin", "cos", "sinh", "cosh"):
-                hyp = op in ("sinh", "cosh")
-                key = ("sinhcosh" if hyp else "sincos", args[0])
-                if key in paired:
-                    alias[out] = paired[key][op]
-                    continue
-                other = new_slot(False)
-                if op in ("sin", "sinh"):
-                    s_slot, c_slot = out, other
-                else:
-                    s_slot, c_slot = other, out
-                names = ("sinh", "cosh") if hyp else ("sin", "cos")
-                paired[key] = {names[0]: s_slot, names[1]: c_slot}
-                instrs.append((key[0], (s_slot, c_slot), (args[0],), None))
+                self._lower_sincos(op, out, args[0])
             elif op in ("tan", "tanh", "atan"):
-                aux = new_slot(False)
-                instrs.append((op, (out, aux), (args[0],), None))
+                aux = self._new_slot(False)
+                self.instrs.append((op, (out, aux), (args[0],), None))
             elif op in ("sqrt", "exp", "log"):
-                instrs.append((op, out, (args[0],), None))
+                self.instrs.append((op, out, (args[0],), None))
             else:
                 raise NotImplementedError(f"no Taylor-mode rule for `{op}`")
+        self.nslots = len(self.is_const)
+        self.outputs = tuple(self.alias.get(o, o) for o in program.outputs)
 
-        self.instrs = instrs
-        self.alias = alias
-        self.is_const = is_const
-        self.nslots = len(is_const)
-        self.outputs = tuple(alias.get(o, o) for o in program.outputs)
+    # -- building the plan: slots, constants and one method per kind of node ------------------------------------
+    def _new_slot(self, const):
+        self.is_const.append(const)
+        return len(self.is_const) - 1
+
+    def _const_node(self, op, args, data=None):
+        s = self._new_slot(True)
+        self.const_nodes.append(Node(op, s, tuple(args), data))
+        return s
+
+    def _one_slot(self):
+        if self._one is None:
+            self._one = self._new_slot(True)
+            self.consts.append((self._one, Constant("rational", (1, 1))))
+        return self._one
+
+    def _emit_mul(self, out, x, y):
+        if x == y:
+            self.instrs.append(("sqr", out, (x,), None))
+        else:
+            self.instrs.append(("mul", out, (x, y), None))
+
+    def _lower_linear(self, op, out, args):
+        """add / sub / neg: one ``lin`` of its variable and constant terms (a lone variable is an alias)."""
+        if op == "add":
+            negs = [False] * len(args)
+        elif op == "sub":
+            negs = [False, True]
+        else:
+            negs = [True]
+        isc = [self.is_const[x] for x in args]
+        vt = [(x, n) for x, n, c in zip(args, negs, isc) if not c]
+        ct = [(x, n) for x, n, c in zip(args, negs, isc) if c]
+        if len(vt) == 1 and not ct and not vt[0][1]:
+            self.alias[out] = vt[0][0]
+            return
+        self.instrs.append(("lin", out, tuple(vt), tuple(ct)))
+
+    def _lower_mul(self, out, args):
+        """A product: its constant factors folded into one scale, the variable ones multiplied in turn."""
+        isc = [self.is_const[x] for x in args]
+        vs = [x for x, c in zip(args, isc) if not c]
+        cs = [x for x, c in zip(args, isc) if c]
+        cslot = None
+        if cs:
+            cslot = cs[0] if len(cs) == 1 else self._const_node("mul", cs)
+        if len(vs) == 1:
+            self.instrs.append(("scale", out, (vs[0],), cslot))
+            return
+        cur = vs[0]
+        for i, v in enumerate(vs[1:]):
+            last = i == len(vs) - 2
+            dst = out if (last and cslot is None) else self._new_slot(False)
+            self._emit_mul(dst, cur, v)
+            cur = dst
+        if cslot is not None:
+            self.instrs.append(("scale", out, (cur,), cslot))
+
+    def _lower_div(self, out, args):
+        """A quotient: by a constant, a scale by its inverse; of a constant, ``rdiv``; else ``div``."""
+        a, b = args
+        ca, cb = self.is_const[a], self.is_const[b]
+        if cb:
+            inv = self._const_node("div", (self._one_slot(), b))
+            self.instrs.append(("scale", out, (a,), inv))
+        elif ca:
+            self.instrs.append(("rdiv", out, (b,), a))
+        else:
+            self.instrs.append(("div", out, (a, b), None))
+
+    def _lower_powi(self, out, a, n):
+        """An integer power by squaring and multiplying (the bits of n after the leading one)."""
+        bits = bin(n)[3:]
+        cur = a
+        for i, bit in enumerate(bits):
+            last = i == len(bits) - 1
+            dst = out if (last and bit == "0") else self._new_slot(False)
+            self.instrs.append(("sqr", dst, (cur,), None))
+            cur = dst
+            if bit == "1":
+                dst = out if last else self._new_slot(False)
+                self._emit_mul(dst, cur, a)
+                cur = dst
+
+    def _lower_sincos(self, op, out, arg):
+        """sin / cos (sinh / cosh) of one argument computed together: the second one asked for is an alias."""
+        hyp = op in ("sinh", "cosh")
+        key = ("sinhcosh" if hyp else "sincos", arg)
+        if key in self._paired:
+            self.alias[out] = self._paired[key][op]
+            return
+        other = self._new_slot(False)
+        if op in ("sin", "sinh"):
+            s_slot, c_slot = out, other
+        else:
+            s_slot, c_slot = other, out
+        names = ("sinh", "cosh") if hyp else ("sin", "cos")
+        self._paired[key] = {names[0]: s_slot, names[1]: c_slot}
+        self.instrs.append((key[0], (s_slot, c_slot), (arg,), None))
 
     def constant_values(self, pars_raw, prec):
         base = self.program.constant_slots(pars_raw, prec)
@@ -619,41 +634,9 @@ def _resolve_program(program_or_system, name="program_or_system"):
     return prog
 
 
-def taylor_coefficients_raw(program, y0_raw, pars_raw, order, prec, deadline=None):
-    """Taylor-mode expansion on raw mpfs (no checks, no final rounding).
-
-    Parameters
-    ----------
-    program : Program
-        Compiled right-hand side (``nout == nvars``).
-    y0_raw, pars_raw : list of raw mpf tuples
-        Initial state and parameters, already at `prec` bits.
-    order : int
-        Highest coefficient computed (>= 1).
-    prec : int
-        Working precision in bits (guard bits included by the caller).
-    deadline : float, optional
-        A :func:`time.perf_counter` value: the clock is read after every
-        order, and :class:`DeadlineExceeded` raised once it is passed (a long
-        expansion then stops within one order's work of its budget).
-
-    Returns
-    -------
-    list of list of raw mpf
-        ``jets[i][k]`` is the k-th normalised Taylor coefficient of variable
-        i (note the index order: variable first), ``k = 0 .. order``.
-    """
-    plan = _plan_for(program)
-    cv = plan.constant_values(pars_raw, prec)
-    lim = 2 * prec
-    nvars = program.nvars
-    is_const = plan.is_const
-    J = [None] * plan.nslots
-    for i in range(nvars):
-        J[i] = [y0_raw[i]]
-    for s in range(nvars, plan.nslots):
-        if not is_const[s]:
-            J[s] = []
+def _jet_steps(plan, J, cv, prec, lim):
+    """The step of each plan instruction (``step(k)`` appends coefficient k + 1 of its outputs) over the jets
+    ``J`` and the constants ``cv``; the jets of derivatives some rules keep are made here, one per slot."""
     D = {}
 
     def dj(s):
@@ -703,6 +686,45 @@ def taylor_coefficients_raw(program, y0_raw, pars_raw, order, prec, deadline=Non
             steps.append(_mk_atan(J[out[0]], J[out[1]], J[a], dj(a), dj(out[0]), prec, lim))
         else:  # pragma: no cover
             raise AssertionError(kind)
+    return steps
+
+
+def taylor_coefficients_raw(program, y0_raw, pars_raw, order, prec, deadline=None):
+    """Taylor-mode expansion on raw mpfs (no checks, no final rounding).
+
+    Parameters
+    ----------
+    program : Program
+        Compiled right-hand side (``nout == nvars``).
+    y0_raw, pars_raw : list of raw mpf tuples
+        Initial state and parameters, already at `prec` bits.
+    order : int
+        Highest coefficient computed (>= 1).
+    prec : int
+        Working precision in bits (guard bits included by the caller).
+    deadline : float, optional
+        A :func:`time.perf_counter` value: the clock is read after every
+        order, and :class:`DeadlineExceeded` raised once it is passed (a long
+        expansion then stops within one order's work of its budget).
+
+    Returns
+    -------
+    list of list of raw mpf
+        ``jets[i][k]`` is the k-th normalised Taylor coefficient of variable
+        i (note the index order: variable first), ``k = 0 .. order``.
+    """
+    plan = _plan_for(program)
+    cv = plan.constant_values(pars_raw, prec)
+    lim = 2 * prec
+    nvars = program.nvars
+    is_const = plan.is_const
+    J = [None] * plan.nslots
+    for i in range(nvars):
+        J[i] = [y0_raw[i]]
+    for s in range(nvars, plan.nslots):
+        if not is_const[s]:
+            J[s] = []
+    steps = _jet_steps(plan, J, cv, prec, lim)
 
     # where coefficient k of each right-hand side comes from
     rhs_src = []

@@ -543,6 +543,16 @@ def literal_coefficients(variables, rhs, y0, pars, order, dps, method="auto"):
     return _literal_heyoka_values(names, rhs, y0, pars, order, dps)
 
 
+def _symbolic_pars(pars, rhs) -> list:
+    """The parameter values as exact sympy numbers (or the user's expressions), one per parameter the field uses."""
+    if isinstance(pars, (str, bytes)) or not hasattr(pars, "__len__"):
+        raise TypeError("`pars` must be a sequence of numbers or None")
+    npars = _npars([hy.to_sympy(r) for r in rhs])
+    if len(pars) != npars:
+        raise ValueError(f"`pars` must have length {npars}; got {len(pars)}")
+    return [_exact_sympy(p, f"pars[{j}]") for j, p in enumerate(pars)]
+
+
 def literal_series_symbolic(variables, rhs, order, substitute=None, pars=None, method="auto"):
     """Lie-series coefficients as sympy expressions, with chosen values substituted.
 
@@ -592,14 +602,7 @@ def literal_series_symbolic(variables, rhs, order, substitute=None, pars=None, m
     order = check_order(order)
     method = _check_method(method)
     smap = _subs_map(substitute, names)
-    pars_sym = None
-    if pars is not None:
-        if isinstance(pars, (str, bytes)) or not hasattr(pars, "__len__"):
-            raise TypeError("`pars` must be a sequence of numbers or None")
-        npars = _npars([hy.to_sympy(r) for r in rhs])
-        if len(pars) != npars:
-            raise ValueError(f"`pars` must have length {npars}; got {len(pars)}")
-        pars_sym = [_exact_sympy(p, f"pars[{j}]") for j, p in enumerate(pars)]
+    pars_sym = _symbolic_pars(pars, rhs) if pars is not None else None
     n = len(names)
     if method in ("auto", "exact"):
         try:

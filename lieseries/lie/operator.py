@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..models.base import Model, state_fractions
-from .jets import radius_from_logs
+from .jets import radius_from_logs, taylor_coefficients
 from ..poisson import as_poisson_system
 from ..precision import (
     LIE_GUARD_DIGITS,
@@ -224,7 +224,6 @@ def lie_series(system, y0, order: int = 20, dps: int = 30) -> LieSeries:
     >>> series(0.5)                 # state at t = 0.5
     >>> series.error_estimate(0.5)  # truncation error estimate
     """
-    from .jets import taylor_coefficients
 
     order = check_order(order)
     dps = check_dps(dps)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import sympy
 
+from ..models.euler_poisson import EulerPoisson
 from ..precision import check_order, to_fraction
 from .literal import literal_series_symbolic
 
@@ -36,7 +37,6 @@ def rigid_body_series(body, order: int, omega=None):
     Cost grows polynomially with the order: about 0.4 s to order 12 with symbolic Omega0 (exact rational
     arithmetic; the inertia tensor enters as exact rationals).
     """
-    from ..models.euler_poisson import EulerPoisson
 
     if not isinstance(body, EulerPoisson):
         raise TypeError(f"`body` must be an EulerPoisson model; got {type(body).__name__}")

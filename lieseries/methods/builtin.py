@@ -10,12 +10,17 @@ import numpy as np
 
 from .. import cache
 from .. import fields as F
+from ..api import integrate
+from ..expr import compile_expressions
+from ..lie.integrator import default_order, lie_integrate
+from ..lie.operator import GUARD_DIGITS
 from ..models.base import state_fractions
 from ..poisson import as_poisson_system
 from ..precision import (LIE_GUARD_DIGITS, MAX_DPS, MAX_ORDER, MIN_DPS, VALIDATED_GUARD_BITS, Precision, bits_to_dps,
                          check_dps, check_tolerance, data_bits, dps_to_bits, export_mpf, mp_context, resolve_precision,
                          to_fraction, warn_if_coarse)
 from ..precision import thread_mp as mp
+from ..validated import certified_digits, midpoints, validated_integrate
 from .registry import Method, RunRecord, best_of, register_method, run_precision, setting, setting_number, thin
 
 __all__ = ["MAX_ODEFUN_DPS", "clear_rhs_cache", "odefun_digits"]
@@ -62,7 +67,6 @@ def _mpmath_rhs(system):
     hit = _RHS_CACHE.get(key)
     if hit is not None:
         return hit
-    from ..expr import compile_expressions  # the engine's own mpmath evaluator
 
     prog = compile_expressions(ps.variables, ps.vector_field, len(ps.parameter_values))
 
@@ -85,8 +89,6 @@ def _rows_with_reached(sol):
 
 
 def _run_taylor(system, y0, tf, grid, spec, label, repeat):
-    from ..taylor import integrate
-
     prec = resolve_precision(spec["precision"])
     tol = spec["tol"]
     t_arg = grid if grid is not None else tf
@@ -144,8 +146,6 @@ def _run_scipy(system, y0, tf, grid, spec, label, repeat):
 
 
 def _run_lie(system, y0, tf, grid, spec, label, repeat):
-    from ..lie.integrator import lie_integrate
-
     kwargs = _lie_kwargs(spec)
     t_arg = grid if grid is not None else tf
     sol, walls = best_of(lambda: lie_integrate(system, y0, t_arg, **kwargs), repeat)
@@ -160,8 +160,6 @@ def _run_lie(system, y0, tf, grid, spec, label, repeat):
 
 
 def _run_validated(system, y0, tf, grid, spec, label, repeat):
-    from ..validated import certified_digits, midpoints, validated_integrate
-
     kwargs = {"dps": spec["dps"]}
     if spec.get("order") is not None:
         kwargs["order"] = spec["order"]
@@ -265,8 +263,6 @@ def _taylor_digits(spec) -> int:
 
 
 def _taylor_atlas(model, y0, t_arg, spec):
-    from ..taylor import integrate
-
     prec = resolve_precision(spec["precision"])
     return lambda: integrate(model, y0, t=t_arg, tol=spec["tol"], precision=prec, atlas=True)
 
@@ -283,8 +279,6 @@ def _lie_kwargs(spec) -> dict:
 def _lie_check(spec) -> None:
     """What lie_integrate refuses of a specification before it runs: a tolerance below what ``dps`` digits (plus
     the engine's guard digits) resolve, and an automatic series order above MAX_ORDER."""
-    from ..lie.integrator import default_order
-    from ..lie.operator import GUARD_DIGITS
 
     ctx = mp_context()
     dps = spec["dps"]
@@ -293,7 +287,8 @@ def _lie_check(spec) -> None:
         raise ValueError(f"`tol` = {float(tol):.3g} is below what {dps} digits (+{GUARD_DIGITS} guard) can resolve; "
                          f"raise `dps`")
     if spec.get("order") is None:
-        n_auto = default_order(ctx.mpf(tol.numerator) / tol.denominator)
+        bits = Precision.of(dps=dps, guard_digits=GUARD_DIGITS).working_bits
+        n_auto = default_order(ctx.mpf(tol.numerator) / tol.denominator, bits)
         if n_auto > MAX_ORDER:
             raise ValueError(f"`{'tol' if spec.get('tol') is not None else 'dps'}` asks for the automatic series "
                              f"order {n_auto}, above the largest order {MAX_ORDER}: give `order` (at most "
@@ -305,8 +300,6 @@ def _taylor_check(spec) -> None:
 
 
 def _lie_atlas(model, y0, t_arg, spec):
-    from ..lie.integrator import lie_integrate
-
     kwargs = _lie_kwargs(spec)
     return lambda: lie_integrate(model, y0, t_arg, atlas=True, **kwargs)
 

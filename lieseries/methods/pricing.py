@@ -21,9 +21,10 @@ import warnings
 from dataclasses import dataclass
 from fractions import Fraction
 
-from ..lie.integrator import lie_integrate
+from ..lie.integrator import jorba_zou_order, lie_integrate
 from ..precision import resolve_precision, to_fraction
-from ..taylor import STIFF_STEPS, integrate
+from ..api import integrate
+from ..taylor import STIFF_STEPS
 from ..validated import validated_integrate
 from .registry import REPEAT_BUDGET
 
@@ -145,10 +146,11 @@ class Pricer:
         return max(1, min(int(repeat), int(REPEAT_BUDGET // max(seconds, 1e-12)) + 1))
 
     def steps_per_time(self, model, y0, span, sign=1):
-        """(heyoka steps per unit time, lower bound?) of the motion from ``y0``, from a 15-digit Lie run."""
+        """(heyoka steps per unit time, lower bound?) of the motion from ``y0``, from a 15-digit Lie run at the
+        Jorba-Zou order (heyoka's: the automatic Lie order is higher at low precision, with longer steps)."""
         key = ("steps", id(model), span, sign)
         if key not in self._cache:
-            secs, reached, steps = self._engine(model, y0, "lie", 15, None, [sign * span])
+            secs, reached, steps = self._engine(model, y0, "lie", 15, jorba_zou_order(1e-15), [sign * span])
             if reached == 0 or steps == 0:
                 self._cache[key] = (1 / float(span), True)
             else:

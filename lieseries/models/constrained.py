@@ -31,7 +31,7 @@ double spherical pendulum's twelve variables; docs/theory.md, "The derivation as
 
 This module reads and checks the input; the algebra is :mod:`~lieseries.models.constrained_derive`, the four models
 are :mod:`~lieseries.models.constrained_forms` (their classes are importable from here too), the residual checks
-of states :mod:`~lieseries.models.constrained_checks`.
+of states and the checks of a chart or a frame at sample points :mod:`~lieseries.models.constrained_checks`.
 
 Parameters of the Lagrangian are heyoka runtime parameters: exact values (int, str such as "9.81", Fraction) stay
 exact and are rounded once to each working precision; a float is its binary value and is reported as binary data
@@ -49,9 +49,8 @@ import numpy as np
 import sympy as sp
 
 from ..precision import data_bits, to_fraction
-from ..precision import thread_mp as mp
-from .constrained_checks import RESIDUAL_DPS
-from .constrained_derive import SYMBOLIC_DIRAC_MAX_CONSTRAINTS, derive_dirac, derive_intermediate, exact_number, memoized, numeric_rank, show_number, to_mp
+from .constrained_checks import RESIDUAL_DPS, check_chart, check_frame
+from .constrained_derive import SYMBOLIC_DIRAC_MAX_CONSTRAINTS, derive_dirac, derive_intermediate, exact_number, memoized, numeric_rank, show_number
 from .constrained_forms import ConstrainedDirac, ConstrainedIntermediate, ConstrainedLocal, ConstrainedReduced
 
 __all__ = ["ConstrainedSystem", "ConstrainedDirac", "ConstrainedReduced", "ConstrainedIntermediate",
@@ -458,7 +457,7 @@ class ConstrainedSystem:
                                      f"{list(self.coordinates)}); got {row!r}")
                 rows.append([self._parse(e, f"frame[{i}][{a}]", velocities=False) for a, e in enumerate(row)])
             F = sp.Matrix(rows)
-            self._check_frame(F)
+            check_frame(self.constraints, self.q_symbols, self.parameter_substitution(), F)
             default = [f"pi{i + 1}" for i in range(n - k)]
         if momenta is None:
             names = default
@@ -474,89 +473,6 @@ class ConstrainedSystem:
             if len(set(names)) != len(names):
                 raise ValueError(f"`momenta` must be distinct; got {names}")
         return dep, F, names
-
-    def _check_chart(self, sol):
-        """Each G_alpha must vanish identically once the chart is substituted. A nonzero analytic residual vanishes
-        only on a thin set, so it is evaluated at pseudo-random rational points where the chart is real (at
-        ``RESIDUAL_DPS`` digits, relative to the size of G's terms there), at scales from 1e-3 to 1e3 so that
-        charts of small or large surfaces are sampled inside their domain; sympy's ``simplify`` is not asked to
-        prove the identity (it fails on true ones, e.g. nested radicals, and refused valid charts)."""
-        import random
-
-        vals = self.parameter_substitution()
-        free = [q for q in self.q_symbols if q not in sol]
-        chart = {s: e.xreplace(vals) for s, e in sol.items()}
-        terms = [[t.xreplace(chart) for t in sp.Add.make_args(g.xreplace(vals))] for g in self.constraints]
-        rng = random.Random(6151 + len(self.q_symbols))
-        checked = 0
-        for scale in (1, sp.Rational(1, 10), 10, sp.Rational(1, 100), 100, sp.Rational(1, 1000), 1000):
-            for _ in range(8):
-                pt = {q: sp.Rational(rng.randint(-999, 999), 1000) * scale for q in free}
-                try:
-                    for e in chart.values():
-                        exact_number(e.xreplace(pt), RESIDUAL_DPS)  # the chart must be real and finite here
-                    parts = [[exact_number(t.xreplace(pt), RESIDUAL_DPS) for t in ts] for ts in terms]
-                except (ValueError, TypeError, ZeroDivisionError):
-                    continue
-                with mp.workdps(RESIDUAL_DPS):
-                    for i, ps in enumerate(parts):
-                        res = mp.fsum(to_mp(v) for v in ps)
-                        size = mp.fsum(abs(to_mp(v)) for v in ps)
-                        if abs(res) > mp.mpf(10) ** (20 - RESIDUAL_DPS) * (size or 1):
-                            where = ", ".join(f"{q} = {pt[q]}" for q in free)
-                            raise ValueError(
-                                f"`chart` does not solve the constraints: G{i + 1} = {self.constraints[i]} is "
-                                f"{mp.nstr(res, 8)} (not 0) with it at {where}; give the dependent coordinates as "
-                                "the solution of G = 0 (e.g. x3 = sqrt(c**2 - x1**2 - x2**2))")
-                checked += 1
-                if checked == 4:
-                    return
-        raise ValueError("`chart`: found no point where the chart is real and finite (free coordinates sampled in "
-                         "boxes from 1e-3 to 1e3), so it cannot be checked to solve the constraints; check its "
-                         "expressions and the parameters' values")
-
-    def _check_frame(self, F):
-        """A user frame must be tangent to every level set of the constraints (G_alpha,A G_iA = 0, p9) and of full
-        rank: checked exactly at pseudo-random rational points (numerically at 60 digits where irrational)."""
-        import random
-
-        k = len(self.constraints)
-        d = F.shape[0]
-        Gq = sp.Matrix([[sp.diff(g, qa) for qa in self.q_symbols] for g in self.constraints])
-        vals = self.parameter_substitution()
-        rng = random.Random(4049 + len(self.q_symbols))
-        checked = 0
-        for _ in range(12):
-            pt = {qa: sp.Rational(rng.randint(300, 1300), 1000) for qa in self.q_symbols}
-            pt.update(vals)
-            Fp = F.xreplace(pt)
-            if any(e.has(sp.zoo, sp.nan, sp.oo) for e in Fp):
-                continue
-            Gp = Gq.xreplace(pt)
-            prod = Gp * Fp.T
-            for a in range(k):
-                for i in range(d):
-                    val = exact_number(prod[a, i], RESIDUAL_DPS)
-                    if isinstance(val, Fraction):
-                        bad = val != 0
-                    else:
-                        with mp.workdps(RESIDUAL_DPS):
-                            size = mp.fsum(abs(to_mp(exact_number(Gp[a, b] * Fp[i, b], RESIDUAL_DPS)))
-                                           for b in range(Fp.shape[1]))
-                            bad = abs(val) > mp.mpf(10) ** -45 * (size or 1)
-                    if bad:
-                        raise ValueError(
-                            f"`frame[{i}]` is not tangent to the constraint surfaces: dG{a + 1}/dq . frame[{i}] = "
-                            f"{show_number(val)} at q = {[str(pt[s]) for s in self.q_symbols]} (it must vanish identically, paper "
-                            "p9; e.g. for R^T R = 1 the fields R^-T E_k, E_k antisymmetric)")
-            if numeric_rank(Fp) < d:
-                raise ValueError(f"`frame` has rank {numeric_rank(Fp)} < {d} at q = {[str(pt[s]) for s in self.q_symbols]}: its "
-                                 "vector fields must be linearly independent (a basis of the tangent space)")
-            checked += 1
-            if checked == 2:
-                return
-        raise ValueError("`frame` is singular (infinite or undefined) at every sample point; give vector fields "
-                         "defined on an open set")
 
     def intermediate(self, dependent=None, frame=None, momenta=None, edge="0.05") -> "ConstrainedIntermediate":
         """The model on the intermediate submanifold in the paper's intermediate formalism (p9-p14.3): the n
@@ -624,7 +540,7 @@ class ConstrainedSystem:
                 raise ValueError(f"`chart[{name!r}]` uses the dependent coordinates {used}: write each dependent "
                                  "coordinate as an expression of the free ones")
             sol[self.q_symbols[a]] = expr
-        self._check_chart(sol)
+        check_chart(self.constraints, self.q_symbols, self.parameter_substitution(), sol)
         edge_f = to_fraction(edge, "edge")
         if not 0 < edge_f < 1:
             raise ValueError(f"`edge` must lie in (0, 1) (a fraction of the largest possible |det D|); got {edge!r}")

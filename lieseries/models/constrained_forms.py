@@ -14,6 +14,7 @@ import heyoka as hy
 import numpy as np
 import sympy as sp
 
+from ..expr import compile_expressions
 from ..poisson import PoissonSystem, expand_integer_powers
 from ..precision import BinaryFraction, binary_inputs, bits_to_dps, data_bits, state_bits, to_fraction
 from ..precision import thread_mp as mp
@@ -303,7 +304,6 @@ class ConstrainedDirac(Model):
         return self.variables
 
     def _eval(self, exprs, values, dps=RESIDUAL_DPS, variables=None):
-        from ..expr import compile_expressions
 
         prog = compile_expressions(self.variables if variables is None else variables, exprs,
                                    len(self.poisson.parameter_values))

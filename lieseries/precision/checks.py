@@ -9,6 +9,7 @@ from fractions import Fraction
 
 import numpy as np
 
+from ..progress import ProgressBar
 from .bounds import MAX_DPS, MAX_ORDER, MAX_TIME_MAGNITUDE, MIN_DPS
 from .conversions import short_decimal, to_fraction
 
@@ -109,7 +110,6 @@ class _FractionBar:
     """``progress(fraction_done)`` drawn as a bar of 1000 steps (closed when the run is done or forgotten)."""
 
     def __init__(self, title):
-        from ..progress import ProgressBar
 
         self._bar = ProgressBar(title)
 

@@ -9,6 +9,7 @@ from pathlib import Path
 from ..folder import ReportFolder
 from ..formatting import (MARKERS, below_float_range, fmt_int, fmt_num, fmt_sci, log10_or_nan, markdown_table,
                           plain_table, positive_or_nan, pyplot, save_figure, wrap)
+from ..scenes import quick_changes
 from ..studies.plugin import ReportContext, studies_registry
 from .files import json_default, write_csv, write_json
 
@@ -182,7 +183,6 @@ def render_report(result, out: Path) -> Path:
     lines.append(f"Scene `{scene.name}`{mode}. Generated {result.created} in {result.wall_time:.1f} s.")
     lines.append("")
     if result.quick:
-        from ..scenes import quick_changes
 
         changes = quick_changes(scene)
         if changes:

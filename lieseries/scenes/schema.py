@@ -18,6 +18,7 @@ from ..fields import REQUIRED, SceneError, show
 from ..methods import method_label, methods_registry, normalize_method, scene_methods
 from ..models.kinds import initial_families, initial_family, model_kind, model_kinds
 from ..precision import MAX_SAMPLES, MIN_DPS, binary_inputs, bits_to_dps
+from ..solution import STATUSES
 from ..studies import has_exact_solution, theoretical_radius
 from ..studies.convergence import MAX_STUDY_DPS
 from ..studies.drift import invariant_function
@@ -95,8 +96,6 @@ def section_fields() -> dict:
 
 
 def _statuses():
-    from ..solution import STATUSES
-
     return tuple(STATUSES)
 
 

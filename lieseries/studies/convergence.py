@@ -21,6 +21,7 @@ import numpy as np
 from fractions import Fraction
 
 from .. import fields as F
+from ..lie.operator import lie_series
 from ..methods.pricing import CostPart
 from ..formatting import (MARKERS, below_float_range, fmt_num, fmt_sci, log10_or_nan, markdown_table, positive_or_nan,
                           pyplot, save_figure)
@@ -204,7 +205,6 @@ def error_vs_order(system, y0, t, orders, dps: int = 60, reference=None, *, fit_
     -------
     ErrorVsOrder
     """
-    from ..lie.operator import lie_series
 
     orders = _check_orders(orders)
     dps = check_count(dps, "dps", low=MIN_DPS, high=MAX_STUDY_DPS)
@@ -322,8 +322,6 @@ class ErrorVsOrderStudy(Study):
         ev["dps"] = min(ev["dps"], 40)
 
     def cost(self, ev, ctx, pricer):
-        from ..lie.operator import lie_series
-
         top = max(orders_of(ev))
         dps = int(ev["dps"])
         model = ctx.built[0][1]

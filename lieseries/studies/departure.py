@@ -28,7 +28,7 @@ from ..methods.pricing import CostPart
 from ..models.euler_poisson import EulerPoisson
 from ..precision import MAX_SAMPLES, MIN_DPS, check_count, check_time, resolve_precision, to_fraction
 from ..precision import thread_mp as mp
-from ..taylor import integrate
+from ..api import integrate
 from .plugin import Study, register_study
 
 #: Most digits of the map's closed-form reference and exact initial data (the API's and the scene's bound).
@@ -139,18 +139,13 @@ def departure_map(
         ``progress(done, total, label)`` (the study convention, e.g. a :class:`lieseries.progress.ProgressBar`)
         after each member's closed-form reference and after each precision's ensemble run.
     """
-    if not (isinstance(grid, (tuple, list)) and len(grid) == 2):
-        raise ValueError(f"`grid` must be (n_theta, n_phi); got {grid!r}")
-    n_theta = check_count(grid[0], "grid[0]", high=64)
-    n_phi = check_count(grid[1], "grid[1]", high=128)
+    n_theta, n_phi = _check_grid(grid)
     samples = check_count(samples, "samples", low=2, high=MAX_SAMPLES)
     Tf = check_time(T, "T", positive=True)
     thr = to_fraction(threshold, "threshold")
     if thr <= 0:
         raise ValueError(f"`threshold` must be positive; got {float(thr)}")
-    precs = [resolve_precision(p, "precisions") for p in precisions]
-    if not precs:
-        raise ValueError("`precisions` must name at least one precision ('double', 'long double', 'quad', bits)")
+    precs = _check_precisions(precisions)
     dps = check_count(dps, "dps", low=MIN_DPS, high=MAX_MAP_DPS)
     ref_dps = max(dps, max(math.ceil(p.bits * math.log10(2)) for p in precs) + 10)
     body = EulerPoisson(inertia)
@@ -183,16 +178,8 @@ def departure_map(
     y0s = [body.initial_state(omega=om) for om in omegas]
     for prec in precs:
         sol = integrate(body, y0s, t=times, precision=prec)
-        dep = np.empty(len(omegas))
-        worst = np.empty(len(omegas))
-        stayed = np.zeros(len(omegas), dtype=bool)
         statuses = [str(s) for s in sol.status]
-        for k in range(len(omegas)):
-            member = sol.member(k)
-            dep[k], worst[k] = _first_departure(member, refs[k], times, thr, ref_dps)
-            stayed[k] = member.success and dep[k] == math.inf
-            if dep[k] == math.inf:
-                dep[k] = float(Tf)
+        dep, worst, stayed = _departures(sol, refs, times, thr, ref_dps, Tf)
         step(f"{prec.name}: {len(omegas)} members")
         result.departure[prec.name] = dep.reshape(n_theta, n_phi)
         result.stayed[prec.name] = stayed.reshape(n_theta, n_phi)
@@ -201,6 +188,37 @@ def departure_map(
         # the ensemble's clock includes compiling the integrator (build_time); the map reports the integration
         result.run_time[prec.name] = max(0.0, float(sol.stats["run_time"]) - float(sol.stats["build_time"]))
     return result
+
+
+def _check_grid(grid):
+    """(n_theta, n_phi) of the grid of directions, at most 64 x 128."""
+    if not (isinstance(grid, (tuple, list)) and len(grid) == 2):
+        raise ValueError(f"`grid` must be (n_theta, n_phi); got {grid!r}")
+    return check_count(grid[0], "grid[0]", high=64), check_count(grid[1], "grid[1]", high=128)
+
+
+def _check_precisions(precisions) -> list:
+    """The map's precisions, at least one."""
+    precs = [resolve_precision(p, "precisions") for p in precisions]
+    if not precs:
+        raise ValueError("`precisions` must name at least one precision ('double', 'long double', 'quad', bits)")
+    return precs
+
+
+def _departures(sol, refs, times, thr: Fraction, dps: int, Tf):
+    """Per member of the ensemble solution ``sol``: its departure time (T when it stayed within ``thr``), its
+    largest difference from its closed form ``refs[k]``, and whether it stayed (a run that succeeded)."""
+    count = len(refs)
+    dep = np.empty(count)
+    worst = np.empty(count)
+    stayed = np.zeros(count, dtype=bool)
+    for k in range(count):
+        member = sol.member(k)
+        dep[k], worst[k] = _first_departure(member, refs[k], times, thr, dps)
+        stayed[k] = member.success and dep[k] == math.inf
+        if dep[k] == math.inf:
+            dep[k] = float(Tf)
+    return dep, worst, stayed
 
 
 def _first_departure(sol, ref, times, thr: Fraction, dps: int):

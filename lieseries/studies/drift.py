@@ -184,43 +184,28 @@ def drift(system, y0, t, precision="double", samples: int = 200, tol=None, *, en
     -------
     Drift
     """
-    from ..taylor import integrate
+    from ..api import integrate
 
     prec = resolve_precision(precision)
     tf = check_time(t, "t", positive=True)
     samples = check_count(samples, "samples", low=MIN_SAMPLES, high=MAX_SAMPLES)
     ensemble = check_count(ensemble, "ensemble", low=1, high=MAX_ENSEMBLE)
     seed = check_count(seed, "seed", low=0)
-    pert = to_fraction(perturbation, "perturbation")
-    if not 0 < pert < 1:
-        raise ValueError(f"`perturbation` must be a number in (0, 1) (relative to max |y0|); got {perturbation!r}")
-    perturbation = float(pert)
+    perturbation = _check_perturbation(perturbation)
     ps = as_poisson_system(system)
     z0 = state_fractions(y0, ps.dimension, "y0")
-    t_first = to_fraction(first, "first") if first is not None else tf / 1000
-    if not (0 < t_first < tf):
-        raise ValueError(f"`first` must lie in (0, t); got {float(t_first)}")
-    grid = [Fraction(v).limit_denominator(2**40) for v in np.geomspace(float(t_first), float(tf), int(samples))]
-    grid[-1] = tf
-    grid = sorted(set(grid))
+    grid = _sample_times(tf, first, samples)
     inv_fn = invariant_function(system, prec.dps + 10)
-    free = _perturbable(system, ps.dimension)
-    rng = np.random.default_rng(seed)
-    scale_y = max(abs(float(v)) for v in z0) or 1.0
+    starts = _member_states(z0, int(ensemble), perturbation, seed, _perturbable(system, ps.dimension))
     sq = None
     total_steps = order = 0
     run_time = 0.0
     status, message = "success", ""
     initial = None
     n_done = len(grid)
-    for member in range(int(ensemble)):
+    for member, zm in enumerate(starts):
         if progress:
             progress(member, int(ensemble), f"run {member + 1}/{ensemble}")
-        if member == 0:
-            zm = z0
-        else:
-            kick = rng.standard_normal(len(z0)) * perturbation * scale_y
-            zm = [q + Fraction(float(k)) if i in free else q for i, (q, k) in enumerate(zip(z0, kick))]
         y_init = prec.array(zm)
         sol = integrate(system, y_init, t=grid, tol=tol, precision=prec)
         run_time += sol.stats.run_time + sol.stats.build_time
@@ -233,27 +218,71 @@ def drift(system, y0, t, precision="double", samples: int = 200, tol=None, *, en
             sq = {k: np.zeros(len(grid)) for k in inv0}
         n_done = min(n_done, len(sol.y))
         if len(sol.y):
-            inv = inv_fn(sol.y)
-            for k in sq:
-                d = np.array([float(abs(v - inv0[k])) for v in inv[k]])
-                sq[k][: len(d)] += d**2
+            _add_squared_drift(sq, inv_fn(sol.y), inv0)
     if progress:
         progress(int(ensemble), int(ensemble), "done")
-    n = n_done
-    times = [float(v) for v in grid[:n]]
-    # steps are nearly uniform in time: cumulative steps ~ total steps x t / (time reached)
-    steps = [total_steps * tk / t_reached if t_reached > 0 else 0.0 for tk in times]
-    errors = {k: [math.sqrt(v / ensemble) for v in sq[k][:n]] for k in sq}
     eps = prec.eps
-    scales = {k: (abs(v) if v != 0 else 1.0) for k, v in initial.items()}
-    brouwer = {k: [eps * math.sqrt(s) * scales[k] for s in steps] for k in errors}
-    exponents = {k: growth_exponent(steps, errors[k]) for k in errors}
+    times, steps, errors, scales, brouwer, exponents = _curves(grid[:n_done], total_steps, t_reached, sq, ensemble,
+                                                               initial, eps)
     tol_used = float(tol) if tol is not None else eps
     return Drift(
         times=times, steps=steps, errors=errors, initial=initial, brouwer=brouwer, exponents=exponents,
         precision=prec.name, eps=eps, tol=tol_used, total_steps=total_steps, order=order, run_time=run_time,
         ensemble=int(ensemble), status=status, message=message, system=ps.name, scales=scales,
     )
+
+
+def _check_perturbation(perturbation) -> float:
+    """The ensemble's perturbation, relative to max |y0|: a number in (0, 1)."""
+    pert = to_fraction(perturbation, "perturbation")
+    if not 0 < pert < 1:
+        raise ValueError(f"`perturbation` must be a number in (0, 1) (relative to max |y0|); got {perturbation!r}")
+    return float(pert)
+
+
+def _sample_times(tf, first, samples):
+    """The sample times: log-spaced from ``first`` (default t / 1000) to t, with denominators up to 2^40, the last
+    one t itself, without repeats."""
+    t_first = to_fraction(first, "first") if first is not None else tf / 1000
+    if not (0 < t_first < tf):
+        raise ValueError(f"`first` must lie in (0, t); got {float(t_first)}")
+    grid = [Fraction(v).limit_denominator(2**40) for v in np.geomspace(float(t_first), float(tf), int(samples))]
+    grid[-1] = tf
+    return sorted(set(grid))
+
+
+def _curves(grid, total_steps, t_reached, sq, ensemble, initial, eps):
+    """At the sample times every run reached (``grid``): the times, the estimated cumulative steps, each invariant's
+    RMS drift over the ensemble, its scale |I(0)| (1 when I(0) = 0), Brouwer's law and the fitted exponent."""
+    n = len(grid)
+    times = [float(v) for v in grid]
+    # steps are nearly uniform in time: cumulative steps ~ total steps x t / (time reached)
+    steps = [total_steps * tk / t_reached if t_reached > 0 else 0.0 for tk in times]
+    errors = {k: [math.sqrt(v / ensemble) for v in sq[k][:n]] for k in sq}
+    scales = {k: (abs(v) if v != 0 else 1.0) for k, v in initial.items()}
+    brouwer = {k: [eps * math.sqrt(s) * scales[k] for s in steps] for k in errors}
+    exponents = {k: growth_exponent(steps, errors[k]) for k in errors}
+    return times, steps, errors, scales, brouwer, exponents
+
+
+def _add_squared_drift(sq, inv, inv0):
+    """Add one run's squared drifts |I(t) - I(0)|^2 (``inv`` at the rows it reached) to the sums ``sq``."""
+    for k in sq:
+        d = np.array([float(abs(v - inv0[k])) for v in inv[k]])
+        sq[k][: len(d)] += d**2
+
+
+def _member_states(z0, ensemble, perturbation, seed, free):
+    """The initial states of the ensemble's runs, one at a time: ``z0`` itself, then copies whose entries in
+    ``free`` get a normal kick of size ``perturbation`` x max |y0| (drawn from ``seed`` as each run starts)."""
+    rng = np.random.default_rng(seed)
+    scale_y = max(abs(float(v)) for v in z0) or 1.0
+    for member in range(ensemble):
+        if member == 0:
+            yield z0
+        else:
+            kick = rng.standard_normal(len(z0)) * perturbation * scale_y
+            yield [q + Fraction(float(k)) if i in free else q for i, (q, k) in enumerate(zip(z0, kick))]
 
 
 # -- the study in scenes and reports ---------------------------------------------------------------------------

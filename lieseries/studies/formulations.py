@@ -40,6 +40,7 @@ import sympy as sp
 
 from .. import fields as F
 from ..formatting import fmt_int, fmt_num, fmt_sci, markdown_table
+from ..lie.operator import lie_series
 from ..methods import method_label, normalize_method, reference_dps, run_method, scene_methods
 from ..methods.pricing import CostPart
 from ..models.constrained import ConstrainedSystem
@@ -415,8 +416,6 @@ class FormulationsStudy(Study):
                                    {"method": "taylor", "precision": "quad"}, {"method": "lie", "dps": 30}]
 
     def cost(self, opts, ctx, pricer):
-        from ..lie.operator import lie_series
-
         specs = [normalize_method(m, f"studies.formulations.methods[{i}]") for i, m in enumerate(self._methods(opts))]
         ini = ctx.scene.initial
         n_int = opts["samples"] - 1

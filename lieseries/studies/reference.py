@@ -27,6 +27,8 @@ import numpy as np
 from typing import Callable
 
 from .. import exact
+from ..api import integrate
+from ..lie.integrator import lie_integrate
 from ..models.base import as_model, state_fractions
 from ..poisson import as_poisson_system
 from ..precision import MAX_BITS, MAX_DPS, bits_to_dps, check_count, dps_to_bits, export_mpf, float_or_mpf, to_fraction
@@ -76,11 +78,9 @@ def numerical_reference(system, y0, times, bits: int):
     bits = max(NUMERICAL_REFERENCE_BITS, int(bits))
     label = numerical_reference_label(bits)
     if bits <= MAX_BITS:
-        from ..taylor import integrate
 
         sol = integrate(system, y0, t=times, precision=bits, tol=Fraction(1, 2 ** (bits - 6)))
     else:
-        from ..lie.integrator import lie_integrate
 
         sol = lie_integrate(system, y0, t=times, dps=bits_to_dps(bits))
     if not sol.success:

@@ -20,6 +20,7 @@ import inspect
 import numpy as np
 
 from .. import cache
+from ..atlas import run_atlas
 from ..energy import clear_energy_cache
 from ..events import resolve_events
 from ..heyoka_build import build_integrator, integrator_count
@@ -59,58 +60,9 @@ def cache_info() -> dict:
 
 
 def integrate(system, y0, t, **options):
-    """Integrate ``dz/dt = X_H(z)`` with heyoka's adaptive Taylor method.
-
-    Parameters
-    ----------
-    system : model (EulerPoisson, Sphere, SphereDirac, ...) or PoissonSystem
-    y0 : sequence of n numbers
-        Initial state, taken at its exact value and rounded once to the working precision: a state from
-        ``model.initial_state(...)`` keeps the exact input it was built from; str, int, Fraction and mpf entries
-        are exact; a binary float entry is its own binary value. Binary data that carry fewer bits than the run
-        (0.1 as a double in a 237-bit run) give one :class:`~lieseries.precision.PrecisionWarning`.
-    t : float or increasing sequence
-        Final time (negative: backward integration) or output times (see :func:`lieseries.timegrid.parse_times`).
-    tol : float, optional
-        Relative and absolute tolerance; default and smallest allowed: the precision's epsilon.
-    precision : "double" | "long double" | "quad" | int bits (at most ``precision.MAX_BITS``), optional
-        Default: the precision of ``y0`` (double for exact states and Python numbers; a long double, real128 or
-        heyoka.real array runs in its own precision).
-    t0 : float
-        Initial time.
-    dense : bool
-        Keep heyoka's continuous output so that ``sol(t)`` works anywhere in the interval. Off by default (as in
-        scipy): it costs run time and memory (order x n numbers per step).
-    max_steps : int, optional
-        Step budget (default 5e7). A run whose step size collapses so that it could not finish within the
-        budget stops early with status ``step_collapse``; a stiff run (:mod:`lieseries.taylor.chunks`) stops once
-        it would need more than 1e5 steps, or more than ``max_steps`` when you give it.
-    max_time : float, optional
-        Wall-time budget in seconds for the integration (status ``time_budget``), checked between chunks of steps
-        that take about 0.1 s each. It does not bound the one-off compilation of a new integrator.
-    min_step : float, optional
-        Stop with ``step_collapse`` when a step smaller than this was taken (checked between chunks of steps).
-    atlas : bool, optional
-        For a model with charts (:class:`~lieseries.Sphere`), on by default (the model's ``atlas``): switch charts
-        when the current one is ending and go on (:mod:`lieseries.atlas`); ``sol.charts`` tells the chart of each
-        output row. With ``atlas=False`` the run stays in one chart and stops at its edge (``chart_edge``).
-    progress : callable or True, optional
-        Called as ``progress(fraction_done)`` between chunks of steps (about ten times a second) during long runs;
-        True shows a bar (on a terminal).
-    events : list of :class:`lieseries.Event`, optional
-        Zero crossings to record (``sol.events[name]``: times and states) or, for a terminal event, to stop at
-        (status ``event``), found by heyoka's polynomial root finding on every step.
-    params, workers, client, chunk_size, batch_size :
-        For an ensemble: ``y0`` of shape (k, n) (or ``system`` a list of models of one structure, or ``params``
-        of shape (k, npar)) integrates k members and returns an :class:`~lieseries.solution.EnsembleSolution`
-        (:func:`lieseries.ensemble.integrate_ensemble`: heyoka's batch mode in double over ``workers`` threads;
-        ``client`` a ``dask.distributed.Client`` to run on a cluster; with ``events``, single runs per member).
-
-    Returns
-    -------
-    Solution
-        ``sol.t``, ``sol.y`` (one row per output time reached), ``sol.stats``, ``sol.status``, ``sol.message``.
-    """
+    """One heyoka run of ``system`` from the state ``y0``: the single runs of :func:`lieseries.integrate`, whose
+    docstring gives the options (this function takes all of them but the ensemble's: ``params``, ``workers``,
+    ``client``, ``chunk_size``, ``batch_size``)."""
     if not options and type(y0) is ExactState and type(t) in KEY_SCALARS:
         # a repeated call with every option at its default, an exact state and a scalar time (the usual case):
         # keyed as call_key keys it, straight to the run on a hit (no options to bind, compare or key)
@@ -137,15 +89,9 @@ def _integrate(
     atlas: bool | None = None,
     progress=None,
     events=None,
-    params=None,
-    workers: int | None = None,
-    client=None,
-    chunk_size: int | None = None,
-    batch_size: int | None = None,
 ):
     """:func:`integrate` with its options bound (its signature)."""
-    if progress is None and events is None and atlas is not True and params is None and workers is None and \
-            client is None:
+    if progress is None and events is None and atlas is not True:
         # a repeated call (the same system, exact state and options as a memoised one): straight to the run. An
         # exact state and a scalar time are keyed here as call_key does (a function call less)
         ty = type(y0)
@@ -162,16 +108,6 @@ def _integrate(
     progress = check_progress(progress, title="integrate")  # True: show a bar
     check_flag(compact_mode, "compact_mode")
     check_flag(high_accuracy, "high_accuracy", allow_none=False)
-    if (client is not None or params is not None or workers is not None or isinstance(system, (list, tuple))
-            or (y0.ndim == 2 if isinstance(y0, np.ndarray)
-                else isinstance(y0, (list, tuple)) and len(y0) > 0 and np.ndim(y0[0]) == 1)):
-        from ..ensemble import integrate_ensemble
-
-        return integrate_ensemble(system, y0, t, tol=tol, precision=precision, t0=t0, params=params,
-                                  workers=workers, client=client, max_steps=max_steps, max_time=max_time,
-                                  chunk_size=chunk_size, batch_size=batch_size, progress=progress,
-                                  min_step=min_step, compact_mode=compact_mode, high_accuracy=high_accuracy,
-                                  dense=dense, atlas=atlas, events=events, single_run=integrate)
     key = call_key(system, y0, t, t0, tol, precision, dense, max_steps, max_time, min_step, compact_mode,
                    high_accuracy) if events is None and progress is None and atlas is not True else None
     call = CALLS.get(key) if key is not None else None
@@ -189,7 +125,6 @@ def _integrate(
                 raise ValueError(f"`min_step` must be positive; got {min_step!r}")
         ps = as_poisson_system(system)
         if atlas:
-            from ..atlas import run_atlas
 
             warn_coarse_inputs(ps, y0, [t, t0], prec.bits)
             return run_atlas(integrate, system, y0, t, t0=t0, bits=prec.bits, dense=dense, tol=tol,

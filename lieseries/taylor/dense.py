@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..precision import Precision, to_fraction
+from ..precision import Precision, data_bits, to_fraction, warn_if_coarse
 
 
 class DenseOutput:
@@ -28,6 +28,8 @@ class DenseOutput:
         hi = max(b[1] for b in self.bounds)
         scalar = np.ndim(t) == 0
         ts = [t] if scalar else list(np.asarray(t, dtype=object).ravel())
+        if self.prec is not None:  # the double 0.1 asked of a quad run: the state at 0.1000000000000000055...
+            warn_if_coarse(data_bits(ts), self.prec.bits, "t")
         out = []
         for tk in ts:
             tf = to_fraction(tk, "t")
