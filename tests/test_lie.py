@@ -291,7 +291,10 @@ def test_lie_step_holds_a_series_whose_last_two_orders_vanish():
 
 def test_lie_integrate_ends_with_a_status_where_the_equations_end():
     """H = p^2/2 + q^1.5 from (1, 0): q reaches 0 at T = int_0^1 dq / sqrt(2 (1 - q^1.5)) (energy 1), beyond which
-    q^1.5 is not real. The run ends with ``non_finite`` before T and keeps its rows (it raised ValueError)."""
+    q^1.5 is not real. The run ends before T with a status that says so and keeps its rows (it raised ValueError).
+    The steps halve onto the branch point (the radius is the distance to it); whether the last one rounds past it
+    (``non_finite``) or falls below the working precision's resolution of t first (``step_collapse``, "singular
+    nearby") depends on the step sequence from the start: both end the run at T, loud."""
     q, p = hy.make_vars("q", "p")
     osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 + q**1.5)
     ctx = mp.MPContext()
@@ -299,7 +302,7 @@ def test_lie_integrate_ends_with_a_status_where_the_equations_end():
     dt_dq = lambda x: 1 / ctx.sqrt(2 * (1 - x**1.5))  # noqa: E731
     T = ctx.quad(dt_dq, [0, 1])  # ~1.2196
     sol = ls.lie_integrate(osc, [1, 0], t=[Fraction(1, 2), 1, Fraction(5, 2)], dps=20)
-    assert sol.status == "non_finite", sol.message
+    assert sol.status in ("non_finite", "step_collapse"), sol.message
     assert len(sol.t) == 2 and abs(float(sol.t_reached) - T) < 1e-6  # where the steps shrink onto the branch point
     # the rows kept are right: q(1/2) from the quadrature t(q) = int_q^1 dx / sqrt(2 (1 - x^1.5)), solved by
     # Newton's method with its derivative -dt_dq (the secant method strayed to q > 1, complex, for seconds)
