@@ -544,15 +544,13 @@ def test_a_coordinate_named_like_a_momentum_is_refused_at_once():
             ls.ConstrainedSystem(f"(x_dot**2 + {other}_dot**2)/2", ["x", other], [f"x**2 + {other}**2 - 1"])
 
 
-@pytest.mark.xfail(strict=True, reason="the run ends success 3.5 digits short (3.3e-27 at dps 30, step estimates "
-                   "~2e-32; tol=1e-33 gives 1e-30, so it is the step control, not rounding). Suspected: "
-                   "lie/integrator.py's per-component tolerance, absolute below 1, with pi ~ 1e-5 here; but the "
-                   "frame form [-y, x] of the same system, pi ~ 1e-5 too, keeps its digits: cause not pinned")
 def test_lie_keeps_its_digits_when_a_momentum_is_small():
     """L and 1e-5 L have the same motion; the intermediate form in the chart y < 0 has momentum pi ~ 1e-5. At 30
     digits the Lie run must be right to ~1e-29 (the unscaled form is right to 2.7e-31), against the unscaled Dirac
-    form at 50 digits. (heyoka in quad loses as many digits: its tolerance is relative to the largest component,
-    as the README says.)"""
+    form at 50 digits. With a tolerance absolute below 1 it ended `success` at 3.3e-27 (pi kept tol / 1e-5 of its
+    digits, and the velocity is pi over 1e-5), its estimates saying 2e-32; relative to each component's own scale
+    it keeps them. (heyoka in quad loses as many digits: its tolerance is relative to the largest component, as the
+    README says.)"""
     c = private_ctx(60)
 
     def end(scale, form, dps):

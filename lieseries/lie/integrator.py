@@ -15,22 +15,28 @@ the step rule does not bound, stays a small part of the error (the errors of lon
 to tenfold). For 30 digits N = 36 + 8, for 50 digits 59 + 14, for 100 digits 117 + 4, for 200 digits 232 + 1; from
 about 800 bits the Jorba-Zou order.
 
-Step. At each step the coefficients c_0..c_N of the series at the current state are computed (jets, O(N^2) per
-node of the vector field). The step is the largest h with |c_k,i| h^k <= tol * s_i for every component i and the
-last two orders k = N-1, N (the tail of a converging series is governed by its last terms; using two of them
-tolerates a coefficient that vanishes by symmetry), where s_i = max(1, max_k |c_k,i| h^k) is the component's own
-size over the step: the tolerance is relative for each component above 1 and absolute below (relative to the
-largest component, a momentum of size 1 beside positions of size 1e6 kept only tol * 1e6 of its digits, and its
-error grew into the positions over the run). The step is capped at half the radius
-of convergence estimated from the coefficients, so that a step never reaches the singularity where the series
-diverges. The last step is shortened to land on the final time; output times inside a step are evaluated from
-that step's polynomial (dense output of the same accuracy).
+Step. At each step the coefficients c_0..c_N of the series at the current state are computed (jets, O(N^2) per node
+of the vector field). The step is the largest h with |c_k,i| h^k <= tol * s_i for every component i and the last
+two orders k = N-1, N (the tail of a converging series is governed by its last terms; using two of them tolerates a
+coefficient that vanishes by symmetry; a component whose last two both vanish, by a symmetry of period 4, is held
+by its last nonzero order), where s_i is the component's own scale: the larger of its size over the step, sum_k
+|c_k,i| h^k (below 1 its terms k = 0, 1, which bound it from below), and its largest |value| at the steps' starts
+so far (a component passing through zero keeps the scale of its swing). The tolerance is relative for every
+component, in any units: relative to the largest component, a momentum of size 1 beside positions of size 1e6 kept
+only tol * 1e6 of its digits; absolute below 1, a momentum of size 1e-5 kept only tol / 1e-5 of them, and when the
+velocity is the momentum over 1e-5 its error went into the positions at once (3.5 digits lost at 30 digits, the
+estimates saying 2e-32). A component that is zero so far and over the step asks nothing. The step is capped at half
+the radius of convergence estimated from the coefficients, so that a step never reaches the singularity where the
+series diverges. The last step is shortened to land on the final time; output times inside a step are evaluated
+from that step's polynomial (dense output of the same accuracy).
 
 Error estimate. Every step records the geometric-tail estimate of its truncation error
-(:func:`lieseries.lie.operator.tail_estimate`), per component and relative to s_i (absolute below 1), the
-largest over the components; ``sol.stats.error_estimates`` holds them all. They are local: the error of the
-result is their sum carried along by the flow (for a rotation, a momentum's error turns into a phase error that
-grows with the angle covered).
+(:func:`lieseries.lie.operator.tail_estimate`: the last two terms carried on at the ratio h / rho), per component
+and relative to its scale s_i, the largest over the components; where the last eight orders'
+terms decay more slowly than h / rho says (a radius fitted too long), also each component's own last terms carried
+on at their own rate (``_envelope_tail``: the pendulum in a chart had steps whose error was 227x the estimate);
+``sol.stats.error_estimates`` holds them all. They are local: the error of the result is their sum carried along by
+the flow (for a rotation, a momentum's error turns into a phase error that grows with the angle covered).
 
 All work is done with ``guard`` extra digits (default 10) and results are rounded to ``dps``.
 """
@@ -68,6 +74,7 @@ from ..precision import (
 from ..precision import thread_mp as mp
 from ..solution import Solution, Stats
 from ..timegrid import parse_times
+from .jets import radius_from_logs
 from .operator import (
     GUARD_DIGITS,
     coarse_bits,
@@ -123,8 +130,8 @@ def lie_integrate(
     dps : int
         Decimal digits of the arithmetic and of the results.
     tol : float, optional
-        Local error tolerance per step and per component (absolute for components of size <= 1, relative above).
-        Default 10**-dps.
+        Local error tolerance per step, relative to each component's own scale (its size over the step, or its
+        largest value so far when that is larger: module docstring). Default 10**-dps.
     order : int, optional
         Series order; default from ``tol`` (module docstring).
     dense : bool
@@ -146,7 +153,7 @@ def lie_integrate(
     -------
     Solution
         ``y`` rows are numpy object arrays of mpf; ``stats.error_estimates`` has one estimate per step (its
-        truncation error relative to each component's size, absolute below 1; the largest over the components);
+        truncation error relative to each component's scale; the largest over the components);
         ``stats.extra["max_step_over_radius"]`` is the largest step over the estimated radius of convergence
         (at most 1/2 by construction). When the data carry fewer bits than the run (binary floats), every
         per-step estimate is at least the relative uncertainty of the data (``stats.extra["data_bits"]``), and
@@ -277,6 +284,26 @@ class _LieEngine:
         self.segments = [] if dense else None
         self.max_ratio = None  # the largest step over the estimated radius of convergence
         self.first = True
+        self.lpeak = None  # log2 of each component's largest |value| at the steps' starts so far
+
+    def _log2_scales(self, jet, h):
+        """log2 of each component's scale for a step of length ``h``: the larger of its size over the step (the
+        sum of |c_k,i| h^k) and its largest |value| at the steps' starts so far; ``-inf`` for a component that is
+        zero so far and over the step. ``jet.log2_scales`` reads the size at 1 and above (0 below): below 1 the
+        size is bounded below by its terms k = 0, 1 (and by every term, for a component zero so far whose first
+        two terms vanish)."""
+        out = []
+        col1 = None
+        lh = _log2(h)
+        for i, (lsize, lpeak) in enumerate(zip(jet.log2_scales(h), self.lpeak)):
+            if lsize <= 0:  # a size of at most 1: its largest value so far and its first term
+                if col1 is None:
+                    col1 = jet.log2_column(1)
+                lsize = col1[i] + lh
+                if lsize == -math.inf and lpeak == -math.inf:  # zero so far, with no first-order term
+                    lsize = max((jet.log2_column(k)[i] + k * lh for k in range(2, self.N + 1)), default=-math.inf)
+            out.append(max(lsize, lpeak))
+        return out
 
     def step(self, tcur, z, tend):
         from .jets import DeadlineExceeded
@@ -305,26 +332,35 @@ class _LieEngine:
         lh = min(lh, lrho - 1)  # rho / 2
         h = span if lh == math.inf else min(_pow2(lh), span)  # a polynomial of degree < N - 1: one step to the end
         h = min(h, jet.max_step)  # the jets hold what steps up to max_step need
-        # per component: the tolerance is relative to the component's own size over the step (absolute below
-        # 1), not to the largest component -- a momentum of size 1 beside positions of size 1e6 would keep
-        # only tol * 1e6 of its digits, and its error grows into the positions over the run
-        lscales = jet.log2_scales(h)
+        # per component: the tolerance is relative to the component's own scale (module docstring), not to the
+        # largest component nor absolute below 1 -- a momentum of size 1 beside positions of size 1e6 would keep
+        # only tol * 1e6 of its digits, one of size 1e-5 only tol / 1e-5 of them, and its error grows into the
+        # positions over the run (when the velocity is the momentum over 1e-5, at once)
+        lz = [_log2(v) for v in z]
+        self.lpeak = lz if self.lpeak is None else [max(a, b) for a, b in zip(self.lpeak, lz)]
+        lscales = self._log2_scales(jet, h)
         last = {k: jet.log2_column(k) for k in (N - 1, N) if k >= 1}
+        # a component whose last two orders both vanish (a symmetry of period 4: from rest at q = 0, q'' = 1 - q^2
+        # has q in the orders 2, 6, 10, ... only, p in 1, 5, 9, ...) is held by its last nonzero order
+        quiet = _last_nonzero(jet, N, last) if lrho != math.inf else {}
         lmin = math.inf
         for k, col in last.items():
             for lc, lsc in zip(col, lscales):
                 if lc != -math.inf:
                     lmin = min(lmin, (ltol + lsc - lc) / k)
+        for i, (k, lc) in quiet.items():
+            lmin = min(lmin, (ltol + lscales[i] - lc) / k)
         if lmin < _log2(h):
-            h = _pow2(lmin)
+            h = _pow2(lmin)  # (a few percent shorter: the sizes over it, which the estimate reads, barely change)
         if h <= abs(tcur) * self.collapse or h == 0:
             raise Stop("step_collapse", f"it fell to {mp.nstr(h, 3)}, and the series' radius of convergence there "
                        f"is ~{mp.nstr(rho, 3)}: the solution is singular nearby")
         lh = _log2(h)
         hs = h * sgn
         # the geometric-tail estimate (operator.tail_estimate) of the last two orders, per component, relative to
-        # its size over the step; the largest
+        # its scale; the largest
         lq = lh - lrho if lrho != math.inf else None
+        tails = _slow_tails(jet, N, lq, lh, last)
         lerr = -math.inf
         for i, lsc in enumerate(lscales):
             la_last = last[N][i] + N * lh
@@ -332,10 +368,13 @@ class _LieEngine:
             if lq is None:
                 lnxt = la_last
             else:
-                lnxt = max(la_prev + lq, la_last) + lq
+                lnxt = max(la_prev + lq, la_last) + lq - math.log2(1 - 2.0 ** lq)
+                if tails is not None:
+                    lnxt = max(lnxt, _envelope_tail([(k, col[i] + k * lh) for k, col in tails.items()]))
+                if i in quiet:
+                    k, lc = quiet[i]
+                    lnxt = max(lnxt, lc + k * lh + lq * (N + 1 - k) - math.log2(1 - 2.0 ** lq))
             lerr = max(lerr, lnxt - lsc)
-        if lerr != -math.inf and lq is not None:
-            lerr -= math.log2(1 - 2.0 ** lq)
         # a float where one holds it; an mpf below a float's range (above ~300 digits: 2.0 ** -1100 is 0.0, an
         # estimate that would claim every digit)
         err = math.inf if lerr >= 1024 else 2.0 ** lerr if lerr > -1000 else mp.mpf(2) ** lerr
@@ -368,6 +407,61 @@ class _LieEngine:
             end = None if hit is None else (hit[0], hit[1], " (end of the step that crossed it)")
         # output times inside the step: the step's polynomial evaluated in integers, as the step's end
         return StepResult(tnew, znew, h=h, row=lambda tk: jet.evaluate(tk - tcur), error=err, stop=end)
+
+
+#: The last orders whose terms the error estimate reads when they decay more slowly than h / rho says.
+TAIL_WINDOW = 8
+
+_LN2 = math.log(2)
+
+
+def _slow_tails(jet, N, lq, lh, last):
+    """{k: log2 |c_k,i| of every component} for the last TAIL_WINDOW orders when their terms |c_k| h^k decay more
+    slowly than ``lq`` = log2(h / rho) says (by more than half a bit an order), else None. The radius is fitted over
+    the orders N/2..N; where the early ones grow more slowly than the last (a pendulum's momentum in a chart), it
+    came out 3x too long and the geometric tail 100x too small, so those steps' tails are read from their own last
+    terms (:func:`_envelope_tail`). One fit of the norms decides: a step whose radius is right pays nothing more."""
+    if lq is None:
+        return None
+    window = range(max(1, N - TAIL_WINDOW + 1), N + 1)
+    pts = [(k, (v + k * lh) * _LN2) for k, v in zip(window, jet.log2_norms(window[0], N + 1)) if v != -math.inf]
+    if len(pts) < 2:
+        return None
+    r = radius_from_logs(pts)  # in units of h: the decay of the terms per order is 1 / r
+    if r == math.inf or (r > 0 and -math.log2(r) <= lq + 0.5):
+        return None
+    return {k: (last[k] if k in last else jet.log2_column(k)) for k in window}
+
+
+def _last_nonzero(jet, N, last):
+    """{i: (k, log2 |c_k,i|)}: for each component whose orders in ``last`` (N-1, N) all vanish, its last nonzero
+    order k from N/2 on (components zero there too are left out)."""
+    quiet = [i for i in range(len(last[N])) if all(col[i] == -math.inf for col in last.values())]
+    out = {}
+    for k in range(min(last) - 1, max(1, N // 2) - 1, -1):
+        if len(out) == len(quiet):
+            break
+        col = jet.log2_column(k)
+        for i in quiet:
+            if i not in out and col[i] != -math.inf:
+                out[i] = (k, col[i])
+    return out
+
+
+def _envelope_tail(terms):
+    """log2 of the tail beyond the last order from one component's last terms [(k, log2 |c_k| h^k)]: their decay
+    rate q per order fitted to their upper envelope (:func:`~lieseries.lie.jets.radius_from_logs`: a term that
+    nearly vanishes does not count), the envelope's value one order on, over 1 - q; ``inf`` when they do not decay,
+    ``-inf`` for fewer than two nonzero terms."""
+    nxt = max(k for k, _ in terms) + 1
+    pts = [(k, la) for k, la in terms if la != -math.inf]
+    if len(pts) < 2:
+        return -math.inf
+    r = radius_from_logs([(k, la * _LN2) for k, la in pts])
+    lqe = -math.log2(r) if r > 0 else math.inf
+    if lqe >= 0:
+        return math.inf
+    return max(la + lqe * (nxt - k) for k, la in pts) - math.log2(1 - 2.0 ** lqe)
 
 
 def _log2(x):
