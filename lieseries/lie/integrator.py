@@ -306,23 +306,64 @@ class _LieEngine:
         return out
 
     def step(self, tcur, z, tend):
-        from .jets import DeadlineExceeded
-
         N, tolm, sgn = self.N, self.tolm, self.sgn
         span = abs(tend - tcur)
+        jet = self._expand(z, span)
+        rho, lrho = jet.rho, jet.log2_rho  # estimate_radius of the norms, computed once by the stepper
+        h, lscales, last, quiet = self._step_size(jet, z, span)
+        if h <= abs(tcur) * self.collapse or h == 0:
+            raise Stop("step_collapse", f"it fell to {mp.nstr(h, 3)}, and the series' radius of convergence there "
+                       f"is ~{mp.nstr(rho, 3)}: the solution is singular nearby")
+        lh = _log2(h)
+        hs = h * sgn
+        err = self._estimate(jet, lh, lscales, last, quiet)
+        if self.first and self.N_auto is not None and N < self.N_auto:
+            nrm = jet.norms
+            _warn_slow_order(N, self.N_auto, nrm, tolm * max(mp.mpf(1), nrm[0]), rho, span)
+        self.first = False
+        znew = jet.horner(hs)
+        tnew = tcur + hs if span != h else tend
+        coeffs = jet.coefficients
         try:
-            jet = self.stepper.expand(z, span, deadline=self.deadline)
+            stop = self.user.step(coeffs, tcur, hs, sgn) if self.user is not None else None
+        except (ValueError, ZeroDivisionError, OverflowError) as exc:
+            raise Stop("non_finite", f"an event expression cannot be evaluated in the step ({exc}): the state "
+                       "leaves its domain there") from None
+        if stop is not None:  # a terminal event inside the step: the step ends there
+            hs = stop - tcur
+            h = abs(hs)
+            znew, tnew = horner(coeffs, hs), stop
+            lh = _log2(h) if h else -math.inf
+        if self.segments is not None:
+            self.segments.append((tcur, tnew, coeffs))
+        ratio = 2.0 ** (lh - lrho) if lrho != math.inf else 0.0
+        self.max_ratio = ratio if self.max_ratio is None else max(self.max_ratio, ratio)
+        if stop is not None:
+            end = ("event", self.user.fired, "")
+        else:
+            hit = _check_events(self.events, znew)
+            end = None if hit is None else (hit[0], hit[1], " (end of the step that crossed it)")
+        # output times inside the step: the step's polynomial evaluated in integers, as the step's end
+        return StepResult(tnew, znew, h=h, row=lambda tk: jet.evaluate(tk - tcur), error=err, stop=end)
+
+    def _expand(self, z, span):
+        """The jets at ``z`` (:class:`~lieseries.lie.fixed.FixedJets`); a budget or a domain stop as a Stop."""
+        from .jets import DeadlineExceeded
+
+        try:
+            return self.stepper.expand(z, span, deadline=self.deadline)
         except DeadlineExceeded:  # the budget ran out inside the step's expansion
             raise Stop("time_budget", note=" (inside a step's expansion)") from None
         except (ValueError, ZeroDivisionError, OverflowError) as exc:
             raise Stop("non_finite", f"the series coefficients cannot be computed ({exc}): the state has left the "
                        "domain of the equations (or the vector field is singular there)") from None
-        # the step rule reads magnitudes only: base-2 logarithms in floating point (a few digits of numbers of any
-        # size); the step itself is an exact mpf (a 53-bit mantissa, or the exact time left)
-        rho, lrho = jet.rho, jet.log2_rho  # estimate_radius of the norms, computed once by the stepper
-        ltol = self.log2_tol
-        lnorm0 = jet.log2_norm(0)
-        ltol_abs = ltol + max(0.0, lnorm0)  # tol * max(1, ||c_0||)
+
+    def _step_size(self, jet, z, span):
+        """(h, log2 scales, the last two orders' columns, the quiet components) of the step rule (module
+        docstring). It reads magnitudes only: base-2 logarithms in floating point (a few digits of numbers of any
+        size); the step itself is an exact mpf (a 53-bit mantissa, or the exact time left)."""
+        N, ltol, lrho = self.N, self.log2_tol, jet.log2_rho
+        ltol_abs = ltol + max(0.0, jet.log2_norm(0))  # tol * max(1, ||c_0||)
         lh = math.inf
         for k in (N - 1, N):
             if k >= 1:
@@ -352,13 +393,13 @@ class _LieEngine:
             lmin = min(lmin, (ltol + lscales[i] - lc) / k)
         if lmin < _log2(h):
             h = _pow2(lmin)  # (a few percent shorter: the sizes over it, which the estimate reads, barely change)
-        if h <= abs(tcur) * self.collapse or h == 0:
-            raise Stop("step_collapse", f"it fell to {mp.nstr(h, 3)}, and the series' radius of convergence there "
-                       f"is ~{mp.nstr(rho, 3)}: the solution is singular nearby")
-        lh = _log2(h)
-        hs = h * sgn
-        # the geometric-tail estimate (operator.tail_estimate) of the last two orders, per component, relative to
-        # its scale; the largest
+        return h, lscales, last, quiet
+
+    def _estimate(self, jet, lh, lscales, last, quiet):
+        """The step's error estimate: the geometric tail (operator.tail_estimate) of the last two orders, per
+        component, relative to its scale, the largest; a float where one holds it, an mpf below a float's range
+        (above ~300 digits 2.0 ** -1100 is 0.0, an estimate that would claim every digit)."""
+        N, lrho = self.N, jet.log2_rho
         lq = lh - lrho if lrho != math.inf else None
         tails = _slow_tails(jet, N, lq, lh, last)
         lerr = -math.inf
@@ -375,38 +416,8 @@ class _LieEngine:
                     k, lc = quiet[i]
                     lnxt = max(lnxt, lc + k * lh + lq * (N + 1 - k) - math.log2(1 - 2.0 ** lq))
             lerr = max(lerr, lnxt - lsc)
-        # a float where one holds it; an mpf below a float's range (above ~300 digits: 2.0 ** -1100 is 0.0, an
-        # estimate that would claim every digit)
         err = math.inf if lerr >= 1024 else 2.0 ** lerr if lerr > -1000 else mp.mpf(2) ** lerr
-        err = max(err, self.floor)
-        if self.first and self.N_auto is not None and N < self.N_auto:
-            nrm = jet.norms
-            _warn_slow_order(N, self.N_auto, nrm, tolm * max(mp.mpf(1), nrm[0]), rho, span)
-        self.first = False
-        znew = jet.horner(hs)
-        tnew = tcur + hs if span != h else tend
-        coeffs = jet.coefficients
-        try:
-            stop = self.user.step(coeffs, tcur, hs, sgn) if self.user is not None else None
-        except (ValueError, ZeroDivisionError, OverflowError) as exc:
-            raise Stop("non_finite", f"an event expression cannot be evaluated in the step ({exc}): the state "
-                       "leaves its domain there") from None
-        if stop is not None:  # a terminal event inside the step: the step ends there
-            hs = stop - tcur
-            h = abs(hs)
-            znew, tnew = horner(coeffs, hs), stop
-            lh = _log2(h) if h else -math.inf
-        if self.segments is not None:
-            self.segments.append((tcur, tnew, coeffs))
-        ratio = 2.0 ** (lh - lrho) if lrho != math.inf else 0.0
-        self.max_ratio = ratio if self.max_ratio is None else max(self.max_ratio, ratio)
-        if stop is not None:
-            end = ("event", self.user.fired, "")
-        else:
-            hit = _check_events(self.events, znew)
-            end = None if hit is None else (hit[0], hit[1], " (end of the step that crossed it)")
-        # output times inside the step: the step's polynomial evaluated in integers, as the step's end
-        return StepResult(tnew, znew, h=h, row=lambda tk: jet.evaluate(tk - tcur), error=err, stop=end)
+        return max(err, self.floor)
 
 
 #: The last orders whose terms the error estimate reads when they decay more slowly than h / rho says.
