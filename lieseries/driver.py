@@ -39,7 +39,7 @@ import time as _time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from .energy import energy_exact, exact_energy_verdict
+from .energy import energy_exact, exact_energy_verdict, guard_tolerance
 from .precision import short_decimal, to_fraction
 from .solution import STATUSES
 
@@ -292,10 +292,14 @@ class _Run:
 def energy_guard(out: Outcome, ps, y0, y_end, bits: int, tol) -> None:
     """The energy guard of a run that reached its final time: ``invariant_drift`` (with its message) when the
     Hamiltonian of ``ps``, at the exact values of ``y0`` and ``y_end`` in mpmath at ``bits`` bits, changed by more
-    than :func:`lieseries.energy.drift_threshold` times the energy scale of ``y0``."""
+    than :func:`lieseries.energy.drift_threshold` times the energy scale of ``y0`` (or of ``y_end``, the larger), at
+    the tolerance :func:`lieseries.energy.guard_tolerance` reads."""
 
     if out.status != "success" or not ps.is_hamiltonian:
         return
-    e0, scale = energy_exact(ps, y0, bits)
-    e1, _ = energy_exact(ps, y_end, bits)
-    out.status, out.message = exact_energy_verdict(e0, e1, scale, tol, out.status, out.message, out.steps)
+    e0, scale0 = energy_exact(ps, y0, bits)
+    e1, scale1 = energy_exact(ps, y_end, bits)
+    # the larger of the two scales: from rest at q = 0 under a force (H = p^2/2 - q + ...) H and its terms vanish
+    # at y0, and a run right to 1e-33 ended invariant_drift on a threshold of 0
+    out.status, out.message = exact_energy_verdict(e0, e1, max(scale0, scale1), guard_tolerance(ps, tol, bits),
+                                                   out.status, out.message, out.steps)

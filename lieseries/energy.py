@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import threading
 import weakref
+from fractions import Fraction
 
 import heyoka as hy
 import mpmath
@@ -22,7 +23,7 @@ from . import cache
 from .expr import compile_expressions
 from .precision import bits_to_dps, resolve_precision, to_fraction
 
-__all__ = ["drift_threshold", "DRIFT_PER_STEP", "energy_check", "energy_drift", "energy_function", "energy_verdict",
+__all__ = ["drift_threshold", "guard_tolerance", "DRIFT_PER_STEP", "energy_check", "energy_drift", "energy_function", "energy_verdict",
            "energy_quick", "quick_check",
            "drift_message", "clear_energy_cache", "energy_exact", "exact_energy_verdict"]
 
@@ -46,6 +47,22 @@ def drift_threshold(tol, steps):
         return min(math.sqrt(f), DRIFT_PER_STEP * f * n)
     t = mpmath.mpf(tol) if hasattr(tol, "_mpf_") else mpmath.mpf(tol.numerator) / tol.denominator
     return min(mpmath.sqrt(t), DRIFT_PER_STEP * t * n)
+
+def guard_tolerance(ps, tol, work_bits: int):
+    """The tolerance the energy guard reads for a run of ``ps`` at ``tol`` and ``work_bits``: ``tol``, or
+    2^-b when a constant written in the expressions carries only b < ``work_bits`` bits (heyoka stores 1/3 as the
+    nearest double and folds the constants of the derivatives in double: the field is then the gradient of H to
+    b bits only, and a 30-digit run right to 1e-33 changed H by 2e-18: "the result is wrong", because of the
+    constant the PrecisionWarning already named). Parameters and states given as binary floats are exact for
+    their binary values in the field and in H alike: they do not loosen it."""
+    bits = [b for name, b in ps.coarse_data().items() if name.startswith("the constant ") and b < work_bits]
+    if not bits:
+        return tol
+    floor = Fraction(1, 2 ** min(bits))
+    if hasattr(tol, "_mpf_"):
+        return max(tol, mpmath.mpf(floor.numerator) / floor.denominator)
+    return max(tol, floor) if isinstance(tol, Fraction) else max(tol, float(floor))
+
 
 _ENERGY = cache.region("energy.functions", 64)  # compiled energy checks, in the one cache
 #: Energies (H and the Casimirs) printed longer than this get no plain Python check (:func:`quick_check`): the

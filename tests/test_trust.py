@@ -560,3 +560,29 @@ def test_a_validated_run_at_400_digits_reports_its_tolerance():
     body = ls.EulerPoisson((1, 2, "2.5"))
     sol = ls.validated_integrate(body, body.initial_state(omega=(1, "0.1", "0.5")), t="0.01", dps=400)
     assert sol.status == "success" and mp.mpf(10) ** -401 < sol.stats.tol < mp.mpf(10) ** -399
+
+
+def test_a_binary_constant_in_the_hamiltonian_does_not_make_a_right_run_wrong():
+    """H = p^2/2 - q + q^3/3: heyoka stores 1/3 as the nearest double and folds 3 * 0.333... of the derivative to
+    1.0, so the field is the gradient of H to 53 bits only. A 30-digit Lie run right to 1e-33 (against a 60-digit
+    run of the same field) ended invariant_drift, "the result is wrong", on H's change of 2e-18 -- the constant the
+    PrecisionWarning names is the cause, not the run; from rest at q = 0 (H and its terms vanish at y0) the
+    threshold was 0. A heyoka double run that takes one wrong step there (its orders 2, 6, 10, ... only) still
+    ends invariant_drift."""
+    import heyoka as hy
+
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 - q + q**3 / 3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PrecisionWarning)
+        for y0 in ([0, 0], ["0.5", 0]):
+            sol = ls.lie_integrate(osc, y0, t=1, dps=30)
+            ref = ls.lie_integrate(osc, y0, t=1, dps=60)
+            assert sol.status == "success", sol.message
+            with mp.workdps(60):
+                assert max(abs(mp.mpf(a) - mp.mpf(b)) for a, b in zip(sol.y_reached, ref.y_reached)) < 1e-31
+        wrong = ls.integrate(osc, [0, 0], t=1)
+        ref = ls.lie_integrate(osc, [0, 0], t=1, dps=60)
+        with mp.workdps(60):
+            assert max(abs(mp.mpf(float(a)) - mp.mpf(b)) for a, b in zip(wrong.y_reached, ref.y_reached)) > 1e-12
+        assert wrong.status == "invariant_drift"

@@ -20,6 +20,7 @@ import numpy as np
 
 from .. import cache
 from ..driver import run_message
+from ..energy import guard_tolerance
 from ..heyoka_build import build_integrator
 from ..precision import (
     Precision,
@@ -86,7 +87,7 @@ def make_plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_ev
         grid=grid, direction=direction, t0f=t0f, tolf=tolf, grid_native=grid_native,
         grid_exact=[to_fraction(g) for g in grid_native], t0_native=prec.time(t0f),
         reached=run_message("success", t=grid_native[-1]),
-        tol_float=float(tolf), sqrt_tol=math.sqrt(float(tolf)),
+        tol_float=float(tolf), sqrt_tol=math.sqrt(float(guard_tolerance(ps, tolf, prec.bits))),
         build=build_integrator(system, prec, tolf, user_events=user_events, compact_mode=compact_mode,
                                high_accuracy=high_accuracy),
     )
