@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import lieseries as ls  # noqa: E402
 from lieseries import exact  # noqa: E402
 from lieseries.lie.integrator import default_order, jorba_zou_order  # noqa: E402
-from lieseries.precision import LIE_GUARD_DIGITS, Precision, to_fraction  # noqa: E402
+from lieseries.precision import to_fraction  # noqa: E402
 
 OMEGA = (1, "0.1", "0.5")
 X0, V0 = ("0.6", "0", "0.8"), ("0", "1", "0")  # a great circle through the poles (charts change on the way)
@@ -81,7 +81,7 @@ def main(argv=None):
     for dps in args.digits:
         tol = mp.mpf(10) ** -dps
         jz = jorba_zou_order(tol)
-        auto = default_order(tol, Precision.of(dps=dps, guard_digits=LIE_GUARD_DIGITS).working_bits) - jz
+        auto = default_order(tol) - jz
         runs = {}
         for c in offsets:
             run, error = make(dps, jz + c, args.T)

@@ -2,18 +2,14 @@
 
 Step and order rules
 --------------------
-Order. When not given, N = ceil(L / 2) + 1 + min(floor(L / 8), floor((768 / B)^2)), with L = -ln(tol) and B the
-working bits. Jorba and Zou's ceil(L / 2) + 1 (Exp. Math. 14 (2005) 99) minimises the work per unit time of a
-Taylor method whose step costs b N^2: steps of about rho e^(-L/N) (rho the radius of convergence) cost b N^2
-e^(L/N) per unit time, least at N = L / 2. A step of this engine also costs a N (the per-order work of Python
-around the big-integer products, the same at every precision) besides b N^2 (the products, whose cost grows like
-B^2 at these sizes: GMP's schoolbook multiplication), and (a N + b N^2) e^(L/N) is least near N = L / 2 + r / 2
-with r = a / b: an offset that falls like 1 / B^2, floor((768 / B)^2) (fitted to the measured optimum: about 14
-orders at 50 digits, a few at 100, none to speak of at 200; ``benchmarks/lie_order.py``). It is at most L / 8,
-which keeps the step below e^(-1.6) rho (e^(-2) rho at the Jorba-Zou order): the tail beyond the last order, which
-the step rule does not bound, stays a small part of the error (the errors of longer steps at low precision grew up
-to tenfold). For 30 digits N = 36 + 8, for 50 digits 59 + 14, for 100 digits 117 + 4, for 200 digits 232 + 1; from
-about 800 bits the Jorba-Zou order.
+Order. When not given, N = ceil(-ln(tol) / 2) + 1 (Jorba & Zou, Exp. Math. 14 (2005) 99): with a step of about
+rho / e^2 the truncation error of an order-N step is then near tol, and this N minimises the work per unit time
+for a Taylor method whose cost grows like N^2. For 50 digits N = 59, for 100 digits N = 117. A step of this engine
+also costs a N (the Python work around the big-integer products), and (a N + b N^2) e^(L/N) is least some orders
+above L / 2 (L = -ln tol): 8-14 orders more made 30- and 50-digit runs 10-20% faster (``benchmarks/lie_order.py``),
+but their steps approach e^(-1.6) rho, each step's error comes closer to tol, and the errors grew with it (the heavy
+top of the `heavy-top` scene to t = 10 at 30 digits: 2.9e-31 at order 36, 1.4e-30 at order 44): the order stays
+Jorba and Zou's.
 
 Step. At each step the coefficients c_0..c_N of the series at the current state are computed (jets, O(N^2) per node
 of the vector field). The step is the largest h with |c_k,i| h^k <= tol * s_i for every component i and the last
@@ -85,21 +81,14 @@ from .operator import (
 __all__ = ["lie_integrate", "default_order", "jorba_zou_order"]
 
 
-#: The automatic order's offset above the Jorba-Zou order is at most (ORDER_OFFSET_BITS / working bits)^2 orders
-#: (module docstring).
-ORDER_OFFSET_BITS = 768
-
-
 def jorba_zou_order(tol) -> int:
     """The Jorba-Zou order for a tolerance: ceil(-ln(tol) / 2) + 1, at least 4 (heyoka's order too)."""
     return max(4, math.ceil(-float(mp.log(tol)) / 2) + 1)
 
 
-def default_order(tol, bits: int) -> int:
-    """The automatic order for a tolerance and ``bits`` working bits (module docstring): the Jorba-Zou order
-    plus min(floor(L / 8), floor((ORDER_OFFSET_BITS / bits)^2)), L = -ln(tol)."""
-    L = -float(mp.log(tol))
-    return jorba_zou_order(tol) + min(int(L // 8), ORDER_OFFSET_BITS**2 // max(1, int(bits)) ** 2)
+def default_order(tol) -> int:
+    """The automatic order for a tolerance: the Jorba-Zou order (module docstring)."""
+    return jorba_zou_order(tol)
 
 
 def lie_integrate(
@@ -259,14 +248,14 @@ def _tolerance(tol, prec):
 def _series_order(order, tolm, tol, prec):
     """(the order of the steps, the automatic order for ``tolm`` at ``prec``'s working bits): ``order`` checked,
     or the automatic one (at most MAX_ORDER)."""
-    N_auto = default_order(tolm, prec.working_bits)
+    N_auto = default_order(tolm)
     if order is None and N_auto > MAX_ORDER:
         source = f"`tol` = {mp.nstr(tolm, 3)}" if tol is not None else f"`dps` = {prec.dps}"
         raise ValueError(
             f"{source} asks for the automatic series order {N_auto} (about -ln(tol) / 2), above the largest "
             f"order {MAX_ORDER}: pass `order` (at most {MAX_ORDER}: shorter steps reach the same accuracy), or "
             f"ask for fewer digits (the automatic order stays within {MAX_ORDER} up to `dps` = "
-            f"{_largest_auto_dps(prec.guard_digits)})"
+            f"{_largest_auto_dps()})"
         )
     return (N_auto if order is None else check_order(order)), N_auto
 
@@ -493,10 +482,10 @@ def _pow2(r):
     return mp.ldexp(mp.mpf(2.0 ** (r - n)), n)
 
 
-def _largest_auto_dps(guard: int) -> int:
-    """The largest ``dps`` whose automatic order (tol = 10^-dps, ``guard`` guard digits) is at most MAX_ORDER."""
-    dps = int(2 * (MAX_ORDER - 1) / math.log(10))  # the Jorba-Zou order's; the offset can only lower it
-    while dps > 1 and default_order(mp.mpf(10) ** -dps, _precision(dps, guard).working_bits) > MAX_ORDER:
+def _largest_auto_dps() -> int:
+    """The largest ``dps`` whose automatic order (tol = 10^-dps) is at most MAX_ORDER."""
+    dps = int(2 * (MAX_ORDER - 1) / math.log(10))
+    while dps > 1 and default_order(mp.mpf(10) ** -dps) > MAX_ORDER:
         dps -= 1
     return dps
 

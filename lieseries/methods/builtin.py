@@ -287,8 +287,7 @@ def _lie_check(spec) -> None:
         raise ValueError(f"`tol` = {float(tol):.3g} is below what {dps} digits (+{GUARD_DIGITS} guard) can resolve; "
                          f"raise `dps`")
     if spec.get("order") is None:
-        bits = Precision.of(dps=dps, guard_digits=GUARD_DIGITS).working_bits
-        n_auto = default_order(ctx.mpf(tol.numerator) / tol.denominator, bits)
+        n_auto = default_order(ctx.mpf(tol.numerator) / tol.denominator)
         if n_auto > MAX_ORDER:
             raise ValueError(f"`{'tol' if spec.get('tol') is not None else 'dps'}` asks for the automatic series "
                              f"order {n_auto}, above the largest order {MAX_ORDER}: give `order` (at most "
