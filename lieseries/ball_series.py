@@ -12,7 +12,7 @@ import weakref
 from contextlib import contextmanager
 from fractions import Fraction
 
-from .lie.jets import DeadlineExceeded
+from .lie.plan import DeadlineExceeded
 
 __all__ = ["SUPPORTED_OPS", "flint_module", "working_precision", "Singular", "ball_constant", "exact_constant",
            "evaluate",
@@ -258,7 +258,7 @@ def taylor_coefficients(prog, z0, pars, consts, order, flint, *, bits=None, dead
     z = z0 + integral of f(z), of length m + 1 (its coefficient m is c_m = f_{m-1} / m; the earlier ones enclose
     c_0..c_{m-1} again, from the same balls). ``bits``: the precision to work at (default: the
     current one); a lower precision only widens the balls, it never makes them wrong. ``deadline``: a
-    perf_counter value after which :class:`~lieseries.lie.jets.DeadlineExceeded` is raised (checked every order).
+    perf_counter value after which :class:`~lieseries.lie.plan.DeadlineExceeded` is raised (checked every order).
     """
 
     arb, arb_series = flint.arb, flint.arb_series

@@ -60,7 +60,7 @@ from .precision import (
 from .ball_series import (SUPPORTED_OPS, Singular, ball_constant, check_ops, evaluate, flint_module, norm_bound,
                           taylor_coefficients, taylor_coefficients_checked, working_precision)
 from .driver import StepResult, Stop, drive
-from .lie.jets import DeadlineExceeded
+from .lie.plan import DeadlineExceeded
 from .solution import ChartRows, Solution, Stats
 from .timegrid import parse_times
 from .validated_step import (BOX_ORDER, DEFECT_EXTRA, JACOBIAN_PIECES, WIDE_JACOBIAN_PIECES, centre_polynomial,

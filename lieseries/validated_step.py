@@ -44,7 +44,7 @@ def centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadli
     integers ``M`` with c_k = M * 2^(u - s k), taken exactly as the coefficients in the jets' scaled time
     sigma = 2^-s tau: no composition), or from Picard iteration on Arb series when the jets fail (s = 0).
     ``span``: the time left (the stepper's time scale covers it when the solution is a polynomial). Past
-    ``deadline`` (a perf_counter value) both stop with :class:`~lieseries.lie.jets.DeadlineExceeded`."""
+    ``deadline`` (a perf_counter value) both stop with :class:`~lieseries.lie.plan.DeadlineExceeded`."""
     arb = flint.arb
     try:
         jets = stepper.expand([mpmath.make_mpf(mpmath.libmp.from_man_exp(*(int(q) for q in v.mid().man_exp())))

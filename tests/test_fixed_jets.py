@@ -211,7 +211,7 @@ def test_lie_integrate_sphere_atlas(bigint, dps):
 def test_stepper_deadline(bigint):
     from time import perf_counter
 
-    from lieseries.lie.jets import DeadlineExceeded
+    from lieseries.lie.plan import DeadlineExceeded
 
     prog = compile_system(*rigid_body())
     stepper = fixed.FixedStepper(prog, RB_PARS, 60, Precision.of(dps=40))

@@ -315,7 +315,7 @@ def test_unsupported_functions_are_named():
 def test_a_passed_deadline_stops_the_expansion_and_none_changes_nothing():
     import time
 
-    from lieseries.lie.jets import DeadlineExceeded
+    from lieseries.lie.plan import DeadlineExceeded
 
     x, v = hy.make_vars("x", "v")
     sys_ = [(x, v), (v, -x)]

@@ -254,7 +254,6 @@ class Program:
         self.var_nodes = tuple(n for n in self.nodes if not self.is_const[n.out])
         self._const_cache = {}
         self._par_cache = OrderedDict()
-        self._engine_cache = {}
 
     @property
     def nvars(self):

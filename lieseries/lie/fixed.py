@@ -9,7 +9,7 @@ Scaling (why fixed point loses nothing)
 ---------------------------------------
 * Each jet's exponent is set at order 0 from the magnitude it will carry: ``e = max(e(f(a_0)), e(f'(a_0)) + e_a)``
   (the value, and the first-order change that the argument's scale ``e_a`` drives), and ``u = e - F`` with ``F``
-  the working bits (precision + :func:`~lieseries.lie.jets.jet_guard_bits`).  A state variable takes the exponent
+  the working bits (precision + :func:`~lieseries.lie.plan.jet_guard_bits`).  A state variable takes the exponent
   of its own value (a zero one the smallest exponent of the non-zero ones), so states of size 1e6 or 1e-6 and
   parameters of any size keep ``F`` bits relative to their own scale.  Sums are exact (finest exponent); every
   other result is rounded once to half a unit.
@@ -21,7 +21,7 @@ Scaling (why fixed point loses nothing)
   correspondingly fewer bits, which is where fixed point saves work over floating point.
 * Rounding: sums and products are exact, and every stored coefficient is rounded once (half a unit); the error
   a coefficient inherits through the recurrences grows with the order and the depth of the expression by a
-  factor of a few powers of two, well inside the :func:`~lieseries.lie.jets.jet_guard_bits` the working
+  factor of a few powers of two, well inside the :func:`~lieseries.lie.plan.jet_guard_bits` the working
   precision carries (tests/test_fixed_jets.py checks every instruction against the mpf jets at twice the digits).
 
 The modules
@@ -48,7 +48,7 @@ from ..precision import thread_mp as mp
 from . import bigint
 from .bigint import greater_abs, log2_abs, to_raw, round_shift, backend, set_backend
 from .fixed_orders import expand
-from .jets import jet_guard_bits, radius_from_logs, resolve_program
+from .plan import jet_guard_bits, radius_from_logs, resolve_program
 
 __all__ = ["backend", "set_backend", "fixed_taylor_coefficients", "FixedStepper", "FixedJets"]
 
@@ -267,7 +267,7 @@ class FixedStepper:
     """Repeated expansions of one system at one order and precision (the Lie step's jets).
 
     ``precision`` is a :class:`~lieseries.precision.Precision`: the jets hold its working bits (guard included) and
-    :func:`~lieseries.lie.jets.jet_guard_bits` more.  ``expand(z, span)`` returns :class:`FixedJets` for the state ``z`` (mpf) with a time scale ``sigma`` (a power
+    :func:`~lieseries.lie.plan.jet_guard_bits` more.  ``expand(z, span)`` returns :class:`FixedJets` for the state ``z`` (mpf) with a time scale ``sigma`` (a power
     of two, ``max_step`` of the result) that the caller's step must not exceed.  Integers hold
     ``c_k sigma**k`` to a fixed number of bits relative to the state, so a coefficient carries exactly the
     absolute accuracy that a step of at most ``sigma`` needs, and no more: with ``sigma`` a few times the step

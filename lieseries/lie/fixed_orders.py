@@ -35,7 +35,7 @@ from .fixed_steps import (
     mk_sqrt,
     mk_tan,
 )
-from .jets import DeadlineExceeded, jet_plan
+from .plan import DeadlineExceeded, jet_plan
 
 def _cprod(cv, slots):
     """The exact product of constant slots (None for none)."""

@@ -70,7 +70,7 @@ from ..precision import (
 from ..precision import thread_mp as mp
 from ..solution import Solution, Stats
 from ..timegrid import parse_times
-from .jets import radius_from_logs
+from .plan import radius_from_logs
 from .operator import (
     GUARD_DIGITS,
     coarse_bits,
@@ -337,7 +337,7 @@ class _LieEngine:
 
     def _expand(self, z, span):
         """The jets at ``z`` (:class:`~lieseries.lie.fixed.FixedJets`); a budget or a domain stop as a Stop."""
-        from .jets import DeadlineExceeded
+        from .plan import DeadlineExceeded
 
         try:
             return self.stepper.expand(z, span, deadline=self.deadline)
@@ -450,7 +450,7 @@ def _last_nonzero(jet, N, last):
 
 def _envelope_tail(terms):
     """log2 of the tail beyond the last order from one component's last terms [(k, log2 |c_k| h^k)]: their decay
-    rate q per order fitted to their upper envelope (:func:`~lieseries.lie.jets.radius_from_logs`: a term that
+    rate q per order fitted to their upper envelope (:func:`~lieseries.lie.plan.radius_from_logs`: a term that
     nearly vanishes does not count), the envelope's value one order on, over 1 - q; ``inf`` when they do not decay,
     ``-inf`` for fewer than two nonzero terms."""
     nxt = max(k for k, _ in terms) + 1

@@ -24,7 +24,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..models.base import Model, state_fractions
-from .jets import radius_from_logs, taylor_coefficients
+from .jets import taylor_coefficients
+from .plan import radius_from_logs
 from ..poisson import as_poisson_system
 from ..precision import (
     LIE_GUARD_DIGITS,
@@ -70,7 +71,7 @@ def norms(coefficients):
 
 def estimate_radius(nrm) -> mp.mpf:
     """Radius of convergence from coefficient norms: the slope of log||c_k|| over the upper half of the orders, fitted
-    to the norms' upper envelope (:func:`lieseries.lie.jets.radius_from_logs`).
+    to the norms' upper envelope (:func:`lieseries.lie.plan.radius_from_logs`).
 
     Returns ``mp.inf`` when the coefficients vanish (a polynomial solution).
     """
