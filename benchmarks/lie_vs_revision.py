@@ -9,6 +9,10 @@ change of the steps or the order) both errors against the closed form (``ls.exac
     .venv/bin/python benchmarks/lie_vs_revision.py main                 # 50 digits, this checkout against main
     .venv/bin/python benchmarks/lie_vs_revision.py HEAD~3 --digits 50 100 --reps 9
     LIESERIES_BIGINT=int .venv/bin/python benchmarks/lie_vs_revision.py main   # Python ints in both
+    .venv/bin/python benchmarks/lie_vs_revision.py f60ff67~1 --digits 1000 --max-steps 1 --reps 2   # one step
+
+With ``--max-steps 1`` each call is one step (at 1000 digits one step of order 1153, the time-scale probe
+included); the states are then compared at the times each run reached.
 """
 
 from __future__ import annotations
@@ -50,6 +54,7 @@ def main(argv=None):
     ap.add_argument("--reps", type=int, default=7, help="alternated pairs per precision (default 7)")
     ap.add_argument("--T", type=float, default=10)
     ap.add_argument("--clock", choices=["wall", "cpu"], default="cpu")
+    ap.add_argument("--max-steps", type=int, default=None, help="steps per call (default: as many as T needs)")
     args = ap.parse_args(argv)
     clock = time.perf_counter if args.clock == "wall" else time.process_time
     with tempfile.TemporaryDirectory() as tmp:
@@ -60,11 +65,15 @@ def main(argv=None):
             for name, pkg in (("rev", old), ("this", ls)):
                 body = pkg.EulerPoisson((1, 2, 3))
                 y0 = body.initial_state((1, "0.1", "0.5"))
-                runs[name] = (lambda pkg=pkg, body=body, y0=y0: pkg.lie_integrate(body, y0, t=args.T, dps=dps))
-            end = {name: run().y[-1] for name, run in runs.items()}  # warm-up
-            same = all(a == b for a, b in zip(end["rev"], end["this"]))
+                extra = {} if args.max_steps is None else {"max_steps": args.max_steps}
+                runs[name] = (lambda pkg=pkg, body=body, y0=y0: pkg.lie_integrate(body, y0, t=args.T, dps=dps,
+                                                                                 **extra))
+            sols = {name: run() for name, run in runs.items()}  # warm-up
+            end = {name: sol.y[-1] for name, sol in sols.items()}
+            same = all(a == b for a, b in zip(end["rev"], end["this"])) and sols["rev"].t[-1] == sols["this"].t[-1]
             errors = "" if same else "; errors " + ", ".join(
-                f"{name} {mp.nstr(_error(end[name], dps, args.T), 3)}" for name in ("rev", "this"))
+                f"{name} {mp.nstr(_error(end[name], dps, sols[name].t[-1]), 3)} at t = {mp.nstr(sols[name].t[-1], 6)}"
+                for name in ("rev", "this"))
             times = {"rev": [], "this": []}
             for r in range(args.reps):
                 for name in (("rev", "this") if r % 2 == 0 else ("this", "rev")):
