@@ -200,7 +200,7 @@ class Dots:
     into one integer per order (fields of W bits, W above the bits any of the products can reach) and the
     products' k-th coefficients are read back from the fields of one sum.
 
-    The fields' width is set at order 0 with 32 bits to spare.  The order loop either checks the bound at every
+    The fields' width is set at order 0 with 20 bits to spare (a narrower packed integer is a cheaper product).  The order loop either checks the bound at every
     order (widening the fields when a coefficient outgrows it) or, faster, runs without checks, after which
     :meth:`all_fit` checks the same bound over every order at once (the expansion is then run again with the checks
     when it fails)."""
@@ -222,7 +222,7 @@ class Dots:
     def repack(self, k, need):
         """Widen the fields to hold ``need`` bits: the packed partners of orders < k again; the new
         (W, mask, full, half)."""
-        W = self.W = need + 32
+        W = self.W = need + 20
         # the masks and biases in the backend's integers: an operation between gmpy2's mpz and a Python int of
         # hundreds of bits converts the int every time (~0.1 us for a 500-bit mask, ~0.7 us for a 4000-bit bias)
         Z = self.Z
