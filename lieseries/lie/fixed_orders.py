@@ -261,8 +261,8 @@ def _order_loop(steps, deferred, rest, checked, Z):
                 if cm is not None and cm != -1:
                     put(cm)  # cm_m
                 put(d)  # d_m
-                # (cm depends on the constants only; the shifts and the final rounding's direction depend on the
-                # state's exponents and are variables, so that one function serves every step)
+                # (cm depends on the constants only; the shifts depend on the state's exponents and are variables,
+                # so that one function serves every step)
                 tsig.append((src, None if cm is None else (-1 if cm == -1 else 0)))
             fin = st.fin
             if st.state is None:  # round(tot / 2**fin)
@@ -272,12 +272,19 @@ def _order_loop(steps, deferred, rest, checked, Z):
             else:  # round(tot 2**fin / (k + 1)) = floor((tot 2**e + k + 1) / (2 (k + 1))), e = fin + 1
                 fin += 1
                 fp = fin >= 0
-            put(fp)  # fp, fin, nf
-            put(max(fin, 0))
-            put(max(-fin, 0))
+            # The direction of the final shift: with a product among the terms it is a right shift at every step
+            # (the terms' exponents hold the F fraction bits of both factors: fin ~ -F), part of the structure;
+            # for linear terms alone it follows the state's magnitudes from step to step, a variable fp
+            if all(src == "jet" for src, _ in tsig):
+                put(fp)  # fp, fin, nf
+                put(max(fin, 0))
+                put(max(-fin, 0))
+                fp = None
+            else:
+                put(fin if fp else -fin)  # fin or nf
             if K:
                 put(Z(K))
-            sig.append(("s", st.state, tuple(tsig), bool(K)))
+            sig.append(("s", st.state, tuple(tsig), bool(K), fp))
         else:
             put(st)
             sig.append(("g",))
@@ -307,7 +314,7 @@ def _env_names(key):
             if not checked:
                 names.append(f"ball{j}")
         elif st[0] == "s":
-            _, state, terms, has_K = st
+            _, state, terms, has_K, fp = st
             for m, (src, cm) in enumerate(terms):
                 if src == "call" or src == "jet":
                     names.append(f"t{j}_{m}")
@@ -316,7 +323,7 @@ def _env_names(key):
                 names.append(f"d{j}_{m}")
             if state is None:
                 names += [f"C{j}", f"hf{j}"]
-            names += [f"fp{j}", f"fin{j}", f"nf{j}"]
+            names += [f"fp{j}", f"fin{j}", f"nf{j}"] if fp is None else [f"fin{j}" if fp else f"nf{j}"]
             if has_K:
                 names.append(f"K{j}")
         else:
@@ -367,7 +374,7 @@ def _generate(key, names):
                 body += [f"dv{key_} = {e} & mask{j}" for key_, e in zip(keys[:-1], at)]
                 body.append(f"dv{keys[-1]} = D >> " + (f"W{j}" if n == 2 else f"W{j}_{n - 1}"))
         elif st[0] == "s":
-            _, state, terms, has_K = st
+            _, state, terms, has_K, fp = st
             parts = []
             for m, (src, cm) in enumerate(terms):
                 v = f"t{j}_{m}(k)" if src == "call" else (f"t{j}_{m}[k]" if src == "jet" else f"dv{src}")
@@ -378,12 +385,13 @@ def _generate(key, names):
             tot = tot[2:] if tot.startswith("+ ") else "-" + tot[2:]
             body.append(f"tot = {tot}" + (f" + K{j}" if has_K else ""))
             if state is None:  # round(tot / 2**fin)
-                body += [f"if fp{j}: C{j}.append((tot + hf{j}) >> fin{j})", f"else: C{j}.append(tot << nf{j})"]
+                up, down = f"C{j}.append((tot + hf{j}) >> fin{j})", f"C{j}.append(tot << nf{j})"
+                body += [f"if fp{j}: {up}", f"else: {down}"] if fp is None else [up if fp else down]
             else:  # round(tot 2**fin / (k + 1)): floor((tot 2**e + k + 1) / (2 (k + 1))) with e = fin + 1, the same
                 # with floor(tot 2**e) for e < 0 (floor(floor(x) / m) = floor(x / m) for an integer m > 0): a shift
                 # and a division by a small integer
-                body += [f"if fp{j}: nx{state} = ((tot << fin{j}) + k1) // k2",
-                         f"else: nx{state} = ((tot >> nf{j}) + k1) // k2"]
+                up, down = f"nx{state} = ((tot << fin{j}) + k1) // k2", f"nx{state} = ((tot >> nf{j}) + k1) // k2"
+                body += [f"if fp{j}: {up}", f"else: {down}"] if fp is None else [up if fp else down]
         else:
             body.append(f"g{j}(k)")
     body += [f"z{i}.append(nx{i})" for i in deferred]
