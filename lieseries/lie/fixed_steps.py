@@ -258,8 +258,7 @@ class Dots:
         def bits(jet):  # the largest bit length of a jet's coefficients (a jet several products share: once)
             b = known.get(id(jet))
             if b is None:
-                c = jet[:n]
-                b = known[id(jet)] = max(bl(max(c)), bl(min(c)))
+                b = known[id(jet)] = max(map(bl, jet[:n]))
             return b
 
         return all(bits(d.A) + max(map(bits, d.Bs)) + n.bit_length() + 2 <= d.W for d in dots)
