@@ -161,12 +161,12 @@ class FixedJets:
         for Mi, ui in zip(self.M, self.U):
             acc = Mi[-1]
             if sh > 0:
-                half = 1 << (sh - 1)
-                for k in range(len(Mi) - 2, -1, -1):
-                    acc = ((acc * tm + half) >> sh) + Mi[k]
+                half = Z(1) << (sh - 1)
+                for m in Mi[-2::-1]:
+                    acc = ((acc * tm + half) >> sh) + m
             else:
-                for k in range(len(Mi) - 2, -1, -1):
-                    acc = round_shift(acc * tm, sh) + Mi[k]
+                for m in Mi[-2::-1]:
+                    acc = round_shift(acc * tm, sh) + m
             out.append(make(to_raw(acc, ui, prec)))
         return out
 

@@ -218,7 +218,7 @@ def _state_exponents(y0_raw):
 _LOOPS = {}  # the structure of an expansion's orders -> its generated function
 
 
-def _order_loop(steps, deferred, rest, checked):
+def _order_loop(steps, deferred, rest, checked, Z):
     """(run, env): ``run(k0, order, deadline, env)`` computes the orders k0..order-1 of an expansion whose order 0
     the steps have computed (it fixed every exponent, shift and constant).  The ``sop`` and ``dots`` steps are
     written out as straight-line Python over local variables (the same integer operations as their step
@@ -226,7 +226,9 @@ def _order_loop(steps, deferred, rest, checked):
     once per structure (the instructions and which constant factors are -1, 1 or other) and cached.  With
     ``checked`` the packed dot products check their fields' width at every order (:class:`Dots`); without, the
     caller checks it once at the end (:meth:`Dots.all_fit`), the fields are read with half a field added to each and
-    every sum of products that reads them subtracts the halves at once, as a constant ``K`` of its own."""
+    every sum of products that reads them subtracts the halves at once, as a constant ``K`` of its own.  The
+    environment's big constants are of the integer type ``Z``, as the jets are (gmpy2 converts a Python int
+    operand at every operation)."""
     sig, env = [], []
     put = env.append  # the values in the order of their names (_env_names)
     half_of = {}  # a dot product's key -> what its field holds above it (without checks)
@@ -259,23 +261,30 @@ def _order_loop(steps, deferred, rest, checked):
                 if cm is not None and cm != -1:
                     put(cm)  # cm_m
                 put(d)  # d_m
-                # (cm depends on the constants only; the shifts and the final rounding's direction depend on the
-                # state's exponents and are variables, so that one function serves every step)
+                # (cm depends on the constants only; the shifts depend on the state's exponents and are variables,
+                # so that one function serves every step)
                 tsig.append((src, None if cm is None else (-1 if cm == -1 else 0)))
             fin = st.fin
             if st.state is None:  # round(tot / 2**fin)
                 put(st.C)  # C, hf
-                put(1 << (fin - 1) if fin > 0 else 0)
+                put(Z(1) << (fin - 1) if fin > 0 else 0)
                 fp = fin > 0
             else:  # round(tot 2**fin / (k + 1)) = floor((tot 2**e + k + 1) / (2 (k + 1))), e = fin + 1
                 fin += 1
                 fp = fin >= 0
-            put(fp)  # fp, fin, nf
-            put(max(fin, 0))
-            put(max(-fin, 0))
+            # The direction of the final shift: with a product among the terms it is a right shift at every step
+            # (the terms' exponents hold the F fraction bits of both factors: fin ~ -F), part of the structure;
+            # for linear terms alone it follows the state's magnitudes from step to step, a variable fp
+            if all(src == "jet" for src, _ in tsig):
+                put(fp)  # fp, fin, nf
+                put(max(fin, 0))
+                put(max(-fin, 0))
+                fp = None
+            else:
+                put(fin if fp else -fin)  # fin or nf
             if K:
-                put(K)
-            sig.append(("s", st.state, tuple(tsig), bool(K)))
+                put(Z(K))
+            sig.append(("s", st.state, tuple(tsig), bool(K), fp))
         else:
             put(st)
             sig.append(("g",))
@@ -305,7 +314,7 @@ def _env_names(key):
             if not checked:
                 names.append(f"ball{j}")
         elif st[0] == "s":
-            _, state, terms, has_K = st
+            _, state, terms, has_K, fp = st
             for m, (src, cm) in enumerate(terms):
                 if src == "call" or src == "jet":
                     names.append(f"t{j}_{m}")
@@ -314,7 +323,7 @@ def _env_names(key):
                 names.append(f"d{j}_{m}")
             if state is None:
                 names += [f"C{j}", f"hf{j}"]
-            names += [f"fp{j}", f"fin{j}", f"nf{j}"]
+            names += [f"fp{j}", f"fin{j}", f"nf{j}"] if fp is None else [f"fin{j}" if fp else f"nf{j}"]
             if has_K:
                 names.append(f"K{j}")
         else:
@@ -346,23 +355,26 @@ def _generate(key, names):
             for m in range(n - 2, -1, -1):
                 e = f"(({e}) << W{j}) + b{j}_{m}[k]"
             body.append(f"p{j}.append({e})")
-            body.append(f"D = c{j}(k)" if paired else f"D = sum(map(_mul, a{j}, reversed(p{j})))")
-            at = ["E", f"(E >> W{j})"] + [f"(E >> {m} * W{j})" for m in range(2, n)]
-            top = "E >> " + (f"W{j}" if n == 2 else f"{n - 1} * W{j}")
+            # (the bias of the fields' reading, when there is one, is the sum's start: one addition fewer)
+            bias = "" if n == 1 else f"bias{j}" if checked else f"ball{j}"
+            if paired:
+                body.append(f"D = c{j}(k)" + (f" + {bias}" if bias else ""))
+            else:
+                body.append(f"D = sum(map(_mul, a{j}, reversed(p{j}))" + (f", {bias})" if bias else ")"))
             if n == 1:
                 body.append(f"dv{keys[0]} = D")
-            elif checked:  # the fields of D + bias (Dots.repack)
-                body.append(f"E = D + bias{j}")
+            elif checked:  # the fields of D = the sum + bias (Dots.repack)
+                at = ["D", f"(D >> W{j})"] + [f"(D >> {m} * W{j})" for m in range(2, n)]
+                top = "D >> " + (f"W{j}" if n == 2 else f"{n - 1} * W{j}")
                 body += [f"dv{key_} = ({e} & mask{j}) - half{j}" for key_, e in zip(keys[:-1], at)]
                 body.append(f"dv{keys[-1]} = {top}")
             else:  # the fields of D + bias_all, each its sum of products plus half (W fixed: its multiples once)
                 head += [f"    W{j}_{m} = {m} * W{j}" for m in range(2, n)]
-                at = ["E", f"(E >> W{j})"] + [f"(E >> W{j}_{m})" for m in range(2, n)]
-                body.append(f"E = D + ball{j}")
+                at = ["D", f"(D >> W{j})"] + [f"(D >> W{j}_{m})" for m in range(2, n)]
                 body += [f"dv{key_} = {e} & mask{j}" for key_, e in zip(keys[:-1], at)]
-                body.append(f"dv{keys[-1]} = E >> " + (f"W{j}" if n == 2 else f"W{j}_{n - 1}"))
+                body.append(f"dv{keys[-1]} = D >> " + (f"W{j}" if n == 2 else f"W{j}_{n - 1}"))
         elif st[0] == "s":
-            _, state, terms, has_K = st
+            _, state, terms, has_K, fp = st
             parts = []
             for m, (src, cm) in enumerate(terms):
                 v = f"t{j}_{m}(k)" if src == "call" else (f"t{j}_{m}[k]" if src == "jet" else f"dv{src}")
@@ -373,12 +385,13 @@ def _generate(key, names):
             tot = tot[2:] if tot.startswith("+ ") else "-" + tot[2:]
             body.append(f"tot = {tot}" + (f" + K{j}" if has_K else ""))
             if state is None:  # round(tot / 2**fin)
-                body += [f"if fp{j}: C{j}.append((tot + hf{j}) >> fin{j})", f"else: C{j}.append(tot << nf{j})"]
+                up, down = f"C{j}.append((tot + hf{j}) >> fin{j})", f"C{j}.append(tot << nf{j})"
+                body += [f"if fp{j}: {up}", f"else: {down}"] if fp is None else [up if fp else down]
             else:  # round(tot 2**fin / (k + 1)): floor((tot 2**e + k + 1) / (2 (k + 1))) with e = fin + 1, the same
                 # with floor(tot 2**e) for e < 0 (floor(floor(x) / m) = floor(x / m) for an integer m > 0): a shift
                 # and a division by a small integer
-                body += [f"if fp{j}: nx{state} = ((tot << fin{j}) + k1) // k2",
-                         f"else: nx{state} = ((tot >> nf{j}) + k1) // k2"]
+                up, down = f"nx{state} = ((tot << fin{j}) + k1) // k2", f"nx{state} = ((tot >> nf{j}) + k1) // k2"
+                body += [f"if fp{j}: {up}", f"else: {down}"] if fp is None else [up if fp else down]
         else:
             body.append(f"g{j}(k)")
     body += [f"z{i}.append(nx{i})" for i in deferred]
@@ -533,7 +546,7 @@ def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked):
             zi.append(nxt[i])
         rest(0)
     if order > 1:
-        run_orders, env = _order_loop(steps, deferred, rest if srcs else None, checked)
+        run_orders, env = _order_loop(steps, deferred, rest if srcs else None, checked, Z)
         run_orders(1, order, deadline, env)
         if not checked and not Dots.all_fit([st for st in steps if st.__class__ is Dots], order):
             return None
