@@ -73,6 +73,8 @@ class Chunks:
         self.recorders, self.guard, self.dense = recorders, guard, call.dense
         self.max_steps, self.stiff_steps, self.min_step = call.max_steps, call.stiff_steps, call.min_step
         self.chunk = call.first_chunk
+        # a bound on the first step (heyoka_build.sparse_first_step): the first chunk is that one step
+        self.first_h = call.first_h
         # (heyoka's answer, seconds) of a first chunk already run from t0; with the time and state it reached
         # when the integrator has gone back to the pool
         self.first = first
@@ -133,13 +135,16 @@ class Chunks:
         """Run one chunk of steps (or take the one already run) and return heyoka's outcome."""
         ta = self.ta
         budget = min(self.chunk, self.max_steps - self.steps)
+        cap, self.first_h = self.first_h, None
+        if cap is not None:
+            budget = 1
         marks = [len(r.sink) for r in self.recorders]
         if self.first is not None:
             (res, elapsed, *reached), self.first = self.first, None
             self.chunk_start = self.t0
         else:
             tic = _time.perf_counter()
-            res = self._propagate(t_end, budget, None)
+            res = self._propagate(t_end, budget, None, cap)
             elapsed = _time.perf_counter() - tic
             reached = ()
         if res[0] == _OUTCOME.err_nf_state:
@@ -150,7 +155,7 @@ class Chunks:
             if self.guard is not None:
                 self.guard.start(ta)
             keeper = _Keeper(ta)
-            res = self._propagate(t_end, budget, keeper)
+            res = self._propagate(t_end, budget, keeper, cap)
             self._account(res, ta.time)
             self.t_at, self.z_at = keeper.t, keeper.state
             return res[0]
@@ -277,8 +282,10 @@ class Chunks:
             return True
         return False
 
-    def _propagate(self, t_end, budget, callback):
+    def _propagate(self, t_end, budget, callback, cap=None):
+        """A chunk of at most ``budget`` steps towards ``t_end``, each at most ``cap`` long when given."""
         ta = self.ta
+        limit = {} if cap is None else {"max_delta_t": cap}
         self.chunk_start = ta.time
         if self.guard is not None:
             callback = self.guard if callback is None else Both(self.guard, callback)
@@ -290,9 +297,9 @@ class Chunks:
             # stands for the chunk's start, as in propagate_grid's answer).
             rows = _GridRows(self.pending, self.direction)
             res = ta.propagate_until(t_end, max_steps=budget, write_tc=True,
-                                     callback=rows if callback is None else Both(rows, callback))
+                                     callback=rows if callback is None else Both(rows, callback), **limit)
             return (res[0], res[1], res[2], res[3], None, rows.rows)
-        return ta.propagate_until(t_end, max_steps=budget, c_output=self.dense, callback=callback)
+        return ta.propagate_until(t_end, max_steps=budget, c_output=self.dense, callback=callback, **limit)
 
     def _account(self, res, t_end):
         """The steps, step sizes and output rows of a chunk from ``self.chunk_start`` to ``t_end``."""
