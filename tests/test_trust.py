@@ -622,3 +622,22 @@ def test_heyoka_bounds_a_first_step_whose_last_two_orders_vanish(precision, tol)
             es = ls.integrate(osc, [[0, 0], ["1/2", 0], [0, 0]], t=1, precision=precision)
             assert list(es.status) == ["success"] * 3
             assert err(es.y_reached[0]) < tol and err(es.y_reached[2]) < tol
+
+
+@pytest.mark.parametrize("precision, tol", [("double", 1e-15), ("long double", 1e-18), ("quad", 1e-32)])
+def test_a_right_run_from_rest_where_h_and_its_terms_vanish_is_success(precision, tol):
+    """H = p^2/2 - q + q^4/4 from rest at q = 0: H(y0) = 0 and so is the energy scale sum_i |dH/dy_i y_i| at y0,
+    so the heyoka guard's threshold was 0 and a double run right to 7e-17 (single, and in the ensemble's batch)
+    ended invariant_drift; in long double and quad (q has the orders 2, 8, 14, ..., p 1, 7, 13, ...: both of
+    their last two orders vanish) one step over the span was off by 4e-9 and 5e-16. The guard reads the larger
+    of the scales at y0 and at the end, as the driver's does."""
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 - q + q**4 / 4)
+    with mp.workdps(60):
+        ref = [_exact(v) for v in ls.lie_integrate(osc, [0, 0], t=1, dps=60).y_reached]
+        sol = ls.integrate(osc, [0, 0], t=1, precision=precision)
+        es = ls.integrate(osc, [[0, 0], [0, "1/2"]], t=1, precision=precision)
+        assert sol.status == "success", sol.message
+        assert list(es.status) == ["success", "success"], es.message
+        for y in (sol.y_reached, es.y_reached[0]):
+            assert max(abs(_exact(a) - b) for a, b in zip(y, ref)) < tol
