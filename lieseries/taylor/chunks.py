@@ -86,6 +86,7 @@ class Chunks:
         self.change = self.h_last = math.nan
         self.between = False  # the last chunk used up its steps: the checks run before the next one
         self.user_terminal, self.terminal_check, self.touches = frozenset(), None, 0
+        self.passed_at = None  # the time of the last user's terminal stop the run went on from (t0 or a touch)
         self.c_outs = []  # heyoka's continuous outputs, one per chunk (dense)
         self.queue = []  # (time, row) at the output times the steps so far covered, not yet taken by the driver
         self.chunk_start = self.t0
@@ -195,14 +196,20 @@ class Chunks:
             return None
         if outcome == _OUTCOME.err_nf_state:
             return Stop("non_finite", reason="non_finite.taylor")
-        if self.user_terminal and self._at_user_event(outcome) and (self.t_at == self.t0 or self._touch(outcome)):
-            return None  # the run starts on the event's surface, or touches it: go on (heyoka's cooldown)
-        # a terminal event: heyoka reports event i as outcome i, or -(i + 1) when it stopped the run
         where = self._note()
         idx = int(outcome.value) if outcome not in _NOT_EVENTS else None
         info = self.event_info
         if idx is not None and -len(info) <= idx < 0:
             idx = -idx - 1
+        if self.user_terminal and self._at_user_event(outcome) and (self.t_at == self.t0 or self._touch(outcome)):
+            if self.passed_at is not None and self.passed_at == self.t_at:
+                # stopped again where the run went on from, without a step: heyoka's cooldown is 0 where the
+                # expression's rate vanishes too (from rest on the surface), and it would stop there for ever
+                name = info[idx][1].replace("the event", "the terminal event").replace(" fired", "")
+                return Stop("step_collapse", name, note=where, reason="step_collapse.touch")
+            self.passed_at = self.t_at
+            return None  # the run starts on the event's surface, or touches it: go on (heyoka's cooldown)
+        # a terminal event: heyoka reports event i as outcome i, or -(i + 1) when it stopped the run
         if idx is not None and 0 <= idx < len(info):
             status, msg = info[idx]
             return Stop(status, message=run_message("event", t=self.t_at, note=where, detail=msg))
