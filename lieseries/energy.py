@@ -189,9 +189,9 @@ def _quick_start(quick, y0, pars, out, n, scale, casimirs):
 
 def energy_function(ps, prec, y0, parameters=None):
     """(compiled H, the system's parameters in the working format, H(y0), the energy scale of y0, ..., the compiled
-    H and gradient that give the scale at another state) for the energy check of a call. The scale sum_i |dH/dy_i(y0) y_i0| is the size of H's terms at y0 (2|H| for a kinetic
-    energy), so the check is relative to the motion's own energy whatever its units, and does not vanish where H
-    does by cancellation."""
+    H and gradient that give the scale at another state) for the energy check of a call. The scale
+    sum_i |dH/dy_i(y0) y_i0| is the size of H's terms at y0 (2|H| for a kinetic energy), so the check is relative
+    to the motion's own energy whatever its units, and does not vanish where H does by cancellation."""
     h_fn, scale_fn, npar, quick = _compiled(ps, prec)
     if not npar:
         pars = None
@@ -298,7 +298,8 @@ def energy_check(ps, prec, tol, y0, y_end, steps, status, message, parameters=No
 
 def energy_verdict(energy, sqrt_tol, y_end, steps, status, message):
     """``invariant_drift`` when the Hamiltonian changed beyond :func:`drift_threshold` * max(|H(y0)|, |H(y_end)|,
-    the energy scale of y0) over a successful run of ``steps`` steps (:func:`energy_function`)."""
+    the energy scale of y0 or of y_end, the larger) over a successful run of ``steps`` steps
+    (:func:`energy_function`)."""
     fn, pars, h0, scale, beyond, casimirs, _, scale_fn = energy
     if beyond is not None:
         name, tiny, h_exact = beyond
