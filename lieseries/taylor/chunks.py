@@ -19,7 +19,11 @@ table: how many steps finishing would take):
 - missed crossings: with non-terminal events, the event functions are evaluated at every step's end; a step
   whose signs disagree with the crossings heyoka reported in it, or that starts or ends on a zero, is searched
   again on its Taylor polynomial and the missing crossings are added (:class:`lieseries.heyoka_build.CrossingGuard`);
-- terminal events of the model (e.g. the edge of a sphere chart) end the run with their own status;
+- terminal events of the model (e.g. the edge of a sphere chart) end the run with their own status; a user's
+  terminal event that stops the run again where it went on from (t0, a touch), without a step, ends it
+  ``step_collapse`` (heyoka's cooldown is 0 where the expression's rate vanishes too);
+- a first step heyoka's rule cannot size (the last two orders of the series at y0 vanish in every component:
+  :func:`lieseries.heyoka_build.sparse_first_step`) is the first chunk, alone, bounded;
 - ``invariant_drift``: after a run that reached its final time, the Hamiltonian (conserved by every Hamiltonian
   system) is evaluated at both ends; a change beyond min(sqrt(tol), 1000 tol per step) of its energy scale
   (:func:`lieseries.energy.drift_threshold`) means the result is wrong, whatever the error control believed --
