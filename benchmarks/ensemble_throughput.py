@@ -60,10 +60,10 @@ def measure(k, repeat, workers=None):
     ps = body.poisson
     ta = hy.taylor_adaptive(ps.ode_system, Y0[0], tol=2.0**-52, pars=[float(v) for v in ps.parameter_values])
     build_batch_integrator(body)  # compile once, outside the timing
-    es = integrate_ensemble(body, Y0, T, workers=workers, single_run=ls.integrate)
+    es = integrate_ensemble(body, Y0, T, workers=workers)
     assert es.success and es.stats["single_runs"] == 0, es
     t_bare = best(lambda: bare_loop(ta, Y0), repeat)
-    t_ens = best(lambda: integrate_ensemble(body, Y0, T, workers=workers, single_run=ls.integrate), repeat)
+    t_ens = best(lambda: integrate_ensemble(body, Y0, T, workers=workers), repeat)
     return t_bare, t_ens, es.stats
 
 
@@ -95,14 +95,14 @@ def dask_vs_local(k, repeat):
     from distributed import Client, LocalCluster
 
     body, Y0 = initial_states(k)
-    local = integrate_ensemble(body, Y0, T, single_run=ls.integrate)
-    t_local = best(lambda: integrate_ensemble(body, Y0, T, single_run=ls.integrate), repeat)
+    local = integrate_ensemble(body, Y0, T)
+    t_local = best(lambda: integrate_ensemble(body, Y0, T), repeat)
     with LocalCluster(processes=True, n_workers=2, threads_per_worker=1, host="127.0.0.1",
                       dashboard_address=None) as cluster, Client(cluster) as client:
         t = time.perf_counter()
-        first = integrate_ensemble(body, Y0, T, client=client, single_run=ls.integrate)
+        first = integrate_ensemble(body, Y0, T, client=client)
         t_first = time.perf_counter() - t  # includes each worker's compilation
-        t_dask = best(lambda: integrate_ensemble(body, Y0, T, client=client, single_run=ls.integrate), repeat)
+        t_dask = best(lambda: integrate_ensemble(body, Y0, T, client=client), repeat)
     same = np.array_equal(first.y, local.y) and list(first.status) == list(local.status)
     print(f"Dask LocalCluster (2 worker processes x 1 thread, loopback), k = {k}:")
     print(f"  first call {t_first * 1e3:.0f} ms (workers compile), then {t_dask * 1e3:.1f} ms; local "

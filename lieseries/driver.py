@@ -79,6 +79,11 @@ MESSAGES = {
                             "implicit method for this part of the motion), or some variables move on a time scale "
                             "far shorter than the run (a fast rotation or oscillation: a large angular velocity, or "
                             "moments of inertia far apart): rescale time or shorten the run."),
+    "step_collapse.touch": ("The run cannot go on at {where}: {detail} is zero there without crossing (its expression "
+                            "and its rate of change vanish together, as `q` does from rest at q = 0), and heyoka "
+                            "stops on it again at once, without a step (its cooldown after an event comes from that "
+                            "rate). Start just off the event's surface, make the event non-terminal (its crossings "
+                            "are recorded and the run goes on), or use lie_integrate. {kept}"),
     "validation_failed": "Validation failed at {where}: {detail}; {kept_lower}",
 }
 

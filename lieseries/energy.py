@@ -188,10 +188,10 @@ def _quick_start(quick, y0, pars, out, n, scale, casimirs):
 
 
 def energy_function(ps, prec, y0, parameters=None):
-    """(compiled H, the system's parameters in the working format, H(y0), the energy scale of y0) for the energy
-    check of a call. The scale sum_i |dH/dy_i(y0) y_i0| is the size of H's terms at y0 (2|H| for a kinetic
-    energy), so the check is relative to the motion's own energy whatever its units, and does not vanish where H
-    does by cancellation."""
+    """(compiled H, the system's parameters in the working format, H(y0), the energy scale of y0, ..., the compiled
+    H and gradient that give the scale at another state) for the energy check of a call. The scale
+    sum_i |dH/dy_i(y0) y_i0| is the size of H's terms at y0 (2|H| for a kinetic energy), so the check is relative
+    to the motion's own energy whatever its units, and does not vanish where H does by cancellation."""
     h_fn, scale_fn, npar, quick = _compiled(ps, prec)
     if not npar:
         pars = None
@@ -221,7 +221,7 @@ def energy_function(ps, prec, y0, parameters=None):
         quick = _quick_start(quick, y0, pars, out, n, scale, casimirs)
     else:
         quick = None
-    return h_fn, pars, h0, scale, beyond, casimirs, quick
+    return h_fn, pars, h0, scale, beyond, casimirs, quick, scale_fn
 
 
 def _smallest_normal(prec):
@@ -264,6 +264,9 @@ def energy_drift(ps, tol, Y0, Y1, parameters=None, steps=None) -> dict:
                else np.array([drift_threshold(tol, s) for s in steps], dtype=np.float64))
         thr = rel * np.maximum(np.maximum(np.abs(e0), np.abs(e1)), scale)
         bad = np.isfinite(e0) & np.isfinite(e1) & (np.abs(e1 - e0) > thr)
+        if bad.any():  # the scale at the end too (energy_verdict)
+            scale1 = np.abs(scale_fn(X1, **kw)[1:n + 1] * X1).sum(axis=0)
+            bad &= np.abs(e1 - e0) > rel * scale1
         # H(y0) zero or subnormal in double: the energy may lie below the format's range (the single run's check
         # with the exact energy decides those rows)
         tiny = np.finfo(np.float64).tiny
@@ -295,8 +298,9 @@ def energy_check(ps, prec, tol, y0, y_end, steps, status, message, parameters=No
 
 def energy_verdict(energy, sqrt_tol, y_end, steps, status, message):
     """``invariant_drift`` when the Hamiltonian changed beyond :func:`drift_threshold` * max(|H(y0)|, |H(y_end)|,
-    the energy scale of y0) over a successful run of ``steps`` steps (:func:`energy_function`)."""
-    fn, pars, h0, scale, beyond, casimirs, _ = energy
+    the energy scale of y0 or of y_end, the larger) over a successful run of ``steps`` steps
+    (:func:`energy_function`)."""
+    fn, pars, h0, scale, beyond, casimirs, _, scale_fn = energy
     if beyond is not None:
         name, tiny, h_exact = beyond
         return "invariant_drift", (
@@ -312,7 +316,9 @@ def energy_verdict(energy, sqrt_tol, y_end, steps, status, message):
     # compared in the working format (quad's 1e-400 is a double's 0; two 237-bit energies on a double's midpoint
     # round apart), only the threshold is a float
     thr = drift_threshold(sqrt_tol * sqrt_tol, steps)
-    if abs(h1 - h0) > thr * max(abs(h0), abs(h1), scale):
+    if abs(h1 - h0) > thr * max(abs(h0), abs(h1), scale) and abs(h1 - h0) > thr * _end_scale(scale_fn, pars, y_end):
+        # (the scale at the end too, as the driver's guard reads it: from rest at q = 0 under a force, H = p^2/2 -
+        # q + q^3, H and its terms vanish at y0, and a run right to 1e-35 ended invariant_drift on a threshold of 0)
         return "invariant_drift", drift_message(message, h0, h1, steps)
     for (c0, sc), c1 in zip(casimirs, out[1:]):
         if _finite(c1) and abs(c1 - c0) > thr * max(sc, abs(c1)):
@@ -322,6 +328,12 @@ def energy_verdict(energy, sqrt_tol, y_end, steps, status, message):
                 "control was fooled, usually because the motion is much slower than the time span (its Taylor "
                 "coefficients underflow): rescale time and units so that the motion is of order one.")
     return status, message
+
+
+def _end_scale(scale_fn, pars, y):
+    """The energy scale sum_i |dH/dy_i y_i| at ``y`` (in the working format)."""
+    out = scale_fn(y) if pars is None else scale_fn(y, pars=pars)
+    return sum((abs(g * v) for g, v in zip(out[1:len(y) + 1], y)), out[0] * 0)
 
 
 def quick_check(energy, sqrt_tol):

@@ -4,7 +4,9 @@ compiled event functions and the per-step guard that finds the crossings heyoka 
 
 from __future__ import annotations
 
+import math
 import time as _time
+from fractions import Fraction
 
 import heyoka as hy
 import numpy as np
@@ -12,9 +14,10 @@ import numpy as np
 from . import cache
 from .models.base import Model
 from .poisson import as_poisson_system
-from .precision import check_tolerance, resolve_precision
+from .precision import check_tolerance, resolve_precision, to_fraction
 
-__all__ = ["build_integrator", "integrator_count", "event_function", "Recorder", "CrossingGuard", "Both"]
+__all__ = ["build_integrator", "integrator_count", "event_function", "Recorder", "CrossingGuard", "Both",
+           "sparse_first_step"]
 
 #: Compiled integrators (the templates runs copy, :func:`lieseries.cache.checkout`) by structure, precision,
 #: tolerance, events and options, in the shared cache (:mod:`lieseries.cache`); an evicted template takes its pooled
@@ -260,3 +263,71 @@ def build_integrator(system, precision="double", tol=None, *, events=True, user_
     if cached is not ta:  # another thread built it at the same time: use the cached one
         cache.drop_template(ta)
     return cached, build, False, info
+
+
+def sparse_first_step(ta, zero):
+    """The largest sound first step from the state ``ta`` holds when heyoka's step rule cannot see the series
+    there, else None.
+
+    heyoka sizes a step from the last two orders of the Taylor series alone (Jorba and Zou: rho from the max-norms
+    over the components of orders p - 1 and p, the step rho e^-2 exp(-0.7 / (p - 1))). A series with gaps -- at a
+    point of symmetry, as ``q'' = 1 - 3 q^2`` from rest at the origin, whose q has only the orders 2, 6, 10, ...
+    and p only 1, 5, 9, ... -- may have both orders zero in every component: rho is then infinite, heyoka takes
+    one step as long as it is allowed (to the final time), and the result is wrong (off by 3.5e-7 in double).
+    Here the series at the state ``ta`` holds is computed (a step of length ``zero``, which moves nothing and
+    fires no event, with its Taylor coefficients written); when orders p - 1 and p vanish in every component while
+    a lower order (>= 1) does not, rho is taken from each component's last two nonzero orders by heyoka's own
+    formula, and the bound is the smallest such step (a Fraction). Where one component has a nonzero last order,
+    heyoka reads the radius from it (the components of a coupled system share their singularities). Only the
+    series at a run's start is read: a state on the way is generic. For a batch integrator (``zero`` a list of
+    zeros, one per lane): None when no lane needs a bound, else a list, one per lane."""
+    ta.step(zero, write_tc=True)
+    tc = ta.tc
+    p = ta.order
+    if tc.ndim == 3:  # a batch: (variables, orders, lanes)
+        seen = tc[:, p - 1:, :].any(axis=(0, 1))
+        if seen.all():
+            return None
+        return [None if seen[j] else _gap_bound(tc[:, :, j], p) for j in range(tc.shape[2])]
+    if (tc[:, p - 1:] != 0).any():
+        return None
+    return _gap_bound(tc, p)
+
+
+def _log_abs(v):
+    """log |v| of a nonzero finite number in any of heyoka's formats (None for zero or non-finite)."""
+    try:
+        f = abs(to_fraction(v))
+    except (TypeError, ValueError, OverflowError):
+        return None
+    if f == 0:
+        return None
+    return math.log(f.numerator) - math.log(f.denominator)
+
+
+def _gap_bound(tc, p):
+    """:func:`sparse_first_step` for the Taylor coefficients ``tc`` (variables x orders 0..p) of one state."""
+    logs0 = [_log_abs(v) for v in tc[:, 0]]
+    log_scale = max([0.0] + [x for x in logs0 if x is not None])  # heyoka's: max(1, |x0|_inf)
+    log_rho = None
+    for row in tc:
+        found = []
+        for k in range(p - 2, 0, -1):
+            if row[k] != 0:
+                lk = _log_abs(row[k])
+                if lk is None:  # a non-finite coefficient: heyoka's own checks see the run's trouble
+                    return None
+                found.append((log_scale - lk) / k)
+                if len(found) == 2:
+                    break
+        if found:
+            r = min(found)
+            log_rho = r if log_rho is None else min(log_rho, r)
+    if log_rho is None:
+        return None
+    log_h = log_rho - 2.0 - 0.7 / (p - 1)  # heyoka's safety factor e^-2 exp(-0.7 / (p - 1))
+    if log_h > 700:
+        return None  # no time span reaches it
+    if log_h < -700:
+        return Fraction(2) ** math.floor(log_h / math.log(2))
+    return Fraction(math.exp(log_h))

@@ -240,3 +240,22 @@ def test_a_tangency_is_not_a_crossing_and_does_not_stop_a_run(engine, m2_zeros):
     assert len(sol.events["m2"]["t"]) == len(m2_zeros) >= 2  # the crossings of M2 itself stay
     for (t_ref, _), t_got in zip(m2_zeros, sol.events["m2"]["t"]):
         assert abs(to_fraction(t_got) - to_fraction(t_ref)) < 1e-12
+
+
+@pytest.mark.parametrize("precision", ["double", "quad"])
+def test_a_terminal_event_zero_without_a_rate_at_the_start_ends_the_run_instead_of_hanging(precision):
+    """H = p^2/2 - q + q^2/2 from rest at q = 0: q = 1 - cos t touches 0 at t = 0 with q' = 0 too. heyoka deduces
+    the cooldown of a terminal event from the expression's rate there: 0, so it stopped at t = 0 again at once,
+    and the run (which goes on from a zero at t0) looped for ever. Now it ends step_collapse at t = 0, saying what
+    to do; the non-terminal event runs right (against the closed form), and lie_integrate goes through."""
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 - q + q**2 / 2)
+    sol = ls.integrate(osc, [0, 0], t=3, precision=precision, events=[ls.Event(q, terminal=True, name="zero")])
+    assert sol.status == "step_collapse" and sol.t_reached == 0
+    assert "'zero' is zero there without crossing" in sol.message and "non-terminal" in sol.message
+    sol = ls.integrate(osc, [0, 0], t=3, precision=precision, events=[ls.Event(q, name="zero")])
+    assert sol.status == "success" and len(sol.events["zero"]["t"]) == 0
+    exact = [1 - mp.cos(3), mp.sin(3)]
+    assert max(abs(float(a) - float(b)) for a, b in zip(sol.y_reached, exact)) < 1e-14
+    lie = ls.lie_integrate(osc, [0, 0], t=3, dps=20, events=[ls.Event(q, terminal=True, name="zero")])
+    assert lie.status == "success"

@@ -1,8 +1,10 @@
 """HeavyTop: EulerPoisson's bracket with gravity in H, against a Taylor-series solution of the (M, Gamma)
 Euler-Poisson equations written here in mpmath (independent of heyoka and of the model's bracket)."""
 
+import warnings
 from fractions import Fraction
 
+import heyoka as hy
 import numpy as np
 import pytest
 
@@ -371,3 +373,28 @@ def test_an_overflowing_weight_names_mass_g_and_com():
     with pytest.raises(ValueError, match=r"`mass \* g \* com` gives the runtime parameter 'mgc3', whose value ~1e600 "
                                          "overflows double"):
         ls.integrate(top, top.initial_state(omega=(1, "0.5", 5)), t=1)
+
+
+def test_the_derived_forms_start_from_a_state_a_quad_run_ended_in():
+    """A top run in quad to t = 50 (295 steps) ends 7-30 ulps off R^T R = 1 (its rounding); surface_point of that
+    state was refused by the derived forms ("not tangent", 1.9e-33 relative against 16 ulps = 1.5e-33). A point
+    from a model's state is checked as that model's check_state checks a run's state, to the square root of its
+    precision; the same state 1e-10 off the surface is still refused, and a point typed in floats keeps its 16
+    ulps and says what to do."""
+    top = ls.HeavyTop((2, 2, 1), com=(0, 0, "0.5"), g="9.81")
+    sol = ls.integrate(top, top.initial_state(omega=(1, "0.5", 5)), t=50, precision="quad")
+    assert sol.status == "success"
+    cs = top.constrained_system()
+    q, qdot = top.surface_point(sol.y_reached)
+    z0 = cs.intermediate().initial_state(q=q, qdot=qdot)
+    assert z0.data_bits == 113 and list(z0.exact[:9]) == q
+    assert cs.dirac().initial_state(q=q, qdot=qdot).data_bits == 113
+    off = np.array(sol.y_reached, copy=True)
+    off[:9] *= hy.real128("1.0000000001")  # R 1e-10 off the rotations
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the top warns that R is not a rotation
+        q_off, qdot_off = top.surface_point(off)
+    with pytest.raises(ValueError, match="`q` is not on the constraint surface"):
+        cs.intermediate().initial_state(q=q_off, qdot=qdot_off)
+    with pytest.raises(ValueError, match="continue from that state itself"):
+        cs.intermediate().initial_state(q=[to_fraction(v) for v in q_off[:8]] + [float(q_off[8])], qdot=qdot_off)

@@ -11,6 +11,7 @@ import numpy as np
 
 from .. import cache
 from ..driver import run_message
+from ..heyoka_build import sparse_first_step
 from ..precision import to_fraction
 from .result import TIME_LIMIT, outcome_kind
 
@@ -129,6 +130,7 @@ def run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, 
         times = [float(t0n)] * lead + [float(g) for g in tgrid]
         grid = np.repeat(np.array(times), B).reshape(-1, B)
     success_msg = run_message("success", t=tgrid[-1])
+    zeros = [0.0] * B
     n_batches = -(-k // B)
     counter = iter(range(n_batches))
     lock = threading.Lock()
@@ -172,6 +174,9 @@ def run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, 
                     out = out[1:]
             prs = ta.propagate_res
             nl = hi - lo
+            # a lane that went the whole way in one step may have started where heyoka's step rule cannot see the
+            # series (its last two orders vanish: lieseries.heyoka_build.sparse_first_step), checked below
+            one_step = [j for j in range(nl) if prs[j][3] == 1]
             outcomes = [prs[lane][0] for lane in range(nl)]
             mine = []
             if all(o == TIME_LIMIT for o in outcomes):  # the common case, in bulk
@@ -182,6 +187,12 @@ def run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, 
             else:
                 mine = _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, event_info, cap,
                                        t_end, success_msg)
+            if one_step:
+                state[:] = Ynat[idx].T
+                ta.set_time(t0f)
+                bounds = sparse_first_step(ta, zeros)
+                if bounds is not None:  # the single run bounds the first step
+                    mine = sorted(set(mine) | {lo + j for j in one_step if bounds[j] is not None})
             with lock:
                 handed.extend(mine)
                 done[0] += hi - lo - len(mine)

@@ -12,6 +12,7 @@ import numpy as np
 
 from .. import cache
 from ..driver import Stop, StepResult, drive, run_message
+from ..heyoka_build import sparse_first_step
 from ..precision import to_fraction
 from .batch import CHUNK_STEPS, over_threads
 from .result import outcome_kind
@@ -33,7 +34,7 @@ def run_scalar(ta0, event_info, Ynat, pars, ps, prec, tgrid, t0n, direction, cap
         par_native = [prec.array(ps.parameter_values if pars is None else pars[i]) for i in range(k)] \
             if pars is not None else [prec.array(ps.parameter_values)] * k
     simple = len(tgrid) == 2 and tgrid[0] == t0n
-    t0_nat = prec.time(t0n)
+    t0_nat, zero = prec.time(t0n), prec.time(0)
     lead = int(tgrid[0] != t0n)  # propagate_grid starts at t0
     grid = None if simple else prec.array([t0n] * lead + list(tgrid))
     # the output times as heyoka's clock has them (tgrid holds their exact values), each with its row's index
@@ -57,6 +58,13 @@ def run_scalar(ta0, event_info, Ynat, pars, ps, prec, tgrid, t0n, direction, cap
                         reached_message=reached)
         except _HandOver:
             return False
+        if out.steps == 1:
+            # the whole way in one step: heyoka's step rule may not have seen the series at y0 (its last two orders
+            # vanish: lieseries.heyoka_build.sparse_first_step); the single run then bounds the first step
+            ta.time = t0_nat
+            ta.state[:] = Ynat[i]
+            if sparse_first_step(ta, zero) is not None:
+                return False
         for j, y in zip(out.rows_t, out.rows_y):
             res.y[i, j] = y
         res.rows[i] = len(out.rows_t)

@@ -49,7 +49,10 @@ def check_surface_residuals(terms, gradients, qdot, bits, labels, qname="q", vna
     the point; ``qdot``: the velocity (Fractions), or None to check the point only; ``bits``: the bits binary data
     carry (None: exact data); ``labels[a]``: how a message shows G_a (``"G1 = x**2 + y**2 - 1"``)."""
     tol_exact = residual_tolerance(bits, loose)
-    note = "" if bits is None else f"; binary floats carry {int(bits)} bits only"
+    note = "" if bits is None else f"; binary floats carry {int(bits)} bits only" + (
+        "" if loose else " (a point read from a run's state has drifted off by the run's rounding: continue from "
+        "that state itself, whose check allows the square root of its precision, or from a body's "
+        "surface_point(state))")
     with mp.workdps(RESIDUAL_DPS):
         tol = _mpf(tol_exact)
         for a, ts in enumerate(terms):

@@ -19,7 +19,11 @@ table: how many steps finishing would take):
 - missed crossings: with non-terminal events, the event functions are evaluated at every step's end; a step
   whose signs disagree with the crossings heyoka reported in it, or that starts or ends on a zero, is searched
   again on its Taylor polynomial and the missing crossings are added (:class:`lieseries.heyoka_build.CrossingGuard`);
-- terminal events of the model (e.g. the edge of a sphere chart) end the run with their own status;
+- terminal events of the model (e.g. the edge of a sphere chart) end the run with their own status; a user's
+  terminal event that stops the run again where it went on from (t0, a touch), without a step, ends it
+  ``step_collapse`` (heyoka's cooldown is 0 where the expression's rate vanishes too);
+- a first step heyoka's rule cannot size (the last two orders of the series at y0 vanish in every component:
+  :func:`lieseries.heyoka_build.sparse_first_step`) is the first chunk, alone, bounded;
 - ``invariant_drift``: after a run that reached its final time, the Hamiltonian (conserved by every Hamiltonian
   system) is evaluated at both ends; a change beyond min(sqrt(tol), 1000 tol per step) of its energy scale
   (:func:`lieseries.energy.drift_threshold`) means the result is wrong, whatever the error control believed --
@@ -73,6 +77,8 @@ class Chunks:
         self.recorders, self.guard, self.dense = recorders, guard, call.dense
         self.max_steps, self.stiff_steps, self.min_step = call.max_steps, call.stiff_steps, call.min_step
         self.chunk = call.first_chunk
+        # a bound on the first step (heyoka_build.sparse_first_step): the first chunk is that one step
+        self.first_h = call.first_h
         # (heyoka's answer, seconds) of a first chunk already run from t0; with the time and state it reached
         # when the integrator has gone back to the pool
         self.first = first
@@ -84,6 +90,7 @@ class Chunks:
         self.change = self.h_last = math.nan
         self.between = False  # the last chunk used up its steps: the checks run before the next one
         self.user_terminal, self.terminal_check, self.touches = frozenset(), None, 0
+        self.passed_at = None  # the time of the last user's terminal stop the run went on from (t0 or a touch)
         self.c_outs = []  # heyoka's continuous outputs, one per chunk (dense)
         self.queue = []  # (time, row) at the output times the steps so far covered, not yet taken by the driver
         self.chunk_start = self.t0
@@ -133,13 +140,16 @@ class Chunks:
         """Run one chunk of steps (or take the one already run) and return heyoka's outcome."""
         ta = self.ta
         budget = min(self.chunk, self.max_steps - self.steps)
+        cap, self.first_h = self.first_h, None
+        if cap is not None:
+            budget = 1
         marks = [len(r.sink) for r in self.recorders]
         if self.first is not None:
             (res, elapsed, *reached), self.first = self.first, None
             self.chunk_start = self.t0
         else:
             tic = _time.perf_counter()
-            res = self._propagate(t_end, budget, None)
+            res = self._propagate(t_end, budget, None, cap)
             elapsed = _time.perf_counter() - tic
             reached = ()
         if res[0] == _OUTCOME.err_nf_state:
@@ -150,7 +160,7 @@ class Chunks:
             if self.guard is not None:
                 self.guard.start(ta)
             keeper = _Keeper(ta)
-            res = self._propagate(t_end, budget, keeper)
+            res = self._propagate(t_end, budget, keeper, cap)
             self._account(res, ta.time)
             self.t_at, self.z_at = keeper.t, keeper.state
             return res[0]
@@ -190,14 +200,20 @@ class Chunks:
             return None
         if outcome == _OUTCOME.err_nf_state:
             return Stop("non_finite", reason="non_finite.taylor")
-        if self.user_terminal and self._at_user_event(outcome) and (self.t_at == self.t0 or self._touch(outcome)):
-            return None  # the run starts on the event's surface, or touches it: go on (heyoka's cooldown)
-        # a terminal event: heyoka reports event i as outcome i, or -(i + 1) when it stopped the run
         where = self._note()
         idx = int(outcome.value) if outcome not in _NOT_EVENTS else None
         info = self.event_info
         if idx is not None and -len(info) <= idx < 0:
             idx = -idx - 1
+        if self.user_terminal and self._at_user_event(outcome) and (self.t_at == self.t0 or self._touch(outcome)):
+            if self.passed_at is not None and self.passed_at == self.t_at:
+                # stopped again where the run went on from, without a step: heyoka's cooldown is 0 where the
+                # expression's rate vanishes too (from rest on the surface), and it would stop there for ever
+                name = info[idx][1].replace("the event", "the terminal event").replace(" fired", "")
+                return Stop("step_collapse", name, note=where, reason="step_collapse.touch")
+            self.passed_at = self.t_at
+            return None  # the run starts on the event's surface, or touches it: go on (heyoka's cooldown)
+        # a terminal event: heyoka reports event i as outcome i, or -(i + 1) when it stopped the run
         if idx is not None and 0 <= idx < len(info):
             status, msg = info[idx]
             return Stop(status, message=run_message("event", t=self.t_at, note=where, detail=msg))
@@ -277,8 +293,10 @@ class Chunks:
             return True
         return False
 
-    def _propagate(self, t_end, budget, callback):
+    def _propagate(self, t_end, budget, callback, cap=None):
+        """A chunk of at most ``budget`` steps towards ``t_end``, each at most ``cap`` long when given."""
         ta = self.ta
+        limit = {} if cap is None else {"max_delta_t": cap}
         self.chunk_start = ta.time
         if self.guard is not None:
             callback = self.guard if callback is None else Both(self.guard, callback)
@@ -290,9 +308,9 @@ class Chunks:
             # stands for the chunk's start, as in propagate_grid's answer).
             rows = _GridRows(self.pending, self.direction)
             res = ta.propagate_until(t_end, max_steps=budget, write_tc=True,
-                                     callback=rows if callback is None else Both(rows, callback))
+                                     callback=rows if callback is None else Both(rows, callback), **limit)
             return (res[0], res[1], res[2], res[3], None, rows.rows)
-        return ta.propagate_until(t_end, max_steps=budget, c_output=self.dense, callback=callback)
+        return ta.propagate_until(t_end, max_steps=budget, c_output=self.dense, callback=callback, **limit)
 
     def _account(self, res, t_end):
         """The steps, step sizes and output rows of a chunk from ``self.chunk_start`` to ``t_end``."""
