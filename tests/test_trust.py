@@ -624,6 +624,23 @@ def test_heyoka_bounds_a_first_step_whose_last_two_orders_vanish(precision, tol)
             assert err(es.y_reached[0]) < tol and err(es.y_reached[2]) < tol
 
 
+@pytest.mark.parametrize("precision, tol", [("double", 1e-15), ("quad", 1e-32)])
+def test_heyoka_bounds_a_first_step_whose_last_two_orders_are_small(precision, tol):
+    """The same field from q = 1e-6, 1e-12, 1e-20 instead of 0: orders 19 and 20 are not zero but small, heyoka's
+    rho from them came out 1.9-3x too long and its first step was off: 6e-14 in double from 1e-6 (270 units of
+    its last place) with status success, 3.5e-7 and 125 (to t = 3) invariant_drift from 1e-12 and 1e-20; quad
+    6e-33 from 1e-5. The first step is bounded where heyoka's rho exceeds the smallest its last orders give by a
+    quarter. Against 40-digit Lie runs."""
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 - q + q**3)
+    for q0 in ("1e-5", "1e-6", "1e-12", "1e-20"):
+        sol = ls.integrate(osc, [q0, 0], t=3, precision=precision)
+        ref = ls.lie_integrate(osc, [q0, 0], t=3, dps=40)
+        with mp.workdps(60):
+            assert sol.status == "success", (q0, sol.message)
+            assert max(abs(_exact(a) - mp.mpf(b)) for a, b in zip(sol.y_reached, ref.y_reached)) < 3 * tol, q0
+
+
 @pytest.mark.parametrize("precision, tol", [("double", 1e-15), ("long double", 1e-18), ("quad", 1e-32)])
 def test_a_right_run_from_rest_where_h_and_its_terms_vanish_is_success(precision, tol):
     """H = p^2/2 - q + q^4/4 from rest at q = 0: H(y0) = 0 and so is the energy scale sum_i |dH/dy_i y_i| at y0,
