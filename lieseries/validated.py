@@ -18,7 +18,7 @@ states is carried in Lohner's form m + A r (a centre point, an orthogonal matrix
    int_0^tau |g| (L = |Df(R)| entrywise), the defect bounded from its Taylor coefficients at the step's start and
    a Lagrange term over the whole step -- a few times the true truncation error, so the steps are about as long
    as lie_integrate's;
-4. encloses the Jacobian of the flow over the step (the variational equation over 8 or 16 pieces of the step,
+4. encloses the Jacobian of the flow over the step (the variational equation over 3 to 24 pieces of the step,
    each in its own narrower box) and moves the set by the mean-value theorem and a QR step.
 
 Steps 1-4 but the set's update live in :mod:`lieseries.validated_step` (the proof of one step); this module runs
@@ -63,9 +63,9 @@ from .driver import StepResult, Stop, drive
 from .lie.plan import DeadlineExceeded
 from .solution import ChartRows, Solution, Stats
 from .timegrid import parse_times
-from .validated_step import (BOX_ORDER, DEFECT_EXTRA, JACOBIAN_PIECES, WIDE_JACOBIAN_PIECES, centre_polynomial,
-                             defect_coefficients, defect_terms, exact_data, flow_jacobian, jacobian_program,
-                             jet_stepper, nth_root, prove_step, step_estimate)
+from .validated_step import (BOX_ORDER, DEFECT_EXTRA, centre_polynomial, defect_coefficients, defect_terms,
+                             exact_data, flow_jacobian, jacobian_pieces, jacobian_program, jet_stepper, nth_root,
+                             prove_step, step_estimate)
 
 __all__ = ["validated_integrate", "ball_taylor_coefficients", "centre_coefficients", "SUPPORTED_OPS", "midpoints",
            "radii", "certified_digits"]
@@ -439,7 +439,7 @@ class _ValidatedEngine:
         scale = max([1.0] + [abs(float(zi.mid())) for zi in z])
         tol = self.rem_tol * scale
         wide = any(zi.rad() > self.unit * scale for zi in z)  # wider than 10^-dps of the state's size
-        pieces = WIDE_JACOBIAN_PIECES if wide else JACOBIAN_PIECES
+        pieces = jacobian_pieces(jprog, wide)
         C, jets, g, CZ = self._expand(tcur, z, t_end)
         h, hs, tail, D, J, bounds_h = self._prove(z, abs(t_end - tcur), C, jets, g, CZ, tol, pieces)
         tnew = tcur + hs
