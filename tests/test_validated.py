@@ -494,13 +494,10 @@ def test_exact_defect_holds_the_centre_polynomials_defect(bigint):
                 fl.ctx.prec = saved
 
 
-def test_ball_taylor_coefficients_contain_those_from_every_point_of_the_box(monkeypatch):
-    # Picard iteration and the one-evaluation check from a guess around the centre polynomial (which must succeed
-    # here, without falling back to Picard) enclose the Taylor coefficients from points of a box, computed at
+def test_ball_taylor_coefficients_contain_those_from_every_point_of_the_box():
+    # Picard iteration on Arb series (64 bits) encloses the Taylor coefficients from points of a box, computed at
     # 90 digits
-    from lieseries import ball_series
     from lieseries import validated as V
-    from lieseries import validated_step as S
 
     body = ls.EulerPoisson(RIGID_INERTIA)
     ps = body.poisson
@@ -520,24 +517,14 @@ def test_ball_taylor_coefficients_contain_those_from_every_point_of_the_box(monk
     points += [[c + (delta if j == i else 0) for j, c in enumerate(centre)] for i in range(0, len(centre), 3)]
     with V.working_precision(V.dps_to_bits(dps) + V.GUARD_BITS, cap=order + 20) as fl:
         z = [fl.arb(fl.fmpq(c.numerator, c.denominator)) + fl.arb(0, fl.arb(fl.fmpq(1, 10**20))) for c in centre]
-        m = [fl.arb(v.mid()) for v in z]
-        _, prog, pars, consts, _, _, jprog, jconsts = V._chart_context(body, fl)
-        C, _ = S.centre_polynomial(S.jet_stepper(ps, 40, dps), prog, m, pars, consts, 40, fl, 10)
-        guess = C.guess(order, max(v.rad() for v in z), V.norm_bound(jprog, m, pars, jconsts, fl))
-        picard = V.taylor_coefficients(prog, z, pars, consts, order, fl, bits=64)
-        with monkeypatch.context() as mpatch:
-            mpatch.setattr(ball_series, "taylor_coefficients", lambda *a, **k: pytest.fail("the guess was not proved"))
-            checked = V.taylor_coefficients_checked(prog, z, guess, pars, consts, order, fl)
-            # a guess of points (radius 0) fails the check: proved after widening, then evaluated once more
-            retried = V.taylor_coefficients_checked(prog, z, [[fl.arb(b.mid()) for b in row] for row in guess], pars,
-                                                    consts, order, fl)
-        for balls in (picard, checked, retried):
-            assert all(len(row) == order + 1 for row in balls)
-            for point in points:
-                ref = reference(point)
-                assert all(inside(balls[i][k], ref[k][i]) for k in range(order + 1) for i in range(len(centre)))
-            # not vacuous: 64-bit balls
-            assert max(float(b.rad()) for row in balls for b in row) < 1e-10
+        _, prog, pars, consts, *_ = V._chart_context(body, fl)
+        balls = V.taylor_coefficients(prog, z, pars, consts, order, fl, bits=64)
+        assert all(len(row) == order + 1 for row in balls)
+        for point in points:
+            ref = reference(point)
+            assert all(inside(balls[i][k], ref[k][i]) for k in range(order + 1) for i in range(len(centre)))
+        # not vacuous: 64-bit balls
+        assert max(float(b.rad()) for row in balls for b in row) < 1e-10
 
 
 def test_the_remainder_factor_exp_times_bounds_the_matrix_exponential_from_above():
@@ -566,7 +553,7 @@ def test_the_flow_jacobian_of_a_step_holds_the_flows_jacobian(monkeypatch):
     # the Jacobian of the flow over a step, which moves the set by the mean-value theorem: for the rigid body, whose
     # Df is affine in the state, each piece's first term comes from the mean of the solutions over the piece; the
     # enclosure must hold D phi_tau(y0) from central differences of 60-digit lie_integrate runs (errors near 1e-40,
-    # far below its radii), and be narrower than the enclosure without that term over more pieces
+    # far below its radii), and be narrower than the enclosure without that term over as many pieces
     from lieseries import validated as V
     from lieseries import validated_step as S
 
@@ -576,12 +563,12 @@ def test_the_flow_jacobian_of_a_step_holds_the_flows_jacobian(monkeypatch):
     assert not S.affine_in_state(S.jacobian_program(ls.Sphere(atlas=False).poisson))
     got = []
 
-    def spy(jprog, CZ, D, pars, consts, tau, fl, pieces):
-        J = S.flow_jacobian(jprog, CZ, D, pars, consts, tau, fl, pieces)
+    def spy(jprog, centre, reach, L, pars, consts, tau, fl, pieces):
+        J = S.flow_jacobian(jprog, centre, reach, L, pars, consts, tau, fl, pieces)
         if not got:
             with monkeypatch.context() as m:
                 m.setattr(S, "affine_in_state", lambda prog: False)
-                generic = S.flow_jacobian(jprog, CZ, D, pars, consts, tau, fl, S.JACOBIAN_PIECES)
+                generic = S.flow_jacobian(jprog, centre, reach, L, pars, consts, tau, fl, pieces)
             got.append((to_fraction(tau.mid()), pieces, J, generic))
         return J
 
