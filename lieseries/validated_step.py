@@ -479,20 +479,22 @@ def prove_step(prog, jprog, centre, terms, pars, consts, jconsts, span, spread, 
 
     def bound(tau, with_spread):
         """exp(|tau| L) (G(|tau|) + the spread, or not), per component (upper bounds), once per time and kind."""
-        key = (tuple(int(v) for v in abs(tau).upper().mid().man_exp()), with_spread)
-        if key not in known:
+        at = tuple(int(v) for v in abs(tau).upper().mid().man_exp())
+        if (at, with_spread) not in known:
             saved = flint.ctx.prec
             flint.ctx.prec = 64
             try:
-                x = abs(centre.sigma(tau))
-                g = [((d(x) * x).upper() * back).upper() for d in defect]
+                if at not in known:
+                    x = abs(centre.sigma(tau))
+                    known[at] = [((d(x) * x).upper() * back).upper() for d in defect]  # G(|tau|)
+                g = known[at]
                 if with_spread:
                     g = [(gi + e).upper() for gi, e in zip(g, spread)]
                 E = exp_times(L * abs(tau), arb_mat([[gi] for gi in g]), flint)
-                known[key] = [E[i, 0].upper() for i in range(n)]
+                known[at, with_spread] = [E[i, 0].upper() for i in range(n)]
             finally:
                 flint.ctx.prec = saved
-        return known[key]
+        return known[at, with_spread]
 
     def tail(tau):
         return bound(tau, False)
