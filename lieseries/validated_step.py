@@ -625,7 +625,7 @@ def flow_jacobian(jprog, centre, reach, L, pars, consts, tau, flint, pieces=JACO
 
         # a badly scaled field (|Df| |tau| large: a fast oscillation in a slow state) needs more pieces: the
         # series of each piece converges like mu^j / j!, and mu near JACOBIAN_TERMS makes the enclosure explode
-        norm = max((L * arb_mat([[1]] * n)).entries(), key=lambda x: x) * abs(tau)
+        norm = max(x.upper() for x in (L * arb_mat([[1]] * n)).entries()) * abs(tau)  # exact bounds compare
         if not norm.is_finite():
             return None
         pieces = max(pieces, min(MAX_JACOBIAN_PIECES, math.ceil(float(norm.upper()) / JACOBIAN_MU)))
