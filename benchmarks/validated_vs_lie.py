@@ -154,7 +154,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--pairs", type=int, default=3, help="alternated lie / validated pairs (default 3)")
     ap.add_argument("--clock", choices=["wall", "cpu"], default="wall",
                     help="wall time, or the process's CPU time (a shared machine)")
-    ap.add_argument("--before", default=None, help="an earlier validated.py, or a folder of the validated engine's files, to alternate with "
+    ap.add_argument("--before", default=None,
+                    help="an earlier validated.py, or a folder of the validated engine's files, to alternate with "
                     "(before / after)")
     args = ap.parse_args(argv)
     clock = time.perf_counter if args.clock == "wall" else time.process_time

@@ -74,7 +74,7 @@ GUARD_BITS = VALIDATED_GUARD_BITS
 REMAINDER_FACTOR = 1e-4
 
 #: The default order is the Jorba-Zou choice, ceil(ln(10) dps / 2) + 1, plus this: a validated step has costs that
-#: do not grow with the order (the a priori box, the flow's Jacobian, the set's update), so longer steps of a
+#: do not grow with the order (the a priori enclosure, the flow's Jacobian, the set's update), so longer steps of a
 #: higher order pay (the rigid body to T = 10: 25 -> 20 steps at 50 digits, 27 -> 17 at 20 digits, 24 -> 22 at 100
 #: digits, as many certified digits or more; benchmarks/validated_vs_lie.py).
 EXTRA_ORDER = 8
@@ -84,7 +84,7 @@ EXTRA_ORDER = 8
 #: by STEP_GROWTH a step while their first attempt is proved. Efficiency only: every step is proved.
 RETRY_MARGIN = 0.97
 STEP_GROWTH = 1.02
-#: A step whose a priori box (or Jacobian) is not proved is retried at this fraction of its length.
+#: A step whose a priori enclosure (or Jacobian) is not proved is retried at this fraction of its length.
 UNPROVED_SHRINK = 0.5
 
 #: A run that switches charts this many times stops (it would be cycling).
@@ -490,7 +490,7 @@ class _ValidatedEngine:
         return C, jets, g
 
     def _prove(self, z, left, C, jets, g, tol, pieces):
-        """The longest step up to ``left`` that is proved (its a priori box, a remainder bound within ``tol``, the
+        """The longest step up to ``left`` that is proved (its a priori enclosure, a remainder bound within ``tol``, the
         flow's Jacobian), from the estimate the defect gives, shortened until proved: (h, h signed, the remainder
         bound as a function of the time, that of every solution from the set, the bounds of |Df| over the step, the
         flow's Jacobian, the bound at h). Learns the next
@@ -546,7 +546,7 @@ class _ValidatedEngine:
                 proved = (h, hs, tail, reach, L, J, bounds_h)
                 break
             # the remainder scales like h^(N+1): aim just below the tolerance (halve when unproved)
-            if worst is None or not worst.is_finite() or worst <= tol:  # no a priori box, or no Jacobian: shorter
+            if worst is None or not worst.is_finite() or worst <= tol:  # no enclosure, or no Jacobian: shorter
                 shrink, unproved = UNPROVED_SHRINK, True
             else:
                 shrink = min(RETRY_MARGIN * nth_root(tol / worst, N + 1), RETRY_MARGIN)

@@ -1,5 +1,5 @@
 """The proof of one validated step (:mod:`lieseries.validated` runs them): the centre's Taylor polynomial and its
-defect, the a priori box and the remainder bound, the flow's Jacobian over the step, in Arb ball arithmetic.
+defect, the a priori enclosure and the remainder bound, the flow's Jacobian over the step, in Arb ball arithmetic.
 
 One step from t to t + h of the set m + A r (docs/theory.md, "Certified enclosures"):
 
@@ -8,9 +8,9 @@ One step from t to t + h of the set m + A r (docs/theory.md, "Certified enclosur
 * :func:`defect_coefficients` -- the defect g = f(p) - p' at the step's start: exact in rational arithmetic for a
   polynomial field (:func:`exact_data`), on ball series otherwise; :func:`defect_terms` and
   :func:`step_estimate` read it;
-* :func:`prove_step` -- the a priori box B by the high-order enclosure theorem (Picard iteration from B) and the
-  remainder bound |x - p| <= exp(|tau| L) int |g|, its Lagrange term from :func:`lagrange_majorant` (a float
-  majorant series, polynomial fields) or from :func:`field_series` over the step;
+* :func:`prove_step` -- the remainder bound |x - p| <= exp(|tau| L) int |g|, its Lagrange term from
+  :func:`lagrange_majorant` (a float majorant series, polynomial fields) or from :func:`field_series` over the
+  step, and the a priori box R around p's range that no solution from the set leaves (by continuation);
 * :func:`flow_jacobian` -- the Jacobian of the flow over the step, by the Peano-Baker series over pieces of it.
 """
 
@@ -29,10 +29,10 @@ from .precision import Precision
 
 __all__ = ["Centre", "centre_polynomial", "field_series", "defect_coefficients", "defect_terms",
            "defect_polynomials", "lagrange_majorant", "prove_step", "exp_times", "jacobian_program",
-           "flow_jacobian", "exact_data", "jet_stepper", "nth_root", "step_estimate", "DEFECT_EXTRA", "BOX_MARGIN", "BOX_SPREAD",
-           "JACOBIAN_TERMS", "JACOBIAN_EPS", "JACOBIAN_PIECES", "WIDE_JACOBIAN_PIECES", "JACOBIAN_MU",
-           "MAX_JACOBIAN_PIECES", "JACOBIAN_DEGREE", "AFFINE_JACOBIAN_PIECES", "AFFINE_WIDE_JACOBIAN_PIECES", "JET_EXTRA_DPS",
-           "affine_in_state", "jacobian_pieces"]
+           "flow_jacobian", "exact_data", "jet_stepper", "nth_root", "step_estimate", "affine_in_state",
+           "jacobian_pieces", "DEFECT_EXTRA", "BOX_MARGIN", "BOX_SPREAD", "JACOBIAN_TERMS", "JACOBIAN_EPS",
+           "JACOBIAN_PIECES", "WIDE_JACOBIAN_PIECES", "AFFINE_JACOBIAN_PIECES", "AFFINE_WIDE_JACOBIAN_PIECES",
+           "JACOBIAN_MU", "MAX_JACOBIAN_PIECES", "JACOBIAN_DEGREE", "JET_EXTRA_DPS"]
 
 
 def centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadline=None):
@@ -55,16 +55,17 @@ def centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadli
                                                                 deadline=deadline)]
         return Centre([flint.arb_poly([mi] + row[1:]) for mi, row in zip(m, rows)], m, 0, order, flint), None
     fmpq, fmpq_poly, fmpz_poly = flint.fmpq, flint.fmpq_poly, flint.fmpz_poly
-    exact = []
+    exact, bits = [], 0
     for Mi, u, mi in zip(jets.M, jets.U, m):
         ints = [int(c) for c in Mi]
         ints[0] = 0  # p(0) = m exactly (the jets hold the state rounded)
         man, exp = (int(v) for v in mi.mid().man_exp())
-        exact.append(fmpq_poly(fmpz_poly(ints)) * _fmpq_two(u, fmpq) + fmpq(man) * _fmpq_two(exp, fmpq))
+        integers = fmpz_poly(ints)
+        bits = max(bits, int(integers.height_bits()), man.bit_length())
+        exact.append(fmpq_poly(integers) * _fmpq_two(u, fmpq) + fmpq(man) * _fmpq_two(exp, fmpq))
     saved = flint.ctx.prec
     # above every numerator (integers below 2^(bits) times powers of two): the balls are exact
-    flint.ctx.prec = max(64, max(int(max(map(abs, Mi))).bit_length() for Mi in jets.M) + 64,
-                         max(int(v.mid().man_exp()[0]).bit_length() for v in m) + 64)
+    flint.ctx.prec = bits + 64
     try:
         polys = [flint.arb_poly(q) for q in exact]
     finally:
@@ -594,7 +595,8 @@ def flow_jacobian(jprog, centre, reach, L, pars, consts, tau, flint, pieces=JACO
     every y in the set and |s| <= |t|; ``L``: entrywise upper bounds of |Df| over every solution during the step
     (from :func:`prove_step`). The step is cut into ``pieces`` pieces; over piece i every solution lies in
     B_i = q(T_i) +- (reach(tau) + r) (T_i the piece's time interval, q the terms of p up to JACOBIAN_DEGREE
-    evaluated in mean-value form about the piece's middle time, r a bound of p's other terms over the step). d phi / dy solves V' = Df(z(t)) V, so over piece i it is multiplied by a matrix of the
+    evaluated in mean-value form about the piece's middle time, r a bound of p's other terms over the step).
+    d phi / dy solves V' = Df(z(t)) V, so over piece i it is multiplied by a matrix of the
     Peano-Baker series sum_j (dt Df(B_i))^j / j!, truncated after K terms (the fewest whose tail bound is below
     JACOBIAN_EPS, at most JACOBIAN_TERMS) with the tail bounded entrywise by mu^(K+1) / (K+1)! / (1 - mu / (K+2)),
     mu = |dt| ||L||_inf (docs/theory.md). When Df is affine in the state (:func:`affine_in_state`), the series'

@@ -233,8 +233,8 @@ def test_more_digits_than_a_float_can_hold_are_certified_and_counted():
 
 @pytest.mark.parametrize("order", [1, 2])
 def test_very_low_orders_run_and_stay_proven(order):
-    """Orders below the a priori box's (13) once stopped on an internal assertion (the series length cap): they
-    run, with short steps, and what they prove contains the oscillator's (cos t, -sin t)."""
+    """Orders below 13 (an earlier a priori box's) once stopped on an internal assertion (the series length cap):
+    they run, with short steps, and what they prove contains the oscillator's (cos t, -sin t)."""
     q, p = hy.make_vars("q", "p")
     osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], (p * p + q * q) / 2, name="oscillator")
     sol = validated_integrate(osc, [1, 0], t=["1/100000000", "1/100"], dps=15, order=order, max_steps=60)
