@@ -503,7 +503,7 @@ def prove_step(prog, jprog, centre, terms, pars, consts, jconsts, span, spread, 
     def reach(tau):
         return bound(tau, True)
 
-    if not all(r < d for r, d in zip(reach(abs(span).upper()), delta)):
+    if not all(r < d for r, d in zip(reach(abs(span.mid()) * 2), delta)):  # at |h| (span = [0, h]) exactly
         return None
     return tail, R, reach, L
 
@@ -515,7 +515,7 @@ def exp_times(M, g, flint):
     (a bound, not a tight value: cheaper than the matrix exponential, which it uses when mu >= 16)."""
     arb, arb_mat = flint.arb, flint.arb_mat
     n = g.nrows()
-    mu = max([arb(0)] + [sum((M[i, j] for j in range(n)), arb(0)).upper() for i in range(n)])
+    mu = max([arb(0)] + [x.upper() for x in (M * arb_mat([[1]] * n)).entries()])  # the row sums
     if not mu < 16:  # a long series: Arb's matrix exponential (scaling and squaring)
         return M.exp() * g
     size = max([arb(0)] + [g[i, 0].upper() for i in range(n)])
