@@ -591,3 +591,16 @@ def test_the_flow_jacobian_of_a_step_holds_the_flows_jacobian(monkeypatch):
     widest = max(float(J[i, j].rad()) for i in range(n) for j in range(n))
     assert 0 < widest < 1e-2
     assert widest < max(float(generic[i, j].rad()) for i in range(n) for j in range(n)) / 2
+
+
+def test_backward_runs_enclose_the_closed_form_from_exact_and_uncertain_data():
+    # the a priori enclosure and the Jacobian's pieces for negative steps (the ball [h, 0], pieces towards -h)
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    y0 = body.initial_state(omega=RIGID_OMEGA)
+    times = [Fraction(-k, 2) for k in range(1, 7)]
+    refs = exact.euler_poisson_many(RIGID_INERTIA, RIGID_OMEGA, times, dps=60)
+    for data in (y0, [(q, abs(q) / 2**40) for q in y0.exact]):
+        sol = validated_integrate(body, data, t=times, dps=30)
+        assert sol.status == "success", sol.message
+        assert all(inside(b, v) for row, ref in zip(sol.y, refs) for b, v in zip(row, ref))
+        assert max(radii(sol)[-1]) < (1e-25 if data is y0 else 1e-9)
