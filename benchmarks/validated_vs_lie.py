@@ -7,8 +7,9 @@
 2. The whole run to T = 10 at 50 digits (``--pairs`` alternated pairs, the ratio of each pair: other jobs on the
    machine slow both calls of a pair alike; ``--clock cpu`` times the process's CPU): the time of both, their steps,
    the validated run's certified digits and its widest final ball, and lie_integrate's actual error against the
-   closed form (80 digits). ``--before PATH`` adds an earlier ``validated.py`` (e.g. a checkout's), loaded into the
-   same process and alternated with the two, for before / after ratios in the same conditions.
+   closed form (80 digits). ``--before PATH`` adds an earlier engine (a ``validated.py``, or a folder of a
+   checkout's ``validated.py``, ``validated_step.py`` and ``ball_series.py``), loaded into the same process and
+   alternated with the two, for before / after ratios in the same conditions.
 3. How tight one step's remainder bound is: a single step of order 59 at 40 digits to t = h, its bound on the
    centre's solution minus the Taylor polynomial (``stats.extra["tail_bounds"]``) against the true difference
    (closed form minus the order-59 polynomial, both at 90 digits).
