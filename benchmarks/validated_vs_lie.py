@@ -7,20 +7,22 @@
 2. The whole run to T = 10 at 50 digits (``--pairs`` alternated pairs, the ratio of each pair: other jobs on the
    machine slow both calls of a pair alike; ``--clock cpu`` times the process's CPU): the time of both, their steps,
    the validated run's certified digits and its widest final ball, and lie_integrate's actual error against the
-   closed form (80 digits). ``--before PATH`` adds an earlier ``validated.py`` (e.g. a checkout's), loaded into the
-   same process and alternated with the two, for before / after ratios in the same conditions.
+   closed form (80 digits). ``--before PATH`` adds an earlier engine (a ``validated.py``, or a folder of a
+   checkout's ``validated.py``, ``validated_step.py`` and ``ball_series.py``), loaded into the same process and
+   alternated with the two, for before / after ratios in the same conditions.
 3. How tight one step's remainder bound is: a single step of order 59 at 40 digits to t = h, its bound on the
    centre's solution minus the Taylor polynomial (``stats.extra["tail_bounds"]``) against the true difference
    (closed form minus the order-59 polynomial, both at 90 digits).
 
     .venv/bin/python benchmarks/validated_vs_lie.py [--T 10] [--dps 50] [--repeat 5] [--pairs 3] [--clock cpu]
-        [--before ../main/lieseries/validated.py]
+        [--before ../main/lieseries/validated.py | --before FOLDER]
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib.util
+import pathlib
 import statistics
 import sys
 import time
@@ -56,12 +58,31 @@ def coefficient_times(dps: int, order: int, repeat: int) -> dict:
 
 
 def load_before(path):
-    """An earlier validated.py as the module ``lieseries.validated_before`` (its relative imports resolve in this
-    checkout's package)."""
-    spec = importlib.util.spec_from_file_location("lieseries.validated_before", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
+    """An earlier validated engine, loaded into this process beside the current one: ``path`` a ``validated.py``
+    (its relative imports resolve in this checkout's package), or a folder holding ``validated.py`` and any of
+    ``ball_series.py`` and ``validated_step.py`` of the same checkout (loaded as ``lieseries.<name>_before``, each
+    importing the folder's others), e.g. from ``git show REV:lieseries/<name>.py``."""
+    folder = pathlib.Path(path)
+    files = {"validated": folder} if folder.is_file() else {
+        name: folder / f"{name}.py" for name in ("ball_series", "validated_step", "validated")
+        if (folder / f"{name}.py").exists()}
+    saved = {}
+    try:
+        module = None
+        for name, file in files.items():
+            spec = importlib.util.spec_from_file_location(f"lieseries.{name}_before", file)
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[spec.name] = module
+            spec.loader.exec_module(module)
+            # the later files' `from .name import ...` take this one
+            saved.setdefault(name, sys.modules.get(f"lieseries.{name}"))
+            sys.modules[f"lieseries.{name}"] = module
+    finally:
+        for name, original in saved.items():
+            if original is None:
+                del sys.modules[f"lieseries.{name}"]
+            else:
+                sys.modules[f"lieseries.{name}"] = original
     return module
 
 
@@ -134,7 +155,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--pairs", type=int, default=3, help="alternated lie / validated pairs (default 3)")
     ap.add_argument("--clock", choices=["wall", "cpu"], default="wall",
                     help="wall time, or the process's CPU time (a shared machine)")
-    ap.add_argument("--before", default=None, help="an earlier validated.py to alternate with (before / after)")
+    ap.add_argument("--before", default=None,
+                    help="an earlier validated.py, or a folder of the validated engine's files, to alternate with "
+                    "(before / after)")
     args = ap.parse_args(argv)
     clock = time.perf_counter if args.clock == "wall" else time.process_time
     before = load_before(args.before) if args.before else None

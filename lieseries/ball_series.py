@@ -1,7 +1,6 @@
 """Arb ball arithmetic for the validated engine (:mod:`lieseries.validated`): python-flint's process-wide working
 precision set under a lock, balls that pickle exactly, a vector field's program evaluated on balls, complex boxes
-and ball series, its Taylor coefficients over a box (Picard iteration, or a guess checked in one evaluation), and
-norm bounds."""
+and ball series, and its Taylor coefficients over a box (Picard iteration)."""
 
 from __future__ import annotations
 
@@ -16,7 +15,7 @@ from .lie.plan import DeadlineExceeded
 
 __all__ = ["SUPPORTED_OPS", "flint_module", "working_precision", "Singular", "ball_constant", "exact_constant",
            "evaluate",
-           "check_ops", "taylor_coefficients", "taylor_coefficients_checked", "norm_bound"]
+           "check_ops", "taylor_coefficients"]
 
 #: Operations of a vector field that the validated engine evaluates in ball arithmetic.
 SUPPORTED_OPS = ("add", "sub", "neg", "mul", "div", "powi", "pow", "sqrt", "exp", "log", "sin", "cos", "tan",
@@ -282,64 +281,3 @@ def taylor_coefficients(prog, z0, pars, consts, order, flint, *, bits=None, dead
     finally:
         flint.ctx.prec = saved
     return coeffs
-
-
-def taylor_coefficients_checked(prog, z0, guess, pars, consts, order, flint, *, bits=64, tries=3):
-    """The ball Taylor coefficients of :func:`taylor_coefficients` (c_0..c_order from the balls z0), proved from a guess in
-    one evaluation of the field instead of ``order``.
-
-    ``guess[i]``: balls Y_1..Y_{order-1} for component i. The (k-1)-th coefficient of f(z) depends only on
-    c_0..c_{k-1}, so with W_k = [f(z0 + Y_1 tau + ...)]_{k-1} / k: when every W_k (k < order) lies in Y_k, induction
-    on k gives c_k(z) in W_k for every z in z0 (c_0 = z in z0; c_0..c_{k-1} in Y_0..Y_{k-1} puts
-    c_k = [f(c)]_{k-1} / k in W_k, inside Y_k), and c_order in W_order. When the check fails, the guess is widened
-    to cover W (2^k times, order k) and checked again, ``tries`` times in all (after a widened guess, the
-    coefficients are evaluated once more from W, which holds them, and intersected with W); then Picard iteration
-    (:func:`taylor_coefficients`)."""
-    arb, arb_series = flint.arb, flint.arb_series
-    saved = flint.ctx.prec
-    flint.ctx.prec = bits
-    try:
-        one = arb_series([arb(1)], prec=order)
-
-        def step(Y):  # W from Y
-            f = evaluate(prog, [arb_series([z] + y, prec=order) for z, y in zip(z0, Y)], pars, consts, one)
-            W = []
-            for fi in f:
-                got = list(fi.coeffs()) if isinstance(fi, arb_series) else [fi if isinstance(fi, arb) else arb(fi)]
-                got = got[:order] + [arb(0)] * (order - len(got))
-                W.append([got[k] / (k + 1) for k in range(order)])
-            return W
-
-        Y = guess
-        for attempt in range(tries):
-            W = step(Y)
-            if all(y.contains(w) for Yi, Wi in zip(Y, W) for y, w in zip(Yi, Wi)):
-                if attempt:  # a widened guess: W (which holds the coefficients) once more, and the common part
-                    V = step([Wi[:-1] for Wi in W])
-                    W = [[w.intersection(v) for w, v in zip(Wi, Vi)] for Wi, Vi in zip(W, V)]
-                return [[z] + Wi for z, Wi in zip(z0, W)]
-            Y = [[_widened(y.union(w), k) for k, (y, w) in enumerate(zip(Yi, Wi), 1)] for Yi, Wi in zip(Y, W)]
-    finally:
-        flint.ctx.prec = saved
-    return taylor_coefficients(prog, z0, pars, consts, order, flint, bits=bits)
-
-
-def norm_bound(jprog, z, pars, consts, flint):
-    """||Df(z)||_inf (an upper bound at 64 bits; at least 1/4), from the Jacobian program ``jprog``."""
-    arb = flint.arb
-    n = len(z)
-    saved = flint.ctx.prec
-    flint.ctx.prec = 64
-    try:
-        vals = evaluate(jprog, z, pars, consts, arb(1))
-        return max([arb(0.25)] + [sum((abs(arb(v)).upper() for v in vals[i * n:(i + 1) * n]), arb(0)).upper()
-                                  for i in range(n)])
-    finally:
-        flint.ctx.prec = saved
-
-
-def _widened(x, k):
-    """The ball x (a guess of order k) with 2^k times its radius (and at least 2^-60 of its midpoint): widening
-    every order alike would leave the ratio of what the orders below pass on to order k unchanged; growing with k,
-    the widening halves it at every retry."""
-    return type(x)(x.mid(), (x.rad() + abs(x.mid()) * 2.0**-60) * 2.0**k)

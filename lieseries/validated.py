@@ -7,19 +7,17 @@ user gives uncertainties). The argument is in ``docs/theory.md`` ("Certified enc
 states is carried in Lohner's form m + A r (a centre point, an orthogonal matrix, a box around 0), and each step
 
 1. computes the Taylor polynomial p of order N of the flow from m (the Lie engine's fixed-point jets, as exact
-   binary numbers: nothing about them needs proving), and the coefficients up to order 12 from the whole box
-   Z = m + A r as balls, proved from a guess around p's in one evaluation of the field on Arb power series
-   (``arb_series``; Picard iteration when the guess fails);
-2. finds an a priori enclosure by the high-order enclosure theorem: a box B around the polynomials from Z over
-   [0, h] such that sum_{j<=12} c_j(Z) [0, h]^j + c_13(B) [0, h]^13 lies inside B -- then every solution from Z
-   exists on [0, h] and stays in B;
-3. encloses the centre's solution x as p plus a bound of x - p, which solves e' = g + A(s) e with the defect
-   g = f(p) - p' and A(s) in Df(R), R the box around B and p's range: |x(tau) - p(tau)| <= exp(|tau| L)
-   int_0^tau |g| (L = |Df(R)| entrywise), the defect bounded from its Taylor coefficients at the step's start and
-   a Lagrange term over the whole step -- a few times the true truncation error, so the steps are about as long
-   as lie_integrate's;
-4. encloses the Jacobian of the flow over the step (the variational equation over 8 or 16 pieces of the step,
-   each in its own narrower box) and moves the set by the mean-value theorem and a QR step.
+   binary numbers: nothing about them needs proving) and its defect g = f(p) - p' at the step's start (exact for
+   a polynomial field);
+2. takes the box R around p's range over [0, h], widened by a margin delta, and L = |Df(R)| entrywise;
+3. encloses the centre's solution x as p plus a bound of x - p, which solves e' = g + A(s) e with A(s) in Df(R)
+   while x stays in R: |x(tau) - p(tau)| <= exp(|tau| L) int_0^tau |g|, the defect bounded from its Taylor
+   coefficients at the step's start and a Lagrange term over the whole step -- a few times the true truncation
+   error, so the steps are about as long as lie_integrate's; a solution from y in Z = m + A r stays within
+   exp(|tau| L) |y - m| of x. When their sum at h is below delta, no solution from Z can leave R during the step
+   (a first exit would contradict the bound that holds up to it): every solution exists over [0, h] and stays in R;
+4. encloses the Jacobian of the flow over the step (the variational equation over 3 to 24 pieces of the step,
+   each in its own narrow box around p) and moves the set by the mean-value theorem and a QR step.
 
 Steps 1-4 but the set's update live in :mod:`lieseries.validated_step` (the proof of one step); this module runs
 them: the initial balls, the set m + A r, the step-size control, chart switches, the driver engine.
@@ -57,15 +55,15 @@ from .precision import (
     to_fraction,
     warn_if_coarse,
 )
-from .ball_series import (SUPPORTED_OPS, Singular, ball_constant, check_ops, evaluate, flint_module, norm_bound,
-                          taylor_coefficients, taylor_coefficients_checked, working_precision)
+from .ball_series import (SUPPORTED_OPS, Singular, ball_constant, check_ops, evaluate, flint_module,
+                          taylor_coefficients, working_precision)
 from .driver import StepResult, Stop, drive
 from .lie.plan import DeadlineExceeded
 from .solution import ChartRows, Solution, Stats
 from .timegrid import parse_times
-from .validated_step import (BOX_ORDER, DEFECT_EXTRA, JACOBIAN_PIECES, WIDE_JACOBIAN_PIECES, centre_polynomial,
-                             defect_coefficients, defect_terms, exact_data, flow_jacobian, jacobian_program,
-                             jet_stepper, nth_root, prove_step, step_estimate)
+from .validated_step import (DEFECT_EXTRA, centre_polynomial, defect_coefficients, defect_terms,
+                             exact_data, flow_jacobian, jacobian_pieces, jacobian_program, jet_stepper, nth_root,
+                             prove_step, step_estimate)
 
 __all__ = ["validated_integrate", "ball_taylor_coefficients", "centre_coefficients", "SUPPORTED_OPS", "midpoints",
            "radii", "certified_digits"]
@@ -76,7 +74,7 @@ GUARD_BITS = VALIDATED_GUARD_BITS
 REMAINDER_FACTOR = 1e-4
 
 #: The default order is the Jorba-Zou choice, ceil(ln(10) dps / 2) + 1, plus this: a validated step has costs that
-#: do not grow with the order (the a priori box, the flow's Jacobian, the set's update), so longer steps of a
+#: do not grow with the order (the a priori enclosure, the flow's Jacobian, the set's update), so longer steps of a
 #: higher order pay (the rigid body to T = 10: 25 -> 20 steps at 50 digits, 27 -> 17 at 20 digits, 24 -> 22 at 100
 #: digits, as many certified digits or more; benchmarks/validated_vs_lie.py).
 EXTRA_ORDER = 8
@@ -86,7 +84,7 @@ EXTRA_ORDER = 8
 #: by STEP_GROWTH a step while their first attempt is proved. Efficiency only: every step is proved.
 RETRY_MARGIN = 0.97
 STEP_GROWTH = 1.02
-#: A step whose a priori box (or Jacobian) is not proved is retried at this fraction of its length.
+#: A step whose a priori enclosure (or Jacobian) is not proved is retried at this fraction of its length.
 UNPROVED_SHRINK = 0.5
 
 #: A run that switches charts this many times stops (it would be cycling).
@@ -314,7 +312,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     start = _time.perf_counter()
     deadline = None if max_time is None else start + max_time
 
-    with working_precision(bits, cap=max(N, BOX_ORDER + 1) + DEFECT_EXTRA + 4) as flint:
+    with working_precision(bits, cap=N + DEFECT_EXTRA + 4) as flint:
         arb = flint.arb
         z = _initial_balls(system, y0, ps.dimension, flint)
         width_cap = None if max_width is None else arb(flint.fmpq(*to_fraction(max_width, "max_width").as_integer_ratio()))
@@ -439,9 +437,9 @@ class _ValidatedEngine:
         scale = max([1.0] + [abs(float(zi.mid())) for zi in z])
         tol = self.rem_tol * scale
         wide = any(zi.rad() > self.unit * scale for zi in z)  # wider than 10^-dps of the state's size
-        pieces = WIDE_JACOBIAN_PIECES if wide else JACOBIAN_PIECES
-        C, jets, g, CZ = self._expand(tcur, z, t_end)
-        h, hs, tail, D, J, bounds_h = self._prove(z, abs(t_end - tcur), C, jets, g, CZ, tol, pieces)
+        pieces = jacobian_pieces(jprog, wide)
+        C, jets, g = self._expand(tcur, z, t_end)
+        h, hs, tail, reach, L, J, bounds_h = self._prove(z, abs(t_end - tcur), C, jets, g, tol, pieces)
         tnew = tcur + hs
         A, r = self.A, self.r
 
@@ -460,7 +458,7 @@ class _ValidatedEngine:
 
         def row(tk):
             phi_k, _, ta = point(tk - tcur)
-            Jk = J if tk == tnew else flow_jacobian(jprog, CZ, D, pars, jconsts, ta, flint, pieces)
+            Jk = J if tk == tnew else flow_jacobian(jprog, C, reach, L, pars, jconsts, ta, flint, pieces)
             if Jk is None:  # the field's Jacobian cannot be bounded over the shorter span: stop here
                 raise Stop("validation_failed", f"the flow's Jacobian up to the output time {float(tk):.17g} cannot "
                            "be bounded (the field is singular or too steep near the enclosure)")
@@ -474,17 +472,14 @@ class _ValidatedEngine:
         return StepResult(tnew, znew, h=h, row=row, stop=self._width_stop(znew, scale))
 
     def _expand(self, tcur, z, t_end):
-        """The step's series: the centre's polynomial C (and its jets, or None), its defect g in the centre's scaled
-        time, and the coefficients CZ up to BOX_ORDER from the whole set (checked from a guess around C)."""
+        """The step's series: the centre's polynomial C (and its jets, or None) and its defect g in the centre's
+        scaled time; the field must be finite on the enclosure z of the state."""
         flint, prog, pars, consts = self.flint, self.prog, self.pars, self.consts
         try:
+            evaluate(prog, z, pars, consts, flint.arb(1))  # raises Singular on a singularity of the field
             C, jets = centre_polynomial(self.stepper, prog, self.m, pars, consts, self.N, flint,
                                          mpmath.mpf(float(abs(t_end - tcur))), self.deadline)  # centre
             g = defect_coefficients(prog, C, pars, consts, flint, self.exact)  # in the centre's scaled time
-            # from the whole set (checked from a guess around the centre polynomial)
-            guess = C.guess(BOX_ORDER, max(zi.rad() for zi in z),
-                            norm_bound(self.jprog, self.m, pars, self.jconsts, flint))
-            CZ = taylor_coefficients_checked(prog, z, guess, pars, consts, BOX_ORDER, flint)
         except DeadlineExceeded:
             raise Stop("time_budget", note=" (inside a step)") from None
         except Singular as e:
@@ -492,12 +487,13 @@ class _ValidatedEngine:
             raise Stop("validation_failed", f"the vector field cannot be evaluated on the enclosure of the state "
                        f"({e}): the solution is at or near a singularity of the field (widest ball "
                        f"{max(float(zi.rad()) for zi in z):.3g})") from None
-        return C, jets, g, CZ
+        return C, jets, g
 
-    def _prove(self, z, left, C, jets, g, CZ, tol, pieces):
-        """The longest step up to ``left`` that is proved (its a priori box, a remainder bound within ``tol``, the
+    def _prove(self, z, left, C, jets, g, tol, pieces):
+        """The longest step up to ``left`` that is proved (its a priori enclosure, a remainder bound within ``tol``, the
         flow's Jacobian), from the estimate the defect gives, shortened until proved: (h, h signed, the remainder
-        bound as a function of the time, the a priori box, the flow's Jacobian, the bound at h). Learns the next
+        bound as a function of the time, that of every solution from the set, the bounds of |Df| over the step, the
+        flow's Jacobian, the bound at h). Learns the next
         estimate's scale; stops the run at an event ahead, or when no step down to ``h_min`` is proved."""
         flint, N, direction = self.flint, self.N, self.direction
         arb = flint.arb
@@ -507,6 +503,13 @@ class _ValidatedEngine:
         h_f = min(h_est * self.h_scale, float(left))
         first, evented, unproved = True, False, False
         terms = defect_terms(g, N, flint)
+        # per component, an upper bound of |y - m| over the set (its box z around the centre m)
+        saved = flint.ctx.prec
+        flint.ctx.prec = 64
+        try:
+            spread = [abs(zi - mi).upper() for zi, mi in zip(z, self.m)]
+        finally:
+            flint.ctx.prec = saved
         proved = None
         event_hit = None
         h_event_start = h_f
@@ -521,9 +524,9 @@ class _ValidatedEngine:
             hs = h * direction
             hb = arb(flint.fmpq(hs.numerator, hs.denominator))
             span = hb / 2 + arb(0, abs(hb) / 2)  # the ball [0, h] (or [h, 0])
-            got = prove_step(prog, jprog, CZ, C, terms, pars, consts, jconsts, span, flint,
+            got = prove_step(prog, jprog, C, terms, pars, consts, jconsts, span, spread, flint,
                               majorant=(jets, h, self.ps.parameter_values) if jets is not None else None)
-            tail, B, D = got if got is not None else (None, None, None)
+            tail, B, reach, L = got if got is not None else (None, None, None, None)
             hit = (_event_in(self.events, B, pars, self.ev_consts, arb(1)) if self.events and got is not None
                    else None)
             if hit is not None:
@@ -535,14 +538,15 @@ class _ValidatedEngine:
                 h_f = float(h) / 2
                 evented = True
                 continue
-            J = flow_jacobian(jprog, CZ, D, pars, jconsts, hb, flint, pieces) if got is not None else None
-            bounds_h = tail(hb) if J is not None else None
-            worst = max(bounds_h, key=float) if J is not None else None
-            if J is not None and worst <= tol:
-                proved = (h, hs, tail, D, J, bounds_h)
+            bounds_h = tail(hb) if got is not None else None
+            worst = max(bounds_h, key=float) if got is not None else None
+            J = (flow_jacobian(jprog, C, reach, L, pars, jconsts, hb, flint, pieces)
+                 if got is not None and worst <= tol else None)
+            if J is not None:
+                proved = (h, hs, tail, reach, L, J, bounds_h)
                 break
             # the remainder scales like h^(N+1): aim just below the tolerance (halve when unproved)
-            if worst is None or not worst.is_finite():  # no a priori box, or no Jacobian: shorter
+            if worst is None or not worst.is_finite() or worst <= tol:  # no enclosure, or no Jacobian: shorter
                 shrink, unproved = UNPROVED_SHRINK, True
             else:
                 shrink = min(RETRY_MARGIN * nth_root(tol / worst, N + 1), RETRY_MARGIN)
@@ -585,7 +589,8 @@ class _ValidatedEngine:
         widest = max(znew, key=lambda v: float(v.rad()))
         if not all(v.is_finite() for v in znew) or widest.rad() > cap:
             return ("validation_failed", f"the widest ball has radius {float(widest.rad()):.3g}, beyond max_width "
-                    f"({float(cap):.3g})", "")
+                    f"({float(cap):.3g}): the enclosure grows faster than the steps can follow (the field is singular "
+                    "or too steep near the solution, or the set of initial data too wide)", "")
         return None
 
 

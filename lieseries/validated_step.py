@@ -1,5 +1,5 @@
 """The proof of one validated step (:mod:`lieseries.validated` runs them): the centre's Taylor polynomial and its
-defect, the a priori box and the remainder bound, the flow's Jacobian over the step, in Arb ball arithmetic.
+defect, the a priori enclosure and the remainder bound, the flow's Jacobian over the step, in Arb ball arithmetic.
 
 One step from t to t + h of the set m + A r (docs/theory.md, "Certified enclosures"):
 
@@ -8,9 +8,9 @@ One step from t to t + h of the set m + A r (docs/theory.md, "Certified enclosur
 * :func:`defect_coefficients` -- the defect g = f(p) - p' at the step's start: exact in rational arithmetic for a
   polynomial field (:func:`exact_data`), on ball series otherwise; :func:`defect_terms` and
   :func:`step_estimate` read it;
-* :func:`prove_step` -- the a priori box B by the high-order enclosure theorem (Picard iteration from B) and the
-  remainder bound |x - p| <= exp(|tau| L) int |g|, its Lagrange term from :func:`lagrange_majorant` (a float
-  majorant series, polynomial fields) or from :func:`field_series` over the step;
+* :func:`prove_step` -- the remainder bound |x - p| <= exp(|tau| L) int |g|, its Lagrange term from
+  :func:`lagrange_majorant` (a float majorant series, polynomial fields) or from :func:`field_series` over the
+  step, and the a priori box R around p's range that no solution from the set leaves (by continuation);
 * :func:`flow_jacobian` -- the Jacobian of the flow over the step, by the Peano-Baker series over pieces of it.
 """
 
@@ -29,9 +29,10 @@ from .precision import Precision
 
 __all__ = ["Centre", "centre_polynomial", "field_series", "defect_coefficients", "defect_terms",
            "defect_polynomials", "lagrange_majorant", "prove_step", "exp_times", "jacobian_program",
-           "flow_jacobian", "exact_data", "jet_stepper", "nth_root", "step_estimate", "DEFECT_EXTRA", "BOX_ORDER",
-           "JACOBIAN_TERMS", "JACOBIAN_EPS", "JACOBIAN_PIECES", "WIDE_JACOBIAN_PIECES", "JACOBIAN_MU",
-           "MAX_JACOBIAN_PIECES", "JET_EXTRA_DPS"]
+           "flow_jacobian", "exact_data", "jet_stepper", "nth_root", "step_estimate", "affine_in_state",
+           "jacobian_pieces", "DEFECT_EXTRA", "BOX_MARGIN", "BOX_SPREAD", "JACOBIAN_TERMS", "JACOBIAN_EPS",
+           "JACOBIAN_PIECES", "WIDE_JACOBIAN_PIECES", "AFFINE_JACOBIAN_PIECES", "AFFINE_WIDE_JACOBIAN_PIECES",
+           "JACOBIAN_MU", "MAX_JACOBIAN_PIECES", "JACOBIAN_DEGREE", "JET_EXTRA_DPS"]
 
 
 def centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadline=None):
@@ -54,16 +55,17 @@ def centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadli
                                                                 deadline=deadline)]
         return Centre([flint.arb_poly([mi] + row[1:]) for mi, row in zip(m, rows)], m, 0, order, flint), None
     fmpq, fmpq_poly, fmpz_poly = flint.fmpq, flint.fmpq_poly, flint.fmpz_poly
-    exact = []
+    exact, bits = [], 0
     for Mi, u, mi in zip(jets.M, jets.U, m):
         ints = [int(c) for c in Mi]
         ints[0] = 0  # p(0) = m exactly (the jets hold the state rounded)
         man, exp = (int(v) for v in mi.mid().man_exp())
-        exact.append(fmpq_poly(fmpz_poly(ints)) * _fmpq_two(u, fmpq) + fmpq(man) * _fmpq_two(exp, fmpq))
+        integers = fmpz_poly(ints)
+        bits = max(bits, int(integers.height_bits()), man.bit_length())
+        exact.append(fmpq_poly(integers) * _fmpq_two(u, fmpq) + fmpq(man) * _fmpq_two(exp, fmpq))
     saved = flint.ctx.prec
     # above every numerator (integers below 2^(bits) times powers of two): the balls are exact
-    flint.ctx.prec = max(64, max(int(max(map(abs, Mi))).bit_length() for Mi in jets.M) + 64,
-                         max(int(v.mid().man_exp()[0]).bit_length() for v in m) + 64)
+    flint.ctx.prec = bits + 64
     try:
         polys = [flint.arb_poly(q) for q in exact]
     finally:
@@ -105,34 +107,6 @@ class Centre:
         """p(tau) for a ball ``tau``: an enclosure of the polynomials' range over it."""
         x = self.sigma(tau)
         return [p(x) for p in self.polys]
-
-    def guess(self, order, width, lip):
-        """Balls around the coefficients c_1..c_{order-1} in tau of the polynomials (at 64 bits): a guess of the
-        coefficients from a box of radius ``width`` around the centre (:func:`taylor_coefficients_checked`), ``lip`` about
-        the norm of the field's Jacobian there. A change d of the first k coefficients moves c_k by about
-        lip d_{k-1} / k, so radii r_k = (2^-52 |z| + width) (4 lip)^k / k! (2^-52: far above the rounding at
-        64 bits) leave room for what the field's evaluation carries from order to order (its leading part
-        r_k / 4; where the coefficients grow faster, as near the sphere's chart edges, the check's retries widen
-        the guess). Beyond the polynomial's order the guess is centred at 0."""
-        flint = self.flint
-        arb = flint.arb
-        saved = flint.ctx.prec
-        flint.ctx.prec = 64
-        try:
-            size = max(abs(mi).upper() for mi in self.mids)
-            r = size * 2.0**-52 + width
-            rows = [p.truncate(min(order, self.order + 1)).coeffs() for p in self.polys]
-            if self.s:
-                ck = [self.down ** k for k in range(order)]
-                rows = [[c * x for c, x in zip(row, ck)] for row in rows]
-            radii = []
-            for k in range(1, order):
-                r = (r * (4 * lip) / k).upper()
-                radii.append(r)
-            # beyond the polynomial's order (or a zero coefficient): around 0
-            return [[arb(row[k].mid() if k < len(row) else 0, rk) for k, rk in enumerate(radii, 1)] for row in rows]
-        finally:
-            flint.ctx.prec = saved
 
     def unscaled(self):
         """The coefficients c_k of p in tau, exactly: ``out[i][k]``."""
@@ -258,17 +232,6 @@ def defect_polynomials(terms, top, N, flint):
 
 #: sum_{k<N} t^k / (k + 1) with upper-bound coefficients, per N (64 bits).
 _LOW_SUMS: dict = {}
-
-
-def _horner(C, tau):
-    """The Taylor polynomials sum_j C[i][j] tau^j (tau a ball: an enclosure of their range over it)."""
-    out = []
-    for cs in C:
-        acc = cs[-1]
-        for c in reversed(cs[:-1]):
-            acc = acc * tau + c
-        out.append(acc)
-    return out
 
 
 #: The majorant is computed in floating point when the run's working precision is at most this many bits (its
@@ -448,50 +411,47 @@ def _top_only(prog):
     return got
 
 
-def _enclosure_box(P, flint):
-    """A box around the polynomial range P over a step, a little wider, for the a priori check."""
-    arb = flint.arb
-    return [arb(p.mid(), p.rad() * 1.25 + (abs(p.mid()) + p.rad() + 1) * arb(2) ** -30) for p in P]
+#: The box R around the centre polynomial's range over a step reaches this far beyond it (relative to the state's
+#: size, plus a multiple of the set's spread): every solution from the set is proved to stay well inside it.
+BOX_MARGIN = 2.0**-30
+BOX_SPREAD = 8
 
 
-def prove_step(prog, jprog, CZ, centre, terms, pars, consts, jconsts, span, flint, majorant=None):
-    """(``tail``, the box B that holds every solution over the step, the coefficients from B through c_{K+1}) for
-    a step over ``span`` (the ball [0, h]), or None when the step is not proved. ``tail(tau)``: per component, an
-    upper bound of |phi_tau(m) - p(tau)| for the centre's solution, |tau| <= h.
-
-    ``CZ``: the Taylor coefficients c_0..c_K from the whole enclosure Z of the state (K = BOX_ORDER). B is a box
-    around their polynomials' range over the step; by the high-order enclosure theorem (docs/theory.md),
-    sum_{j<=K} c_j(Z) [0, h]^j + c_{K+1}(B) [0, h]^(K+1) inside B proves that every solution from Z exists over
-    the step and stays in B. B is wide, so its coefficients are computed at 64 bits (outward rounding keeps them
-    rigorous).
+def prove_step(prog, jprog, centre, terms, pars, consts, jconsts, span, spread, flint, majorant=None):
+    """(``tail``, the box R that holds every solution from the set over the step, ``reach``, L) for a step over
+    ``span`` (the ball [0, h]), or None when the step is not proved. ``tail(tau)``: per component, an upper bound
+    of |phi_tau(m) - p(tau)| for the centre's solution, |tau| <= h; ``reach(tau)``: of |phi_t(y) - p(t)| for every
+    y in the set and |t| <= |tau|; L: the entrywise upper bounds of |Df(R)| (a matrix).
 
     The centre's solution x from m = p(0) and the centre polynomial p (``centre``, a :class:`Centre`) differ by
     e = x - p with e' = g + A(s) e, g = f(p) - p' the defect (its coefficients in the centre's scaled time at the
-    step's start, as ``terms`` from :func:`defect_terms`) and A(s) a mean of Df
-    over the segment from p(s) to x(s), inside the box R = B united with the range of p over the step. So
-    |e(tau)| <= exp(|tau| L) G(tau) componentwise, L = |Df(R)| entrywise and G the integral of |g| over the step
-    bounded by :func:`defect_polynomials` with the Lagrange term taken over the whole step (from a majorant series in
-    floating point, :func:`lagrange_majorant`, when ``majorant`` = (the centre's integer jets, |h|, the
-    parameters) is given and the field is a polynomial; else by ball series at 64 bits)."""
+    step's start, as ``terms`` from :func:`defect_terms`) and A(s) a mean of Df over the segment from p(s) to
+    x(s). R is the range of p over the step widened by delta (BOX_MARGIN of the state, and BOX_SPREAD times the
+    set's ``spread``: per component, an upper bound of |y - m| over the set); L = |Df(R)| entrywise. While x stays
+    in R (a box: the segment too), |e(tau)| <= exp(|tau| L) G(tau) componentwise, G the integral of |g| over the
+    step bounded by :func:`defect_polynomials` with the Lagrange term taken over the whole step (from a majorant
+    series in floating point, :func:`lagrange_majorant`, when ``majorant`` = (the centre's integer jets, |h|, the
+    parameters) is given and the field is a polynomial; else by ball series at 64 bits); and a solution x_y from
+    y in the set, while it stays in R, is within exp(|t| L) |y - m| of x. Their sum, exp(|t| L) (G(t) + spread),
+    is ``reach``; when reach(h) < delta, no solution can leave R during the step (at a first exit it would be at
+    distance delta from p, more than the bound that holds up to then), so every solution from the set exists over
+    the step and stays in R (docs/theory.md)."""
     arb, arb_mat = flint.arb, flint.arb_mat
-    K = len(CZ[0]) - 1
     n = len(centre.polys)
     Lg = centre.order + len(terms[1][0])  # the order of the Lagrange term
-    Pz = _horner(CZ, span)
-    B = _enclosure_box(Pz, flint)
     saved = flint.ctx.prec
     flint.ctx.prec = 64
     try:
-        R = [b.union(p) for b, p in zip(B, centre.at(span))]
+        P = centre.at(span)  # the range of p over the step
+        delta = [((abs(p.mid()) + p.rad() + 1) * BOX_MARGIN + BOX_SPREAD * e).upper() for p, e in zip(P, spread)]
+        R = [arb(p.mid(), (p.rad() + d).upper()) for p, d in zip(P, delta)]
+        # the field and its Jacobian finite on R: f is smooth there (no pole, no root or logarithm at its branch)
+        if not all((v if isinstance(v, arb) else arb(v)).is_finite() for v in evaluate(prog, R, pars, consts, arb(1))):
+            return None
         vals = evaluate(jprog, R, pars, jconsts, arb(1))
         L = arb_mat([[abs(v if isinstance(v, arb) else arb(v)).upper() for v in vals[i * n:(i + 1) * n]]
                      for i in range(n)])
         if not all(x.is_finite() for x in (L * arb_mat([[1]] * n)).entries()):  # row sums of upper bounds
-            return None
-        D = taylor_coefficients(prog, B, pars, consts, K + 1, flint)  # B is wide: Picard iteration
-        if not all(d[K + 1].is_finite() for d in D):
-            return None
-        if not all(b.contains(p + d[K + 1] * span ** (K + 1)) for b, p, d in zip(B, Pz, D)):
             return None
         top = (None if majorant is None
                else lagrange_majorant(prog, [[mi] for mi in centre.mids], *majorant, Lg, flint))
@@ -516,17 +476,36 @@ def prove_step(prog, jprog, CZ, centre, terms, pars, consts, jconsts, span, flin
     finally:
         flint.ctx.prec = saved
 
-    def tail(tau):
-        saved = flint.ctx.prec
-        flint.ctx.prec = 64
-        try:
-            x = abs(centre.sigma(tau))
-            E = exp_times(L * abs(tau), arb_mat([[(d(x) * x).upper() * back] for d in defect]), flint)
-            return [E[i, 0].upper() for i in range(n)]
-        finally:
-            flint.ctx.prec = saved
+    known = {}
 
-    return tail, B, D
+    def bound(tau, with_spread):
+        """exp(|tau| L) (G(|tau|) + the spread, or not), per component (upper bounds), once per time and kind."""
+        at = tuple(int(v) for v in abs(tau).upper().mid().man_exp())
+        if (at, with_spread) not in known:
+            saved = flint.ctx.prec
+            flint.ctx.prec = 64
+            try:
+                if at not in known:
+                    x = abs(centre.sigma(tau))
+                    known[at] = [((d(x) * x).upper() * back).upper() for d in defect]  # G(|tau|)
+                g = known[at]
+                if with_spread:
+                    g = [(gi + e).upper() for gi, e in zip(g, spread)]
+                E = exp_times(L * abs(tau), arb_mat([[gi] for gi in g]), flint)
+                known[at, with_spread] = [E[i, 0].upper() for i in range(n)]
+            finally:
+                flint.ctx.prec = saved
+        return known[at, with_spread]
+
+    def tail(tau):
+        return bound(tau, False)
+
+    def reach(tau):
+        return bound(tau, True)
+
+    if not all(r < d for r, d in zip(reach(abs(span.mid()) * 2), delta)):  # at |h| (span = [0, h]) exactly
+        return None
+    return tail, R, reach, L
 
 
 def exp_times(M, g, flint):
@@ -536,7 +515,7 @@ def exp_times(M, g, flint):
     (a bound, not a tight value: cheaper than the matrix exponential, which it uses when mu >= 16)."""
     arb, arb_mat = flint.arb, flint.arb_mat
     n = g.nrows()
-    mu = max([arb(0)] + [sum((M[i, j] for j in range(n)), arb(0)).upper() for i in range(n)])
+    mu = max([arb(0)] + [x.upper() for x in (M * arb_mat([[1]] * n)).entries()])  # the row sums
     if not mu < 16:  # a long series: Arb's matrix exponential (scaling and squaring)
         return M.exp() * g
     size = max([arb(0)] + [g[i, 0].upper() for i in range(n)])
@@ -555,24 +534,34 @@ def exp_times(M, g, flint):
 
 _JACOBIANS = cache.region("validated.jacobians", 64)
 #: Terms of the interval-matrix exponential that encloses the flow's Jacobian over one piece of a step, and the
-#: number of pieces a step is cut into for it (three times as many when the set is wider than 10^-dps, as from
+#: number of pieces a step is cut into for it (more when the set is wider than 10^-dps, as from
 #: uncertain data, where the Jacobian's own width multiplies the set's spread: measured on the rigid body at 50
 #: digits from data known to a double's width, the final ball at T = 10 is 1.0e-14 with 16 pieces, 8.9e-15 with 24,
 #: for a few percent more time).
 JACOBIAN_TERMS = 10
 #: Fewer terms when their tail bound is below this (relative to the identity: the Jacobian multiplies the set's
-#: spread only; its width comes mostly from the range of Df over each piece: the rigid body's widest final ball at
-#: 50 digits, T = 10, is 6.5599e-53 with a tail below 2^-30 as below 2^-40, with two matrix products fewer a piece).
-JACOBIAN_EPS = 2.0**-30
-JACOBIAN_PIECES = 8
+#: spread only; its width comes mostly from the range of Df over each piece, ~2e-2 on the rigid body at 50 digits:
+#: to T = 10 it certifies 52.4616 digits with a tail below 2^-30, 52.4606 below 2^-20 with one matrix product fewer
+#: a piece, 52.40 below 2^-14 and 51.44 below 2^-10, where the tail, added to every entry, widens the entries that
+#: are otherwise near-exact).
+JACOBIAN_EPS = 2.0**-20
+#: 16 pieces, not 8, since the steps are only as short as the remainder's tolerance asks (no a priori box from the
+#: set's Taylor coefficients limits them): the sphere at 50 digits to T = 10 takes 139 steps and certifies 45.7
+#: digits with 8 pieces, 46.2 with 16, 46.4 with 32 (216 steps and 46.7 digits before, with 8).
+JACOBIAN_PIECES = 16
 WIDE_JACOBIAN_PIECES = 24
+#: The same for a field whose Jacobian is affine in the state (a field of degree 2, as the rigid body's): the first
+#: term of each piece's series is then near-exact (:func:`flow_jacobian`) and the Jacobian's width shrinks like the
+#: square of the pieces' length, not like their length. The rigid body at 50 digits to T = 10: 52.46 certified
+#: digits with 8 pieces before, 52.64 with 8, 52.58 with 3 (a Jacobian at half the cost), 52.47 with 2; from
+#: double-width data the final ball 8.95e-15 with 24 pieces before, 7.20e-15 with 24, 7.42e-15 with 8.
+AFFINE_JACOBIAN_PIECES = 3
+AFFINE_WIDE_JACOBIAN_PIECES = 8
+#: The centre polynomial's terms up to this degree give the pieces' boxes; the rest is bounded over the step.
+JACOBIAN_DEGREE = 16
 #: More pieces, up to MAX_JACOBIAN_PIECES, when |Df| |tau| over the step exceeds JACOBIAN_MU per piece.
 JACOBIAN_MU = 1.0
 MAX_JACOBIAN_PIECES = 1024
-#: Order of the Taylor polynomials from the whole enclosure that the a priori box is built around (10 saves some
-#: of the box's Picard iteration on the rigid body, but its box fails more often on longer steps elsewhere: the full
-#: inertia tensor to T = 10 at 50 digits takes 21 steps instead of 19, the sphere 248 instead of 217).
-BOX_ORDER = 12
 
 
 def jacobian_program(ps):
@@ -590,47 +579,55 @@ def jacobian_program(ps):
     return prog
 
 
-def flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECES):
-    """An enclosure of every Jacobian d phi_tau(y) / dy of the flow over time ``tau`` (an exact ball) for all
-    starting points y in the enclosure Z, or None when the bound below does not apply.
+def jacobian_pieces(jprog, wide: bool) -> int:
+    """The pieces a step is cut into for the flow's Jacobian (:func:`flow_jacobian`): for a set wider than 10^-dps
+    of the state (``wide``) or not, and a Jacobian program affine in the state or not."""
+    if affine_in_state(jprog):
+        return AFFINE_WIDE_JACOBIAN_PIECES if wide else AFFINE_JACOBIAN_PIECES
+    return WIDE_JACOBIAN_PIECES if wide else JACOBIAN_PIECES
 
-    ``CZ``: Taylor coefficients c_0..c_K from Z, ``D``: those from the a priori box B (through c_{K+1}). The step is
-    cut into ``pieces`` pieces; over piece i every solution lies in B_i = sum_j c_j(Z) T_i^j +
-    c_{K+1}(B) T_i^(K+1) (T_i the piece's time interval; Taylor's theorem), much narrower than B; the polynomial
-    part is evaluated in mean-value form about the piece's middle time (narrower than Horner's scheme on T_i).
-    d phi / dy solves V' = Df(z(t)) V, so over piece i it is multiplied by a matrix of the Peano-Baker series
-    sum_j (dt Df(B_i))^j / j!, truncated after K terms (the fewest whose tail bound is below JACOBIAN_EPS, at most
-    JACOBIAN_TERMS) with the tail bounded entrywise by
-    mu^(K+1) / (K+1)! / (1 - mu / (K+2)), mu an upper bound of |dt| ||Df||_inf over every solution on the piece:
-    the same for all pieces, from Df over the whole step's box (docs/theory.md). Computed at 64 bits: the Jacobian
-    multiplies the enclosure's tiny spread only."""
+
+def flow_jacobian(jprog, centre, reach, L, pars, consts, tau, flint, pieces=JACOBIAN_PIECES):
+    """An enclosure of every Jacobian d phi_tau(y) / dy of the flow over time ``tau`` (an exact ball) for all
+    starting points y in the set, or None when the bound below does not apply.
+
+    ``centre``: the step's :class:`Centre` p; ``reach(t)``: per component, an upper bound of |phi_s(y) - p(s)| for
+    every y in the set and |s| <= |t|; ``L``: entrywise upper bounds of |Df| over every solution during the step
+    (from :func:`prove_step`). The step is cut into ``pieces`` pieces; over piece i every solution lies in
+    B_i = q(T_i) +- (reach(tau) + r) (T_i the piece's time interval, q the terms of p up to JACOBIAN_DEGREE
+    evaluated in mean-value form about the piece's middle time, r a bound of p's other terms over the step).
+    d phi / dy solves V' = Df(z(t)) V, so over piece i it is multiplied by a matrix of the
+    Peano-Baker series sum_j (dt Df(B_i))^j / j!, truncated after K terms (the fewest whose tail bound is below
+    JACOBIAN_EPS, at most JACOBIAN_TERMS) with the tail bounded entrywise by mu^(K+1) / (K+1)! / (1 - mu / (K+2)),
+    mu = |dt| ||L||_inf (docs/theory.md). When Df is affine in the state (:func:`affine_in_state`), the series'
+    first term, the integral of Df(z_y(t)) over the piece, is dt times Df at the mean of z_y over the piece, which
+    lies within reach(tau) + r of the mean of q over the piece (its integral, exactly); the terms from the second on
+    keep Df(B_i). Computed at 64 bits: the Jacobian multiplies the set's tiny spread only."""
     arb, arb_mat = flint.arb, flint.arb_mat
-    n = len(CZ)
-    K = len(CZ[0]) - 1
+    n = len(centre.polys)
     eye = arb_mat([[1 if i == j else 0 for j in range(n)] for i in range(n)])
     saved = flint.ctx.prec
     flint.ctx.prec = 64
     try:
-        # a badly scaled field (|Df| |tau| large: a fast oscillation in a slow state) needs more pieces: the
-        # series of each piece converges like mu^j / j!, and mu near JACOBIAN_TERMS makes the enclosure explode
-        polys = [flint.arb_poly(cz) for cz in CZ]
+        # p in the scaled time sigma = 2^-s tau (exactly: a power of two), its terms beyond JACOBIAN_DEGREE
+        # bounded over the step (their sum on the ball of the step's sigmas) and added to the boxes' radii
+        down, back = centre.down, arb(2) ** centre.s
+        within = arb(0, abs(tau * down).upper())  # every sigma of the step
+        polys = [p.truncate(JACOBIAN_DEGREE + 1) for p in centre.polys]
+        rest = [abs((p - q)(within)).upper() for p, q in zip(centre.polys, polys)]
         slopes = [p.derivative() for p in polys]
 
-        def box(lo, hi):
-            """Every solution from Z over the times between lo and hi: the polynomials in mean-value form (the
-            range of q_y over the interval lies in q_y(centre) + q_y'(interval) (interval - centre) for each
-            polynomial q_y with coefficients in CZ) plus the remainder term."""
-            centre = (lo + hi) / 2
-            seg = centre + arb(0, abs(hi - lo) / 2)
-            return [p(centre) + dp(seg) * (seg - centre) + d[K + 1] * seg ** (K + 1)
-                    for p, dp, d in zip(polys, slopes, D)]
+        def box(lo, hi, radii):
+            """Every solution from the set over the times between lo and hi: p in mean-value form (its range
+            over the interval lies in p(centre) + p'(interval) (interval - centre)) widened by ``radii``."""
+            centre_s = (lo + hi) / 2 * down
+            seg = centre_s + arb(0, abs(hi - lo) / 2 * down)
+            return [p(centre_s) + dp(seg) * (seg - centre_s) + arb(0, r)
+                    for p, dp, r in zip(polys, slopes, radii)]
 
-        try:
-            whole = evaluate(jprog, box(arb(0), tau), pars, consts, arb(1))
-        except Singular:
-            return None
-        norm = max(sum((abs(v if isinstance(v, arb) else arb(v)).upper() for v in whole[i * n:(i + 1) * n]),
-                       arb(0)) for i in range(n)) * abs(tau)
+        # a badly scaled field (|Df| |tau| large: a fast oscillation in a slow state) needs more pieces: the
+        # series of each piece converges like mu^j / j!, and mu near JACOBIAN_TERMS makes the enclosure explode
+        norm = max(x.upper() for x in (L * arb_mat([[1]] * n)).entries()) * abs(tau)  # exact bounds compare
         if not norm.is_finite():
             return None
         pieces = max(pieces, min(MAX_JACOBIAN_PIECES, math.ceil(float(norm.upper()) / JACOBIAN_MU)))
@@ -642,15 +639,23 @@ def flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECES
         terms, eps = _series_terms(mu, arb)
         tail = arb_mat([[arb(0, eps)] * n for _ in range(n)])
         steps = [None] + [dt / j for j in range(1, terms + 1)]  # the series' term j is (dt Df)^j / j!
+        # Df affine in the state: the first term, the integral of Df(z(t)) over the piece, is dt Df(mean of z)
+        prims = [p.integral() for p in polys] if affine_in_state(jprog) else None
+        radii = [(r + e).upper() for r, e in zip(reach(tau), rest)]  # for every piece (they grow with the time)
         J = eye
         for piece in range(pieces):
+            lo, hi = dt * piece, dt * (piece + 1)
             try:
-                vals = evaluate(jprog, box(dt * piece, dt * (piece + 1)), pars, consts, arb(1))
+                vals = evaluate(jprog, box(lo, hi, radii), pars, consts, arb(1))
+                if prims is not None:
+                    # the mean of every solution over the piece: within reach of p's mean, its integral
+                    mean = [(q(hi * down) - q(lo * down)) * back / dt + arb(0, r) for q, r in zip(prims, radii)]
+                    first = arb_mat(n, n, evaluate(jprog, mean, pars, consts, arb(1))) * dt
             except Singular:
                 return None
             M = arb_mat(n, n, vals)  # Df(B_i); dt comes in with 1/j
             T = M * steps[1]
-            S = eye + T
+            S = eye + (T if prims is None else first)
             for j in range(2, terms + 1):
                 T = T * M * steps[j]
                 S = S + T
@@ -660,6 +665,33 @@ def flow_jacobian(jprog, CZ, D, pars, consts, tau, flint, pieces=JACOBIAN_PIECES
         return J
     finally:
         flint.ctx.prec = saved
+
+
+_AFFINE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def affine_in_state(prog) -> bool:
+    """Every output of ``prog`` is an affine function of its variables (a polynomial of degree at most 1 in them,
+    with parameters and constants as coefficients): the Jacobian program of a field of degree 2, as the rigid
+    body's. Decided from the operations (the degree of each slot), once per program."""
+    got = _AFFINE.get(prog)
+    if got is None:
+        deg = dict.fromkeys(range(prog.nvars), 1)  # parameters and constants: degree 0
+        for node in prog.nodes:
+            a = [deg.get(x, 0) for x in node.args]
+            if node.op in ("add", "sub", "neg"):
+                d = max(a)
+            elif node.op == "mul":
+                d = sum(a)
+            elif node.op == "powi" and int(node.data) >= 0:
+                d = a[0] * int(node.data)
+            elif node.op == "div" and a[1] == 0:
+                d = a[0]
+            else:  # any other operation of a state-dependent argument
+                d = 0 if max(a) == 0 else 2
+            deg[node.out] = d
+        got = _AFFINE[prog] = all(deg.get(o, 0) <= 1 for o in prog.outputs)
+    return got
 
 
 def _series_terms(mu, arb):
