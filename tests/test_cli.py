@@ -341,11 +341,11 @@ def test_a_quick_run_does_not_let_a_methods_own_label_claim_digits_it_did_not_us
 # -- estimates of long scenes, and --max-time ---------------------------------------------------------------------
 LONG_SCENE = ('name = "long"\ntitle = "many samples at many digits"\n[model]\nkind = "euler_poisson"\n'
               'inertia = [1, 2, 3]\n[initial]\nomega = [1, "0.1", "0.5"]\n[run]\nt = 20\nsamples = 100000\n'
-              'methods = [{ method = "lie", dps = 100 }]\n')
+              'methods = [{ method = "lie", dps = 250 }]\n')
 
 
 def test_a_scene_estimated_beyond_max_time_is_refused_before_computing(tmp_path, capsys, monkeypatch):
-    """samples = 100000 with a Lie method at 100 digits (tens of minutes of work): refused with exit 2, naming the
+    """samples = 100000 with a Lie method at 250 digits (estimated at 97 s): refused with exit 2, naming the
     field that drives it and the estimate, and nothing is computed or written."""
     from lieseries import run as run_module
 
@@ -356,7 +356,7 @@ def test_a_scene_estimated_beyond_max_time_is_refused_before_computing(tmp_path,
     assert main(["run", str(scene), "--out", str(out), "--max-time", "30", "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "`run.samples`" in err and "--max-time 30 s" in err and "estimated" in err
-    assert "99999 sample intervals x lie dps 100" in err  # 100000 sample times, t = 0 among them
+    assert "99999 sample intervals x lie dps 250" in err  # 100000 sample times, t = 0 among them
     assert not out.exists()  # the folder it created for the report is gone again: nothing was written
 
 
@@ -418,7 +418,7 @@ def test_a_long_estimate_is_printed_before_computing(tmp_path, capsys, monkeypat
     monkeypatch.setattr(cost, "PRINT_ABOVE", 0.0)  # every scene counts as long
     scene = tmp_path / "s.toml"
     scene.write_text(LONG_SCENE.replace("samples = 100000", "samples = 3").replace("t = 20", "t = '0.1'")
-                     .replace("dps = 100", "dps = 20"))
+                     .replace("dps = 250", "dps = 20"))
     assert main(["run", str(scene), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
     err = capsys.readouterr().err
     assert err.startswith("lieseries: estimated ") and "6 sample intervals x lie dps 20" in err  # 2 x 3 repeats
