@@ -697,12 +697,14 @@ def affine_in_state(prog) -> bool:
 def _series_terms(mu, arb):
     """(K, bound): the fewest terms K of the Peano-Baker series whose tail bound is below JACOBIAN_EPS (at most
     JACOBIAN_TERMS), and the rigorous bound mu^(K+1) / (K+1)! / (1 - mu / (K+2)) of that tail's entries (an
-    upper bound, at the current ball precision)."""
+    upper bound, at the current ball precision). The geometric bound of the tail needs mu < K + 2 (the caller
+    ensures mu < JACOBIAN_TERMS + 2): a smaller K is taken only where it holds (float(mu) < K + 2 implies it,
+    K + 2 being a float), else the quotient is negative and no bound at all."""
     mu_f = float(mu.upper())
     terms, term = JACOBIAN_TERMS, mu_f  # term: mu^(j+1) / (j+1)!
     for j in range(1, JACOBIAN_TERMS):
         term *= mu_f / (j + 1)
-        if term / (1 - mu_f / (j + 2)) < JACOBIAN_EPS:
+        if mu_f < j + 2 and term / (1 - mu_f / (j + 2)) < JACOBIAN_EPS:
             terms = j
             break
     fact = arb(1)

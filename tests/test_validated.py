@@ -604,3 +604,27 @@ def test_backward_runs_enclose_the_closed_form_from_exact_and_uncertain_data():
         assert sol.status == "success", sol.message
         assert all(inside(b, v) for row, ref in zip(sol.y, refs) for b, v in zip(row, ref))
         assert max(radii(sol)[-1]) < (1e-25 if data is y0 else 1e-9)
+
+
+def test_a_piece_of_the_flow_jacobian_holds_its_exact_matrix_when_mu_exceeds_three(monkeypatch):
+    # the Peano-Baker tail bound mu^(K+1) / (K+1)! / (1 - mu / (K+2)) holds only for mu < K + 2: past 1024 pieces
+    # (|tau| ||Df|| > 3072) mu may reach 12, and a K chosen for mu > K + 2 made the quotient negative (for mu = 9,
+    # K = 1 with a "tail" of 20.3, where the piece's term (tau A)^3 / 6 is 121.5). One piece of a linear chain
+    # (q2' = 9 q1, q1' = 9 p1, p1' = -9 p2: Df constant and nilpotent) must hold exp(tau A) exactly
+    from lieseries import validated_step as S
+    from lieseries.ball_series import ball_constant, working_precision
+
+    q1, q2, p1, p2 = hy.make_vars("q1", "q2", "p1", "p2")
+    tensor = [[0, 0, 1, 0], [0, 0, 0, 1], [-1, 0, 0, 0], [0, -1, 0, 0]]
+    chain = ls.PoissonSystem([q1, q2, p1, p2], tensor, 9 * p1**2 / 2 + 9 * q1 * p2, name="chain")
+    jprog = S.jacobian_program(chain)
+    A = [[0, 0, 9, 0], [9, 0, 0, 0], [0, 0, 0, -9], [0, 0, 0, 0]]  # d(q1', q2', p1', p2') / d(q1, q2, p1, p2)
+    monkeypatch.setattr(S, "MAX_JACOBIAN_PIECES", 1)  # one piece with mu = 9, as a piece of 1024 with mu = 9
+    with working_precision(128, cap=20) as fl:
+        n, arb = 4, fl.arb
+        centre = S.Centre([fl.arb_poly([0])] * n, [arb(0)] * n, 0, 1, fl)  # every solution from 0 stays at 0
+        L = fl.arb_mat([[abs(x) for x in row] for row in A])
+        consts = [(slot, ball_constant(c, fl)) for slot, c in jprog.constants]
+        J = S.flow_jacobian(jprog, centre, lambda tau: [arb(0)] * n, L, [], consts, arb(1), fl, pieces=1)
+        exact = fl.arb_mat(A).exp()  # I + A + A^2 / 2 + A^3 / 6, exactly (A^4 = 0)
+        assert all(J[i, j].contains(exact[i, j]) for i in range(n) for j in range(n))
