@@ -523,8 +523,7 @@ class _ValidatedEngine:
                 break
             hs = h * direction
             hb = arb(flint.fmpq(hs.numerator, hs.denominator))
-            span = hb / 2 + arb(0, abs(hb) / 2)  # the ball [0, h] (or [h, 0])
-            got = prove_step(prog, jprog, C, terms, pars, consts, jconsts, span, spread, flint,
+            got = prove_step(prog, jprog, C, terms, pars, consts, jconsts, hb, spread, flint,
                               majorant=(jets, h, self.ps.parameter_values) if jets is not None else None)
             tail, B, reach, L = got if got is not None else (None, None, None, None)
             hit = (_event_in(self.events, B, pars, self.ev_consts, arb(1)) if self.events and got is not None

@@ -417,9 +417,9 @@ BOX_MARGIN = 2.0**-30
 BOX_SPREAD = 8
 
 
-def prove_step(prog, jprog, centre, terms, pars, consts, jconsts, span, spread, flint, majorant=None):
-    """(``tail``, the box R that holds every solution from the set over the step, ``reach``, L) for a step over
-    ``span`` (the ball [0, h]), or None when the step is not proved. ``tail(tau)``: per component, an upper bound
+def prove_step(prog, jprog, centre, terms, pars, consts, jconsts, step, spread, flint, majorant=None):
+    """(``tail``, the box R that holds every solution from the set over the step, ``reach``, L) for the step
+    ``step`` (h as a ball, negative backward: a non-binary h is not exact), or None when the step is not proved. ``tail(tau)``: per component, an upper bound
     of |phi_tau(m) - p(tau)| for the centre's solution, |tau| <= h; ``reach(tau)``: of |phi_t(y) - p(t)| for every
     y in the set and |t| <= |tau|; L: the entrywise upper bounds of |Df(R)| (a matrix).
 
@@ -438,6 +438,7 @@ def prove_step(prog, jprog, centre, terms, pars, consts, jconsts, span, spread, 
     the step and stays in R (docs/theory.md)."""
     arb, arb_mat = flint.arb, flint.arb_mat
     n = len(centre.polys)
+    span = step / 2 + arb(0, abs(step) / 2)  # the ball [0, h] (or [h, 0]) for every h in the ball ``step``
     Lg = centre.order + len(terms[1][0])  # the order of the Lagrange term
     saved = flint.ctx.prec
     flint.ctx.prec = 64
@@ -503,7 +504,9 @@ def prove_step(prog, jprog, centre, terms, pars, consts, jconsts, span, spread, 
     def reach(tau):
         return bound(tau, True)
 
-    if not all(r < d for r, d in zip(reach(abs(span.mid()) * 2), delta)):  # at |h| (span = [0, h]) exactly
+    # at the ball h itself (so at every |t| <= |h|, not at a rounded midpoint when h is not binary); the same key
+    # as the bound at h that the run reads next, and the Jacobian's reach(h)
+    if not all(r < d for r, d in zip(reach(step), delta)):
         return None
     return tail, R, reach, L
 
