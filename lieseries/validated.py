@@ -518,7 +518,8 @@ class _ValidatedEngine:
                 break
             if self.deadline is not None and _time.perf_counter() > self.deadline:
                 raise Stop("time_budget", note=" (inside a step)")
-            h = left if h_f >= float(left) else Fraction(math.floor(h_f * 2**50), 2**50)
+            # 50 bits of h_f, rounded down (relative to its size: a step below 2^-50 is a step too)
+            h = left if h_f >= float(left) else _binary_down(h_f, 50)
             if h <= 0:
                 break
             hs = h * direction
@@ -610,6 +611,14 @@ def _exact_mid(ball) -> Fraction:
     """The midpoint of an arb ball (a binary number), exactly."""
     man, exp = (int(v) for v in ball.mid().man_exp())
     return Fraction(man << exp) if exp >= 0 else Fraction(man, 1 << -exp)
+
+
+def _binary_down(x: float, bits: int) -> Fraction:
+    """The positive float x rounded down to ``bits`` significant bits, exactly (0 for x <= 0)."""
+    if not x > 0:
+        return Fraction(0)
+    man, exp = math.frexp(x)
+    return Fraction(math.floor(math.ldexp(man, bits))) * Fraction(2) ** (exp - bits)
 
 
 def _float_up(x) -> float:

@@ -628,3 +628,19 @@ def test_a_piece_of_the_flow_jacobian_holds_its_exact_matrix_when_mu_exceeds_thr
         J = S.flow_jacobian(jprog, centre, lambda tau: [arb(0)] * n, L, [], consts, arb(1), fl, pieces=1)
         exact = fl.arb_mat(A).exp()  # I + A + A^2 / 2 + A^3 / 6, exactly (A^4 = 0)
         assert all(J[i, j].contains(exact[i, j]) for i in range(n) for j in range(n))
+
+
+def test_a_fast_rigid_body_takes_steps_below_two_to_the_minus_fifty():
+    # the tutorial's body spinning 10^15 times faster: its steps (~1e-15) are below 2^-50, which the steps' binary
+    # rounding once took to 0 (validation_failed at t = 0); the run is the slow one with time scaled, as many
+    # steps and digits
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    s = 10**15
+    omega = [to_fraction(w) * s for w in RIGID_OMEGA]
+    times = [Fraction(3, s), Fraction(7, s)]
+    sol = validated_integrate(body, body.initial_state(omega=omega), t=times, dps=20)
+    assert sol.status == "success", sol.message
+    refs = exact.euler_poisson_many(RIGID_INERTIA, omega, times, dps=50)
+    assert all(inside(b, v) for row, ref in zip(sol.y, refs) for b, v in zip(row, ref))
+    slow = validated_integrate(body, body.initial_state(omega=RIGID_OMEGA), t=[3, 7], dps=20)
+    assert sol.stats.steps == slow.stats.steps and min(certified_digits(sol)) > 21
