@@ -644,3 +644,22 @@ def test_a_fast_rigid_body_takes_steps_below_two_to_the_minus_fifty():
     assert all(inside(b, v) for row, ref in zip(sol.y, refs) for b, v in zip(row, ref))
     slow = validated_integrate(body, body.initial_state(omega=RIGID_OMEGA), t=[3, 7], dps=20)
     assert sol.stats.steps == slow.stats.steps and min(certified_digits(sol)) > 21
+
+
+def test_certified_digits_never_claim_more_than_the_balls_carry():
+    # -log10(widest radius / max(1, |z|)) from the balls' exact midpoints and radii at 60 digits: the float given
+    # is at most that (its midpoint rounded to nearest claimed up to a part in 10^16 more on 19 rows of 64)
+    from lieseries.balls import ball_bounds
+
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    y0 = body.initial_state(omega=RIGID_OMEGA)
+    ctx = mp.MPContext()
+    ctx.dps = 60
+    for data in (y0, [(q, Fraction(1, 10**12)) for q in y0.exact]):
+        sol = validated_integrate(body, data, t=[Fraction(k, 4) for k in range(1, 9)], dps=30)
+        for row, digits in zip(sol.y, certified_digits(sol)):
+            widest = max(ball_bounds(b)[1] for b in row)
+            scale = max([Fraction(1)] + [abs(ball_bounds(b)[0]) for b in row])
+            exact_digits = -ctx.log10(ctx.mpf(widest.numerator) / widest.denominator
+                                      * scale.denominator / scale.numerator)
+            assert digits <= exact_digits and digits > exact_digits - 1e-12
