@@ -438,7 +438,7 @@ class _ValidatedEngine:
         tol = self.rem_tol * scale
         wide = any(zi.rad() > self.unit * scale for zi in z)  # wider than 10^-dps of the state's size
         pieces = jacobian_pieces(jprog, wide)
-        C, jets, g = self._expand(tcur, z, t_end)
+        C, jets, g = self._expand(tcur, z, t_end, tol)
         h, hs, tail, reach, L, J, bounds_h = self._prove(z, abs(t_end - tcur), C, jets, g, tol, pieces)
         tnew = tcur + hs
         A, r = self.A, self.r
@@ -471,15 +471,18 @@ class _ValidatedEngine:
         self.tails.append(tail_h)
         return StepResult(tnew, znew, h=h, row=row, stop=self._width_stop(znew, scale))
 
-    def _expand(self, tcur, z, t_end):
+    def _expand(self, tcur, z, t_end, tol):
         """The step's series: the centre's polynomial C (and its jets, or None) and its defect g in the centre's
-        scaled time; the field must be finite on the enclosure z of the state."""
+        scaled time; the field must be finite on the enclosure z of the state. The defect's bounds below order N
+        are taken per order where one bound for all would not lie far below ``tol`` (on a step of the jets' time
+        scale)."""
         flint, prog, pars, consts = self.flint, self.prog, self.pars, self.consts
         try:
             evaluate(prog, z, pars, consts, flint.arb(1))  # raises Singular on a singularity of the field
             C, jets = centre_polynomial(self.stepper, prog, self.m, pars, consts, self.N, flint,
                                          mpmath.mpf(float(abs(t_end - tcur))), self.deadline)  # centre
-            g = defect_coefficients(prog, C, pars, consts, flint, self.exact)  # in the centre's scaled time
+            g = defect_coefficients(prog, C, pars, consts, flint, self.exact,  # in the centre's scaled time
+                                    fine=tol * C.down * 2.0**-10)
         except DeadlineExceeded:
             raise Stop("time_budget", note=" (inside a step)") from None
         except Singular as e:

@@ -13,6 +13,7 @@ import pytest
 
 import lieseries as ls
 from lieseries import exact
+from lieseries.balls import contains
 from lieseries.precision import to_fraction
 from lieseries.validated import certified_digits, radii, validated_integrate
 from problems import RIGID_INERTIA, RIGID_OMEGA
@@ -477,6 +478,7 @@ def test_exact_defect_holds_the_centre_polynomials_defect(bigint):
             centre, jets = S.centre_polynomial(stepper, prog, m, pars, consts, order, fl, 10)
             assert jets is not None and centre.exact is not None
             lows, highs = S.defect_coefficients(prog, centre, pars, consts, fl, exact)
+            per_order = S.defect_coefficients(prog, centre, pars, consts, fl, exact, fine=fl.arb(0))[0]
             saved, fl.ctx.prec = fl.ctx.prec, 600
             try:
                 _, _, pars6, consts6, *_ = V._chart_context(body, fl)  # the parameters' balls at 600 bits
@@ -488,6 +490,9 @@ def test_exact_defect_holds_the_centre_polynomials_defect(bigint):
                     assert all(x.upper() <= lows[i] for x in g_low)
                     assert lows[i] <= 2 * max(x.upper() for x in g_low) + fl.arb(2) ** -500
                     assert lows[i] < fl.arb(10) ** -(dps + 8)
+                    # the bounds per order (where one bound would not be fine enough): each holds its |g_k|
+                    assert len(per_order[i]) == order and all(b <= lows[i] for b in per_order[i])
+                    assert all(x.upper() <= b + fl.arb(2) ** -500 for x, b in zip(g_low, per_order[i]))
                     assert all(a.overlaps(b) for a, b in zip(highs[i], ref[1][i]))
                     assert all(a.rad() < abs(a.mid()) * 2.0 ** -50 for a in highs[i] if a.mid() != 0)
             finally:
@@ -663,3 +668,20 @@ def test_certified_digits_never_claim_more_than_the_balls_carry():
             exact_digits = -ctx.log10(ctx.mpf(widest.numerator) / widest.denominator
                                       * scale.denominator / scale.numerator)
             assert digits <= exact_digits and digits > exact_digits - 1e-12
+
+
+def test_a_first_step_far_shorter_than_the_jets_time_scale_is_proved():
+    # a relativistic oscillator, H = sqrt(1 + p^2) + a q^2 / 2: from this point the first centre's jets keep the
+    # time scale 1 while the radius of convergence is near 1/2, so their rounding grows like 2^k up to 6e-11 at
+    # order 39; one bound of the defect for every order below N was then that, and no step down to the shortest
+    # was proved (validation_failed at t = 0). With the bounds per order, the run goes through
+    q, p = hy.make_vars("q", "p")
+    relosc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], hy.sqrt(1 + p**2) + hy.par[0] * q**2 / 2,
+                              parameters=["1159/500"], name="relosc")
+    y0, times = [Fraction(-471, 500), Fraction(-81, 200)], [Fraction(-1251, 2000), Fraction(-1251, 1000)]
+    sol = validated_integrate(relosc, y0, times, dps=20, order=40)
+    assert sol.status == "success", sol.message
+    ref = ls.lie_integrate(relosc, y0, times, dps=60)
+    assert all(contains(row, [to_fraction(v) for v in rrow], tol=Fraction(1, 10**40))
+               for row, rrow in zip(sol.y, ref.y))
+    assert min(certified_digits(sol)) > 20
