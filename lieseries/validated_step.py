@@ -434,8 +434,9 @@ BOX_SPREAD = 8
 
 def prove_step(prog, jprog, centre, terms, pars, consts, jconsts, step, spread, flint, majorant=None):
     """(``tail``, the box R that holds every solution from the set over the step, ``reach``, L) for the step
-    ``step`` (h as a ball, negative backward: a non-binary h is not exact), or None when the step is not proved. ``tail(tau)``: per component, an upper bound
-    of |phi_tau(m) - p(tau)| for the centre's solution, |tau| <= h; ``reach(tau)``: of |phi_t(y) - p(t)| for every
+    ``step`` (h as a ball, negative backward: a non-binary h is not exact), or None when the step is not proved.
+    ``tail(tau)``: per component, an upper bound of |phi_tau(m) - p(tau)| for the centre's solution, |tau| <= h;
+    ``reach(tau)``: of |phi_t(y) - p(t)| for every
     y in the set and |t| <= |tau|; L: the entrywise upper bounds of |Df(R)| (a matrix).
 
     The centre's solution x from m = p(0) and the centre polynomial p (``centre``, a :class:`Centre`) differ by
