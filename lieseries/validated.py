@@ -438,7 +438,7 @@ class _ValidatedEngine:
         tol = self.rem_tol * scale
         wide = any(zi.rad() > self.unit * scale for zi in z)  # wider than 10^-dps of the state's size
         pieces = jacobian_pieces(jprog, wide)
-        C, jets, g = self._expand(tcur, z, t_end)
+        C, jets, g = self._expand(tcur, z, t_end, tol)
         h, hs, tail, reach, L, J, bounds_h = self._prove(z, abs(t_end - tcur), C, jets, g, tol, pieces)
         tnew = tcur + hs
         A, r = self.A, self.r
@@ -471,15 +471,18 @@ class _ValidatedEngine:
         self.tails.append(tail_h)
         return StepResult(tnew, znew, h=h, row=row, stop=self._width_stop(znew, scale))
 
-    def _expand(self, tcur, z, t_end):
+    def _expand(self, tcur, z, t_end, tol):
         """The step's series: the centre's polynomial C (and its jets, or None) and its defect g in the centre's
-        scaled time; the field must be finite on the enclosure z of the state."""
+        scaled time; the field must be finite on the enclosure z of the state. The defect's bounds below order N
+        are taken per order where one bound for all would not lie far below ``tol`` (on a step of the jets' time
+        scale)."""
         flint, prog, pars, consts = self.flint, self.prog, self.pars, self.consts
         try:
             evaluate(prog, z, pars, consts, flint.arb(1))  # raises Singular on a singularity of the field
             C, jets = centre_polynomial(self.stepper, prog, self.m, pars, consts, self.N, flint,
                                          mpmath.mpf(float(abs(t_end - tcur))), self.deadline)  # centre
-            g = defect_coefficients(prog, C, pars, consts, flint, self.exact)  # in the centre's scaled time
+            g = defect_coefficients(prog, C, pars, consts, flint, self.exact,  # in the centre's scaled time
+                                    fine=tol * C.down * 2.0**-10)
         except DeadlineExceeded:
             raise Stop("time_budget", note=" (inside a step)") from None
         except Singular as e:
@@ -518,13 +521,13 @@ class _ValidatedEngine:
                 break
             if self.deadline is not None and _time.perf_counter() > self.deadline:
                 raise Stop("time_budget", note=" (inside a step)")
-            h = left if h_f >= float(left) else Fraction(math.floor(h_f * 2**50), 2**50)
+            # 50 bits of h_f, rounded down (relative to its size: a step below 2^-50 is a step too)
+            h = left if h_f >= float(left) else _binary_down(h_f, 50)
             if h <= 0:
                 break
             hs = h * direction
             hb = arb(flint.fmpq(hs.numerator, hs.denominator))
-            span = hb / 2 + arb(0, abs(hb) / 2)  # the ball [0, h] (or [h, 0])
-            got = prove_step(prog, jprog, C, terms, pars, consts, jconsts, span, spread, flint,
+            got = prove_step(prog, jprog, C, terms, pars, consts, jconsts, hb, spread, flint,
                               majorant=(jets, h, self.ps.parameter_values) if jets is not None else None)
             tail, B, reach, L = got if got is not None else (None, None, None, None)
             hit = (_event_in(self.events, B, pars, self.ev_consts, arb(1)) if self.events and got is not None
@@ -613,6 +616,14 @@ def _exact_mid(ball) -> Fraction:
     return Fraction(man << exp) if exp >= 0 else Fraction(man, 1 << -exp)
 
 
+def _binary_down(x: float, bits: int) -> Fraction:
+    """The positive float x rounded down to ``bits`` significant bits, exactly (0 for x <= 0)."""
+    if not x > 0:
+        return Fraction(0)
+    man, exp = math.frexp(x)
+    return Fraction(math.floor(math.ldexp(man, bits))) * Fraction(2) ** (exp - bits)
+
+
 def _float_up(x) -> float:
     """An upper bound of the nonnegative ball ``x`` as a float (the smallest positive float for a radius too small
     for a float, never 0 for a nonzero ball)."""
@@ -637,7 +648,9 @@ def certified_digits(sol) -> np.ndarray:
             out.append(math.inf)
             continue
         scale = functools.reduce(lambda a, b: b if b > a else a, [abs(v.mid()) for v in row], flint.arb(1))
-        out.append(float((-(flint.arb(widest) / scale).log() / flint.arb(10).log()).mid()))
+        # a float below the ball of the digits (its midpoint, rounded to nearest, claimed a part in 10^16 more)
+        out.append(math.nextafter(float((-(flint.arb(widest) / scale).log() / flint.arb(10).log()).lower()),
+                                  -math.inf))
     return np.array(out, dtype=float)
 
 

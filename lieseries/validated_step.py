@@ -147,11 +147,17 @@ def field_series(prog, polys, pars, consts, length, flint, base=None):
 DEFECT_EXTRA = 8
 
 
-def defect_coefficients(prog, centre, pars, consts, flint, exact=None):
+def defect_coefficients(prog, centre, pars, consts, flint, exact=None, fine=None):
     """The defect g = f(p) - dp/dtau of the :class:`Centre` p (order N) at the step's start, in the scaled time
     sigma = 2^-s tau (dp/dtau = 2^-s dp/dsigma), as ``(low, high)``: per component, ``low[i]`` an upper bound of
     |g_k| for every k < N (the rounding of the jets: p is close to the flow's Taylor polynomial) and ``high[i]``
     balls holding g_N..g_{N+EXTRA-1} (the field's own terms).
+
+    ``fine``: where ``low[i]`` exceeds it, ``low[i]`` is instead the list of upper bounds of |g_0|..|g_{N-1}|, one
+    per order. The jets' rounding is relative to their time scale: when the step is much shorter than that scale
+    (coefficients growing like 2^k in sigma: a first step with the scale of the whole run), the rounding of the
+    high orders, taken for every order, dwarfs the first ones and no step is proved (a relativistic oscillator:
+    6e-11 at order N - 1 against a tolerance of 1e-24).
 
     ``exact``: the parameters and constants as fmpqs (:func:`exact_data`) when the field is a polynomial with
     exact constants; with the centre's exact polynomials (the jets' integers), f(p) is then computed in exact
@@ -177,7 +183,11 @@ def defect_coefficients(prog, centre, pars, consts, flint, exact=None):
                 num, den = g.numer().coeffs(), arb(g.denom())
                 # |g_k| < 2^height for k < N: a factor below 2 on the jets' rounding, far under the tolerance
                 low = flint.fmpz_poly(num[:N]).height_bits() if len(num) else 0
-                lows.append((arb(2) ** low / den).upper() if low else arb(0))
+                low = (arb(2) ** low / den).upper() if low else arb(0)
+                if fine is not None and low > fine:  # per order: |g_k| < 2^(bit length of its numerator) / d
+                    low = [(arb(2) ** abs(int(c)).bit_length() / den).upper() if c else arb(0) for c in num[:N]]
+                    low += [arb(0)] * (N - len(low))
+                lows.append(low)
                 highs.append([arb(num[k]) / den if k < len(num) else arb(0) for k in range(N, L)])
         finally:
             flint.ctx.prec = saved
@@ -193,7 +203,9 @@ def defect_coefficients(prog, centre, pars, consts, flint, exact=None):
         got = got[:L] + [arb(0)] * (L - len(got))
         flint.ctx.prec = 64
         try:
-            lows.append(max([arb(0)] + [abs(x).upper() for x in got[:N]]))
+            low = [abs(x).upper() for x in got[:N]]
+            top = max([arb(0)] + low)
+            lows.append(low if fine is not None and top > fine else top)
         finally:
             flint.ctx.prec = saved
         highs.append(got[N:])
@@ -214,7 +226,8 @@ def defect_terms(g, N, flint):
 
 def defect_polynomials(terms, top, N, flint):
     """Per component, the polynomial d_i(t) = low_i sum_{k<N} t^k / (k+1) + sum_{k>=N} |g_k| t^k / (k+1)
-    + |top_i| t^L / (L+1) (``terms`` = (low, high) from :func:`defect_terms`; ``top``: the L-th coefficient of g
+    + |top_i| t^L / (L+1) (``terms`` = (low, high) from :func:`defect_terms`, low_i one bound or a list of one per
+    order, as from :func:`defect_coefficients`; ``top``: the L-th coefficient of g
     over the whole step, L = N + len(high[i])): |tau| d_i(|tau|) bounds int_0^|tau| |g_i(s)| ds (nonnegative
     coefficients: its value at a point is tight). In the scaled time: sigma and g's coefficients in sigma give the
     bound divided by 2^s."""
@@ -226,7 +239,9 @@ def defect_polynomials(terms, top, N, flint):
     out = []
     for low, gi, ti in zip(lows, highs, top):
         L = N + len(gi)
-        out.append(base * low + arb_poly([0] * N + gi + [(abs(ti) / (L + 1)).upper()]))
+        first = (arb_poly([(x * b).upper() for x, b in zip(low, base.coeffs())]) if isinstance(low, list)
+                 else base * low)
+        out.append(first + arb_poly([0] * N + gi + [(abs(ti) / (L + 1)).upper()]))
     return out
 
 
@@ -417,10 +432,11 @@ BOX_MARGIN = 2.0**-30
 BOX_SPREAD = 8
 
 
-def prove_step(prog, jprog, centre, terms, pars, consts, jconsts, span, spread, flint, majorant=None):
-    """(``tail``, the box R that holds every solution from the set over the step, ``reach``, L) for a step over
-    ``span`` (the ball [0, h]), or None when the step is not proved. ``tail(tau)``: per component, an upper bound
-    of |phi_tau(m) - p(tau)| for the centre's solution, |tau| <= h; ``reach(tau)``: of |phi_t(y) - p(t)| for every
+def prove_step(prog, jprog, centre, terms, pars, consts, jconsts, step, spread, flint, majorant=None):
+    """(``tail``, the box R that holds every solution from the set over the step, ``reach``, L) for the step
+    ``step`` (h as a ball, negative backward: a non-binary h is not exact), or None when the step is not proved.
+    ``tail(tau)``: per component, an upper bound of |phi_tau(m) - p(tau)| for the centre's solution, |tau| <= h;
+    ``reach(tau)``: of |phi_t(y) - p(t)| for every
     y in the set and |t| <= |tau|; L: the entrywise upper bounds of |Df(R)| (a matrix).
 
     The centre's solution x from m = p(0) and the centre polynomial p (``centre``, a :class:`Centre`) differ by
@@ -438,6 +454,7 @@ def prove_step(prog, jprog, centre, terms, pars, consts, jconsts, span, spread, 
     the step and stays in R (docs/theory.md)."""
     arb, arb_mat = flint.arb, flint.arb_mat
     n = len(centre.polys)
+    span = step / 2 + arb(0, abs(step) / 2)  # the ball [0, h] (or [h, 0]) for every h in the ball ``step``
     Lg = centre.order + len(terms[1][0])  # the order of the Lagrange term
     saved = flint.ctx.prec
     flint.ctx.prec = 64
@@ -503,7 +520,9 @@ def prove_step(prog, jprog, centre, terms, pars, consts, jconsts, span, spread, 
     def reach(tau):
         return bound(tau, True)
 
-    if not all(r < d for r, d in zip(reach(abs(span.mid()) * 2), delta)):  # at |h| (span = [0, h]) exactly
+    # at the ball h itself (so at every |t| <= |h|, not at a rounded midpoint when h is not binary); the same key
+    # as the bound at h that the run reads next, and the Jacobian's reach(h)
+    if not all(r < d for r, d in zip(reach(step), delta)):
         return None
     return tail, R, reach, L
 
@@ -697,12 +716,14 @@ def affine_in_state(prog) -> bool:
 def _series_terms(mu, arb):
     """(K, bound): the fewest terms K of the Peano-Baker series whose tail bound is below JACOBIAN_EPS (at most
     JACOBIAN_TERMS), and the rigorous bound mu^(K+1) / (K+1)! / (1 - mu / (K+2)) of that tail's entries (an
-    upper bound, at the current ball precision)."""
+    upper bound, at the current ball precision). The geometric bound of the tail needs mu < K + 2 (the caller
+    ensures mu < JACOBIAN_TERMS + 2): a smaller K is taken only where it holds (float(mu) < K + 2 implies it,
+    K + 2 being a float), else the quotient is negative and no bound at all."""
     mu_f = float(mu.upper())
     terms, term = JACOBIAN_TERMS, mu_f  # term: mu^(j+1) / (j+1)!
     for j in range(1, JACOBIAN_TERMS):
         term *= mu_f / (j + 1)
-        if term / (1 - mu_f / (j + 2)) < JACOBIAN_EPS:
+        if mu_f < j + 2 and term / (1 - mu_f / (j + 2)) < JACOBIAN_EPS:
             terms = j
             break
     fact = arb(1)

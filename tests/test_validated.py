@@ -13,6 +13,7 @@ import pytest
 
 import lieseries as ls
 from lieseries import exact
+from lieseries.balls import contains
 from lieseries.precision import to_fraction
 from lieseries.validated import certified_digits, radii, validated_integrate
 from problems import RIGID_INERTIA, RIGID_OMEGA
@@ -477,6 +478,7 @@ def test_exact_defect_holds_the_centre_polynomials_defect(bigint):
             centre, jets = S.centre_polynomial(stepper, prog, m, pars, consts, order, fl, 10)
             assert jets is not None and centre.exact is not None
             lows, highs = S.defect_coefficients(prog, centre, pars, consts, fl, exact)
+            per_order = S.defect_coefficients(prog, centre, pars, consts, fl, exact, fine=fl.arb(0))[0]
             saved, fl.ctx.prec = fl.ctx.prec, 600
             try:
                 _, _, pars6, consts6, *_ = V._chart_context(body, fl)  # the parameters' balls at 600 bits
@@ -488,6 +490,9 @@ def test_exact_defect_holds_the_centre_polynomials_defect(bigint):
                     assert all(x.upper() <= lows[i] for x in g_low)
                     assert lows[i] <= 2 * max(x.upper() for x in g_low) + fl.arb(2) ** -500
                     assert lows[i] < fl.arb(10) ** -(dps + 8)
+                    # the bounds per order (where one bound would not be fine enough): each holds its |g_k|
+                    assert len(per_order[i]) == order and all(b <= lows[i] for b in per_order[i])
+                    assert all(x.upper() <= b + fl.arb(2) ** -500 for x, b in zip(g_low, per_order[i]))
                     assert all(a.overlaps(b) for a, b in zip(highs[i], ref[1][i]))
                     assert all(a.rad() < abs(a.mid()) * 2.0 ** -50 for a in highs[i] if a.mid() != 0)
             finally:
@@ -604,3 +609,79 @@ def test_backward_runs_enclose_the_closed_form_from_exact_and_uncertain_data():
         assert sol.status == "success", sol.message
         assert all(inside(b, v) for row, ref in zip(sol.y, refs) for b, v in zip(row, ref))
         assert max(radii(sol)[-1]) < (1e-25 if data is y0 else 1e-9)
+
+
+def test_a_piece_of_the_flow_jacobian_holds_its_exact_matrix_when_mu_exceeds_three(monkeypatch):
+    # the Peano-Baker tail bound mu^(K+1) / (K+1)! / (1 - mu / (K+2)) holds only for mu < K + 2: past 1024 pieces
+    # (|tau| ||Df|| > 3072) mu may reach 12, and a K chosen for mu > K + 2 made the quotient negative (for mu = 9,
+    # K = 1 with a "tail" of 20.3, where the piece's term (tau A)^3 / 6 is 121.5). One piece of a linear chain
+    # (q2' = 9 q1, q1' = 9 p1, p1' = -9 p2: Df constant and nilpotent) must hold exp(tau A) exactly
+    from lieseries import validated_step as S
+    from lieseries.ball_series import ball_constant, working_precision
+
+    q1, q2, p1, p2 = hy.make_vars("q1", "q2", "p1", "p2")
+    tensor = [[0, 0, 1, 0], [0, 0, 0, 1], [-1, 0, 0, 0], [0, -1, 0, 0]]
+    chain = ls.PoissonSystem([q1, q2, p1, p2], tensor, 9 * p1**2 / 2 + 9 * q1 * p2, name="chain")
+    jprog = S.jacobian_program(chain)
+    A = [[0, 0, 9, 0], [9, 0, 0, 0], [0, 0, 0, -9], [0, 0, 0, 0]]  # d(q1', q2', p1', p2') / d(q1, q2, p1, p2)
+    monkeypatch.setattr(S, "MAX_JACOBIAN_PIECES", 1)  # one piece with mu = 9, as a piece of 1024 with mu = 9
+    with working_precision(128, cap=20) as fl:
+        n, arb = 4, fl.arb
+        centre = S.Centre([fl.arb_poly([0])] * n, [arb(0)] * n, 0, 1, fl)  # every solution from 0 stays at 0
+        L = fl.arb_mat([[abs(x) for x in row] for row in A])
+        consts = [(slot, ball_constant(c, fl)) for slot, c in jprog.constants]
+        J = S.flow_jacobian(jprog, centre, lambda tau: [arb(0)] * n, L, [], consts, arb(1), fl, pieces=1)
+        exact = fl.arb_mat(A).exp()  # I + A + A^2 / 2 + A^3 / 6, exactly (A^4 = 0)
+        assert all(J[i, j].contains(exact[i, j]) for i in range(n) for j in range(n))
+
+
+def test_a_fast_rigid_body_takes_steps_below_two_to_the_minus_fifty():
+    # the tutorial's body spinning 10^15 times faster: its steps (~1e-15) are below 2^-50, which the steps' binary
+    # rounding once took to 0 (validation_failed at t = 0); the run is the slow one with time scaled, as many
+    # steps and digits
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    s = 10**15
+    omega = [to_fraction(w) * s for w in RIGID_OMEGA]
+    times = [Fraction(3, s), Fraction(7, s)]
+    sol = validated_integrate(body, body.initial_state(omega=omega), t=times, dps=20)
+    assert sol.status == "success", sol.message
+    refs = exact.euler_poisson_many(RIGID_INERTIA, omega, times, dps=50)
+    assert all(inside(b, v) for row, ref in zip(sol.y, refs) for b, v in zip(row, ref))
+    slow = validated_integrate(body, body.initial_state(omega=RIGID_OMEGA), t=[3, 7], dps=20)
+    assert sol.stats.steps == slow.stats.steps and min(certified_digits(sol)) > 21
+
+
+def test_certified_digits_never_claim_more_than_the_balls_carry():
+    # -log10(widest radius / max(1, |z|)) from the balls' exact midpoints and radii at 60 digits: the float given
+    # is at most that (its midpoint rounded to nearest claimed up to a part in 10^16 more on 19 rows of 64)
+    from lieseries.balls import ball_bounds
+
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    y0 = body.initial_state(omega=RIGID_OMEGA)
+    ctx = mp.MPContext()
+    ctx.dps = 60
+    for data in (y0, [(q, Fraction(1, 10**12)) for q in y0.exact]):
+        sol = validated_integrate(body, data, t=[Fraction(k, 4) for k in range(1, 9)], dps=30)
+        for row, digits in zip(sol.y, certified_digits(sol)):
+            widest = max(ball_bounds(b)[1] for b in row)
+            scale = max([Fraction(1)] + [abs(ball_bounds(b)[0]) for b in row])
+            exact_digits = -ctx.log10(ctx.mpf(widest.numerator) / widest.denominator
+                                      * scale.denominator / scale.numerator)
+            assert digits <= exact_digits and digits > exact_digits - 1e-12
+
+
+def test_a_first_step_far_shorter_than_the_jets_time_scale_is_proved():
+    # a relativistic oscillator, H = sqrt(1 + p^2) + a q^2 / 2: from this point the first centre's jets keep the
+    # time scale 1 while the radius of convergence is near 1/2, so their rounding grows like 2^k up to 6e-11 at
+    # order 39; one bound of the defect for every order below N was then that, and no step down to the shortest
+    # was proved (validation_failed at t = 0). With the bounds per order, the run goes through
+    q, p = hy.make_vars("q", "p")
+    relosc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], hy.sqrt(1 + p**2) + hy.par[0] * q**2 / 2,
+                              parameters=["1159/500"], name="relosc")
+    y0, times = [Fraction(-471, 500), Fraction(-81, 200)], [Fraction(-1251, 2000), Fraction(-1251, 1000)]
+    sol = validated_integrate(relosc, y0, times, dps=20, order=40)
+    assert sol.status == "success", sol.message
+    ref = ls.lie_integrate(relosc, y0, times, dps=60)
+    assert all(contains(row, [to_fraction(v) for v in rrow], tol=Fraction(1, 10**40))
+               for row, rrow in zip(sol.y, ref.y))
+    assert min(certified_digits(sol)) > 20
