@@ -47,7 +47,7 @@ from ..precision import check_dps, check_order, dps_to_bits, mp_context
 from ..precision import thread_mp as mp
 from . import bigint
 from .bigint import greater_abs, log2_abs, to_raw, round_shift, backend, set_backend
-from .fixed_orders import expand
+from .fixed_orders import NodeSizes, expand
 from .plan import jet_guard_bits, radius_from_logs, resolve_program
 
 __all__ = ["backend", "set_backend", "fixed_taylor_coefficients", "FixedStepper", "FixedJets"]
@@ -262,6 +262,10 @@ def _estimate_radius(jets):
 
 _LN2 = math.log(2)
 
+#: A node whose scale is more than this many bits above what its jet carried (:meth:`NodeSizes.coarse`) makes an
+#: expansion run again with exponents from what the nodes carried.
+COARSE_BITS = 10
+
 
 class FixedStepper:
     """Repeated expansions of one system at one order and precision (the Lie step's jets).
@@ -288,6 +292,8 @@ class FixedStepper:
         self.h_last = None
         self.last_rho = None
         self.expansions = 0
+        self.sizes = None  # what the nodes carried at the last expansion (NodeSizes)
+        self.redone = 0  # expansions run again with the sizes their nodes carried (NodeSizes.coarse)
 
     def expand(self, z, span, deadline=None):
         try:
@@ -301,7 +307,9 @@ class FixedStepper:
     def _expand(self, z, span, deadline):
         zr = _expr.convert_vector(z, self.program.nvars, self.wp, "z")
         if self.s is None:  # a short expansion to find the time scale
-            M, U = expand(self.program, zr, self.pars_raw, min(self.order, 12), self.wp, 0, deadline)
+            got = NodeSizes()
+            M, U = expand(self.program, zr, self.pars_raw, min(self.order, 12), self.wp, 0, deadline, measured=got)
+            self.sizes = got
             rho = _estimate_radius(FixedJets(M, U, 0, self.prec))[0]
             self.s = _ceil_log2(span) if rho == mp.inf else _floor_log2(rho) - 2
         elif self.h_last:
@@ -310,8 +318,15 @@ class FixedStepper:
                 s = min(s, _floor_log2(self.last_rho))
             self.s = s
         for _ in range(3):
-            M, U = expand(self.program, zr, self.pars_raw, self.order, self.wp, self.s, deadline)
+            got = NodeSizes()
+            M, U = expand(self.program, zr, self.pars_raw, self.order, self.wp, self.s, deadline, self.sizes, got)
             self.expansions += 1
+            if got.coarse(COARSE_BITS, self.sizes):  # rounded coarser than the nodes carry: again, from what they did
+                self.sizes, got = got, NodeSizes()
+                M, U = expand(self.program, zr, self.pars_raw, self.order, self.wp, self.s, deadline, self.sizes, got)
+                self.expansions += 1
+                self.redone += 1
+            self.sizes = got
             jets = FixedJets(M, U, self.s, self.prec)
             jets.rho, jets.log2_rho = _estimate_radius(jets)
             self.last_rho = jets.rho
@@ -349,7 +364,10 @@ def fixed_taylor_coefficients(program_or_system, y0, pars, order, dps, time_scal
     y0r = _expr.convert_vector(y0, program.nvars, wp, "y0")
     pr = _expr.convert_vector(pars, program.npars, wp, "pars")
     try:
-        M, U = expand(program, y0r, pr, order, wp, int(time_scale))
+        got = NodeSizes()
+        M, U = expand(program, y0r, pr, order, wp, int(time_scale), measured=got)
+        if got.coarse(COARSE_BITS):  # rounded coarser than the nodes carry: again, from what they carried
+            M, U = expand(program, y0r, pr, order, wp, int(time_scale), sizes=got)
     except ZeroDivisionError as exc:
         raise ValueError(
             f"the Taylor expansion does not exist at `y0` ({exc}; a zero denominator "

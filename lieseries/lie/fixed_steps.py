@@ -37,15 +37,37 @@ class _Once:
 
 class Run:
     """The state of one expansion: jets J (lists of integers), exponents U, working bits F, the integer type Z
-    (:func:`~lieseries.lie.bigint.integer_type`, read once per expansion)."""
+    (:func:`~lieseries.lie.bigint.integer_type`, read once per expansion), and ``sizes``: None, or for every slot
+    the binary exponent of the largest ``|c_k| sigma**k`` an earlier expansion measured (None where unknown), from
+    which products and sums of products take a finer exponent than their operands' scales give (:meth:`cap`)."""
 
-    def __init__(self, nslots, F, Z):
+    def __init__(self, nslots, F, Z, sizes=None):
         self.Z = Z
         self.J = [None] * nslots
         self.U = [None] * nslots
         self.D = {}
         self.F = F
         self.products = {}
+        self.sizes = sizes
+
+    def cap(self, u, size):
+        """The exponent ``u`` a rule gave, or F bits below ``size`` (a measured bound of the terms, None when
+        unknown) when that is finer: a scale propagated through products and constants only bounds the terms from
+        above (a bit per factor, more where sums cancel), and the rounding of a jet costs what its exponent says."""
+        return u if size is None or size - self.F >= u else size - self.F
+
+    def size(self, *slots):
+        """The measured exponent of the product of ``slots`` (None when one is unknown or there is none)."""
+        sz = self.sizes
+        if sz is None:
+            return None
+        e = 0
+        for x in slots:
+            v = sz[x]
+            if v is None:
+                return None
+            e += v
+        return e
 
     def product(self, a, b):
         """sum_{j<=k} a_j b_{k-j} as a function of k (:class:`Cauchy`), one per pair of slots: a product that
@@ -117,10 +139,13 @@ def mk_mul(run, out, a, b):
     A, B, C = J[a], J[b], J[out]
     dot = Cauchy(A, B, F >= PAIR_BITS)
 
+    sh = [F]
+
     def step(k):
         if k == 0:
-            U[out] = U[a] + U[b] + F
-        C.append(round_shift(dot(k), F))
+            u = U[out] = run.cap(U[a] + U[b] + F, run.size(a, b))
+            sh[0] = u - U[a] - U[b]
+        C.append(round_shift(dot(k), sh[0]))
     return step
 
 
@@ -143,7 +168,7 @@ def mk_sop(run, out, prods, lins, offset, state=None):
 
     def step(k):
         if k == 0:
-            xs, noms = [], []
+            xs, noms, sizes = [], [], []
             raw_terms = []
             for a, b, c, ng, key in prods:
                 cm, ce, cbc = const(c)
@@ -152,6 +177,9 @@ def mk_sop(run, out, prods, lins, offset, state=None):
                 x = U[a] + U[b] + ce
                 xs.append(x)
                 noms.append(x + F + cbc)
+                sizes.append(run.size(a, b))
+                if sizes[-1] is not None:
+                    sizes[-1] += ce + cbc
                 raw_terms.append((J[a], run.product(a, b) if key is None else key,
                                   -cm if ng else cm, x))
             for a, c, ng in lins:
@@ -161,11 +189,17 @@ def mk_sop(run, out, prods, lins, offset, state=None):
                 x = U[a] + ce
                 xs.append(x)
                 noms.append(x + cbc)
+                sizes.append(run.size(a))
+                if sizes[-1] is not None:
+                    sizes[-1] += ce + cbc
                 raw_terms.append((J[a], None, -cm if ng else cm, x))
             if not xs:
                 xs = noms = [min(U[a] for a, *_ in list(prods) + list(lins))]
             x0 = min(xs)
             uo = min(noms)
+            sizes = [e for e in sizes if e is not None]  # (a term measured zero: finer is never less accurate)
+            if state is None and sizes:  # F bits below the largest term's measured size, when that is finer
+                uo = run.cap(uo, max(sizes))
             U[out] = uo
             for A, B, cm, x in raw_terms:
                 if isinstance(B, int):  # a dot product computed by a dots step
@@ -293,10 +327,13 @@ def mk_sqr(run, out, a):
     J, U, F = run.J, run.U, run.F
     A, C = J[a], J[out]
 
+    sh = [F]
+
     def step(k):
         if k == 0:
-            U[out] = 2 * U[a] + F
-        C.append(round_shift(sqr_sum(A, k), F))
+            u = U[out] = run.cap(2 * U[a] + F, run.size(a, a))
+            sh[0] = u - 2 * U[a]
+        C.append(round_shift(sqr_sum(A, k), sh[0]))
     return step
 
 
