@@ -309,6 +309,10 @@ class FixedStepper:
         if self.s is None:  # a short expansion to find the time scale
             got = NodeSizes()
             M, U = expand(self.program, zr, self.pars_raw, min(self.order, 12), self.wp, 0, deadline, measured=got)
+            if got.coarse(COARSE_BITS):  # (the sizes the full expansions start from)
+                self.sizes, got = got, NodeSizes()
+                M, U = expand(self.program, zr, self.pars_raw, min(self.order, 12), self.wp, 0, deadline,
+                              self.sizes, got)
             self.sizes = got
             rho = _estimate_radius(FixedJets(M, U, 0, self.prec))[0]
             self.s = _ceil_log2(span) if rho == mp.inf else _floor_log2(rho) - 2

@@ -457,7 +457,7 @@ def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None, sizes=None, m
     the magnitudes their operands carried rather than from their scales alone; a :class:`NodeSizes` given as
     ``measured`` receives this expansion's.
     """
-    sz = sizes.sizes if sizes is not None else None
+    sz = sizes.at(s) if sizes is not None else None
     got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, False, sz, measured)
     if got is None:  # a packed dot product's fields were too narrow for a later order: again, checking every order
         got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, True, sz, measured)
@@ -478,24 +478,50 @@ class NodeSizes:
         self.sizes = None
         self.scales = None
         self.nvars = 0
+        self.s = None
+        self.bits = None
+        self.other = (None, None)  # (s, the sizes at s) last computed by at()
 
     def fill(self, run, nvars):
-        bl = bit_length_function()
         J, U, F = run.J, run.U, run.F
-        sizes, scales = [None] * len(J), [None] * len(J)
+        self.nvars, self.s = nvars, run.s
+        if not any(J[x] and U[x] is not None for x in range(nvars, len(J))):  # every node fused into the states'
+            return  # steps (which round at the states' exponents): nothing to measure
+        bl = bit_length_function()
+        n = len(J)
+        sizes, scales, bits = [None] * n, [None] * n, [None] * n
         for x, jet in enumerate(J):
             u = U[x]
             if jet and u is not None:
-                b = max(map(bl, jet))
+                b = bits[x] = list(map(bl, jet))
+                m = max(b)
                 scales[x] = u + F
-                if b:
-                    sizes[x] = u + b
-        self.sizes, self.scales, self.nvars = sizes, scales, nvars
+                if m:
+                    sizes[x] = u + m
+        self.sizes, self.scales, self.bits = sizes, scales, bits
+
+    def at(self, s):
+        """The sizes at the time scale ``2**s``: the largest ``|c_k| 2**(s k)`` of every node (None if unknown)."""
+        if s == self.s or self.sizes is None:
+            return self.sizes
+        if self.other[0] != s:
+            d = s - self.s
+            out = []
+            for e, b in zip(self.sizes, self.bits):
+                if e is None:
+                    out.append(None)
+                else:
+                    m = e - max(b)  # the node's exponent
+                    out.append(m + max(x + d * k for k, x in enumerate(b) if x))
+            self.other = (s, out)
+        return self.other[1]
 
     def coarse(self, bits, before=None):
         """Whether a node's scale was more than ``bits`` above what it carried, beyond what ``before`` (the sizes
         the expansion was given, or None) already knew: the expansion, given these sizes, rounds finer."""
-        old = before.sizes if before is not None else None
+        if self.sizes is None:
+            return False
+        old = before.at(self.s) if before is not None else None
         for x in range(self.nvars, len(self.sizes)):
             e = self.sizes[x]
             if e is not None and self.scales[x] - e > bits and (old is None or old[x] is None or old[x] - e > bits):
@@ -524,6 +550,7 @@ def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked, sizes=No
     run.dv = [None] * nkeys
     run.nxt = [None] * nvars
     run.s = s
+    run.order = order
     for kind, out, args, extra in instrs:
         if kind == "dots":
             steps.append(Dots(run, args[0], args[1], extra))

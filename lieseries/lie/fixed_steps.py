@@ -49,12 +49,15 @@ class Run:
         self.F = F
         self.products = {}
         self.sizes = sizes
+        self.order = 0
 
     def cap(self, u, size):
-        """The exponent ``u`` a rule gave, or F bits below ``size`` (a measured bound of the terms, None when
-        unknown) when that is finer: a scale propagated through products and constants only bounds the terms from
-        above (a bit per factor, more where sums cancel), and the rounding of a jet costs what its exponent says."""
-        return u if size is None or size - self.F >= u else size - self.F
+        """F bits below ``size`` (a measured bound of the terms), or the exponent ``u`` a rule gave when ``size`` is
+        None (unknown): a scale propagated through products and constants only bounds the terms from above (a bit
+        per factor, more where sums cancel), and the rounding of a jet costs what its exponent says; the finest
+        term's exponent, the rule of a sum, is finer than its largest term needs where a term is a residual that
+        vanishes."""
+        return u if size is None else size - self.F
 
     def size(self, *slots):
         """The measured exponent of the product of ``slots`` (None when one is unknown or there is none)."""
@@ -198,6 +201,8 @@ def mk_sop(run, out, prods, lins, offset, state=None):
             x0 = min(xs)
             uo = min(noms)
             sizes = [e for e in sizes if e is not None]  # (a term measured zero: finer is never less accurate)
+            if offset is not None and offset[1]:
+                sizes.append(eraw(offset))
             if state is None and sizes:  # F bits below the largest term's measured size, when that is finer
                 uo = run.cap(uo, max(sizes))
             U[out] = uo
@@ -251,6 +256,7 @@ class Dots:
         self.P = []
         self.dot = Cauchy(self.A, self.P, run.F >= PAIR_BITS)
         self.W = self.ba = self.bb = 0
+        self.run, self.slots = run, (pivot, *partners)
         self.mask = self.full = self.half = self.bias = self.bias_all = 0
 
     def repack(self, k, need):
@@ -280,6 +286,21 @@ class Dots:
         self.dot.reset(P, k)
         return W, self.mask, self.half, self.bias
 
+    def start(self):
+        """At order 0, with measured sizes (:attr:`Run.sizes`): the fields as wide as the operands' sizes show their
+        coefficients will be at every order (:attr:`Run.order`; the width of order 0 with 20 bits to spare
+        is too narrow where a node's later orders outgrow its value, and the expansion is then run again with
+        the checks)."""
+        run = self.run
+        sz, U = run.sizes, run.U
+        if sz is None:
+            return
+        pivot, *partners = self.slots
+        # (a node measured zero, without a size: F bits, what a node carries)
+        self.ba = max(self.ba, run.F if sz[pivot] is None else sz[pivot] - U[pivot])
+        self.bb = max(self.bb, *(run.F if sz[b] is None else sz[b] - U[b] for b in partners))
+        self.ba += run.order.bit_length()
+
     @staticmethod
     def all_fit(dots, n):
         """Whether the fields of width W of each of ``dots`` held every sum of products of the orders k < n
@@ -298,6 +319,8 @@ class Dots:
         return all(bits(d.A) + max(map(bits, d.Bs)) + n.bit_length() + 2 <= d.W for d in dots)
 
     def __call__(self, k):
+        if k == 0:
+            self.start()
         x = self.A[k].bit_length()
         if x > self.ba:
             self.ba = x
