@@ -13,6 +13,19 @@ Scaling (why fixed point loses nothing)
   of its own value (a zero one the smallest exponent of the non-zero ones), so states of size 1e6 or 1e-6 and
   parameters of any size keep ``F`` bits relative to their own scale.  Sums are exact (finest exponent); every
   other result is rounded once to half a unit.
+* A product's scale is its operands' scales multiplied, a sum of products' the scale of its finest term: bounds,
+  a bit above what the node carries per factor, and far above where terms cancel or a node is a residual that
+  vanishes (the constraint residuals of a derived form, multiplied into its field: on a heavy top's intermediate
+  form up to 40 bits, and a unit of such an exponent cost 20 digits of the state's jets).  So every expansion
+  measures what each node carried (:class:`~lieseries.lie.fixed_orders.NodeSizes`: the largest
+  ``|c_k| sigma**k``), and when a node's scale lay more than :data:`COARSE_BITS` above it, runs again with every
+  product and sum of products rounded ``F`` bits below what its largest term carried where that is finer than
+  the scales give (never coarser than they give, nor more than
+  :data:`~lieseries.lie.fixed_steps.FINER_BITS` finer: :meth:`~lieseries.lie.fixed_steps.Run.exponent`; a node
+  measured zero keeps its scale).  :class:`FixedStepper` starts each expansion
+  from the sizes of the last one (moved to the new time scale) and runs it again when a node carried more than
+  :data:`COARSE_BITS` less than both its scale and those sizes said.  Systems whose every node is fused into the
+  states' steps (the rigid body) have nothing to measure and are unchanged.
 * The integers hold ``c_k sigma**k`` to ``F`` bits relative to the state's scale, i.e. each ``c_k`` with the
   absolute accuracy that a step of at most ``sigma`` needs: a Lie step ``h <= sigma`` multiplies the error of
   ``c_k`` by ``h**k``, so every term of the step's sum is known to ``F`` bits of the state.  :class:`FixedStepper`
@@ -279,7 +292,9 @@ class FixedStepper:
     held with correspondingly fewer bits.  ``sigma`` is ``2**(ceil(log2 h) + 1)`` for the last step ``h`` that
     :meth:`FixedJets.horner` evaluated (at most the largest power of two below the last radius estimate), a
     quarter of the radius estimated by a short expansion at the first call, and at least ``span`` when the
-    solution is a polynomial (an infinite radius).
+    solution is a polynomial (an infinite radius).  ``sizes`` are what the nodes carried at the last expansion
+    (:class:`~lieseries.lie.fixed_orders.NodeSizes`, the module docstring's Scaling), and ``redone`` counts the
+    expansions run again because a node's scale lay above what it carried.
     """
 
     def __init__(self, program, pars, order, precision):

@@ -35,29 +35,45 @@ class _Once:
         return self.v
 
 
+#: How much finer than F bits below its largest term an expansion given sizes may round a node (:meth:`Run.exponent`).
+FINER_BITS = 64
+
+
 class Run:
     """The state of one expansion: jets J (lists of integers), exponents U, working bits F, the integer type Z
     (:func:`~lieseries.lie.bigint.integer_type`, read once per expansion), and ``sizes``: None, or for every slot
     the binary exponent of the largest ``|c_k| sigma**k`` an earlier expansion measured (None where unknown), from
-    which products and sums of products take a finer exponent than their operands' scales give (:meth:`cap`)."""
+    which products and sums of products take a finer exponent than their operands' scales give (:meth:`exponent`).
+    ``B`` holds, for the products, sums of products and scalings of an expansion given sizes, the exponent the
+    scales alone give (None elsewhere: the exponent itself)."""
 
     def __init__(self, nslots, F, Z, sizes=None):
         self.Z = Z
         self.J = [None] * nslots
         self.U = [None] * nslots
+        self.B = [None] * nslots
         self.D = {}
         self.F = F
         self.products = {}
         self.sizes = sizes
         self.order = 0
 
-    def cap(self, u, size):
-        """F bits below ``size`` (a measured bound of the terms), or the exponent ``u`` a rule gave when ``size`` is
-        None (unknown): a scale propagated through products and constants only bounds the terms from above (a bit
-        per factor, more where sums cancel), and the rounding of a jet costs what its exponent says; the finest
-        term's exponent, the rule of a sum, is finer than its largest term needs where a term is a residual that
-        vanishes."""
-        return u if size is None else size - self.F
+    def bound(self, x):
+        """The exponent the scales alone give slot ``x`` (its exponent, unless sizes made it finer)."""
+        b = self.B[x]
+        return self.U[x] if b is None else b
+
+    def exponent(self, out, rule, bound, size):
+        """The exponent of ``out``: ``rule`` (the rule over the operands' exponents) without sizes; with the size of
+        its largest term (``size``, None when unknown), F bits below it where that is finer, but never coarser than
+        ``bound`` (the rule over the operands' bounds: what the exponent was without sizes) nor more than
+        :data:`FINER_BITS` finer than F bits below ``size`` (where terms are residuals that vanish, every term
+        rounded finer than the last makes the finest term's exponent, the rule of a sum, drift down)."""
+        if size is None:
+            return rule
+        self.B[out] = bound
+        s = size - self.F
+        return min(bound, max(min(rule, s), s - FINER_BITS))
 
     def size(self, *slots):
         """The measured exponent of the product of ``slots`` (None when one is unknown or there is none)."""
@@ -133,6 +149,8 @@ def mk_scale(run, out, a, craw):
     def step(k):
         if k == 0:
             U[out] = U[a] + (e + bc if m else 0)
+            if run.B[a] is not None:
+                run.B[out] = run.B[a] + (e + bc if m else 0)
         C.append(round_shift(A[k] * cm, bc) if m else Z(0))
     return step
 
@@ -146,7 +164,7 @@ def mk_mul(run, out, a, b):
 
     def step(k):
         if k == 0:
-            u = U[out] = run.cap(U[a] + U[b] + F, run.size(a, b))
+            u = U[out] = run.exponent(out, U[a] + U[b] + F, run.bound(a) + run.bound(b) + F, run.size(a, b))
             sh[0] = u - U[a] - U[b]
         C.append(round_shift(dot(k), sh[0]))
     return step
@@ -171,7 +189,7 @@ def mk_sop(run, out, prods, lins, offset, state=None):
 
     def step(k):
         if k == 0:
-            xs, noms, sizes = [], [], []
+            xs, noms, sizes, bounds = [], [], [], []
             raw_terms = []
             for a, b, c, ng, key in prods:
                 cm, ce, cbc = const(c)
@@ -180,6 +198,7 @@ def mk_sop(run, out, prods, lins, offset, state=None):
                 x = U[a] + U[b] + ce
                 xs.append(x)
                 noms.append(x + F + cbc)
+                bounds.append(run.bound(a) + run.bound(b) + ce + F + cbc)
                 sizes.append(run.size(a, b))
                 if sizes[-1] is not None:
                     sizes[-1] += ce + cbc
@@ -192,6 +211,7 @@ def mk_sop(run, out, prods, lins, offset, state=None):
                 x = U[a] + ce
                 xs.append(x)
                 noms.append(x + cbc)
+                bounds.append(run.bound(a) + ce + cbc)
                 sizes.append(run.size(a))
                 if sizes[-1] is not None:
                     sizes[-1] += ce + cbc
@@ -203,8 +223,8 @@ def mk_sop(run, out, prods, lins, offset, state=None):
             sizes = [e for e in sizes if e is not None]  # (a term measured zero: finer is never less accurate)
             if offset is not None and offset[1]:
                 sizes.append(eraw(offset))
-            if state is None and sizes:  # F bits below the largest term's measured size, when that is finer
-                uo = run.cap(uo, max(sizes))
+            if state is None and sizes:
+                uo = run.exponent(out, uo, min(bounds), max(sizes))
             U[out] = uo
             for A, B, cm, x in raw_terms:
                 if isinstance(B, int):  # a dot product computed by a dots step
@@ -354,7 +374,7 @@ def mk_sqr(run, out, a):
 
     def step(k):
         if k == 0:
-            u = U[out] = run.cap(2 * U[a] + F, run.size(a, a))
+            u = U[out] = run.exponent(out, 2 * U[a] + F, 2 * run.bound(a) + F, run.size(a, a))
             sh[0] = u - 2 * U[a]
         C.append(round_shift(sqr_sum(A, k), sh[0]))
     return step
