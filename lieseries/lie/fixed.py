@@ -24,7 +24,8 @@ Scaling (why fixed point loses nothing)
   :data:`~lieseries.lie.fixed_steps.FINER_BITS` finer: :meth:`~lieseries.lie.fixed_steps.Run.exponent`; a node
   measured zero keeps its scale).  :class:`FixedStepper` starts each expansion
   from the sizes of the last one (moved to the new time scale) and runs it again when a node carried more than
-  :data:`COARSE_BITS` less than both its scale and those sizes said.  Systems whose every node is fused into the
+  :data:`COARSE_BITS` less than both its scale and those sizes said; it goes without sizes until an expansion
+  needs them.  Systems whose every node is fused into the
   states' steps (the rigid body) have nothing to measure and are unchanged.
 * The integers hold ``c_k sigma**k`` to ``F`` bits relative to the state's scale, i.e. each ``c_k`` with the
   absolute accuracy that a step of at most ``sigma`` needs: a Lie step ``h <= sigma`` multiplies the error of
@@ -276,8 +277,10 @@ def _estimate_radius(jets):
 _LN2 = math.log(2)
 
 #: A node whose scale is more than this many bits above what its jet carried (:meth:`NodeSizes.coarse`) makes an
-#: expansion run again with exponents from what the nodes carried.
-COARSE_BITS = 10
+#: expansion run again with exponents from what the nodes carried: below the guard bits of every order
+#: (:func:`~lieseries.lie.plan.jet_guard_bits`, at least 22), above the few bits a chain of bounds adds where
+#: nothing cancels (a double spherical pendulum's nodes up to 15, a heavy top's intermediate form up to 140).
+COARSE_BITS = 16
 
 
 class FixedStepper:
@@ -328,7 +331,7 @@ class FixedStepper:
                 self.sizes, got = got, NodeSizes()
                 M, U = expand(self.program, zr, self.pars_raw, min(self.order, 12), self.wp, 0, deadline,
                               self.sizes, got)
-            self.sizes = got
+                self.sizes = got
             rho = _estimate_radius(FixedJets(M, U, 0, self.prec))[0]
             self.s = _ceil_log2(span) if rho == mp.inf else _floor_log2(rho) - 2
         elif self.h_last:
@@ -345,7 +348,8 @@ class FixedStepper:
                 M, U = expand(self.program, zr, self.pars_raw, self.order, self.wp, self.s, deadline, self.sizes, got)
                 self.expansions += 1
                 self.redone += 1
-            self.sizes = got
+            if self.sizes is not None:  # (while the scales alone serve, the expansions go without sizes)
+                self.sizes = got
             jets = FixedJets(M, U, self.s, self.prec)
             jets.rho, jets.log2_rho = _estimate_radius(jets)
             self.last_rho = jets.rho

@@ -69,9 +69,11 @@ class Run:
         ``bound`` (the rule over the operands' bounds: what the exponent was without sizes) nor more than
         :data:`FINER_BITS` finer than F bits below ``size`` (where terms are residuals that vanish, every term
         rounded finer than the last makes the finest term's exponent, the rule of a sum, drift down)."""
-        if size is None:
+        if self.sizes is None:
             return rule
         self.B[out] = bound
+        if size is None:
+            return rule
         s = size - self.F
         return min(bound, max(min(rule, s), s - FINER_BITS))
 
@@ -223,8 +225,8 @@ def mk_sop(run, out, prods, lins, offset, state=None):
             sizes = [e for e in sizes if e is not None]  # (a term measured zero: finer is never less accurate)
             if offset is not None and offset[1]:
                 sizes.append(eraw(offset))
-            if state is None and sizes:
-                uo = run.exponent(out, uo, min(bounds), max(sizes))
+            if state is None and bounds:
+                uo = run.exponent(out, uo, min(bounds), max(sizes) if sizes else None)
             U[out] = uo
             for A, B, cm, x in raw_terms:
                 if isinstance(B, int):  # a dot product computed by a dots step
