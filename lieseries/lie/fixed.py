@@ -377,7 +377,9 @@ def fixed_taylor_coefficients(program_or_system, y0, pars, order, dps, time_scal
     holds ``c_k * 2**(s k)`` to ``dps`` digits plus guard bits relative to the scale of each variable (the size
     of its initial value), so ``c_k`` is accurate relative to ``scale * 2**(-s k)``, which is what a step of at
     most ``2**s`` needs (with ``2**s`` near the radius of convergence, every coefficient to about ``dps``
-    digits).  Returns ``c[k][i]`` as mpf of ``ctx`` (the thread's context by default) at ``dps`` digits.
+    digits).  Returns ``c[k][i]`` as mpf of ``ctx`` (the thread's context by default) at ``dps`` digits.  When a
+    node's scale lies more than :data:`COARSE_BITS` above what it carried, the expansion is run again from what the
+    nodes carried (module docstring, Scaling).
     """
     program = resolve_program(program_or_system)
     order = check_order(order)

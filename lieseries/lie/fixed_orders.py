@@ -472,7 +472,8 @@ class NodeSizes:
     terms cancel, a chain of products of bounds, a node whose value is zero), the node's rounding, a unit of its
     exponent, is that much coarser than the node needs, and the loss is amplified downstream (a mathematically zero
     constraint residual multiplied into the vector field, say).  An expansion given these sizes rounds every
-    product and sum of products F bits below what its terms carried (:meth:`~lieseries.lie.fixed_steps.Run.exponent`)."""
+    product and sum of products F bits below what its largest term carried where that is finer than the scales
+    give (:meth:`~lieseries.lie.fixed_steps.Run.exponent`); :meth:`at` moves them to another time scale."""
 
     def __init__(self):
         self.sizes = None
