@@ -312,6 +312,7 @@ class FixedStepper:
         self.expansions = 0
         self.sizes = None  # what the nodes carried at the last expansion (NodeSizes)
         self.redone = 0  # expansions run again with the sizes their nodes carried (NodeSizes.coarse)
+        self.measure = True
 
     def expand(self, z, span, deadline=None):
         try:
@@ -332,6 +333,7 @@ class FixedStepper:
                 M, U = expand(self.program, zr, self.pars_raw, min(self.order, 12), self.wp, 0, deadline,
                               self.sizes, got)
                 self.sizes = got
+            self.measure = got.sizes is not None  # (nothing to measure: every node fused into the states' steps)
             rho = _estimate_radius(FixedJets(M, U, 0, self.prec))[0]
             self.s = _ceil_log2(span) if rho == mp.inf else _floor_log2(rho) - 2
         elif self.h_last:
@@ -340,10 +342,10 @@ class FixedStepper:
                 s = min(s, _floor_log2(self.last_rho))
             self.s = s
         for _ in range(3):
-            got = NodeSizes()
+            got = NodeSizes() if self.measure else None
             M, U = expand(self.program, zr, self.pars_raw, self.order, self.wp, self.s, deadline, self.sizes, got)
             self.expansions += 1
-            if got.coarse(COARSE_BITS, self.sizes):  # rounded coarser than the nodes carry: again, from what they did
+            if got is not None and got.coarse(COARSE_BITS, self.sizes):  # rounded coarser than the nodes carry: again, from what they did
                 self.sizes, got = got, NodeSizes()
                 M, U = expand(self.program, zr, self.pars_raw, self.order, self.wp, self.s, deadline, self.sizes, got)
                 self.expansions += 1

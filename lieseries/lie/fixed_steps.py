@@ -192,6 +192,7 @@ def mk_sop(run, out, prods, lins, offset, state=None):
     def step(k):
         if k == 0:
             xs, noms, sizes, bounds = [], [], [], []
+            sized = state is None and run.sizes is not None
             raw_terms = []
             for a, b, c, ng, key in prods:
                 cm, ce, cbc = const(c)
@@ -200,10 +201,11 @@ def mk_sop(run, out, prods, lins, offset, state=None):
                 x = U[a] + U[b] + ce
                 xs.append(x)
                 noms.append(x + F + cbc)
-                bounds.append(run.bound(a) + run.bound(b) + ce + F + cbc)
-                sizes.append(run.size(a, b))
-                if sizes[-1] is not None:
-                    sizes[-1] += ce + cbc
+                if sized:
+                    bounds.append(run.bound(a) + run.bound(b) + ce + F + cbc)
+                    e = run.size(a, b)
+                    if e is not None:  # (a term measured zero: finer is never less accurate)
+                        sizes.append(e + ce + cbc)
                 raw_terms.append((J[a], run.product(a, b) if key is None else key,
                                   -cm if ng else cm, x))
             for a, c, ng in lins:
@@ -213,19 +215,19 @@ def mk_sop(run, out, prods, lins, offset, state=None):
                 x = U[a] + ce
                 xs.append(x)
                 noms.append(x + cbc)
-                bounds.append(run.bound(a) + ce + cbc)
-                sizes.append(run.size(a))
-                if sizes[-1] is not None:
-                    sizes[-1] += ce + cbc
+                if sized:
+                    bounds.append(run.bound(a) + ce + cbc)
+                    e = run.size(a)
+                    if e is not None:
+                        sizes.append(e + ce + cbc)
                 raw_terms.append((J[a], None, -cm if ng else cm, x))
             if not xs:
                 xs = noms = [min(U[a] for a, *_ in list(prods) + list(lins))]
             x0 = min(xs)
             uo = min(noms)
-            sizes = [e for e in sizes if e is not None]  # (a term measured zero: finer is never less accurate)
-            if offset is not None and offset[1]:
-                sizes.append(eraw(offset))
-            if state is None and bounds:
+            if bounds:
+                if offset is not None and offset[1]:
+                    sizes.append(eraw(offset))
                 uo = run.exponent(out, uo, min(bounds), max(sizes) if sizes else None)
             U[out] = uo
             for A, B, cm, x in raw_terms:
