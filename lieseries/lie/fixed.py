@@ -13,6 +13,20 @@ Scaling (why fixed point loses nothing)
   of its own value (a zero one the smallest exponent of the non-zero ones), so states of size 1e6 or 1e-6 and
   parameters of any size keep ``F`` bits relative to their own scale.  Sums are exact (finest exponent); every
   other result is rounded once to half a unit.
+* A product's scale is its operands' scales multiplied, a sum of products' the scale of its finest term: bounds,
+  a bit above what the node carries per factor, and far above where terms cancel or a node is a residual that
+  vanishes (the constraint residuals of a derived form, multiplied into its field: on a heavy top's intermediate
+  form up to 40 bits, and a unit of such an exponent cost 20 digits of the state's jets).  So every expansion
+  measures what each node carried (:class:`~lieseries.lie.fixed_orders.NodeSizes`: the largest
+  ``|c_k| sigma**k``), and when a node's scale lay more than :data:`COARSE_BITS` above it, runs again with every
+  product and sum of products rounded ``F`` bits below what its largest term carried where that is finer than
+  the scales give (never coarser than they give, nor more than
+  :data:`~lieseries.lie.fixed_steps.FINER_BITS` finer: :meth:`~lieseries.lie.fixed_steps.Run.exponent`; a node
+  measured zero keeps its scale).  :class:`FixedStepper` starts each expansion
+  from the sizes of the last one (moved to the new time scale) and runs it again when a node carried more than
+  :data:`COARSE_BITS` less than both its scale and those sizes said; it goes without sizes until an expansion
+  needs them.  Systems whose every node is fused into the
+  states' steps (the rigid body) have nothing to measure and are unchanged.
 * The integers hold ``c_k sigma**k`` to ``F`` bits relative to the state's scale, i.e. each ``c_k`` with the
   absolute accuracy that a step of at most ``sigma`` needs: a Lie step ``h <= sigma`` multiplies the error of
   ``c_k`` by ``h**k``, so every term of the step's sum is known to ``F`` bits of the state.  :class:`FixedStepper`
@@ -47,7 +61,7 @@ from ..precision import check_dps, check_order, dps_to_bits, mp_context
 from ..precision import thread_mp as mp
 from . import bigint
 from .bigint import greater_abs, log2_abs, to_raw, round_shift, backend, set_backend
-from .fixed_orders import expand
+from .fixed_orders import NodeSizes, expand
 from .plan import jet_guard_bits, radius_from_logs, resolve_program
 
 __all__ = ["backend", "set_backend", "fixed_taylor_coefficients", "FixedStepper", "FixedJets"]
@@ -262,6 +276,12 @@ def _estimate_radius(jets):
 
 _LN2 = math.log(2)
 
+#: A node whose scale is more than this many bits above what its jet carried (:meth:`NodeSizes.coarse`) makes an
+#: expansion run again with exponents from what the nodes carried: below the guard bits of every order
+#: (:func:`~lieseries.lie.plan.jet_guard_bits`, at least 22), above the few bits a chain of bounds adds where
+#: nothing cancels (a double spherical pendulum's nodes up to 15, a heavy top's intermediate form up to 140).
+COARSE_BITS = 16
+
 
 class FixedStepper:
     """Repeated expansions of one system at one order and precision (the Lie step's jets).
@@ -275,7 +295,9 @@ class FixedStepper:
     held with correspondingly fewer bits.  ``sigma`` is ``2**(ceil(log2 h) + 1)`` for the last step ``h`` that
     :meth:`FixedJets.horner` evaluated (at most the largest power of two below the last radius estimate), a
     quarter of the radius estimated by a short expansion at the first call, and at least ``span`` when the
-    solution is a polynomial (an infinite radius).
+    solution is a polynomial (an infinite radius).  ``sizes`` are what the nodes carried at the last expansion
+    (:class:`~lieseries.lie.fixed_orders.NodeSizes`, the module docstring's Scaling), and ``redone`` counts the
+    expansions run again because a node's scale lay above what it carried.
     """
 
     def __init__(self, program, pars, order, precision):
@@ -288,6 +310,9 @@ class FixedStepper:
         self.h_last = None
         self.last_rho = None
         self.expansions = 0
+        self.sizes = None  # what the nodes carried at the last expansion (NodeSizes)
+        self.redone = 0  # expansions run again with the sizes their nodes carried (NodeSizes.coarse)
+        self.measure = True
 
     def expand(self, z, span, deadline=None):
         try:
@@ -301,7 +326,14 @@ class FixedStepper:
     def _expand(self, z, span, deadline):
         zr = _expr.convert_vector(z, self.program.nvars, self.wp, "z")
         if self.s is None:  # a short expansion to find the time scale
-            M, U = expand(self.program, zr, self.pars_raw, min(self.order, 12), self.wp, 0, deadline)
+            got = NodeSizes()
+            M, U = expand(self.program, zr, self.pars_raw, min(self.order, 12), self.wp, 0, deadline, measured=got)
+            if got.coarse(COARSE_BITS):  # (the sizes the full expansions start from)
+                self.sizes, got = got, NodeSizes()
+                M, U = expand(self.program, zr, self.pars_raw, min(self.order, 12), self.wp, 0, deadline,
+                              self.sizes, got)
+                self.sizes = got
+            self.measure = got.sizes is not None  # (nothing to measure: every node fused into the states' steps)
             rho = _estimate_radius(FixedJets(M, U, 0, self.prec))[0]
             self.s = _ceil_log2(span) if rho == mp.inf else _floor_log2(rho) - 2
         elif self.h_last:
@@ -310,8 +342,16 @@ class FixedStepper:
                 s = min(s, _floor_log2(self.last_rho))
             self.s = s
         for _ in range(3):
-            M, U = expand(self.program, zr, self.pars_raw, self.order, self.wp, self.s, deadline)
+            got = NodeSizes() if self.measure else None
+            M, U = expand(self.program, zr, self.pars_raw, self.order, self.wp, self.s, deadline, self.sizes, got)
             self.expansions += 1
+            if got is not None and got.coarse(COARSE_BITS, self.sizes):  # rounded coarser than the nodes carry: again, from what they did
+                self.sizes, got = got, NodeSizes()
+                M, U = expand(self.program, zr, self.pars_raw, self.order, self.wp, self.s, deadline, self.sizes, got)
+                self.expansions += 1
+                self.redone += 1
+            if self.sizes is not None:  # (while the scales alone serve, the expansions go without sizes)
+                self.sizes = got
             jets = FixedJets(M, U, self.s, self.prec)
             jets.rho, jets.log2_rho = _estimate_radius(jets)
             self.last_rho = jets.rho
@@ -339,7 +379,9 @@ def fixed_taylor_coefficients(program_or_system, y0, pars, order, dps, time_scal
     holds ``c_k * 2**(s k)`` to ``dps`` digits plus guard bits relative to the scale of each variable (the size
     of its initial value), so ``c_k`` is accurate relative to ``scale * 2**(-s k)``, which is what a step of at
     most ``2**s`` needs (with ``2**s`` near the radius of convergence, every coefficient to about ``dps``
-    digits).  Returns ``c[k][i]`` as mpf of ``ctx`` (the thread's context by default) at ``dps`` digits.
+    digits).  Returns ``c[k][i]`` as mpf of ``ctx`` (the thread's context by default) at ``dps`` digits.  When a
+    node's scale lies more than :data:`COARSE_BITS` above what it carried, the expansion is run again from what the
+    nodes carried (module docstring, Scaling).
     """
     program = resolve_program(program_or_system)
     order = check_order(order)
@@ -349,7 +391,10 @@ def fixed_taylor_coefficients(program_or_system, y0, pars, order, dps, time_scal
     y0r = _expr.convert_vector(y0, program.nvars, wp, "y0")
     pr = _expr.convert_vector(pars, program.npars, wp, "pars")
     try:
-        M, U = expand(program, y0r, pr, order, wp, int(time_scale))
+        got = NodeSizes()
+        M, U = expand(program, y0r, pr, order, wp, int(time_scale), measured=got)
+        if got.coarse(COARSE_BITS):  # rounded coarser than the nodes carry: again, from what they carried
+            M, U = expand(program, y0r, pr, order, wp, int(time_scale), sizes=got)
     except ZeroDivisionError as exc:
         raise ValueError(
             f"the Taylor expansion does not exist at `y0` ({exc}; a zero denominator "

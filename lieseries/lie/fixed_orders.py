@@ -17,7 +17,7 @@ from mpmath.libmp import fzero, mpf_add, mpf_mul, mpf_sub
 
 from ..expr import RND
 from . import bigint
-from .bigint import div_round, eraw, to_int
+from .bigint import bit_length_function, div_round, eraw, to_int
 from .fixed_steps import (
     Dots,
     Run,
@@ -448,26 +448,96 @@ def _prepared(plan, grouped, wp, pars_raw):
     return got
 
 
-def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None):
+def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None, sizes=None, measured=None):
     """Fixed-point jets of the state: (M, U) with ``c_{i,k} = M[i][k] * 2**(U[i] - s*k)``.
 
     ``wp`` is the working precision in bits (guard bits included), ``s`` the time scale exponent, ``deadline`` an
-    optional :func:`time.perf_counter` value checked after every order (:class:`DeadlineExceeded`).
+    optional :func:`time.perf_counter` value checked after every order (:class:`DeadlineExceeded`).  ``sizes``
+    (:class:`NodeSizes` of an earlier expansion, or None) gives products and sums of products their exponents from
+    the magnitudes their operands carried rather than from their scales alone; a :class:`NodeSizes` given as
+    ``measured`` receives this expansion's.
     """
-    got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, False)
+    sz = sizes.at(s) if sizes is not None else None
+    got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, False, sz, measured)
     if got is None:  # a packed dot product's fields were too narrow for a later order: again, checking every order
-        got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, True)
+        got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, True, sz, measured)
     return got
 
 
-def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked):
+class NodeSizes:
+    """What the jets of an expansion carried: for every slot the binary exponent of its largest ``|c_k| sigma**k``
+    (None for a jet that was zero, or none), and the scale its exponent gave it (F bits above the exponent).
+
+    A scale propagated through products bounds what a node carries from above; where it is far above (a sum whose
+    terms cancel, a chain of products of bounds, a node whose value is zero), the node's rounding, a unit of its
+    exponent, is that much coarser than the node needs, and the loss is amplified downstream (a mathematically zero
+    constraint residual multiplied into the vector field, say).  An expansion given these sizes rounds every
+    product and sum of products F bits below what its largest term carried where that is finer than the scales
+    give (:meth:`~lieseries.lie.fixed_steps.Run.exponent`); :meth:`at` moves them to another time scale."""
+
+    def __init__(self):
+        self.sizes = None
+        self.scales = None
+        self.nvars = 0
+        self.s = None
+        self.bits = None
+        self.other = (None, None)  # (s, the sizes at s) last computed by at()
+
+    def fill(self, run, nvars):
+        J, U, F = run.J, run.U, run.F
+        self.nvars, self.s = nvars, run.s
+        if not any(J[x] and U[x] is not None for x in range(nvars, len(J))):  # every node fused into the states'
+            return  # steps (which round at the states' exponents): nothing to measure
+        bl = bit_length_function()
+        n = len(J)
+        sizes, scales, bits = [None] * n, [None] * n, [None] * n
+        for x, jet in enumerate(J):
+            u = U[x]
+            if jet and u is not None:
+                b = bits[x] = list(map(bl, jet))
+                m = max(b)
+                scales[x] = u + F
+                if m:
+                    sizes[x] = u + m
+        self.sizes, self.scales, self.bits = sizes, scales, bits
+
+    def at(self, s):
+        """The sizes at the time scale ``2**s``: the largest ``|c_k| 2**(s k)`` of every node (None if unknown)."""
+        if s == self.s or self.sizes is None:
+            return self.sizes
+        if self.other[0] != s:
+            d = s - self.s
+            out = []
+            for e, b in zip(self.sizes, self.bits):
+                if e is None:
+                    out.append(None)
+                else:
+                    m = e - max(b)  # the node's exponent
+                    out.append(m + max(x + d * k for k, x in enumerate(b) if x))
+            self.other = (s, out)
+        return self.other[1]
+
+    def coarse(self, bits, before=None):
+        """Whether a node's scale was more than ``bits`` above what it carried, beyond what ``before`` (the sizes
+        the expansion was given, or None) already knew: the expansion, given these sizes, rounds finer."""
+        if self.sizes is None:
+            return False
+        old = before.at(self.s) if before is not None else None
+        for x in range(self.nvars, len(self.sizes)):
+            e = self.sizes[x]
+            if e is not None and self.scales[x] - e > bits and (old is None or old[x] is None or old[x] - e > bits):
+                return True
+        return False
+
+
+def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked, sizes=None, measured=None):
     """:func:`expand`; None when ``checked`` is false and a packed dot product's fields did not fit every order."""
     plan = jet_plan(program)
     # packed dot products pay off with Python ints up to about 100 digits, with gmpy2 up to about 300
     Z = bigint.integer_type()
     grouped = wp <= (_GMP_GROUP_BITS if Z is not int else _INT_GROUP_BITS)
     instrs, nkeys, to_state, cv = _prepared(plan, grouped, wp, pars_raw)
-    run = Run(plan.nslots, wp, Z)
+    run = Run(plan.nslots, wp, Z, sizes)
     J, U = run.J, run.U
     nvars = program.nvars
     is_const = plan.is_const
@@ -481,6 +551,7 @@ def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked):
     run.dv = [None] * nkeys
     run.nxt = [None] * nvars
     run.s = s
+    run.order = order
     for kind, out, args, extra in instrs:
         if kind == "dots":
             steps.append(Dots(run, args[0], args[1], extra))
@@ -550,4 +621,6 @@ def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked):
         run_orders(1, order, deadline, env)
         if not checked and not Dots.all_fit([st for st in steps if st.__class__ is Dots], order):
             return None
+    if measured is not None:
+        measured.fill(run, nvars)
     return [J[i] for i in range(nvars)], [U[i] for i in range(nvars)]

@@ -35,17 +35,60 @@ class _Once:
         return self.v
 
 
+#: How much finer than F bits below its largest term an expansion given sizes may round a node (:meth:`Run.exponent`).
+FINER_BITS = 64
+
+
 class Run:
     """The state of one expansion: jets J (lists of integers), exponents U, working bits F, the integer type Z
-    (:func:`~lieseries.lie.bigint.integer_type`, read once per expansion)."""
+    (:func:`~lieseries.lie.bigint.integer_type`, read once per expansion), and ``sizes``: None, or for every slot
+    the binary exponent of the largest ``|c_k| sigma**k`` an earlier expansion measured (None where unknown), from
+    which products and sums of products take a finer exponent than their operands' scales give (:meth:`exponent`).
+    ``B`` holds, for the products, sums of products and scalings of an expansion given sizes, the exponent the
+    scales alone give (None elsewhere: the exponent itself)."""
 
-    def __init__(self, nslots, F, Z):
+    def __init__(self, nslots, F, Z, sizes=None):
         self.Z = Z
         self.J = [None] * nslots
         self.U = [None] * nslots
+        self.B = [None] * nslots
         self.D = {}
         self.F = F
         self.products = {}
+        self.sizes = sizes
+        self.order = 0
+
+    def bound(self, x):
+        """The exponent the scales alone give slot ``x`` (its exponent, unless sizes made it finer)."""
+        b = self.B[x]
+        return self.U[x] if b is None else b
+
+    def exponent(self, out, rule, bound, size):
+        """The exponent of ``out``: ``rule`` (the rule over the operands' exponents) without sizes; with the size of
+        its largest term (``size``, None when unknown), F bits below it where that is finer, but never coarser than
+        ``bound`` (the rule over the operands' bounds: what the exponent was without sizes) nor more than
+        :data:`FINER_BITS` finer than F bits below ``size`` (where terms are residuals that vanish, every term
+        rounded finer than the last makes the finest term's exponent, the rule of a sum, drift down)."""
+        if self.sizes is None:
+            return rule
+        self.B[out] = bound
+        if size is None:
+            return rule
+        s = size - self.F
+        return min(bound, max(min(rule, s), s - FINER_BITS))
+
+    def size(self, *slots):
+        """The measured exponent of the product of ``slots`` (None when one is unknown or there is none)."""
+        sz = self.sizes
+        if sz is None:
+            return None
+        e = 0
+        for x in slots:
+            v = sz[x]
+            if v is None:
+                return None
+            e += v
+        return e
 
     def product(self, a, b):
         """sum_{j<=k} a_j b_{k-j} as a function of k (:class:`Cauchy`), one per pair of slots: a product that
@@ -108,6 +151,8 @@ def mk_scale(run, out, a, craw):
     def step(k):
         if k == 0:
             U[out] = U[a] + (e + bc if m else 0)
+            if run.B[a] is not None:
+                run.B[out] = run.B[a] + (e + bc if m else 0)
         C.append(round_shift(A[k] * cm, bc) if m else Z(0))
     return step
 
@@ -117,10 +162,13 @@ def mk_mul(run, out, a, b):
     A, B, C = J[a], J[b], J[out]
     dot = Cauchy(A, B, F >= PAIR_BITS)
 
+    sh = [F]
+
     def step(k):
         if k == 0:
-            U[out] = U[a] + U[b] + F
-        C.append(round_shift(dot(k), F))
+            u = U[out] = run.exponent(out, U[a] + U[b] + F, run.bound(a) + run.bound(b) + F, run.size(a, b))
+            sh[0] = u - U[a] - U[b]
+        C.append(round_shift(dot(k), sh[0]))
     return step
 
 
@@ -143,7 +191,8 @@ def mk_sop(run, out, prods, lins, offset, state=None):
 
     def step(k):
         if k == 0:
-            xs, noms = [], []
+            xs, noms, sizes, bounds = [], [], [], []
+            sized = state is None and run.sizes is not None
             raw_terms = []
             for a, b, c, ng, key in prods:
                 cm, ce, cbc = const(c)
@@ -152,6 +201,11 @@ def mk_sop(run, out, prods, lins, offset, state=None):
                 x = U[a] + U[b] + ce
                 xs.append(x)
                 noms.append(x + F + cbc)
+                if sized:
+                    bounds.append(run.bound(a) + run.bound(b) + ce + F + cbc)
+                    e = run.size(a, b)
+                    if e is not None:  # (a term measured zero: finer is never less accurate)
+                        sizes.append(e + ce + cbc)
                 raw_terms.append((J[a], run.product(a, b) if key is None else key,
                                   -cm if ng else cm, x))
             for a, c, ng in lins:
@@ -161,11 +215,20 @@ def mk_sop(run, out, prods, lins, offset, state=None):
                 x = U[a] + ce
                 xs.append(x)
                 noms.append(x + cbc)
+                if sized:
+                    bounds.append(run.bound(a) + ce + cbc)
+                    e = run.size(a)
+                    if e is not None:
+                        sizes.append(e + ce + cbc)
                 raw_terms.append((J[a], None, -cm if ng else cm, x))
             if not xs:
                 xs = noms = [min(U[a] for a, *_ in list(prods) + list(lins))]
             x0 = min(xs)
             uo = min(noms)
+            if bounds:
+                if offset is not None and offset[1]:
+                    sizes.append(eraw(offset))
+                uo = run.exponent(out, uo, min(bounds), max(sizes) if sizes else None)
             U[out] = uo
             for A, B, cm, x in raw_terms:
                 if isinstance(B, int):  # a dot product computed by a dots step
@@ -217,6 +280,7 @@ class Dots:
         self.P = []
         self.dot = Cauchy(self.A, self.P, run.F >= PAIR_BITS)
         self.W = self.ba = self.bb = 0
+        self.run, self.slots = run, (pivot, *partners)
         self.mask = self.full = self.half = self.bias = self.bias_all = 0
 
     def repack(self, k, need):
@@ -246,6 +310,21 @@ class Dots:
         self.dot.reset(P, k)
         return W, self.mask, self.half, self.bias
 
+    def start(self):
+        """At order 0, with measured sizes (:attr:`Run.sizes`): the fields as wide as the operands' sizes show their
+        coefficients will be at every order (:attr:`Run.order`; the width of order 0 with 20 bits to spare
+        is too narrow where a node's later orders outgrow its value, and the expansion is then run again with
+        the checks)."""
+        run = self.run
+        sz, U = run.sizes, run.U
+        if sz is None:
+            return
+        pivot, *partners = self.slots
+        # (a node measured zero, without a size: F bits, what a node carries)
+        self.ba = max(self.ba, run.F if sz[pivot] is None else sz[pivot] - U[pivot])
+        self.bb = max(self.bb, *(run.F if sz[b] is None else sz[b] - U[b] for b in partners))
+        self.ba += run.order.bit_length()
+
     @staticmethod
     def all_fit(dots, n):
         """Whether the fields of width W of each of ``dots`` held every sum of products of the orders k < n
@@ -264,6 +343,8 @@ class Dots:
         return all(bits(d.A) + max(map(bits, d.Bs)) + n.bit_length() + 2 <= d.W for d in dots)
 
     def __call__(self, k):
+        if k == 0:
+            self.start()
         x = self.A[k].bit_length()
         if x > self.ba:
             self.ba = x
@@ -293,10 +374,13 @@ def mk_sqr(run, out, a):
     J, U, F = run.J, run.U, run.F
     A, C = J[a], J[out]
 
+    sh = [F]
+
     def step(k):
         if k == 0:
-            U[out] = 2 * U[a] + F
-        C.append(round_shift(sqr_sum(A, k), F))
+            u = U[out] = run.exponent(out, 2 * U[a] + F, 2 * run.bound(a) + F, run.size(a, a))
+            sh[0] = u - 2 * U[a]
+        C.append(round_shift(sqr_sum(A, k), sh[0]))
     return step
 
 
