@@ -384,8 +384,8 @@ def clear_energy_cache() -> None:
 _EXACT_PROGRAMS = weakref.WeakKeyDictionary()  # system -> the program of H and its gradient (energy_exact)
 
 
-#: system -> {(exact state, bits): (H, scale)} for the states asked with ``remember`` (a run's initial state: the
-#: same call repeated evaluates H there once); at most _REMEMBERED states per system.
+#: system -> {(exact state, parameters, bits): (H, scale)} for the states asked with ``remember`` (a run's
+#: initial state: the same call repeated evaluates H there once); at most _REMEMBERED states per system.
 _EXACT_VALUES = weakref.WeakKeyDictionary()
 _REMEMBERED = 16
 
@@ -406,7 +406,7 @@ def energy_exact(ps, y, bits: int, remember: bool = False):
     z = list(exact) if exact is not None else [to_fraction(v) for v in np.asarray(y, dtype=object)]
     if remember:
         known = _EXACT_VALUES.get(ps)
-        key = (tuple(z), bits)
+        key = (tuple(z), tuple(ps.parameter_values), bits)
         got = known.get(key) if known is not None else None
         if got is None:
             got = energy_exact(ps, z, bits)
