@@ -302,7 +302,7 @@ def energy_guard(out: Outcome, ps, y0, y_end, bits: int, tol) -> None:
 
     if out.status != "success" or not ps.is_hamiltonian:
         return
-    e0, scale0 = energy_exact(ps, y0, bits)
+    e0, scale0 = energy_exact(ps, y0, bits, remember=True)
     e1, scale1 = energy_exact(ps, y_end, bits)
     # the larger of the two scales: from rest at q = 0 under a force (H = p^2/2 - q + ...) H and its terms vanish
     # at y0, and a run right to 1e-33 ended invariant_drift on a threshold of 0

@@ -378,15 +378,23 @@ def clear_energy_cache() -> None:
     with _LOCK:
         _ENERGY.clear()
         _EXACT_PROGRAMS.clear()
+        _EXACT_VALUES.clear()
 
 
 _EXACT_PROGRAMS = weakref.WeakKeyDictionary()  # system -> the program of H and its gradient (energy_exact)
 
 
-def energy_exact(ps, y, bits: int):
+#: system -> {(exact state, parameters, bits): (H, scale)} for the states asked with ``remember`` (a run's
+#: initial state: the same call repeated evaluates H there once); at most _REMEMBERED states per system.
+_EXACT_VALUES = weakref.WeakKeyDictionary()
+_REMEMBERED = 16
+
+
+def energy_exact(ps, y, bits: int, remember: bool = False):
     """(H(y), the energy scale sum_i |dH/dy_i y_i|) of ``ps`` at the exact value of ``y``, H in mpmath at ``bits``
     bits (the scale an mpf of 64 bits): the energy check of the mpmath engine and of atlas runs, whose states are not in
-    one heyoka format or one chart."""
+    one heyoka format or one chart. ``remember``: keep the result for this state and precision (an initial state,
+    which repeated calls share)."""
 
     prog = _EXACT_PROGRAMS.get(ps)
     if prog is None:  # (the gradient and the compiled-program lookup cost a third of a call: once per system)
@@ -396,6 +404,18 @@ def energy_exact(ps, y, bits: int):
             _EXACT_PROGRAMS[ps] = prog
     exact = getattr(y, "exact", None)  # an ExactState: its exact values, not their doubles
     z = list(exact) if exact is not None else [to_fraction(v) for v in np.asarray(y, dtype=object)]
+    if remember:
+        known = _EXACT_VALUES.get(ps)
+        key = (tuple(z), tuple(ps.parameter_values), bits)
+        got = known.get(key) if known is not None else None
+        if got is None:
+            got = energy_exact(ps, z, bits)
+            with _LOCK:
+                known = _EXACT_VALUES.setdefault(ps, {})
+                if len(known) >= _REMEMBERED:
+                    known.clear()
+                known[key] = got
+        return got
     out = prog.evaluate(z, list(ps.parameter_values), max(bits_to_dps(bits), 15))
     # the scale in mpf (64 bits, explicit): a state or an energy beyond a double's range (momenta of 1e400, an
     # energy of 1e-400) overflowed to an OverflowError or underflowed to a scale of 0.0 (a right run then ended

@@ -91,6 +91,8 @@ class FixedJets:
         self.stepper = None
         self._norms = None
         self._abs = None
+        self._log_cols = {}
+        self._lnorms = None
         self.coefficients = _LazyCoefficients(M, U, s, prec)
 
     @property
@@ -114,13 +116,19 @@ class FixedJets:
             self._norms = nrm
         return self._norms
 
+    def _logs(self, k):
+        """[log2 |M_{i,k}| of every variable i] (None for zero), computed once per order."""
+        got = self._log_cols.get(k)
+        if got is None:
+            got = self._log_cols[k] = [log2_abs(Mi[k]) if Mi[k] else None for Mi in self.M]
+        return got
+
     def log2_norm(self, k):
         """log2 ||c_k|| (max norm), ``-inf`` for a zero vector."""
         best = -math.inf
-        for Mi, ui in zip(self.M, self.U):
-            m = Mi[k]
-            if m:
-                x = log2_abs(m) + ui
+        for la, ui in zip(self._logs(k), self.U):
+            if la is not None:
+                x = la + ui
                 if x > best:
                     best = x
         return best - self.s * k
@@ -138,17 +146,19 @@ class FixedJets:
 
     def log2_norms(self, k0, k1):
         """[log2 ||c_k|| for k0 <= k < k1] (``-inf`` for zero vectors), in numpy when the integers fit in doubles."""
-        a = self._floats()
-        if a is None:
-            return [self.log2_norm(k) for k in range(k0, k1)]
-        with np.errstate(divide="ignore"):
-            lg = np.log2(a[:, k0:k1]) + np.array(self.U, dtype=float)[:, None]
-        return (lg.max(axis=0) - self.s * np.arange(k0, k1)).tolist()
+        if self._lnorms is None:
+            a = self._floats()
+            if a is None:
+                return [self.log2_norm(k) for k in range(k0, k1)]
+            with np.errstate(divide="ignore"):  # every order at once: the radius and the error estimate read them
+                lg = np.log2(a) + np.array(self.U, dtype=float)[:, None]
+            self._lnorms = (lg.max(axis=0) - self.s * np.arange(a.shape[1])).tolist()
+        return self._lnorms[k0:k1]
 
     def log2_column(self, k):
         """log2 |c_{k,i}| of every variable i (``-inf`` for zero)."""
         sk = self.s * k
-        return [log2_abs(Mi[k]) + (ui - sk) if Mi[k] else -math.inf for Mi, ui in zip(self.M, self.U)]
+        return [la + (ui - sk) if la is not None else -math.inf for la, ui in zip(self._logs(k), self.U)]
 
     def horner(self, t):
         """sum_k c_k t^k as mpf at ``prec`` bits (``t`` an mpf with |t| <= ``max_step``): the step to ``t``; a

@@ -332,8 +332,13 @@ class _LieEngine:
         else:
             hit = _check_events(self.events, znew)
             end = None if hit is None else (hit[0], hit[1], " (end of the step that crossed it)")
-        # output times inside the step: the step's polynomial evaluated in integers, as the step's end
-        return StepResult(tnew, znew, h=h, row=lambda tk: jet.evaluate(tk - tcur), error=err, stop=end)
+        # output times inside the step: the step's polynomial evaluated in integers, as the step's end (which is
+        # that evaluation at hs: a row there is the end reused)
+        def row(tk):
+            tau = tk - tcur
+            return list(znew) if stop is None and tau == hs else jet.evaluate(tau)
+
+        return StepResult(tnew, znew, h=h, row=row, error=err, stop=end)
 
     def _expand(self, z, span):
         """The jets at ``z`` (:class:`~lieseries.lie.fixed.FixedJets`); a budget or a domain stop as a Stop."""
