@@ -153,6 +153,17 @@ def test_states_far_from_one(bigint, factor):
     check(prog, y0, RB_PARS, 30, 40, s, 1.5 * f, rows=range(9, 12))  # M, relative to its own size
 
 
+@pytest.mark.parametrize("op", ["tan", "atan"])
+def test_tan_atan_of_an_argument_of_size_1e20(bigint, op):
+    # x = 8e20 moving at speed ~1: the argument's scale is 2**68, and tan's and atan's 1 + u^2 took the square of it
+    # (136 bits, above F): tan's coefficients from order 2 on rounded to zero (an error of 1e-3 against a promise of
+    # 1e-8), atan's 1 + u^2 at order 0 to zero (a division by zero: "the expansion does not exist")
+    x = hy.make_vars("x")
+    u = hy.sin(x * hy.par[0])
+    rhs = hy.tan(0.25 * u) if op == "tan" else hy.atan(u)
+    check(compile_system([x], [rhs]), [8 * 10**20], [Fraction(1, 3)], 20, 30, 0, scale=8 * 10**20)
+
+
 @pytest.mark.parametrize("p", ["1e20", "1e-20"])
 def test_parameters_far_from_one(bigint, p):
     pars = [Fraction(q) * Fraction(p) for q in RB_PARS]
