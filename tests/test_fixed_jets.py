@@ -164,6 +164,29 @@ def test_tan_atan_of_an_argument_of_size_1e20(bigint, op):
     check(compile_system([x], [rhs]), [8 * 10**20], [Fraction(1, 3)], 20, 30, 0, scale=8 * 10**20)
 
 
+def test_a_state_at_zero_moving_slowly_to_its_own_size(bigint):
+    # y(0) = 0 with y' ~ 1e-25: y took x's exponent (of size 1), and its coefficients were 1e-6 of its own size at
+    # 30 digits; an expansion run again from what y carried holds them to the working precision of y
+    x, y = hy.make_vars("x", "y")
+    prog = compile_system([x, y], [hy.sin(y) + 1.0, hy.par[0] * (1.0 + x * x)])
+    check(prog, ["0.5", 0], ["1e-25"], 20, 30, 0, scale=mp.mpf("1e-25"), rows=[1])
+
+
+@pytest.mark.parametrize("c", ["1e-20", "1e-40"])
+def test_lie_integrate_from_zero_with_a_tiny_velocity(bigint, c):
+    # the first step from y(0) = 0, y' ~ c: the jets at a time scale of 2**31 (the span is 1) and y at the exponent
+    # of x (size 1) ended success 2e-13 (c = 1e-40) relative off at tol 1e-30
+    x, y = hy.make_vars("x", "y")
+    sy = ls.PoissonSystem([x, y], [[0, 0], [0, 0]], 0.0 * x, extra_field=[hy.sin(y) + 1.0, hy.par[0] * (1.0 + x * x)],
+                          parameters=[c], jacobi=False)
+    sol = ls.lie_integrate(sy, ["0.5", 0], 1, dps=30, guard=0)
+    ref = ls.lie_integrate(sy, ["0.5", 0], 1, dps=70)
+    assert sol.status == "success" and ref.status == "success"
+    with mp.workdps(80):
+        yb = mp.mpf(ref.y[-1][1])
+        assert abs(mp.mpf(sol.y[-1][1]) - yb) <= 3 * mp.mpf(10) ** -30 * abs(yb)
+
+
 @pytest.mark.parametrize("p", ["1e20", "1e-20"])
 def test_parameters_far_from_one(bigint, p):
     pars = [Fraction(q) * Fraction(p) for q in RB_PARS]

@@ -333,7 +333,9 @@ class FixedStepper:
                 M, U = expand(self.program, zr, self.pars_raw, min(self.order, 12), self.wp, 0, deadline,
                               self.sizes, got)
                 self.sizes = got
-            self.measure = got.sizes is not None  # (nothing to measure: every node fused into the states' steps)
+            # (nothing to measure where every node is fused into the states' steps: a state at zero takes its
+            # size from this short expansion, and no later state is exactly zero)
+            self.measure = got.nodes
             rho = _estimate_radius(FixedJets(M, U, 0, self.prec))[0]
             self.s = _ceil_log2(span) if rho == mp.inf else _floor_log2(rho) - 2
         elif self.h_last:
@@ -341,6 +343,8 @@ class FixedStepper:
             if self.last_rho is not None and self.last_rho != mp.inf:
                 s = min(s, _floor_log2(self.last_rho))
             self.s = s
+        if span:  # (no step goes beyond the span: a time scale above it holds the jets coarser than a step needs)
+            self.s = min(self.s, _ceil_log2(span))
         for _ in range(3):
             got = NodeSizes() if self.measure else None
             M, U = expand(self.program, zr, self.pars_raw, self.order, self.wp, self.s, deadline, self.sizes, got)
