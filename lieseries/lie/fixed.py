@@ -10,7 +10,8 @@ Scaling (why fixed point loses nothing)
 * Each jet's exponent is set at order 0 from the magnitude it will carry: ``e = max(e(f(a_0)), e(f'(a_0)) + e_a)``
   (the value, and the first-order change that the argument's scale ``e_a`` drives), and ``u = e - F`` with ``F``
   the working bits (precision + :func:`~lieseries.lie.plan.jet_guard_bits`).  A state variable takes the exponent
-  of its own value (a zero one the smallest exponent of the non-zero ones), so states of size 1e6 or 1e-6 and
+  of its own value (a zero one the smallest exponent of the non-zero ones, or, in an expansion run again from
+  measured sizes, ``F`` bits below what it carried where that is finer), so states of size 1e6 or 1e-6 and
   parameters of any size keep ``F`` bits relative to their own scale.  Sums are exact (finest exponent); every
   other result is rounded once to half a unit.
 * A product's scale is its operands' scales multiplied, a sum of products' the scale of its finest term: bounds,
@@ -295,7 +296,7 @@ class FixedStepper:
     held with correspondingly fewer bits.  ``sigma`` is ``2**(ceil(log2 h) + 1)`` for the last step ``h`` that
     :meth:`FixedJets.horner` evaluated (at most the largest power of two below the last radius estimate), a
     quarter of the radius estimated by a short expansion at the first call, and at least ``span`` when the
-    solution is a polynomial (an infinite radius).  ``sizes`` are what the nodes carried at the last expansion
+    solution is a polynomial (an infinite radius); never above ``span`` (no step goes beyond it).  ``sizes`` are what the nodes carried at the last expansion
     (:class:`~lieseries.lie.fixed_orders.NodeSizes`, the module docstring's Scaling), and ``redone`` counts the
     expansions run again because a node's scale lay above what it carried.
     """
