@@ -10,7 +10,8 @@ Scaling (why fixed point loses nothing)
 * Each jet's exponent is set at order 0 from the magnitude it will carry: ``e = max(e(f(a_0)), e(f'(a_0)) + e_a)``
   (the value, and the first-order change that the argument's scale ``e_a`` drives), and ``u = e - F`` with ``F``
   the working bits (precision + :func:`~lieseries.lie.plan.jet_guard_bits`).  A state variable takes the exponent
-  of its own value (a zero one the smallest exponent of the non-zero ones), so states of size 1e6 or 1e-6 and
+  of its own value (a zero one the smallest exponent of the non-zero ones, or, in an expansion run again from
+  measured sizes, ``F`` bits below what it carried where that is finer), so states of size 1e6 or 1e-6 and
   parameters of any size keep ``F`` bits relative to their own scale.  Sums are exact (finest exponent); every
   other result is rounded once to half a unit.
 * A product's scale is its operands' scales multiplied, a sum of products' the scale of its finest term: bounds,
@@ -305,7 +306,7 @@ class FixedStepper:
     held with correspondingly fewer bits.  ``sigma`` is ``2**(ceil(log2 h) + 1)`` for the last step ``h`` that
     :meth:`FixedJets.horner` evaluated (at most the largest power of two below the last radius estimate), a
     quarter of the radius estimated by a short expansion at the first call, and at least ``span`` when the
-    solution is a polynomial (an infinite radius).  ``sizes`` are what the nodes carried at the last expansion
+    solution is a polynomial (an infinite radius); never above ``span`` (no step goes beyond it).  ``sizes`` are what the nodes carried at the last expansion
     (:class:`~lieseries.lie.fixed_orders.NodeSizes`, the module docstring's Scaling), and ``redone`` counts the
     expansions run again because a node's scale lay above what it carried.
     """
@@ -343,7 +344,9 @@ class FixedStepper:
                 M, U = expand(self.program, zr, self.pars_raw, min(self.order, 12), self.wp, 0, deadline,
                               self.sizes, got)
                 self.sizes = got
-            self.measure = got.sizes is not None  # (nothing to measure: every node fused into the states' steps)
+            # (nothing to measure where every node is fused into the states' steps: a state at zero takes its
+            # size from this short expansion, and no later state is exactly zero)
+            self.measure = got.nodes
             rho = _estimate_radius(FixedJets(M, U, 0, self.prec))[0]
             self.s = _ceil_log2(span) if rho == mp.inf else _floor_log2(rho) - 2
         elif self.h_last:
@@ -351,6 +354,8 @@ class FixedStepper:
             if self.last_rho is not None and self.last_rho != mp.inf:
                 s = min(s, _floor_log2(self.last_rho))
             self.s = s
+        if span:  # (no step goes beyond the span: a time scale above it holds the jets coarser than a step needs)
+            self.s = min(self.s, _ceil_log2(span))
         for _ in range(3):
             got = NodeSizes() if self.measure else None
             M, U = expand(self.program, zr, self.pars_raw, self.order, self.wp, self.s, deadline, self.sizes, got)

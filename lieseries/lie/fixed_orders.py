@@ -10,6 +10,7 @@ the other steps.  Products sharing an operand are packed into one dot product up
 from __future__ import annotations
 
 import weakref
+from itertools import chain
 from operator import mul as _mul
 from time import perf_counter as _clock
 
@@ -482,12 +483,16 @@ class NodeSizes:
         self.s = None
         self.bits = None
         self.other = (None, None)  # (s, the sizes at s) last computed by at()
+        self.zero = []  # the state variables whose value was zero
+        self.nodes = False  # whether any node was measured (not every one fused into the states' steps)
 
     def fill(self, run, nvars):
         J, U, F = run.J, run.U, run.F
         self.nvars, self.s = nvars, run.s
-        if not any(J[x] and U[x] is not None for x in range(nvars, len(J))):  # every node fused into the states'
-            return  # steps (which round at the states' exponents): nothing to measure
+        self.zero = [i for i in range(nvars) if J[i] and not J[i][0]]
+        self.nodes = any(J[x] and U[x] is not None for x in range(nvars, len(J)))
+        if not self.nodes and not self.zero:  # every node fused into the states' steps (which round at the
+            return  # states' exponents) and no state at zero: nothing to measure
         bl = bit_length_function()
         n = len(J)
         sizes, scales, bits = [None] * n, [None] * n, [None] * n
@@ -523,7 +528,7 @@ class NodeSizes:
         if self.sizes is None:
             return False
         old = before.at(self.s) if before is not None else None
-        for x in range(self.nvars, len(self.sizes)):
+        for x in chain(self.zero, range(self.nvars, len(self.sizes))):
             e = self.sizes[x]
             if e is not None and self.scales[x] - e > bits and (old is None or old[x] is None or old[x] - e > bits):
                 return True
@@ -542,6 +547,8 @@ def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked, sizes=No
     nvars = program.nvars
     is_const = plan.is_const
     for i, e in enumerate(_state_exponents(y0_raw)):
+        if sizes is not None and not y0_raw[i][1] and sizes[i] is not None:
+            e = min(e, sizes[i])  # a state at zero: F bits below what it carried, where that is finer
         U[i] = e - wp
         J[i] = [to_int(y0_raw[i], U[i])]
     for x in range(nvars, plan.nslots):

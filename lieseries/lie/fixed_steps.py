@@ -579,9 +579,11 @@ def mk_tan(run, out, aux, a, wp, hyperbolic):
             t0 = POINTWISE["tanh" if hyperbolic else "tan"]([a0], None, wp)
             t2 = mpf_mul(t0, t0)
             w0 = mpf_sub(fone, t2, wp, RND) if hyperbolic else mpf_add(fone, t2, wp, RND)
-            ew0 = eraw(w0)
-            ut = _fn_exp(run, a, eraw(t0), None if ew0 is None else ew0 + U[a] + F)
-            uw = _fn_exp(run, a, ew0, 2 * (ut + F))
+            ew0, et0 = eraw(w0), eraw(t0)
+            ut = _fn_exp(run, a, et0, None if ew0 is None else ew0 + U[a] + F)
+            # w's first-order change 2 t0 dt (not the square of t's scale: a scale above F / 2 bits, from an argument
+            # of size 1e20, rounded w's every coefficient to zero)
+            uw = _fn_exp(run, a, ew0, None if et0 is None else et0 + 1 + ut + F)
             U[out], U[aux] = ut, uw
             T.append(to_int(t0, ut))
             W.append(to_int(w0, uw))
@@ -607,7 +609,9 @@ def mk_atan(run, out, aux, a, wp):
             w0 = mpf_add(fone, mpf_mul(a0, a0), wp, RND)
             c0 = POINTWISE["atan"]([a0], None, wp)
             ea, ew0 = U[a] + F, eraw(w0)
-            uw = _fn_exp(run, a, ew0, 2 * ea)
+            e0 = eraw(a0)
+            # w's first-order change 2 a0 da (not the square of a's scale: a scale above F / 2 bits rounded w0 to 0)
+            uw = _fn_exp(run, a, ew0, None if e0 is None else e0 + 1 + ea)
             uc = _fn_exp(run, a, eraw(c0), ea - ew0)
             U[out], U[aux] = uc, uw
             C.append(to_int(c0, uc))
