@@ -58,6 +58,7 @@ from .precision import (
 from .ball_series import (SUPPORTED_OPS, Singular, ball_constant, check_ops, evaluate, flint_module,
                           taylor_coefficients, working_precision)
 from .driver import StepResult, Stop, drive
+from .formatting import fmt_sci
 from .lie.plan import DeadlineExceeded
 from .solution import ChartRows, Solution, Stats
 from .timegrid import parse_times
@@ -320,7 +321,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
         z, current = _start_chart(system, z, flint) if atlas else (z, system)
         # the shortest step tried: 2^-40 of the run's time span (a time, whatever the size of the state)
         engine = _ValidatedEngine(system, current, z, N, dps, flint, width_cap, deadline,
-                                  float(abs(grid[-1] - t0f)) * 2.0**-40, direction, atlas)
+                                  abs(to_fraction(grid[-1]) - to_fraction(t0f)) / 2**40, direction, atlas)
         out = drive(engine, t0f, z, [(g, g) for g in grid], direction=direction, max_steps=max_steps,
                     max_time=max_time, start=start, kept="Every row up to here is a proven enclosure.",
                     atlas=atlas, max_switches=MAX_SWITCHES, reached="; every row is a proven enclosure")
@@ -560,7 +561,7 @@ class _ValidatedEngine:
             raise Stop(event_hit[0], f"{event_hit[1]} within the next step (every row up to here is a proven "
                        "enclosure; `atlas=True` switches charts instead)")
         if proved is None:
-            raise Stop("validation_failed", f"no step down to {self.h_min:.3g} has an a priori enclosure with a "
+            raise Stop("validation_failed", f"no step down to {fmt_sci(self.h_min)} has an a priori enclosure with a "
                        "small enough remainder (the field is singular near the enclosure, or the enclosure is too "
                        f"wide: widest ball {max(float(zi.rad()) for zi in z):.3g})")
         h = proved[0]

@@ -685,3 +685,13 @@ def test_a_first_step_far_shorter_than_the_jets_time_scale_is_proved():
     assert all(contains(row, [to_fraction(v) for v in rrow], tol=Fraction(1, 10**40))
                for row, rrow in zip(sol.y, ref.y))
     assert min(certified_digits(sol)) > 20
+
+
+def test_a_failure_names_the_shortest_step_tried_beyond_a_doubles_range():
+    """A run over a span of 1e-400 whose state is beyond what the step search's floats hold (M1 = 1e400) fails at
+    t = 0, loud; its message said "no step down to 0" (the shortest step, 2^-40 of the span, was a float): it
+    names 1e-400 / 2^40 = 9.09e-413."""
+    body = ls.EulerPoisson((1, 2, 3))
+    sol = ls.validated_integrate(body, body.initial_state(omega=("1e400", "0.1", "0.5")), t="1e-400", dps=20)
+    assert sol.status == "validation_failed"
+    assert "no step down to 9.09e-413 " in sol.message and "down to 0 " not in sol.message
