@@ -302,10 +302,10 @@ ENVELOPE_RATIO = 1.25
 
 def _first_bound(tc, p):
     """:func:`sparse_first_step` for the Taylor coefficients ``tc`` (variables x orders 0..p) of one state."""
-    if not (tc[:, p - 1:] != 0).any():
-        return _gap_bound(tc, p)
     logs0 = [_log_abs(v) for v in tc[:, 0]]
     log_scale = max([0.0] + [x for x in logs0 if x is not None])  # heyoka's: max(1, |x0|_inf)
+    if not (tc[:, p - 1:] != 0).any():
+        return _gap_bound(tc, p, log_scale)
     K = max(4, p // 5)
     log_rho = {}
     for k in range(p - K, p + 1):
@@ -332,10 +332,9 @@ def _log_abs(v):
     return math.log(f.numerator) - math.log(f.denominator)
 
 
-def _gap_bound(tc, p):
-    """The bound of :func:`sparse_first_step` where orders p - 1 and p vanish in every component of ``tc``."""
-    logs0 = [_log_abs(v) for v in tc[:, 0]]
-    log_scale = max([0.0] + [x for x in logs0 if x is not None])  # heyoka's: max(1, |x0|_inf)
+def _gap_bound(tc, p, log_scale):
+    """The bound of :func:`sparse_first_step` where orders p - 1 and p vanish in every component of ``tc``
+    (``log_scale``: log max(1, |x0|_inf))."""
     log_rho = None
     for row in tc:
         found = []

@@ -175,7 +175,8 @@ def run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, 
             prs = ta.propagate_res
             nl = hi - lo
             # a lane that went the whole way in one step may have started where heyoka's step rule cannot see the
-            # series (its last two orders vanish: lieseries.heyoka_build.sparse_first_step), checked below
+            # series (its last two orders vanish or are far below the lower ones:
+            # lieseries.heyoka_build.sparse_first_step), checked below
             one_step = [j for j in range(nl) if prs[j][3] == 1]
             outcomes = [prs[lane][0] for lane in range(nl)]
             mine = []

@@ -60,7 +60,8 @@ def run_scalar(ta0, event_info, Ynat, pars, ps, prec, tgrid, t0n, direction, cap
             return False
         if out.steps == 1:
             # the whole way in one step: heyoka's step rule may not have seen the series at y0 (its last two orders
-            # vanish: lieseries.heyoka_build.sparse_first_step); the single run then bounds the first step
+            # vanish or are far below the lower ones: lieseries.heyoka_build.sparse_first_step); the single run
+            # then bounds the first step
             ta.time = t0_nat
             ta.state[:] = Ynat[i]
             if sparse_first_step(ta, zero) is not None:

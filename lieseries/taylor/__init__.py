@@ -165,7 +165,8 @@ def _new_call(system, ps, prec, y0, z0, t, t0, tol, events, dense, compact_mode,
 
 def _first_step_bound(call):
     """A bound on the run's first step where heyoka's step rule cannot see the series at y0 (its last two orders
-    vanish: :func:`~lieseries.heyoka_build.sparse_first_step`), in the run's format; None when it can."""
+    vanish, or are far below what the lower orders give: :func:`~lieseries.heyoka_build.sparse_first_step`), in
+    the run's format; None when it can."""
     plan, prec = call.plan, call.prec
     ta, free = cache.checkout(plan["build"][0])
     try:

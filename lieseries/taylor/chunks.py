@@ -22,8 +22,9 @@ table: how many steps finishing would take):
 - terminal events of the model (e.g. the edge of a sphere chart) end the run with their own status; a user's
   terminal event that stops the run again where it went on from (t0, a touch), without a step, ends it
   ``step_collapse`` (heyoka's cooldown is 0 where the expression's rate vanishes too);
-- a first step heyoka's rule cannot size (the last two orders of the series at y0 vanish in every component:
-  :func:`lieseries.heyoka_build.sparse_first_step`) is the first chunk, alone, bounded;
+- a first step heyoka's rule cannot size (the last two orders of the series at y0 vanish in every component, or
+  give a radius well above the lower orders': :func:`lieseries.heyoka_build.sparse_first_step`) is the first
+  chunk, alone, bounded;
 - ``invariant_drift``: after a run that reached its final time, the Hamiltonian (conserved by every Hamiltonian
   system) is evaluated at both ends; a change beyond min(sqrt(tol), 1000 tol per step) of its energy scale
   (:func:`lieseries.energy.drift_threshold`) means the result is wrong, whatever the error control believed --
