@@ -32,13 +32,14 @@ _OUTCOME = hy.taylor_outcome
 
 
 def plain_setup(call) -> None:
-    """Whether a new call is plain (no events of the user's, no dense output, no min_step, no bound on its first
-    step; output times only in double), and what its short path (:func:`execute_plain`) needs."""
+    """Whether a call is plain (no events of the user's, no dense output, no min_step, no bound on its first step:
+    known once its first run has read the series at y0; output times only in double), and what its short path
+    (:func:`execute_plain`) needs."""
     plan, prec = call.plan, call.prec
     grid = plan["grid"]
     one_time = len(grid) == 2 and plan["grid_native"][0] == plan["t0_native"]
     call.plain = (not call.dense and not call.user_events and plan["direction"] != 0 and call.min_step is None
-                  and call.first_h is None and (one_time or prec.name == "double"))
+                  and call.first_known and call.first_h is None and (one_time or prec.name == "double"))
     if call.plain:  # (may still turn False below)
         # output times: one propagate_grid over [t0, grid...] (heyoka's own grid, rows from each step's Taylor
         # polynomial; _GridRows continues it exactly when the run is longer than the chunk)
@@ -65,7 +66,11 @@ def execute(call, progress):
     """Run a prepared call: one integration and its checks, into a :class:`Solution`."""
     if call.plain and progress is None:
         return execute_plain(call)
-    return execute_general(call, progress, None)
+    known = call.first_known
+    sol = execute_general(call, progress, None)
+    if not known and call.first_known:  # the first run read the series at y0: repeated calls may be plain
+        plain_setup(call)
+    return sol
 
 
 _TIME_LIMIT = _OUTCOME.time_limit
