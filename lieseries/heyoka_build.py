@@ -324,7 +324,17 @@ def first_step_bound(tc, p):
 
 
 def _log_abs(v):
-    """log |v| of a nonzero finite number in any of heyoka's formats (None for zero or non-finite)."""
+    """log |v| of a nonzero finite number in any of heyoka's formats (None for zero or non-finite): from its double
+    when that is a normal number well inside the range (rounded by 1e-16 at most: the log moves by as much), else
+    from its exact value (a coefficient beyond the double range, at high precision)."""
+    try:
+        d = abs(float(v))
+    except (TypeError, ValueError, OverflowError):
+        d = math.nan
+    if 1e-300 < d < 1e300:
+        return math.log(d)
+    if d == 0 and v == 0:
+        return None
     try:
         f = abs(to_fraction(v))
     except (TypeError, ValueError, OverflowError):
