@@ -190,41 +190,24 @@ class Chunks:
 
     def _read_first(self, t_end, budget, marks):
         """The run's first chunk when the bound on its first step is not known (the call's first run): the
-        series at y0 is read from the first step's Taylor coefficients (:class:`_FirstStep`) and the bound kept on
-        the call. Returns heyoka's answer and None, or (None, the bound) when the first step went beyond the
-        bound and has been taken back (time, state, cooldowns, the crossings recorded and the guard's marks; its
-        rows and output are dropped with the answer, its step not counted): the first chunk is then that one
-        step, bounded, as on the call's later runs."""
+        series at y0 is read from the first step (:class:`FirstStep`). Returns heyoka's answer and None, or (None,
+        the bound) when the first step went beyond the bound and has been taken back (time, state, cooldowns, the
+        crossings recorded and the guard's marks; its rows and output are dropped with the answer, its step not
+        counted): the first chunk is then that one step, bounded, as on the call's later runs."""
         ta, call = self.ta, self.call
-        first = _FirstStep(ta.order)
+        first = FirstStep(ta.order)
         res = self._propagate(t_end, budget, first, None, write_tc=True)
-        if first.read:
-            bound = first.bound
-        elif res[0] == _OUTCOME.err_nf_state and not res[3]:
-            # the first step's state is not finite (heyoka skips the callback then): its coefficients are the
-            # series at y0 all the same, and a bounded step may be finite
-            bound = first_step_bound(ta.tc, ta.order)
-        else:  # pragma: no cover - heyoka calls the callback after every step it takes
-            raise RuntimeError("the first step of a heyoka run did not report its Taylor coefficients")
-        cap = None if bound is None else call.prec.time(bound)
-        call.first_h, call.first_known, self.call = cap, True, None
-        if cap is None:
-            return res, None
-        # a bound: the chunk stopped after the first step (or failed in it). Kept when within the bound -- the very
-        # step a bounded one is (heyoka clamps only a longer one) -- unless a terminal event may have cut it short
-        # (the bounded step's event search runs on another interval)
-        h = ta.last_h
-        if res[0] == _OUTCOME.cb_stop and abs(h) < cap and not self.event_info:
-            outcome = _OUTCOME.time_limit if h == self.t_end - self.t0 else _OUTCOME.step_limit
-            return (outcome,) + tuple(res[1:]), None
-        ta.time, ta.state[:] = self.t_at, self.z_at
-        if self.event_info or self.recorders:  # (the integrator has events)
-            ta.reset_cooldowns()
-        for rec, mark in zip(self.recorders, marks):
-            del rec.sink[mark:]
-        if self.guard is not None:
-            self.guard.start(ta)
-        return None, cap
+        self.call = None
+        res, cap = first.settle(call, ta, res, bool(self.event_info))
+        if res is None:
+            ta.time, ta.state[:] = self.t_at, self.z_at
+            if self.event_info or self.recorders:  # (the integrator has events)
+                ta.reset_cooldowns()
+            for rec, mark in zip(self.recorders, marks):
+                del rec.sink[mark:]
+            if self.guard is not None:
+                self.guard.start(ta)
+        return res, cap
 
     def _probe(self, t_end):
         """Take one step as part of the run; record its size and the relative change it made."""
@@ -409,10 +392,11 @@ class _GridRows:
         return True
 
 
-class _FirstStep:
-    """Step callback of a run's first chunk while the bound on its first step is not known: after the first step,
-    the bound from that step's Taylor coefficients (``ta.tc``, the series at y0:
-    :func:`lieseries.heyoka_build.first_step_bound`); the chunk goes on only when there is none."""
+class FirstStep:
+    """Step callback of a run's first chunk while the bound on the call's first step is not known (its first run):
+    after the first step, the bound from that step's Taylor coefficients (``ta.tc``, the series at y0:
+    :func:`lieseries.heyoka_build.first_step_bound`); the chunk goes on only when there is none. The chunk must
+    write the coefficients (``write_tc=True``; propagate_grid does)."""
 
     def __init__(self, order):
         self.order = order
@@ -425,6 +409,34 @@ class _FirstStep:
         self.read = True
         self.bound = first_step_bound(ta.tc, self.order)
         return self.bound is None
+
+    def settle(self, call, ta, res, terminal: bool):
+        """After the chunk (heyoka's answer ``res``): the bound, in the run's format, kept on the call (which is
+        then not plain: its runs take the bounded step). Returns (``res``, None) when the chunk stands: no bound,
+        or the first step within it (``res`` then reads as that one step's: heyoka stopped the chunk after it);
+        (None, the bound) when the step must be taken back and taken again bounded. ``terminal``: the run has
+        terminal events (a step one of them cut short is taken back: the bounded step's event search runs on
+        another interval)."""
+        if self.read:
+            bound = self.bound
+        elif res[0] == _OUTCOME.err_nf_state and not res[3]:
+            # the first step's state is not finite (heyoka skips the callback then): its coefficients are the
+            # series at y0 all the same, and a bounded step may be finite
+            bound = first_step_bound(ta.tc, self.order)
+        else:  # pragma: no cover - heyoka calls the callback after every step it takes
+            raise RuntimeError("the first step of a heyoka run did not report its Taylor coefficients")
+        cap = None if bound is None else call.prec.time(bound)
+        call.first_h, call.first_known = cap, True
+        if cap is None:
+            return res, None
+        call.plain = False
+        # kept when within the bound: the very step a bounded one is (heyoka clamps only a longer one)
+        h = ta.last_h
+        if res[0] == _OUTCOME.cb_stop and abs(h) < cap and not terminal:
+            t0, t_end = call.plan["t0_native"], call.plan["grid_native"][-1]
+            outcome = _OUTCOME.time_limit if h == t_end - t0 else _OUTCOME.step_limit
+            return (outcome,) + tuple(res[1:]), None
+        return None, cap
 
 
 class _Keeper:

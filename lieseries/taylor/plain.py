@@ -9,7 +9,9 @@ sound energy, returns a :class:`~lieseries.solution.Solution` whose rows and sta
 anything else continues on the general path (:func:`lieseries.taylor.general.execute_general`) from where the
 chunk ended, with the same steps, states and statuses. A double run first asks a plain Python function of floats
 (cheaper than a compiled-function call) whether its energy is sound; only when it is not sure does the compiled
-check decide.
+check decide. A call's first run also reads the series at y0 from its first step
+(:class:`~lieseries.taylor.chunks.FirstStep`): when that step needs a bound the call is no longer plain, and a
+step beyond the bound starts the run again on the general path, its first step bounded.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from .. import cache
 from ..energy import energy_function, energy_verdict, quick_check
 from ..solution import Solution, Stats
 from .call import next_report, succeeded
-from .chunks import step_range
+from .chunks import FirstStep, step_range
 from .general import execute_general
 from .plan import time_array
 
@@ -32,14 +34,14 @@ _OUTCOME = hy.taylor_outcome
 
 
 def plain_setup(call) -> None:
-    """Whether a call is plain (no events of the user's, no dense output, no min_step, no bound on its first step:
-    known once its first run has read the series at y0; output times only in double), and what its short path
-    (:func:`execute_plain`) needs."""
+    """Whether a new call is plain (no events of the user's, no dense output, no min_step, no bound on its first
+    step -- not known before its first run has read the series at y0, which then makes it not plain when there is
+    one; output times only in double), and what its short path (:func:`execute_plain`) needs."""
     plan, prec = call.plan, call.prec
     grid = plan["grid"]
     one_time = len(grid) == 2 and plan["grid_native"][0] == plan["t0_native"]
     call.plain = (not call.dense and not call.user_events and plan["direction"] != 0 and call.min_step is None
-                  and call.first_known and call.first_h is None and (one_time or prec.name == "double"))
+                  and call.first_h is None and (one_time or prec.name == "double"))
     if call.plain:  # (may still turn False below)
         # output times: one propagate_grid over [t0, grid...] (heyoka's own grid, rows from each step's Taylor
         # polynomial; _GridRows continues it exactly when the run is longer than the chunk)
@@ -66,11 +68,7 @@ def execute(call, progress):
     """Run a prepared call: one integration and its checks, into a :class:`Solution`."""
     if call.plain and progress is None:
         return execute_plain(call)
-    known = call.first_known
-    sol = execute_general(call, progress, None)
-    if not known and call.first_known:  # the first run read the series at y0: repeated calls may be plain
-        plain_setup(call)
-    return sol
+    return execute_general(call, progress, None)
 
 
 _TIME_LIMIT = _OUTCOME.time_limit
@@ -109,9 +107,20 @@ def execute_plain(call):
             ta.reset_cooldowns()
         grid = call.grid
         tic = _perf_counter()
-        # max_steps passed by position (as a keyword: 1.5 us more)
-        res = ta.propagate_until(call.t_end_native, call.budget) if grid is None else \
-            ta.propagate_grid(grid, call.budget)
+        if call.first_known:
+            # max_steps passed by position (as a keyword: 1.5 us more)
+            res = ta.propagate_until(call.t_end_native, call.budget) if grid is None else \
+                ta.propagate_grid(grid, call.budget)
+        else:  # the call's first run: its first step reads the series at y0 (chunks.FirstStep)
+            first = FirstStep(ta.order)
+            res = ta.propagate_until(call.t_end_native, call.budget, write_tc=True, callback=first)[:5] + (None,) \
+                if grid is None else ta.propagate_grid(grid, call.budget, callback=first)  # (not the callback)
+            res = first.settle(call, ta, res, bool(call.events))[0]
+            if res is None:  # beyond the bound: the run starts again (on this integrator), its first step bounded
+                if len(free) < _MAX_FREE:
+                    free.append(ta)
+                ta = None
+                return execute_general(call, None, None)
         run_time = _perf_counter() - tic
         t_end = ta.time
         if grid is not None:  # as Chunks._propagate answers: the rows last, the first standing for t0
@@ -121,7 +130,7 @@ def execute_plain(call):
         else:
             return execute_general(call, None, (ta, res, run_time, report))
     finally:
-        if len(free) < _MAX_FREE:  # as _release (inline: the plain path is the fast one)
+        if ta is not None and len(free) < _MAX_FREE:  # as _release (inline: the plain path is the fast one)
             free.append(ta)
     passed = call.passed
     if passed is None or passed[1] != res[3] or passed[0] != y_end.tobytes():
