@@ -113,8 +113,10 @@ def execute_plain(call):
                 ta.propagate_grid(grid, call.budget)
         else:  # the call's first run: its first step reads the series at y0 (chunks.FirstStep)
             first = FirstStep(ta.order)
-            res = ta.propagate_until(call.t_end_native, call.budget, write_tc=True, callback=first)[:5] + (None,) \
-                if grid is None else ta.propagate_grid(grid, call.budget, callback=first)  # (not the callback)
+            if grid is None:  # (heyoka answers the callback last, where a plain run's answer has None)
+                res = ta.propagate_until(call.t_end_native, call.budget, write_tc=True, callback=first)[:5] + (None,)
+            else:
+                res = ta.propagate_grid(grid, call.budget, callback=first)
             res = first.settle(call, ta, res, bool(call.events))[0]
             if res is None:  # beyond the bound: the run starts again (on this integrator), its first step bounded
                 if len(free) < _MAX_FREE:
