@@ -17,7 +17,7 @@ from .poisson import as_poisson_system
 from .precision import check_tolerance, resolve_precision, to_fraction
 
 __all__ = ["build_integrator", "integrator_count", "event_function", "Recorder", "CrossingGuard", "Both",
-           "sparse_first_step"]
+           "sparse_first_step", "first_step_bound"]
 
 #: Compiled integrators (the templates runs copy, :func:`lieseries.cache.checkout`) by structure, precision,
 #: tolerance, events and options, in the shared cache (:mod:`lieseries.cache`); an evicted template takes its pooled
@@ -277,7 +277,8 @@ def sparse_first_step(ta, zero):
     Near such a point the two orders are not zero but small (from q = 1e-6 instead of 0 they give a radius twice
     the true one: a first step off by 6e-14 in double, 270 of its units, ended `success`).
     Here the series at the state ``ta`` holds is computed (a step of length ``zero``, which moves nothing and
-    fires no event, with its Taylor coefficients written). When orders p - 1 and p vanish in every component while
+    fires no event, with its Taylor coefficients written; a run that takes its first step anyway reads them from
+    that step: :func:`first_step_bound`). When orders p - 1 and p vanish in every component while
     a lower order (>= 1) does not, rho is taken from each component's last two nonzero orders by heyoka's own
     formula; when heyoka's rho exceeds :data:`ENVELOPE_RATIO` times the smallest one the orders p - K .. p give
     (K = max(4, p // 5): the gaps of period up to K + 1), the bound is heyoka's step at that smaller rho. A series
@@ -290,9 +291,9 @@ def sparse_first_step(ta, zero):
     tc = ta.tc
     p = ta.order
     if tc.ndim == 3:  # a batch: (variables, orders, lanes)
-        bounds = [_first_bound(tc[:, :, j], p) for j in range(tc.shape[2])]
+        bounds = [first_step_bound(tc[:, :, j], p) for j in range(tc.shape[2])]
         return None if all(b is None for b in bounds) else bounds
-    return _first_bound(tc, p)
+    return first_step_bound(tc, p)
 
 
 #: heyoka's radius (from its last two orders) against the smallest from its last K + 1 orders beyond which the
@@ -300,8 +301,9 @@ def sparse_first_step(ta, zero):
 ENVELOPE_RATIO = 1.25
 
 
-def _first_bound(tc, p):
-    """:func:`sparse_first_step` for the Taylor coefficients ``tc`` (variables x orders 0..p) of one state."""
+def first_step_bound(tc, p):
+    """:func:`sparse_first_step` for the Taylor coefficients ``tc`` (variables x orders 0..p) of one state: what a
+    step taken from that state with ``write_tc=True`` leaves in ``ta.tc`` (``p``: ``ta.order``)."""
     logs0 = [_log_abs(v) for v in tc[:, 0]]
     log_scale = max([0.0] + [x for x in logs0 if x is not None])  # heyoka's: max(1, |x0|_inf)
     if not (tc[:, p - 1:] != 0).any():
@@ -322,7 +324,17 @@ def _first_bound(tc, p):
 
 
 def _log_abs(v):
-    """log |v| of a nonzero finite number in any of heyoka's formats (None for zero or non-finite)."""
+    """log |v| of a nonzero finite number in any of heyoka's formats (None for zero or non-finite): from its double
+    when that is a normal number well inside the range (rounded by 1e-16 at most: the log moves by as much), else
+    from its exact value (a coefficient beyond the double range, at high precision)."""
+    try:
+        d = abs(float(v))
+    except (TypeError, ValueError, OverflowError):
+        d = math.nan
+    if 1e-300 < d < 1e300:
+        return math.log(d)
+    if d == 0 and v == 0:
+        return None
     try:
         f = abs(to_fraction(v))
     except (TypeError, ValueError, OverflowError):

@@ -641,6 +641,47 @@ def test_heyoka_bounds_a_first_step_whose_last_two_orders_are_small(precision, t
             assert max(abs(_exact(a) - mp.mpf(b)) for a, b in zip(sol.y_reached, ref.y_reached)) < 3 * tol, q0
 
 
+@pytest.mark.parametrize("precision, tol", [("double", 1e-15), ("quad", 1e-32)])
+def test_a_first_step_taken_back_for_its_bound_leaves_no_trace(precision, tol):
+    """The bound on a first step is read from the run's own first step (its Taylor coefficients): from rest at
+    q = 0 heyoka's first step spans the whole run and is taken back, then taken again bounded. Nothing of the
+    step taken back stays: the crossing of p = 1/2 at t ~ 0.5 that it spans is recorded once, where the 40-digit
+    Lie run has it, a terminal event stops the run there, and a call's first run (which reads the series) gives
+    the bits of its repeated runs (the bound known). A first step within the bound (a span of 1e-3) is kept: the
+    run is that one step."""
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 - q + q**3)
+    half = 2 * p - 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PrecisionWarning)
+        lie = ls.lie_integrate(osc, [0, 0], t=1, dps=40, events=[ls.Event(half, name="half")])
+        stop = ls.lie_integrate(osc, [0, 0], t=1, dps=40, events=[ls.Event(half, terminal=True, name="half")])
+    (t_ref,) = lie.events["half"]["t"]
+    with mp.workdps(60):
+        def err(y, ref):
+            return max(abs(_exact(a) - _exact(b)) for a, b in zip(y, ref))
+
+        sol = ls.integrate(osc, [0, 0], t=1, precision=precision, events=[ls.Event(half, name="half")])
+        assert sol.status == "success" and err(sol.y_reached, lie.y_reached) < 3 * tol
+        assert len(sol.events["half"]["t"]) == 1 and abs(_exact(sol.events["half"]["t"][0]) - _exact(t_ref)) < 10 * tol
+        sol = ls.integrate(osc, [0, 0], t=1, precision=precision, events=[ls.Event(half, terminal=True, name="half")])
+        assert sol.status == "event" and abs(_exact(sol.t_reached) - _exact(t_ref)) < 10 * tol
+        assert err(sol.y_reached, stop.y_reached) < 10 * tol
+        y0 = np.zeros(2)  # a float64 array: the call is memoised, its repeated runs know the bound
+        for t in (1, [0.25, 0.5, 1], "1e-3"):
+            runs = [ls.integrate(osc, y0, t=t, precision=precision) for _ in range(3)]
+            assert all(r.status == "success" for r in runs)
+            for r in runs[1:]:
+                assert r.stats.steps == runs[0].stats.steps
+                assert np.array_equal(r.y, runs[0].y) and np.array_equal(r.y_reached, runs[0].y_reached)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", PrecisionWarning)
+                ref = ls.lie_integrate(osc, [0, 0], t=t, dps=40)
+            assert err(runs[0].y_reached, ref.y_reached) < 3 * tol
+            if t == "1e-3":
+                assert runs[0].stats.steps == 1
+
+
 @pytest.mark.parametrize("precision, tol", [("double", 1e-15), ("long double", 1e-18), ("quad", 1e-32)])
 def test_a_right_run_from_rest_where_h_and_its_terms_vanish_is_success(precision, tol):
     """H = p^2/2 - q + q^4/4 from rest at q = 0: H(y0) = 0 and so is the energy scale sum_i |dH/dy_i y_i| at y0,

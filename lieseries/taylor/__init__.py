@@ -23,7 +23,7 @@ from .. import cache
 from ..atlas import run_atlas
 from ..energy import clear_energy_cache
 from ..events import resolve_events
-from ..heyoka_build import build_integrator, integrator_count, sparse_first_step
+from ..heyoka_build import build_integrator, integrator_count
 from ..models.base import ExactState, Model, state_fractions
 from ..poisson import as_poisson_system
 from ..precision import (check_callable, check_count, check_flag, check_progress, check_seconds, check_tolerance,
@@ -157,27 +157,8 @@ def _new_call(system, ps, prec, y0, z0, t, t0, tol, events, dense, compact_mode,
         dtype=prec.numpy_dtype, first_chunk=FIRST_CHUNK.get(prec.name, FIRST_CHUNK_REAL),
     )
     call.repeat_chunk = repeat_chunk(prec, plan["build"][0], call.first_chunk)
-    if plan["direction"] != 0:
-        call.first_h = _first_step_bound(call)
     plain_setup(call)
     return call
-
-
-def _first_step_bound(call):
-    """A bound on the run's first step where heyoka's step rule cannot see the series at y0 (its last two orders
-    vanish, or are far below what the lower orders give: :func:`~lieseries.heyoka_build.sparse_first_step`), in
-    the run's format; None when it can."""
-    plan, prec = call.plan, call.prec
-    ta, free = cache.checkout(plan["build"][0])
-    try:
-        ta.time = plan["t0_native"]
-        ta.state[:] = call.y0_native
-        if call.pars_native is not None:
-            ta.pars[:] = call.pars_native
-        bound = sparse_first_step(ta, prec.time(0))
-    finally:
-        cache.release(ta, free)
-    return None if bound is None else prec.time(bound)
 
 
 integrate.__signature__ = inspect.signature(_integrate)  # help() and introspection see the options

@@ -18,12 +18,16 @@ class Call:
     __slots__ = ("system", "y0", "ps", "prec", "plan", "user_events", "y0_native", "pars_native", "max_steps",
                  "stiff_steps", "max_time", "min_step", "dense", "energy", "dtype", "first_chunk", "plain", "t_out",
                  "t_requested", "t0_native", "t_end_native", "budget", "free", "repeat_chunk", "grid", "sqrt_tol",
-                 "reached", "t_exact", "views", "quick", "report", "events", "head", "passed", "first_h")
+                 "reached", "t_exact", "views", "quick", "report", "events", "head", "passed", "first_h",
+                 "first_known")
 
     def __init__(self, **kw):
         self.energy = None  # (compiled H, parameters, H(y0)) once a run needs the energy check
         self.plain = False
-        self.first_h = None  # a bound on the first step, in the run's format (heyoka_build.sparse_first_step)
+        # a bound on the first step, in the run's format (heyoka_build.sparse_first_step), known once a run has read
+        # the series at y0 from its first step (taylor.chunks)
+        self.first_h = None
+        self.first_known = False
         self.quick = None  # the plain path's energy check (quick_energy), made on its first run
         self.passed = None  # (end state's bytes, steps) of its last double run that passed the energy check
         self.report = None  # (build time, cached) its next run reports, once known (next_report)

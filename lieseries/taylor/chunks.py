@@ -24,7 +24,10 @@ table: how many steps finishing would take):
   ``step_collapse`` (heyoka's cooldown is 0 where the expression's rate vanishes too);
 - a first step heyoka's rule cannot size (the last two orders of the series at y0 vanish in every component, or
   give a radius well above the lower orders': :func:`lieseries.heyoka_build.sparse_first_step`) is the first
-  chunk, alone, bounded;
+  chunk, alone, bounded. The series is read from the run's own first step (its Taylor coefficients, the series at
+  y0, by a step callback of the first chunk), so it costs no step of its own: a step within the bound is kept
+  (the first chunk then goes on when there is no bound), one beyond it is taken back (time, state, cooldowns,
+  crossings, rows, output) and taken again bounded. The bound is kept on the call for its repeated runs;
 - ``invariant_drift``: after a run that reached its final time, the Hamiltonian (conserved by every Hamiltonian
   system) is evaluated at both ends; a change beyond min(sqrt(tol), 1000 tol per step) of its energy scale
   (:func:`lieseries.energy.drift_threshold`) means the result is wrong, whatever the error control believed --
@@ -43,7 +46,7 @@ import heyoka as hy
 import numpy as np
 
 from ..driver import Stop, StepResult, format_time, run_message
-from ..heyoka_build import Both
+from ..heyoka_build import Both, first_step_bound
 from ..precision import short_decimal, to_fraction
 from .dense import DenseOutput
 from .plan import CHUNK_SECONDS, STIFF_CHANGE
@@ -78,8 +81,10 @@ class Chunks:
         self.recorders, self.guard, self.dense = recorders, guard, call.dense
         self.max_steps, self.stiff_steps, self.min_step = call.max_steps, call.stiff_steps, call.min_step
         self.chunk = call.first_chunk
-        # a bound on the first step (heyoka_build.sparse_first_step): the first chunk is that one step
+        # a bound on the first step (heyoka_build.sparse_first_step): the first chunk is that one step. Not yet
+        # known (the call's first run): read from the first step (_read_first), and kept on the call
         self.first_h = call.first_h
+        self.call = None if call.first_known else call
         # (heyoka's answer, seconds) of a first chunk already run from t0; with the time and state it reached
         # when the integrator has gone back to the pool
         self.first = first
@@ -150,7 +155,14 @@ class Chunks:
             self.chunk_start = self.t0
         else:
             tic = _time.perf_counter()
-            res = self._propagate(t_end, budget, None, cap)
+            if self.call is None:
+                res = self._propagate(t_end, budget, None, cap)
+            else:  # the first step reads the series at y0, and is taken back when it goes beyond the bound
+                res, cap = self._read_first(t_end, budget, marks)
+                if cap is not None:
+                    budget = 1
+                    tic = _time.perf_counter()
+                    res = self._propagate(t_end, budget, None, cap)
             elapsed = _time.perf_counter() - tic
             reached = ()
         if res[0] == _OUTCOME.err_nf_state:
@@ -175,6 +187,27 @@ class Chunks:
             per_step = elapsed / max(int(res[3]), 1)
             self.chunk = int(min(4 * self.chunk, max(16, CHUNK_SECONDS / max(per_step, 1e-9)), 1 << 20))
         return res[0]
+
+    def _read_first(self, t_end, budget, marks):
+        """The run's first chunk when the bound on its first step is not known (the call's first run): the
+        series at y0 is read from the first step (:class:`FirstStep`). Returns heyoka's answer and None, or (None,
+        the bound) when the first step went beyond the bound and has been taken back (time, state, cooldowns, the
+        crossings recorded and the guard's marks; its rows and output are dropped with the answer, its step not
+        counted): the first chunk is then that one step, bounded, as on the call's later runs."""
+        ta, call = self.ta, self.call
+        first = FirstStep(ta.order)
+        res = self._propagate(t_end, budget, first, None, write_tc=True)
+        self.call = None
+        res, cap = first.settle(call, ta, res, bool(self.event_info))
+        if res is None:
+            ta.time, ta.state[:] = self.t_at, self.z_at
+            if self.event_info or self.recorders:  # (the integrator has events)
+                ta.reset_cooldowns()
+            for rec, mark in zip(self.recorders, marks):
+                del rec.sink[mark:]
+            if self.guard is not None:
+                self.guard.start(ta)
+        return res, cap
 
     def _probe(self, t_end):
         """Take one step as part of the run; record its size and the relative change it made."""
@@ -294,7 +327,7 @@ class Chunks:
             return True
         return False
 
-    def _propagate(self, t_end, budget, callback, cap=None):
+    def _propagate(self, t_end, budget, callback, cap=None, write_tc=False):
         """A chunk of at most ``budget`` steps towards ``t_end``, each at most ``cap`` long when given."""
         ta = self.ta
         limit = {} if cap is None else {"max_delta_t": cap}
@@ -311,7 +344,8 @@ class Chunks:
             res = ta.propagate_until(t_end, max_steps=budget, write_tc=True,
                                      callback=rows if callback is None else Both(rows, callback), **limit)
             return (res[0], res[1], res[2], res[3], None, rows.rows)
-        return ta.propagate_until(t_end, max_steps=budget, c_output=self.dense, callback=callback, **limit)
+        return ta.propagate_until(t_end, max_steps=budget, c_output=self.dense, callback=callback, write_tc=write_tc,
+                                  **limit)
 
     def _account(self, res, t_end):
         """The steps, step sizes and output rows of a chunk from ``self.chunk_start`` to ``t_end``."""
@@ -356,6 +390,53 @@ class _GridRows:
                 k += 1
             self.next = k
         return True
+
+
+class FirstStep:
+    """Step callback of a run's first chunk while the bound on the call's first step is not known (its first run):
+    after the first step, the bound from that step's Taylor coefficients (``ta.tc``, the series at y0:
+    :func:`lieseries.heyoka_build.first_step_bound`); the chunk goes on only when there is none. The chunk must
+    write the coefficients (``write_tc=True``; propagate_grid does)."""
+
+    def __init__(self, order):
+        self.order = order
+        self.read = False
+        self.bound = None
+
+    def __call__(self, ta) -> bool:
+        if self.read:
+            return True
+        self.read = True
+        self.bound = first_step_bound(ta.tc, self.order)
+        return self.bound is None
+
+    def settle(self, call, ta, res, terminal: bool):
+        """After the chunk (heyoka's answer ``res``): the bound, in the run's format, kept on the call (which is
+        then not plain: its runs take the bounded step). Returns (``res``, None) when the chunk stands: no bound,
+        or the first step within it (``res`` then reads as that one step's: heyoka stopped the chunk after it);
+        (None, the bound) when the step must be taken back and taken again bounded. ``terminal``: the run has
+        terminal events (a step one of them cut short is taken back: the bounded step's event search runs on
+        another interval)."""
+        if self.read:
+            bound = self.bound
+        elif res[0] == _OUTCOME.err_nf_state and not res[3]:
+            # the first step's state is not finite (heyoka skips the callback then): its coefficients are the
+            # series at y0 all the same, and a bounded step may be finite
+            bound = first_step_bound(ta.tc, self.order)
+        else:  # pragma: no cover - heyoka calls the callback after every step it takes
+            raise RuntimeError("the first step of a heyoka run did not report its Taylor coefficients")
+        cap = None if bound is None else call.prec.time(bound)
+        call.first_h, call.first_known = cap, True
+        if cap is None:
+            return res, None
+        call.plain = False
+        # kept when within the bound: the very step a bounded one is (heyoka clamps only a longer one)
+        h = ta.last_h
+        if res[0] == _OUTCOME.cb_stop and abs(h) < cap and not terminal:
+            t0, t_end = call.plan["t0_native"], call.plan["grid_native"][-1]
+            outcome = _OUTCOME.time_limit if h == t_end - t0 else _OUTCOME.step_limit
+            return (outcome,) + tuple(res[1:]), None
+        return None, cap
 
 
 class _Keeper:

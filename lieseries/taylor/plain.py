@@ -9,7 +9,9 @@ sound energy, returns a :class:`~lieseries.solution.Solution` whose rows and sta
 anything else continues on the general path (:func:`lieseries.taylor.general.execute_general`) from where the
 chunk ended, with the same steps, states and statuses. A double run first asks a plain Python function of floats
 (cheaper than a compiled-function call) whether its energy is sound; only when it is not sure does the compiled
-check decide.
+check decide. A call's first run also reads the series at y0 from its first step
+(:class:`~lieseries.taylor.chunks.FirstStep`): when that step needs a bound the call is no longer plain, and a
+step beyond the bound starts the run again on the general path, its first step bounded.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from .. import cache
 from ..energy import energy_function, energy_verdict, quick_check
 from ..solution import Solution, Stats
 from .call import next_report, succeeded
-from .chunks import step_range
+from .chunks import FirstStep, step_range
 from .general import execute_general
 from .plan import time_array
 
@@ -33,7 +35,8 @@ _OUTCOME = hy.taylor_outcome
 
 def plain_setup(call) -> None:
     """Whether a new call is plain (no events of the user's, no dense output, no min_step, no bound on its first
-    step; output times only in double), and what its short path (:func:`execute_plain`) needs."""
+    step -- not known before its first run has read the series at y0, which then makes it not plain when there is
+    one; output times only in double), and what its short path (:func:`execute_plain`) needs."""
     plan, prec = call.plan, call.prec
     grid = plan["grid"]
     one_time = len(grid) == 2 and plan["grid_native"][0] == plan["t0_native"]
@@ -104,9 +107,22 @@ def execute_plain(call):
             ta.reset_cooldowns()
         grid = call.grid
         tic = _perf_counter()
-        # max_steps passed by position (as a keyword: 1.5 us more)
-        res = ta.propagate_until(call.t_end_native, call.budget) if grid is None else \
-            ta.propagate_grid(grid, call.budget)
+        if call.first_known:
+            # max_steps passed by position (as a keyword: 1.5 us more)
+            res = ta.propagate_until(call.t_end_native, call.budget) if grid is None else \
+                ta.propagate_grid(grid, call.budget)
+        else:  # the call's first run: its first step reads the series at y0 (chunks.FirstStep)
+            first = FirstStep(ta.order)
+            if grid is None:  # (heyoka answers the callback last, where a plain run's answer has None)
+                res = ta.propagate_until(call.t_end_native, call.budget, write_tc=True, callback=first)[:5] + (None,)
+            else:
+                res = ta.propagate_grid(grid, call.budget, callback=first)
+            res = first.settle(call, ta, res, bool(call.events))[0]
+            if res is None:  # beyond the bound: the run starts again (on this integrator), its first step bounded
+                if len(free) < _MAX_FREE:
+                    free.append(ta)
+                ta = None
+                return execute_general(call, None, None)
         run_time = _perf_counter() - tic
         t_end = ta.time
         if grid is not None:  # as Chunks._propagate answers: the rows last, the first standing for t0
@@ -116,7 +132,7 @@ def execute_plain(call):
         else:
             return execute_general(call, None, (ta, res, run_time, report))
     finally:
-        if len(free) < _MAX_FREE:  # as _release (inline: the plain path is the fast one)
+        if ta is not None and len(free) < _MAX_FREE:  # as _release (inline: the plain path is the fast one)
             free.append(ta)
     passed = call.passed
     if passed is None or passed[1] != res[3] or passed[0] != y_end.tobytes():
