@@ -187,16 +187,50 @@ def test_lie_integrate_from_zero_with_a_tiny_velocity(bigint, c):
         assert abs(mp.mpf(sol.y[-1][1]) - yb) <= 3 * mp.mpf(10) ** -30 * abs(yb)
 
 
-@pytest.mark.xfail(strict=True, reason="a node is rounded at one exponent for every order, F bits below its value: "
-                   "(p + x)^2 at x = 6e20 holds its orders k >= 1 (of size 2^65) to 2^3, and the sum that cancels its "
-                   "value keeps that error (8 digits of x's scale lost at 30 digits; the mpf jets at 30 digits keep "
-                   "them); NodeSizes sees no node above what it carried")
 def test_a_cancelling_square_of_a_state_of_size_1e20(bigint):
-    # x' = (p + x)^2 - p^2 - 2 p x - x^2 + p q + r sin x = p q + r sin x: at x = 6e20 the fixed-point x' lost 8 digits
+    # x' = (p + x)^2 - p^2 - 2 p x - x^2 + p q + r sin x = p q + r sin x: at x = 6e20, p + x rounded at x's unit
+    # dropped p and the squares were rounded 2^138 - F: x' = -7.2 instead of 8.8e-15 (64 of x's bits lost at 30
+    # digits); the expansion measures what its roundings cost the states and runs again at more working bits
     x = hy.make_vars("x")
     p, q, r = hy.par[0], hy.par[1], hy.par[2]
     rhs = (p + x) * (p + x) - p * p - 2.0 * p * x - x * x + p * q + r * hy.sin(x)
     check(compile_system([x], [rhs]), [6 * 10**20], ["6e-21", "1e-30", "1e-14"], 20, 30, -5, scale=6 * 10**20)
+
+
+@pytest.mark.parametrize("x0, guard", [(6 * 10**20, 0), (6 * 10**20, None), (10**60, None)])
+def test_lie_integrate_through_a_cancelling_square(bigint, x0, guard):
+    # the field above: at x = 6e20 lie_integrate ended `success` 7.2 off (guard 0; 1.3e-9 with the default guard, at
+    # a tolerance of 6e-10), at x = 1e60 `success` 1.2e40 off; the change of x over the span is 9e-15 (6e-15).
+    # At 1e60 the jets hold x' to 2^-F of x (1e9), which drives sin(x) with a frequency of 1e9: a run too long for
+    # its step budget (loud), right at 150 digits
+    x = hy.make_vars("x")
+    p, q, r = hy.par[0], hy.par[1], hy.par[2]
+    rhs = (p + x) * (p + x) - p * p - 2.0 * p * x - x * x + p * q + r * hy.sin(x)
+    sy = ls.PoissonSystem([x], [[0]], 0.0 * x, extra_field=[rhs], parameters=["6e-21", "1e-30", "1e-14"],
+                          jacobi=False)
+    kw = {} if guard is None else {"guard": guard}
+    sol = ls.lie_integrate(sy, [x0], 1, dps=30, max_steps=200, **kw)
+    ref = ls.lie_integrate(sy, [x0], 1, dps=150)
+    assert ref.status == "success"
+    assert sol.status == "success" or x0 > 10**30
+    if sol.status == "success":
+        with mp.workdps(200):
+            assert abs(mp.mpf(sol.y[-1][0]) - mp.mpf(ref.y[-1][0])) <= mp.mpf(10) ** -30 * x0
+
+
+def test_lie_integrate_a_state_whose_rate_cancels_terms_of_a_large_one(bigint):
+    # y ~ 1 with y' = (p + x)^2 - p^2 - 2 p x - x^2 + r cos y = r cos y beside x = 6e20: y ended `success` 1.3e-9 off
+    # at 30 digits (the squares rounded F bits below 3.6e41)
+    x, y = hy.make_vars("x", "y")
+    p, r = hy.par[0], hy.par[1]
+    sy = ls.PoissonSystem([x, y], [[0, 0], [0, 0]], 0.0 * x,
+                          extra_field=[r * y, (p + x) * (p + x) - p * p - 2.0 * p * x - x * x + r * hy.cos(y)],
+                          parameters=["6e-21", "1e-14"], jacobi=False)
+    sol = ls.lie_integrate(sy, [6 * 10**20, 1], 1, dps=30)
+    ref = ls.lie_integrate(sy, [6 * 10**20, 1], 1, dps=80)
+    assert sol.status == "success" and ref.status == "success"
+    with mp.workdps(100):
+        assert abs(mp.mpf(sol.y[-1][1]) - mp.mpf(ref.y[-1][1])) <= mp.mpf(10) ** -30
 
 
 @pytest.mark.parametrize("p", ["1e20", "1e-20"])

@@ -9,6 +9,7 @@ the other steps.  Products sharing an operand are packed into one dot product up
 
 from __future__ import annotations
 
+import math
 import weakref
 from itertools import chain
 from operator import mul as _mul
@@ -485,6 +486,9 @@ class NodeSizes:
         self.other = (None, None)  # (s, the sizes at s) last computed by at()
         self.zero = []  # the state variables whose value was zero
         self.nodes = False  # whether any node was measured (not every one fused into the states' steps)
+        # for every state, the exponents of the error the roundings put into its jet and of its scale (None: nothing
+        # to judge; every node fused into the states' steps rounds only there): _rounding_error
+        self.errors = None
 
     def fill(self, run, nvars):
         J, U, F = run.J, run.U, run.F
@@ -533,6 +537,107 @@ class NodeSizes:
             if e is not None and self.scales[x] - e > bits and (old is None or old[x] is None or old[x] - e > bits):
                 return True
         return False
+
+
+def _rounding_error(instrs, to_state, cv, outputs, run, S):
+    """For every state, (a bound on the exponent of the error the expansion's own roundings put into its jet's
+    ``|c_k| sigma**k``, the exponent of its scale, or of what it carried where that is larger (``S``:
+    :attr:`NodeSizes.sizes`)); (None, None) where nothing can be judged.
+
+    The states' own values enter exact (their rounding to the working precision is the problem's conditioning, the
+    same for any arithmetic); every node adds half a unit of its exponent, and errors travel by first-order bounds
+    on the operations (a product's error ``E_a + S_b`` and ``E_b + S_a``, a quotient's divided by its denominator's
+    value, ...), never cancelling.  Where nothing cancels this is about ``-F`` (F the working bits): each node is
+    rounded F bits below what it carries.  Where terms of a sum cancel far below their size -- ``(p + x)^2 - x^2 - 2
+    p x`` at x = 6e20 -- the nodes' roundings, F bits below the terms, can be far above what the states'
+    derivatives need, and the result is as far off."""
+    J, U = run.J, run.U
+    bl = bit_length_function()
+    NEG, INF = -math.inf, math.inf
+    S = [NEG if v is None else v for v in S]  # (a zero jet: nothing)
+    E = [NEG] * len(J)  # the error bound's exponent (-inf: exact)
+
+    def value(x):  # the exponent of |c_0| (divisors: the recurrences divide by it)
+        return U[x] + bl(J[x][0])
+
+    def cexp(c):  # the exponent of a raw constant
+        return c[2] + c[3]
+
+    out_err = {}
+    for kind, out, args, extra in instrs:
+        if kind == "sop" or kind == "lin":
+            e, x0 = NEG, INF
+            if kind == "sop":
+                for a, b, c, _, _ in args[0]:
+                    ce = 0 if c is None else (c[2] + c[3] if c[1] else None)
+                    if ce is not None:
+                        ea, eb = E[a] + S[b], E[b] + S[a]
+                        t = (ea if ea > eb else eb) + ce
+                        if t > e:
+                            e = t
+                        t = U[a] + U[b] + ce
+                        if t < x0:
+                            x0 = t
+                for a, c, _ in args[1]:
+                    ce = 0 if c is None else (c[2] + c[3] if c[1] else None)
+                    if ce is not None:
+                        if E[a] + ce > e:
+                            e = E[a] + ce
+                        if U[a] + ce < x0:
+                            x0 = U[a] + ce
+            else:
+                for a, _ in args:
+                    e, x0 = max(e, E[a]), min(x0, U[a])
+            if extra is not None and extra[1] and x0 < INF:  # the offset, rounded at the finest term's exponent
+                e = max(e, x0 - 1)
+            if out in to_state:
+                out_err[to_state[out]] = e
+            else:
+                E[out] = max(e, U[out] - 1)
+        elif kind == "dots":
+            continue
+        elif kind == "scale":
+            c = cv[extra]
+            E[out] = E[args[0]] + cexp(c) if c[1] else NEG
+        elif kind == "mul" or kind == "sqr":
+            a = args[0]
+            b = args[1] if kind == "mul" else a
+            E[out] = max(E[a] + S[b], E[b] + S[a], U[out] - 1)
+        elif kind == "div" or kind == "rdiv":
+            b = args[-1]
+            d = value(b)
+            ea = E[args[0]] - d if kind == "div" else NEG
+            E[out] = max(ea, E[b] + S[out] - d, U[out] - 1)
+        elif kind in ("pow", "sqrt", "exp", "log"):
+            # |d out / d a|: |r| |out| / |a|, |out| / (2 |a|), |out|, 1 / |a|
+            a = args[0]
+            if kind == "pow":
+                c = cv[extra[0]]
+                g = (cexp(c) if c[1] else NEG) + S[out] - value(a)
+            elif kind == "sqrt":
+                g = S[out] - value(a)
+            else:
+                g = S[out] if kind == "exp" else -value(a)
+            E[out] = max(E[a] + g + 1, U[out] - 1)
+        elif kind == "tan" or kind == "tanh":  # t' = u a', u = 1 +- t^2
+            t, u = out
+            E[t] = max(E[args[0]] + S[u] + 1, U[t] - 1)
+            E[u] = max(E[t] + S[t] + 2, U[u] - 1)
+        elif kind == "atan":  # u t' = a', u = 1 + a^2
+            t, u = out
+            a = args[0]
+            E[u] = max(E[a] + S[a] + 2, U[u] - 1)
+            E[t] = max(E[a] - value(u) + 1, U[t] - 1)
+        else:  # sincos, sinhcosh: |d/da| of each at most the size of the other
+            g = E[args[0]] + max(S[o] for o in out) + 1
+            for o in out:
+                E[o] = max(g, U[o] - 1)
+    s, F = run.s, run.F
+    out = []
+    for i, o in enumerate(outputs):
+        e = out_err[i] if i in out_err else E[o]
+        out.append((None, None) if e == NEG else (e + s, max(S[i], U[i] + F)))
+    return out
 
 
 def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked, sizes=None, measured=None):
@@ -630,4 +735,6 @@ def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked, sizes=No
             return None
     if measured is not None:
         measured.fill(run, nvars)
+        if measured.sizes is not None:
+            measured.errors = _rounding_error(instrs, to_state, cv, plan.outputs, run, measured.sizes)
     return [J[i] for i in range(nvars)], [U[i] for i in range(nvars)]
