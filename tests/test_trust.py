@@ -699,3 +699,30 @@ def test_a_right_run_from_rest_where_h_and_its_terms_vanish_is_success(precision
         assert list(es.status) == ["success", "success"], es.message
         for y in (sol.y_reached, es.y_reached[0]):
             assert max(abs(_exact(a) - b) for a, b in zip(y, ref)) < tol
+
+
+def test_heyoka_above_64_bits_warns_of_a_field_that_cancels_at_y0():
+    # y' = (p + x)^2 - p^2 - 2 p x - x^2 + r cos y = r cos y beside x = 6e20: heyoka at 226 bits ended `success` with
+    # y 6.5e-27 off (the squares rounded at 2^(138 - 226)), its error estimate blind to it; the warning says so
+    x, y = hy.make_vars("x", "y")
+    p, r = hy.par[0], hy.par[1]
+    sy = ls.PoissonSystem([x, y], [[0, 0], [0, 0]], 0.0 * x,
+                          extra_field=[r * y, (p + x) * (p + x) - p * p - 2.0 * p * x - x * x + r * hy.cos(y)],
+                          parameters=["6e-21", "1e-14"], jacobi=False)
+    with pytest.warns(PrecisionWarning, match=r"cancels at `y0`: rounded to 226 bits.*138 of the 226 bits"):
+        sol = ls.integrate(sy, [6 * 10**20, 1], 1, precision=226)
+    ref = ls.lie_integrate(sy, [6 * 10**20, 1], 1, dps=80)
+    with mp.workdps(100):
+        f = to_fraction(sol.y[-1][1])
+        assert abs(mp.mpf(f.numerator) / f.denominator - mp.mpf(ref.y[-1][1])) > mp.mpf(10) ** -40  # as it says
+    # a heavy top and a sphere's chart form (no sum cancels beyond the bound's slack: 1 and 3 bits) do not warn
+    from lieseries.lie.fixed import cancelling_bits
+    from lieseries.poisson import as_poisson_system
+    from lieseries.taylor.plan import CANCELLING_BITS
+
+    top = ls.HeavyTop((2, 2, 1), com=(0, 0, "0.5"), g="9.81")
+    sphere = ls.Sphere()
+    for model, y0 in [(top, top.initial_state(omega=(1, "0.5", 5))),
+                      (sphere, sphere.initial_state(("0.6", "0", "0.8"), ("0", "1", "0")))]:
+        ps = as_poisson_system(model)
+        assert cancelling_bits(ps.program, list(y0), list(ps.parameter_values), 113) <= CANCELLING_BITS

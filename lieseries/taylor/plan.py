@@ -13,6 +13,7 @@ inertia share one compiled integrator; only the parameter values are set per run
 from __future__ import annotations
 
 import math
+import warnings
 from fractions import Fraction
 
 import heyoka as hy
@@ -21,8 +22,10 @@ import numpy as np
 from .. import cache
 from ..driver import run_message
 from ..energy import guard_tolerance
+from ..caller import stacklevel
 from ..heyoka_build import build_integrator
 from ..precision import (
+    PrecisionWarning,
     Precision,
     check_tolerance,
     data_bits,
@@ -109,6 +112,32 @@ def warn_coarse_inputs(ps, y0, times, work_bits: int) -> bool:
     for bits, name in coarse:
         warn_if_coarse(bits, work_bits, name)
     return bool(coarse)
+
+
+#: Bits a state's rate may lose to the vector field's own roundings at y0 (the bound of
+#: :func:`lieseries.lie.fixed.cancelling_bits`, up to ~14 bits above what is lost) before a run above 64 bits warns
+CANCELLING_BITS = 32
+
+
+def warn_cancelling_field(ps, z0, work_bits: int) -> bool:
+    """A :class:`~lieseries.precision.PrecisionWarning` when, rounded to ``work_bits`` as heyoka rounds, the vector
+    field's expression cancels at the exact state ``z0`` far below its terms (:data:`CANCELLING_BITS`); True when
+    there was one. Runs above 64 bits only (the check compiles the field for the Lie engine once per system, ~0.7 s
+    for a heavy top's intermediate form, against seconds for heyoka's own compilation at those precisions)."""
+    if work_bits <= 64:
+        return False
+    from ..lie.fixed import cancelling_bits
+
+    lost = cancelling_bits(ps.program, list(z0), list(ps.parameter_values), work_bits)
+    if lost <= CANCELLING_BITS:
+        return False
+    warnings.warn(PrecisionWarning(
+        f"the vector field's expression cancels at `y0`: rounded to {work_bits} bits, as heyoka computes it, its "
+        f"terms may leave a state's rate off by up to 2^{lost - work_bits} of the state per unit time (a bound; "
+        f"{lost} of the {work_bits} bits) -- heyoka's arithmetic cannot hold more, and the run's error estimate does "
+        "not see it. `lie_integrate` evaluates such a field at the bits it needs; or write the expression without "
+        "the terms that cancel."), stacklevel=stacklevel())
+    return True
 
 
 def time_array(natives, prec: Precision) -> np.ndarray:
