@@ -432,44 +432,72 @@ def prove_step(prog, jprog, centre, terms, pars, consts, jconsts, step, spread, 
     is ``reach``; when reach(h) < delta, no solution can leave R during the step (at a first exit it would be at
     distance delta from p, more than the bound that holds up to then), so every solution from the set exists over
     the step and stays in R (docs/theory.md)."""
-    arb, arb_mat = flint.arb, flint.arb_mat
-    n = len(centre.polys)
-    span = step / 2 + arb(0, abs(step) / 2)  # the ball [0, h] (or [h, 0]) for every h in the ball ``step``
-    Lg = centre.order + len(terms[1][0])  # the order of the Lagrange term
+    span = step / 2 + flint.arb(0, abs(step) / 2)  # the ball [0, h] (or [h, 0]) for every h in the ball ``step``
     try:
         with working_precision(64):
-            P = centre.at(span)  # the range of p over the step
-            delta = [((abs(p.mid()) + p.rad() + 1) * BOX_MARGIN + BOX_SPREAD * e).upper() for p, e in zip(P, spread)]
-            R = [arb(p.mid(), (p.rad() + d).upper()) for p, d in zip(P, delta)]
-            # the field and its Jacobian finite on R: f is smooth there (no pole, no root or logarithm at its branch)
-            if not all((v if isinstance(v, arb) else arb(v)).is_finite() for v in evaluate(prog, R, pars, consts, arb(1))):
+            box = _a_priori_box(prog, jprog, centre, pars, consts, jconsts, span, spread, flint)
+            if box is None:
                 return None
-            vals = evaluate(jprog, R, pars, jconsts, arb(1))
-            L = arb_mat([[abs(v if isinstance(v, arb) else arb(v)).upper() for v in vals[i * n:(i + 1) * n]]
-                         for i in range(n)])
-            if not all(x.is_finite() for x in (L * arb_mat([[1]] * n)).entries()):  # row sums of upper bounds
-                return None
-            top = (None if majorant is None
-                   else lagrange_majorant(prog, [[mi] for mi in centre.mids], *majorant, Lg, flint))
-            if top is None:  # coefficient Lg in sigma, over the step in sigma
-                top = [row[-1] for row in field_series(prog, centre.rows, pars, consts, Lg + 1, flint,
-                                                        base=centre.sigma(span))]
-            else:  # coefficient Lg in tau, times 2^(s Lg): in sigma
-                up = arb(2) ** (centre.s * Lg)
-                top = [(t * up).upper() for t in top]
+            delta, R, L = box
+            Lg = centre.order + len(terms[1][0])  # the order of the Lagrange term
+            top = _lagrange_term(prog, centre, pars, consts, span, Lg, majorant, flint)
     except (ZeroDivisionError, ValueError):
         return None
     if not all(t.is_finite() for t in top):
         return None
-
-    back = arb(2) ** centre.s  # the bound in sigma, in tau
     with working_precision(64):
         defect = defect_polynomials(terms, top, centre.order, flint)
+    tail, reach = _remainder_bounds(centre, defect, L, spread, flint)
+    # at the ball h itself (so at every |t| <= |h|, not at a rounded midpoint when h is not binary); the same key
+    # as the bound at h that the run reads next, and the Jacobian's reach(h)
+    if not all(r < d for r, d in zip(reach(step), delta)):
+        return None
+    return tail, R, reach, L
 
+
+def _a_priori_box(prog, jprog, centre, pars, consts, jconsts, span, spread, flint):
+    """(delta, R, L) of :func:`prove_step`: the margins delta, the box R around p's range over the step (the ball
+    ``span``) widened by them, and the entrywise upper bounds L of |Df(R)|; None when the field or its Jacobian is
+    not finite on R."""
+    arb, arb_mat = flint.arb, flint.arb_mat
+    n = len(centre.polys)
+    P = centre.at(span)  # the range of p over the step
+    delta = [((abs(p.mid()) + p.rad() + 1) * BOX_MARGIN + BOX_SPREAD * e).upper() for p, e in zip(P, spread)]
+    R = [arb(p.mid(), (p.rad() + d).upper()) for p, d in zip(P, delta)]
+    # the field and its Jacobian finite on R: f is smooth there (no pole, no root or logarithm at its branch)
+    if not all((v if isinstance(v, arb) else arb(v)).is_finite() for v in evaluate(prog, R, pars, consts, arb(1))):
+        return None
+    vals = evaluate(jprog, R, pars, jconsts, arb(1))
+    L = arb_mat([[abs(v if isinstance(v, arb) else arb(v)).upper() for v in vals[i * n:(i + 1) * n]]
+                 for i in range(n)])
+    if not all(x.is_finite() for x in (L * arb_mat([[1]] * n)).entries()):  # row sums of upper bounds
+        return None
+    return delta, R, L
+
+
+def _lagrange_term(prog, centre, pars, consts, span, Lg, majorant, flint):
+    """Per component, the defect's coefficient ``Lg`` (the Lagrange term) over the step, in the centre's scaled
+    time: from the majorant series when ``majorant`` is given and the field is a polynomial
+    (:func:`lagrange_majorant`), else on ball series over the step (:func:`field_series`)."""
+    top = (None if majorant is None
+           else lagrange_majorant(prog, [[mi] for mi in centre.mids], *majorant, Lg, flint))
+    if top is None:  # coefficient Lg in sigma, over the step in sigma
+        return [row[-1] for row in field_series(prog, centre.rows, pars, consts, Lg + 1, flint,
+                                                base=centre.sigma(span))]
+    up = flint.arb(2) ** (centre.s * Lg)  # coefficient Lg in tau, times 2^(s Lg): in sigma
+    return [(t * up).upper() for t in top]
+
+
+def _remainder_bounds(centre, defect, L, spread, flint):
+    """(``tail``, ``reach``) of :func:`prove_step` from the defect's polynomials (:func:`defect_polynomials`):
+    exp(|tau| L) G(|tau|), and exp(|tau| L) (G(|tau|) + ``spread``), per component (upper bounds), each computed
+    once per time."""
+    arb_mat = flint.arb_mat
+    n = len(centre.polys)
+    back = flint.arb(2) ** centre.s  # the bound in sigma, in tau
     known = {}
 
     def bound(tau, with_spread):
-        """exp(|tau| L) (G(|tau|) + the spread, or not), per component (upper bounds), once per time and kind."""
         at = tuple(int(v) for v in abs(tau).upper().mid().man_exp())
         if (at, with_spread) not in known:
             with working_precision(64):
@@ -489,11 +517,7 @@ def prove_step(prog, jprog, centre, terms, pars, consts, jconsts, step, spread, 
     def reach(tau):
         return bound(tau, True)
 
-    # at the ball h itself (so at every |t| <= |h|, not at a rounded midpoint when h is not binary); the same key
-    # as the bound at h that the run reads next, and the Jacobian's reach(h)
-    if not all(r < d for r, d in zip(reach(step), delta)):
-        return None
-    return tail, R, reach, L
+    return tail, reach
 
 
 def exp_times(M, g, flint):
