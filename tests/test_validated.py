@@ -742,3 +742,24 @@ def test_validated_runs_in_threads_beside_another_python_flint_user_give_what_th
                    for row, row_alone in zip(sol.y, sol_alone.y) for a, b in zip(row, row_alone))
         assert readings == [readings_alone[0]] * len(readings) == readings_alone
         assert min(readings[0][0]) > dps - 5
+
+
+@pytest.mark.parametrize("error", [KeyboardInterrupt, ValueError])
+def test_working_precision_restores_the_callers_precision_and_cap_and_frees_the_lock_on_an_error(error):
+    before = flint.ctx.prec, flint.ctx.cap
+    with pytest.raises(error):
+        with working_precision(99, cap=before[1] + 7):
+            with working_precision(300):  # nested: the cap stays
+                assert (flint.ctx.prec, flint.ctx.cap) == (300, before[1] + 7)
+                raise error()
+    assert (flint.ctx.prec, flint.ctx.cap) == before
+
+    def other_thread():
+        with working_precision(64) as fl:
+            got.append(fl.ctx.prec)
+
+    got = []
+    other = threading.Thread(target=other_thread, daemon=True)
+    other.start()
+    other.join(60)
+    assert got == [64]  # the lock was released
