@@ -4,15 +4,15 @@ Every containment is checked exactly: the reference (closed form at many more di
 rational and asked to lie in the ball. A reference moved by a little more than the ball's radius must not lie in it.
 """
 
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
 from fractions import Fraction
 
 import flint
 import heyoka as hy
 import mpmath as mp
 import pytest
-import threading
-import time
-from concurrent.futures import ThreadPoolExecutor
 
 import lieseries as ls
 from lieseries import exact
