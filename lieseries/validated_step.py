@@ -24,7 +24,8 @@ import mpmath
 import numpy as np
 
 from . import cache
-from .ball_series import Singular, check_ops, evaluate, exact_constant, taylor_coefficients, working_precision
+from .ball_series import (Singular, check_ops, evaluate, exact_constant, taylor_coefficients, whole_series,
+                          working_precision)
 from .precision import Precision
 
 __all__ = ["Centre", "centre_polynomial", "field_series", "defect_coefficients", "defect_terms",
@@ -128,7 +129,8 @@ def field_series(prog, polys, pars, consts, length, flint, base=None):
     f = evaluate(prog, series, pars, consts, arb_series([arb(1)], prec=length))
     out = []
     for fi in f:
-        got = list(fi.coeffs()) if isinstance(fi, arb_series) else [fi if isinstance(fi, arb) else arb(fi)]
+        got = (list(whole_series(fi, length).coeffs()) if isinstance(fi, arb_series)
+               else [fi if isinstance(fi, arb) else arb(fi)])
         out.append(got[:length] + [arb(0)] * (length - len(got)))
     return out
 
@@ -158,7 +160,8 @@ def defect_coefficients(prog, centre, pars, consts, flint, exact=None, fine=None
     N = centre.order
     L = N + DEFECT_EXTRA
     if flint.ctx.cap < L + 1:  # series beyond the cap are cut silently: the terms from N on would be lost
-        raise AssertionError("the series cap must exceed the defect's length")  # pragma: no cover - set by the run
+        raise AssertionError("the series cap must exceed the defect's length (set by the run, unless another "
+                             "thread lowered it without working_precision)")  # pragma: no cover
     if exact is not None and centre.exact is not None:
         fmpq, series = flint.fmpq, flint.fmpq_series
         F = evaluate(prog, [series(q, prec=L) for q in centre.exact], exact[0], exact[1], series([1], prec=L))
@@ -168,7 +171,7 @@ def defect_coefficients(prog, centre, pars, consts, flint, exact=None, fine=None
             for fi, q in zip(F, centre.exact):
                 if not isinstance(fi, series):  # a constant component of the field
                     fi = series([fi], prec=L)
-                g = fi - series(q.derivative(), prec=L) * down
+                g = whole_series(fi - series(q.derivative(), prec=L) * down, L)
                 num, den = g.numer().coeffs(), arb(g.denom())
                 # |g_k| < 2^height for k < N: a factor below 2 on the jets' rounding, far under the tolerance
                 low = flint.fmpz_poly(num[:N]).height_bits() if len(num) else 0
@@ -186,7 +189,7 @@ def defect_coefficients(prog, centre, pars, consts, flint, exact=None, fine=None
     for fi, row in zip(F, P):
         if not isinstance(fi, arb_series):  # a constant component of the field
             fi = arb_series([fi if isinstance(fi, arb) else arb(fi)], prec=L)
-        got = list((fi - arb_series(row, prec=L + 1).derivative() * down).coeffs())
+        got = list(whole_series(fi - arb_series(row, prec=L + 1).derivative() * down, L).coeffs())
         got = got[:L] + [arb(0)] * (L - len(got))
         with working_precision(64):
             low = [abs(x).upper() for x in got[:N]]

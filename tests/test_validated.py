@@ -763,3 +763,26 @@ def test_working_precision_restores_the_callers_precision_and_cap_and_frees_the_
     other.start()
     other.join(60)
     assert got == [64]  # the lock was released
+
+
+def test_a_series_cut_by_a_cap_lowered_meanwhile_raises_and_is_never_read_as_zeros(monkeypatch):
+    """python-flint cuts every series at its process-wide cap: code in another thread that lowers
+    ``flint.ctx.cap`` without ``working_precision`` while a step evaluates the field on series must make the run
+    fail loudly; the missing terms of the defect and of the Lagrange term must not read as zeros (a remainder bound
+    far too small, and enclosures that miss the solution)."""
+    from lieseries import validated_step
+
+    real = validated_step.evaluate
+
+    def evaluate_while_cut(prog, values, *args):
+        old = flint.ctx.cap
+        flint.ctx.cap = 3  # as another thread would, between two operations
+        try:
+            return real(prog, values, *args)
+        finally:
+            flint.ctx.cap = old
+
+    monkeypatch.setattr(validated_step, "evaluate", evaluate_while_cut)
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    with pytest.raises(RuntimeError, match=r"flint\.ctx\.cap"):
+        validated_integrate(body, body.initial_state(omega=RIGID_OMEGA), t=Fraction(1, 4), dps=30)
