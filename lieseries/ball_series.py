@@ -13,7 +13,7 @@ from fractions import Fraction
 
 from .lie.plan import DeadlineExceeded
 
-__all__ = ["SUPPORTED_OPS", "flint_module", "working_precision", "Singular", "ball_constant", "exact_constant",
+__all__ = ["SUPPORTED_OPS", "flint_module", "working_precision", "whole_series", "Singular", "ball_constant", "exact_constant",
            "evaluate",
            "check_ops", "taylor_coefficients"]
 
@@ -67,18 +67,41 @@ def _rebuild_arb(mid, rad):
 
 
 @contextmanager
-def working_precision(bits: int, cap: int = 10):
-    """python-flint's process-wide working precision (bits) and series length cap, set under a lock and restored
-    (series longer than ``ctx.cap`` are silently truncated: the cap must exceed the series order)."""
+def working_precision(bits: int, cap: int | None = None):
+    """python-flint's working precision (bits) and, when given, its series length cap, set for the block and
+    restored after it (on an exception or an interrupt too).
+
+    python-flint keeps both in ``flint.ctx``, one for the whole process (not per thread), and no ball operation
+    takes a precision of its own: every stretch of code that sets them and relies on them holds this lock (an
+    RLock: the stretches nest), so threads take turns. Code that sets ``flint.ctx`` in another thread without this
+    function is not covered. Series longer than the cap are cut (their O(x^n) says so): the cap must exceed the
+    orders in use."""
     flint = flint_module()
     with _LOCK:
         old = flint.ctx.prec, flint.ctx.cap
-        flint.ctx.prec = int(bits)
-        flint.ctx.cap = max(int(cap), old[1])
         try:
+            flint.ctx.prec = int(bits)
+            if cap is not None:
+                flint.ctx.cap = int(cap)
             yield flint
         finally:
-            flint.ctx.prec, flint.ctx.cap = old
+            try:
+                flint.ctx.prec = old[0]
+            finally:
+                flint.ctx.cap = old[1]
+
+
+def whole_series(series, length: int):
+    """``series``, checked to hold its first ``length`` terms. python-flint cuts every series operation's result
+    at the process-wide cap (its O(x^n) then says so): code in another thread that lowers ``flint.ctx.cap``
+    without :func:`working_precision` would cut a series mid-computation, and the terms missing would read as
+    zeros. Such a series raises RuntimeError (python-flint 0.8 and later; earlier ones do not tell)."""
+    held = getattr(series, "prec", None)
+    if held is not None and held < length:
+        raise RuntimeError(f"a ball series holds {held} terms where {length} were computed: python-flint's series "
+                           "cap (flint.ctx.cap, one for the whole process) was lowered meanwhile by code that does "
+                           "not set it through lieseries.validated.working_precision")
+    return series
 
 
 # -- evaluating a program on balls, complex boxes and ball series ------------------------------------------------
@@ -262,10 +285,9 @@ def taylor_coefficients(prog, z0, pars, consts, order, flint, *, bits=None, dead
 
     arb, arb_series = flint.arb, flint.arb_series
     if flint.ctx.cap < order + 2:
-        raise AssertionError("the series cap must exceed the order")  # pragma: no cover - set by the driver
-    saved = flint.ctx.prec
-    flint.ctx.prec = saved if bits is None else bits
-    try:
+        raise AssertionError("the series cap must exceed the order (set by the caller's working_precision, unless "
+                             "another thread lowered it without one)")  # pragma: no cover
+    with working_precision(flint.ctx.prec if bits is None else bits):
         start = [arb_series([c], prec=order + 1) for c in z0]  # a sum's length is its shorter term's
         z = [arb_series([c], prec=1) for c in z0]
         for m in range(1, order + 1):
@@ -276,8 +298,6 @@ def taylor_coefficients(prog, z0, pars, consts, order, flint, *, bits=None, dead
                  for s, fi in zip(start, f)]  # a constant component: a series of its own
         coeffs = []
         for c, zi in zip(z0, z):
-            got = list(zi.coeffs())
+            got = list(whole_series(zi, order + 1).coeffs())
             coeffs.append([c] + got[1:order + 1] + [arb(0)] * (order + 1 - max(len(got), 1)))
-    finally:
-        flint.ctx.prec = saved
     return coeffs

@@ -26,8 +26,9 @@ Nothing else is assumed: when no step down to the smallest is proved, or the wid
 the run stops with status ``validation_failed`` and keeps only what it has proved.
 ``sol.stats.extra["widths"]`` records the widest ball at every output time so the growth can be measured.
 
-python-flint's working precision (``flint.ctx.prec``) is process-wide: a validated run holds a lock for its whole
-duration and restores the precision afterwards, so runs from several threads are safe but run one at a time.
+python-flint's working precision and series cap (``flint.ctx``) are process-wide: a validated run sets them under
+a lock (:func:`~lieseries.ball_series.working_precision`) around each stretch of its ball arithmetic -- its set-up,
+each step, each output row -- and restores them after it, so runs from several threads take turns step by step.
 """
 
 from __future__ import annotations
@@ -55,7 +56,7 @@ from .precision import (
     to_fraction,
     warn_if_coarse,
 )
-from .ball_series import (SUPPORTED_OPS, Singular, ball_constant, check_ops, evaluate, flint_module,
+from .ball_series import (SUPPORTED_OPS, Singular, ball_constant, check_ops, evaluate,
                           taylor_coefficients, working_precision)
 from .driver import StepResult, Stop, drive
 from .formatting import fmt_sci
@@ -67,7 +68,7 @@ from .validated_step import (DEFECT_EXTRA, centre_polynomial, defect_coefficient
                              prove_step, step_estimate)
 
 __all__ = ["validated_integrate", "ball_taylor_coefficients", "centre_coefficients", "SUPPORTED_OPS", "midpoints",
-           "radii", "certified_digits"]
+           "radii", "certified_digits", "working_precision"]
 
 #: Guard bits above the requested digits (:data:`precision.VALIDATED_GUARD_BITS`).
 GUARD_BITS = VALIDATED_GUARD_BITS
@@ -87,6 +88,9 @@ RETRY_MARGIN = 0.97
 STEP_GROWTH = 1.02
 #: A step whose a priori enclosure (or Jacobian) is not proved is retried at this fraction of its length.
 UNPROVED_SHRINK = 0.5
+
+#: The precision (bits) at which radii and certified digits are read from the balls (python-flint's default).
+READING_BITS = 53
 
 #: A run that switches charts this many times stops (it would be cycling).
 MAX_SWITCHES = 10_000
@@ -313,7 +317,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     start = _time.perf_counter()
     deadline = None if max_time is None else start + max_time
 
-    with working_precision(bits, cap=N + DEFECT_EXTRA + 4) as flint:
+    with _run_precision(dps, N) as flint:
         arb = flint.arb
         z = _initial_balls(system, y0, ps.dimension, flint)
         width_cap = None if max_width is None else arb(flint.fmpq(*to_fraction(max_width, "max_width").as_integer_ratio()))
@@ -322,9 +326,11 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
         # the shortest step tried: 2^-40 of the run's time span (a time, whatever the size of the state)
         engine = _ValidatedEngine(system, current, z, N, dps, flint, width_cap, deadline,
                                   abs(to_fraction(grid[-1]) - to_fraction(t0f)) / 2**40, direction, atlas)
-        out = drive(engine, t0f, z, [(g, g) for g in grid], direction=direction, max_steps=max_steps,
-                    max_time=max_time, start=start, kept="Every row up to here is a proven enclosure.",
-                    atlas=atlas, max_switches=MAX_SWITCHES, reached="; every row is a proven enclosure")
+    # the engine holds the run's precision around each step and row: other threads take turns in between
+    out = drive(engine, t0f, z, [(g, g) for g in grid], direction=direction, max_steps=max_steps,
+                max_time=max_time, start=start, kept="Every row up to here is a proven enclosure.",
+                atlas=atlas, max_switches=MAX_SWITCHES, reached="; every row is a proven enclosure")
+    with _run_precision(dps, N):
         stats = _run_stats(out, engine, N, dps)
         y, y_reached = _ball_arrays(out.rows_y, out.z, engine.ps.dimension)
     tarr = np.array([float(v) for v in out.rows_t])
@@ -333,6 +339,12 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
                         t_requested=grid, y_reached=ChartRows(y_reached, engine.chart),
                         charts=np.array(out.rows_chart, dtype=int), chart_reached=engine.chart)
     return Solution(tarr, y, stats, out.status, out.message, t_reached=out.t, t_requested=grid, y_reached=y_reached)
+
+
+def _run_precision(dps: int, N: int):
+    """The ball precision (bits) and series cap of a run of ``dps`` digits and order ``N``, held (under the lock of
+    :func:`~lieseries.ball_series.working_precision`) around each stretch of the run's ball arithmetic."""
+    return working_precision(dps_to_bits(dps) + GUARD_BITS, cap=N + DEFECT_EXTRA + 4)
 
 
 def _check_atlas(system, atlas) -> bool:
@@ -426,11 +438,17 @@ class _ValidatedEngine:
         best = system.best_chart([_exact_mid(v) for v in z])
         if best == self.current.chart:
             return None
-        z = _switch_chart(system, self.current, best, z, self.flint)
-        self._enter(system.for_chart(best, edge=system.ATLAS_SWITCH), z)
+        with _run_precision(self.dps, self.N):
+            z = _switch_chart(system, self.current, best, z, self.flint)
+            self._enter(system.for_chart(best, edge=system.ATLAS_SWITCH), z)
         return z
 
     def step(self, tcur, z, t_end):
+        """One step at the run's precision (held for the step alone: other threads take turns between steps)."""
+        with _run_precision(self.dps, self.N):
+            return self._step(tcur, z, t_end)
+
+    def _step(self, tcur, z, t_end):
         flint = self.flint
         arb = flint.arb
         jprog, pars, jconsts = self.jprog, self.pars, self.jconsts
@@ -458,12 +476,15 @@ class _ValidatedEngine:
             return [phi[i] + spread[i, 0] for i in range(n)]
 
         def row(tk):
-            phi_k, _, ta = point(tk - tcur)
-            Jk = J if tk == tnew else flow_jacobian(jprog, C, reach, L, pars, jconsts, ta, flint, pieces)
-            if Jk is None:  # the field's Jacobian cannot be bounded over the shorter span: stop here
-                raise Stop("validation_failed", f"the flow's Jacobian up to the output time {float(tk):.17g} cannot "
-                           "be bounded (the field is singular or too steep near the enclosure)")
-            return whole(phi_k, Jk * A)
+            """The enclosure at the output time tk inside the step (the driver asks after the step: at the run's
+            precision again)."""
+            with _run_precision(self.dps, self.N):
+                phi_k, _, ta = point(tk - tcur)
+                Jk = J if tk == tnew else flow_jacobian(jprog, C, reach, L, pars, jconsts, ta, flint, pieces)
+                if Jk is None:  # the field's Jacobian cannot be bounded over the shorter span: stop here
+                    raise Stop("validation_failed", f"the flow's Jacobian up to the output time {float(tk):.17g} "
+                               "cannot be bounded (the field is singular or too steep near the enclosure)")
+                return whole(phi_k, Jk * A)
 
         phi, tail_h, _ = point(hs)
         JA = J * A
@@ -508,12 +529,8 @@ class _ValidatedEngine:
         first, evented, unproved = True, False, False
         terms = defect_terms(g, N, flint)
         # per component, an upper bound of |y - m| over the set (its box z around the centre m)
-        saved = flint.ctx.prec
-        flint.ctx.prec = 64
-        try:
+        with working_precision(64):
             spread = [abs(zi - mi).upper() for zi, mi in zip(z, self.m)]
-        finally:
-            flint.ctx.prec = saved
         proved = None
         event_hit = None
         h_event_start = h_f
@@ -579,13 +596,9 @@ class _ValidatedEngine:
         Q, _ = np.linalg.qr(np.array([float(x) for x in JA.mid().entries()]).reshape(n, n))
         self.A = flint.arb_mat(Q.tolist())
         spread = flint.arb_mat([[phi[i] - self.m[i]] for i in range(n)])
-        saved = flint.ctx.prec
-        flint.ctx.prec = 64  # r is far below the state's size: 64 bits of it are plenty (and stay rigorous)
-        try:
+        with working_precision(64):  # r is far below the state's size: 64 bits of it are plenty (and rigorous)
             Ainv = self.A.inv()
             self.r = (Ainv * JA) * r + Ainv * spread
-        finally:
-            flint.ctx.prec = saved
 
     def _width_stop(self, znew, scale):
         """The driver's stop when a ball of the new state is not finite or wider than ``max_width``, else None."""
@@ -635,24 +648,25 @@ def _float_up(x) -> float:
 
 def radii(sol) -> np.ndarray:
     """The radii of a validated solution's balls (float64 upper bounds, shaped like ``sol.y``)."""
-    return np.vectorize(lambda v: _float_up(v.rad()), otypes=[float])(sol.y)
+    with working_precision(READING_BITS):
+        return np.vectorize(lambda v: _float_up(v.rad()), otypes=[float])(sol.y)
 
 
 def certified_digits(sol) -> np.ndarray:
     """Per output time: -log10 of the widest ball's radius relative to max(1, |z|): the digits every component is
     certified to (computed from the balls, so beyond a float's range too; inf for a row of exact values)."""
-    flint = flint_module()
-    out = []
-    for row in np.atleast_2d(sol.y):
-        widest = functools.reduce(lambda a, b: b if b > a else a, [v.rad() for v in row])  # exact values
-        if widest.is_zero():
-            out.append(math.inf)
-            continue
-        scale = functools.reduce(lambda a, b: b if b > a else a, [abs(v.mid()) for v in row], flint.arb(1))
-        # a float below the ball of the digits (its midpoint, rounded to nearest, claimed a part in 10^16 more)
-        out.append(math.nextafter(float((-(flint.arb(widest) / scale).log() / flint.arb(10).log()).lower()),
-                                  -math.inf))
-    return np.array(out, dtype=float)
+    with working_precision(READING_BITS) as flint:
+        out = []
+        for row in np.atleast_2d(sol.y):
+            widest = functools.reduce(lambda a, b: b if b > a else a, [v.rad() for v in row])  # exact values
+            if widest.is_zero():
+                out.append(math.inf)
+                continue
+            scale = functools.reduce(lambda a, b: b if b > a else a, [abs(v.mid()) for v in row], flint.arb(1))
+            # a float below the ball of the digits (its midpoint, rounded to nearest, claimed a part in 10^16 more)
+            out.append(math.nextafter(float((-(flint.arb(widest) / scale).log() / flint.arb(10).log()).lower()),
+                                      -math.inf))
+        return np.array(out, dtype=float)
 
 
 def _tolerance(dps: int):

@@ -24,7 +24,8 @@ import mpmath
 import numpy as np
 
 from . import cache
-from .ball_series import Singular, check_ops, evaluate, exact_constant, taylor_coefficients
+from .ball_series import (Singular, check_ops, evaluate, exact_constant, taylor_coefficients, whole_series,
+                          working_precision)
 from .precision import Precision
 
 __all__ = ["Centre", "centre_polynomial", "field_series", "defect_coefficients", "defect_terms",
@@ -63,13 +64,8 @@ def centre_polynomial(stepper, prog, m, pars, consts, order, flint, span, deadli
         integers = fmpz_poly(ints)
         bits = max(bits, int(integers.height_bits()), man.bit_length())
         exact.append(fmpq_poly(integers) * _fmpq_two(u, fmpq) + fmpq(man) * _fmpq_two(exp, fmpq))
-    saved = flint.ctx.prec
-    # above every numerator (integers below 2^(bits) times powers of two): the balls are exact
-    flint.ctx.prec = bits + 64
-    try:
-        polys = [flint.arb_poly(q) for q in exact]
-    finally:
-        flint.ctx.prec = saved
+    with working_precision(bits + 64):  # above every numerator (integers below 2^(bits) times powers of two):
+        polys = [flint.arb_poly(q) for q in exact]  # the balls are exact
     return Centre(polys, m, jets.s, order, flint, exact), jets
 
 
@@ -111,13 +107,9 @@ class Centre:
     def unscaled(self):
         """The coefficients c_k of p in tau, exactly: ``out[i][k]``."""
         flint = self.flint
-        saved = flint.ctx.prec
-        flint.ctx.prec = max(64, max(c.mid().man_exp()[0].bit_length() for row in self.rows for c in row)
-                             + 64 + abs(self.s) * len(self.rows[0]))
-        try:
+        with working_precision(max(64, max(c.mid().man_exp()[0].bit_length() for row in self.rows for c in row)
+                                   + 64 + abs(self.s) * len(self.rows[0]))):
             return [[c * flint.arb(2) ** (-self.s * k) for k, c in enumerate(row)] for row in self.rows]
-        finally:
-            flint.ctx.prec = saved
 
 
 def field_series(prog, polys, pars, consts, length, flint, base=None):
@@ -137,7 +129,8 @@ def field_series(prog, polys, pars, consts, length, flint, base=None):
     f = evaluate(prog, series, pars, consts, arb_series([arb(1)], prec=length))
     out = []
     for fi in f:
-        got = list(fi.coeffs()) if isinstance(fi, arb_series) else [fi if isinstance(fi, arb) else arb(fi)]
+        got = (list(whole_series(fi, length).coeffs()) if isinstance(fi, arb_series)
+               else [fi if isinstance(fi, arb) else arb(fi)])
         out.append(got[:length] + [arb(0)] * (length - len(got)))
     return out
 
@@ -167,19 +160,18 @@ def defect_coefficients(prog, centre, pars, consts, flint, exact=None, fine=None
     N = centre.order
     L = N + DEFECT_EXTRA
     if flint.ctx.cap < L + 1:  # series beyond the cap are cut silently: the terms from N on would be lost
-        raise AssertionError("the series cap must exceed the defect's length")  # pragma: no cover - set by the run
-    saved = flint.ctx.prec
+        raise AssertionError("the series cap must exceed the defect's length (set by the run, unless another "
+                             "thread lowered it without working_precision)")  # pragma: no cover
     if exact is not None and centre.exact is not None:
         fmpq, series = flint.fmpq, flint.fmpq_series
         F = evaluate(prog, [series(q, prec=L) for q in centre.exact], exact[0], exact[1], series([1], prec=L))
         down = _fmpq_two(-centre.s, fmpq)
         lows, highs = [], []
-        flint.ctx.prec = 64
-        try:
+        with working_precision(64):
             for fi, q in zip(F, centre.exact):
                 if not isinstance(fi, series):  # a constant component of the field
                     fi = series([fi], prec=L)
-                g = fi - series(q.derivative(), prec=L) * down
+                g = whole_series(fi - series(q.derivative(), prec=L) * down, L)
                 num, den = g.numer().coeffs(), arb(g.denom())
                 # |g_k| < 2^height for k < N: a factor below 2 on the jets' rounding, far under the tolerance
                 low = flint.fmpz_poly(num[:N]).height_bits() if len(num) else 0
@@ -189,8 +181,6 @@ def defect_coefficients(prog, centre, pars, consts, flint, exact=None, fine=None
                     low += [arb(0)] * (N - len(low))
                 lows.append(low)
                 highs.append([arb(num[k]) / den if k < len(num) else arb(0) for k in range(N, L)])
-        finally:
-            flint.ctx.prec = saved
         return lows, highs
     arb_series = flint.arb_series
     P, down = centre.rows, centre.down
@@ -199,15 +189,12 @@ def defect_coefficients(prog, centre, pars, consts, flint, exact=None, fine=None
     for fi, row in zip(F, P):
         if not isinstance(fi, arb_series):  # a constant component of the field
             fi = arb_series([fi if isinstance(fi, arb) else arb(fi)], prec=L)
-        got = list((fi - arb_series(row, prec=L + 1).derivative() * down).coeffs())
+        got = list(whole_series(fi - arb_series(row, prec=L + 1).derivative() * down, L).coeffs())
         got = got[:L] + [arb(0)] * (L - len(got))
-        flint.ctx.prec = 64
-        try:
+        with working_precision(64):
             low = [abs(x).upper() for x in got[:N]]
             top = max([arb(0)] + low)
             lows.append(low if fine is not None and top > fine else top)
-        finally:
-            flint.ctx.prec = saved
         highs.append(got[N:])
     return lows, highs
 
@@ -216,12 +203,8 @@ def defect_terms(g, N, flint):
     """(low, high): per component, the bound of |g_k| below N and the upper bounds |g_k| / (k + 1) from N on that
     :func:`defect_polynomials` sums (at 64 bits: upper bounds), from :func:`defect_coefficients`."""
     lows, highs = g
-    saved = flint.ctx.prec
-    flint.ctx.prec = 64
-    try:
+    with working_precision(64):
         return lows, [[(abs(x) / (k + 1)).upper() for k, x in enumerate(gi, N)] for gi in highs]
-    finally:
-        flint.ctx.prec = saved
 
 
 def defect_polynomials(terms, top, N, flint):
@@ -452,56 +435,75 @@ def prove_step(prog, jprog, centre, terms, pars, consts, jconsts, step, spread, 
     is ``reach``; when reach(h) < delta, no solution can leave R during the step (at a first exit it would be at
     distance delta from p, more than the bound that holds up to then), so every solution from the set exists over
     the step and stays in R (docs/theory.md)."""
-    arb, arb_mat = flint.arb, flint.arb_mat
-    n = len(centre.polys)
-    span = step / 2 + arb(0, abs(step) / 2)  # the ball [0, h] (or [h, 0]) for every h in the ball ``step``
-    Lg = centre.order + len(terms[1][0])  # the order of the Lagrange term
-    saved = flint.ctx.prec
-    flint.ctx.prec = 64
+    span = step / 2 + flint.arb(0, abs(step) / 2)  # the ball [0, h] (or [h, 0]) for every h in the ball ``step``
     try:
-        P = centre.at(span)  # the range of p over the step
-        delta = [((abs(p.mid()) + p.rad() + 1) * BOX_MARGIN + BOX_SPREAD * e).upper() for p, e in zip(P, spread)]
-        R = [arb(p.mid(), (p.rad() + d).upper()) for p, d in zip(P, delta)]
-        # the field and its Jacobian finite on R: f is smooth there (no pole, no root or logarithm at its branch)
-        if not all((v if isinstance(v, arb) else arb(v)).is_finite() for v in evaluate(prog, R, pars, consts, arb(1))):
-            return None
-        vals = evaluate(jprog, R, pars, jconsts, arb(1))
-        L = arb_mat([[abs(v if isinstance(v, arb) else arb(v)).upper() for v in vals[i * n:(i + 1) * n]]
-                     for i in range(n)])
-        if not all(x.is_finite() for x in (L * arb_mat([[1]] * n)).entries()):  # row sums of upper bounds
-            return None
-        top = (None if majorant is None
-               else lagrange_majorant(prog, [[mi] for mi in centre.mids], *majorant, Lg, flint))
-        if top is None:  # coefficient Lg in sigma, over the step in sigma
-            top = [row[-1] for row in field_series(prog, centre.rows, pars, consts, Lg + 1, flint,
-                                                    base=centre.sigma(span))]
-        else:  # coefficient Lg in tau, times 2^(s Lg): in sigma
-            up = arb(2) ** (centre.s * Lg)
-            top = [(t * up).upper() for t in top]
+        with working_precision(64):
+            box = _a_priori_box(prog, jprog, centre, pars, consts, jconsts, span, spread, flint)
+            if box is None:
+                return None
+            delta, R, L = box
+            Lg = centre.order + len(terms[1][0])  # the order of the Lagrange term
+            top = _lagrange_term(prog, centre, pars, consts, span, Lg, majorant, flint)
     except (ZeroDivisionError, ValueError):
         return None
-    finally:
-        flint.ctx.prec = saved
     if not all(t.is_finite() for t in top):
         return None
-
-    back = arb(2) ** centre.s  # the bound in sigma, in tau
-    saved = flint.ctx.prec
-    flint.ctx.prec = 64
-    try:
+    with working_precision(64):
         defect = defect_polynomials(terms, top, centre.order, flint)
-    finally:
-        flint.ctx.prec = saved
+    tail, reach = _remainder_bounds(centre, defect, L, spread, flint)
+    # at the ball h itself (so at every |t| <= |h|, not at a rounded midpoint when h is not binary); the same key
+    # as the bound at h that the run reads next, and the Jacobian's reach(h)
+    if not all(r < d for r, d in zip(reach(step), delta)):
+        return None
+    return tail, R, reach, L
 
+
+def _a_priori_box(prog, jprog, centre, pars, consts, jconsts, span, spread, flint):
+    """(delta, R, L) of :func:`prove_step`: the margins delta, the box R around p's range over the step (the ball
+    ``span``) widened by them, and the entrywise upper bounds L of |Df(R)|; None when the field or its Jacobian is
+    not finite on R."""
+    arb, arb_mat = flint.arb, flint.arb_mat
+    n = len(centre.polys)
+    P = centre.at(span)  # the range of p over the step
+    delta = [((abs(p.mid()) + p.rad() + 1) * BOX_MARGIN + BOX_SPREAD * e).upper() for p, e in zip(P, spread)]
+    R = [arb(p.mid(), (p.rad() + d).upper()) for p, d in zip(P, delta)]
+    # the field and its Jacobian finite on R: f is smooth there (no pole, no root or logarithm at its branch)
+    if not all((v if isinstance(v, arb) else arb(v)).is_finite() for v in evaluate(prog, R, pars, consts, arb(1))):
+        return None
+    vals = evaluate(jprog, R, pars, jconsts, arb(1))
+    L = arb_mat([[abs(v if isinstance(v, arb) else arb(v)).upper() for v in vals[i * n:(i + 1) * n]]
+                 for i in range(n)])
+    if not all(x.is_finite() for x in (L * arb_mat([[1]] * n)).entries()):  # row sums of upper bounds
+        return None
+    return delta, R, L
+
+
+def _lagrange_term(prog, centre, pars, consts, span, Lg, majorant, flint):
+    """Per component, the defect's coefficient ``Lg`` (the Lagrange term) over the step, in the centre's scaled
+    time: from the majorant series when ``majorant`` is given and the field is a polynomial
+    (:func:`lagrange_majorant`), else on ball series over the step (:func:`field_series`)."""
+    top = (None if majorant is None
+           else lagrange_majorant(prog, [[mi] for mi in centre.mids], *majorant, Lg, flint))
+    if top is None:  # coefficient Lg in sigma, over the step in sigma
+        return [row[-1] for row in field_series(prog, centre.rows, pars, consts, Lg + 1, flint,
+                                                base=centre.sigma(span))]
+    up = flint.arb(2) ** (centre.s * Lg)  # coefficient Lg in tau, times 2^(s Lg): in sigma
+    return [(t * up).upper() for t in top]
+
+
+def _remainder_bounds(centre, defect, L, spread, flint):
+    """(``tail``, ``reach``) of :func:`prove_step` from the defect's polynomials (:func:`defect_polynomials`):
+    exp(|tau| L) G(|tau|), and exp(|tau| L) (G(|tau|) + ``spread``), per component (upper bounds), each computed
+    once per time."""
+    arb_mat = flint.arb_mat
+    n = len(centre.polys)
+    back = flint.arb(2) ** centre.s  # the bound in sigma, in tau
     known = {}
 
     def bound(tau, with_spread):
-        """exp(|tau| L) (G(|tau|) + the spread, or not), per component (upper bounds), once per time and kind."""
         at = tuple(int(v) for v in abs(tau).upper().mid().man_exp())
         if (at, with_spread) not in known:
-            saved = flint.ctx.prec
-            flint.ctx.prec = 64
-            try:
+            with working_precision(64):
                 if at not in known:
                     x = abs(centre.sigma(tau))
                     known[at] = [((d(x) * x).upper() * back).upper() for d in defect]  # G(|tau|)
@@ -510,8 +512,6 @@ def prove_step(prog, jprog, centre, terms, pars, consts, jconsts, step, spread, 
                     g = [(gi + e).upper() for gi, e in zip(g, spread)]
                 E = exp_times(L * abs(tau), arb_mat([[gi] for gi in g]), flint)
                 known[at, with_spread] = [E[i, 0].upper() for i in range(n)]
-            finally:
-                flint.ctx.prec = saved
         return known[at, with_spread]
 
     def tail(tau):
@@ -520,11 +520,7 @@ def prove_step(prog, jprog, centre, terms, pars, consts, jconsts, step, spread, 
     def reach(tau):
         return bound(tau, True)
 
-    # at the ball h itself (so at every |t| <= |h|, not at a rounded midpoint when h is not binary); the same key
-    # as the bound at h that the run reads next, and the Jacobian's reach(h)
-    if not all(r < d for r, d in zip(reach(step), delta)):
-        return None
-    return tail, R, reach, L
+    return tail, reach
 
 
 def exp_times(M, g, flint):
@@ -625,9 +621,7 @@ def flow_jacobian(jprog, centre, reach, L, pars, consts, tau, flint, pieces=JACO
     arb, arb_mat = flint.arb, flint.arb_mat
     n = len(centre.polys)
     eye = arb_mat([[1 if i == j else 0 for j in range(n)] for i in range(n)])
-    saved = flint.ctx.prec
-    flint.ctx.prec = 64
-    try:
+    with working_precision(64):
         # p in the scaled time sigma = 2^-s tau (exactly: a power of two), its terms beyond JACOBIAN_DEGREE
         # bounded over the step (their sum on the ball of the step's sigmas) and added to the boxes' radii
         down, back = centre.down, arb(2) ** centre.s
@@ -682,8 +676,6 @@ def flow_jacobian(jprog, centre, reach, L, pars, consts, tau, flint, pieces=JACO
         if not all(J[i, j].is_finite() for i in range(n) for j in range(n)):
             return None
         return J
-    finally:
-        flint.ctx.prec = saved
 
 
 _AFFINE: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
@@ -769,9 +761,7 @@ def step_estimate(g, N, tol, flint) -> float:
     bound comes to for a step well inside the radius of convergence), reach ~tol: a first guess from g_N, refined
     once. The attempt that follows proves or shortens it; this choice affects efficiency, never rigour."""
     arb = flint.arb
-    saved = flint.ctx.prec
-    flint.ctx.prec = 64
-    try:
+    with working_precision(64):
         hi = [[arb(abs(x).mid()) for x in gi] for gi in g[1]]
         gN = max((row[0] for row in hi), key=float)
         if gN.is_zero():
@@ -783,5 +773,3 @@ def step_estimate(g, N, tol, flint) -> float:
             return max((sum((x * p for x, p in zip(row, powers)), arb(0)) for row in hi), key=float)
 
         return 0.97 * float(h.mid()) * nth_root(tol / estimate(h), N + 1)
-    finally:
-        flint.ctx.prec = saved

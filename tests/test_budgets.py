@@ -8,7 +8,7 @@ import flint
 import lieseries as ls
 from lieseries.lie.integrator import lie_integrate
 from lieseries.precision import to_fraction
-from lieseries.validated import validated_integrate
+from lieseries.validated import validated_integrate, working_precision
 from problems import RIGID_INERTIA, RIGID_OMEGA
 
 # one step of the rigid body at 1000 digits (order 1153) takes ~10 s with the fixed-point jets (at 400 digits, under a
@@ -27,13 +27,9 @@ def test_validated_stops_inside_a_long_step_with_the_rows_proved():
     assert sol.status == "time_budget" and "`max_time`" in sol.message
     assert sol.t_reached == 0 and sol.stats.steps == 0  # stopped inside the first step, not after it
     assert list(sol.t) == [0.0]
-    old = flint.ctx.prec
-    flint.ctx.prec = 5000
-    try:
+    with working_precision(5000):
         assert all(b.contains(flint.arb(flint.fmpq(q.numerator, q.denominator))) and b.rad() < flint.arb(10) ** -DPS
                    for b, q in zip(sol.y[0], y0.exact))
-    finally:
-        flint.ctx.prec = old
 
 
 def test_lie_integrate_stops_inside_a_long_step_with_the_rows_it_has():

@@ -4,6 +4,9 @@ Every containment is checked exactly: the reference (closed form at many more di
 rational and asked to lie in the ball. A reference moved by a little more than the ball's radius must not lie in it.
 """
 
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
 from fractions import Fraction
 
 import flint
@@ -15,7 +18,7 @@ import lieseries as ls
 from lieseries import exact
 from lieseries.balls import contains
 from lieseries.precision import to_fraction
-from lieseries.validated import certified_digits, radii, validated_integrate
+from lieseries.validated import certified_digits, radii, validated_integrate, working_precision
 from problems import RIGID_INERTIA, RIGID_OMEGA
 
 
@@ -23,13 +26,9 @@ from problems import RIGID_INERTIA, RIGID_OMEGA
 def inside(ball, value) -> bool:
     """The real number ``value`` (any exact or mpf number) lies in ``ball``, decided exactly."""
     q = to_fraction(value)
-    old = flint.ctx.prec
-    flint.ctx.prec = max(old, 512, 64 + q.numerator.bit_length() + q.denominator.bit_length())  # exact, or far
-    # narrower than any enclosure here
-    try:
+    # exact, or far narrower than any enclosure here
+    with working_precision(max(512, 64 + q.numerator.bit_length() + q.denominator.bit_length())):
         return ball.contains(flint.arb(flint.fmpq(q.numerator, q.denominator)))
-    finally:
-        flint.ctx.prec = old
 
 
 def test_rigid_body_enclosures_contain_the_closed_form(bigint):
@@ -45,15 +44,11 @@ def test_rigid_body_enclosures_contain_the_closed_form(bigint):
     assert not inside(sol.y[-1][10], refs[-1][10] + 4 * mp.mpf(float(r)))
     # R^T R = 1 is certified within the enclosure's own width: the ball of R^T R - 1 contains 0
     R = [[sol.y[-1][3 * i + j] for j in range(3)] for i in range(3)]
-    old = flint.ctx.prec
-    flint.ctx.prec = 200
-    try:
+    with working_precision(200):
         for i in range(3):
             for j in range(3):
                 e = sum(R[k][i] * R[k][j] for k in range(3)) - (1 if i == j else 0)
                 assert e.contains(flint.arb(0)) and e.rad() < 1e-22
-    finally:
-        flint.ctx.prec = old
 
 
 def test_uncertain_initial_data_enclose_every_solution_from_the_box():
@@ -357,12 +352,8 @@ def test_a_validated_solution_pickles_with_every_ball_identical(kind):
         y0 = system.initial_state(("0.6", 0, "0.8"), (0, 1, 0))
     sol = validated_integrate(system, y0, t=[Fraction(1, 4), Fraction(1, 2)], dps=40)
     assert sol.status == "success", sol.message
-    old = flint.ctx.prec
-    flint.ctx.prec = 53  # unpickling does not depend on the working precision
-    try:
+    with working_precision(53):  # unpickling does not depend on the working precision
         back = pickle.loads(pickle.dumps(sol))
-    finally:
-        flint.ctx.prec = old
     assert back.status == sol.status and list(back.t) == list(sol.t)
     assert all(_same_ball(a, b) for ra, rb in zip(sol.y, back.y) for a, b in zip(ra, rb))
     assert all(_same_ball(a, b) for a, b in zip(sol.y_reached, back.y_reached))
@@ -695,3 +686,103 @@ def test_a_failure_names_the_shortest_step_tried_beyond_a_doubles_range():
     sol = ls.validated_integrate(body, body.initial_state(omega=("1e400", "0.1", "0.5")), t="1e-400", dps=20)
     assert sol.status == "validation_failed"
     assert "no step down to 9.09e-413 " in sol.message and "down to 0 " not in sol.message
+
+
+def test_validated_runs_in_threads_beside_another_python_flint_user_give_what_they_give_alone():
+    """python-flint's working precision and series cap are process-wide (``flint.ctx``): two validated runs at 30
+    and 300 digits in two threads, beside a third thread that keeps computing at 20 bits with a series cap of 3
+    (through ``working_precision``, as every user of python-flint in the process must), give every ball, radius
+    and certified digit of the same runs done alone, and enclose the closed form; the third thread sees its own
+    precision and cap throughout, and is not kept out for a whole run."""
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    y0 = body.initial_state(omega=RIGID_OMEGA)
+    times = [Fraction(k, 4) for k in range(1, 5)]
+
+    def run(dps):
+        before = rounds[0]
+        sol = validated_integrate(body, y0, t=times, dps=dps)
+        during[dps] = rounds[0] - before
+        readings = []
+        for _ in range(20):  # read many times over, letting the other threads run between the readings
+            readings.append((certified_digits(sol).tolist(), radii(sol).tolist()))
+            time.sleep(0.001)
+        return sol, readings
+
+    stop, wrong, rounds, during = threading.Event(), [], [0], {}
+    alone = {dps: run(dps) for dps in (30, 300)}
+
+    def other_user():
+        while not stop.is_set():
+            with working_precision(20) as fl:
+                fl.ctx.cap = 3
+                for _ in range(50):
+                    third = fl.arb(1) / 3
+                    series = fl.arb_series([1, 1]).exp()
+                    if fl.ctx.prec != 20 or not 2**-22 < third.rad() < 2**-18 or len(series) != 3:
+                        wrong.append((fl.ctx.prec, fl.ctx.cap, third.rad(), len(series)))
+            rounds[0] += 1
+
+    other = threading.Thread(target=other_user, daemon=True)
+    other.start()
+    try:
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            futures = {dps: pool.submit(run, dps) for dps in (300, 30)}
+            together = {dps: f.result() for dps, f in futures.items()}
+    finally:
+        stop.set()
+        other.join()
+    assert not wrong, wrong[:3]
+    assert during[300] > 0  # the other thread computed while the long run went on (between its steps)
+    refs = exact.euler_poisson_many(RIGID_INERTIA, RIGID_OMEGA, times, dps=330)
+    for dps in (30, 300):
+        (sol, readings), (sol_alone, readings_alone) = together[dps], alone[dps]
+        assert sol.status == "success", sol.message
+        assert contains(sol.y, refs, tol=Fraction(1, 10**325))
+        assert all(a.mid().man_exp() == b.mid().man_exp() and a.rad().man_exp() == b.rad().man_exp()
+                   for row, row_alone in zip(sol.y, sol_alone.y) for a, b in zip(row, row_alone))
+        assert readings == [readings_alone[0]] * len(readings) == readings_alone
+        assert min(readings[0][0]) > dps - 5
+
+
+@pytest.mark.parametrize("error", [KeyboardInterrupt, ValueError])
+def test_working_precision_restores_the_callers_precision_and_cap_and_frees_the_lock_on_an_error(error):
+    before = flint.ctx.prec, flint.ctx.cap
+    with pytest.raises(error):
+        with working_precision(99, cap=before[1] + 7):
+            with working_precision(300):  # nested: the cap stays
+                assert (flint.ctx.prec, flint.ctx.cap) == (300, before[1] + 7)
+                raise error()
+    assert (flint.ctx.prec, flint.ctx.cap) == before
+
+    def other_thread():
+        with working_precision(64) as fl:
+            got.append(fl.ctx.prec)
+
+    got = []
+    other = threading.Thread(target=other_thread, daemon=True)
+    other.start()
+    other.join(60)
+    assert got == [64]  # the lock was released
+
+
+def test_a_series_cut_by_a_cap_lowered_meanwhile_raises_and_is_never_read_as_zeros(monkeypatch):
+    """python-flint cuts every series at its process-wide cap: code in another thread that lowers
+    ``flint.ctx.cap`` without ``working_precision`` while a step evaluates the field on series must make the run
+    fail loudly; the missing terms of the defect and of the Lagrange term must not read as zeros (a remainder bound
+    far too small, and enclosures that miss the solution)."""
+    from lieseries import validated_step
+
+    real = validated_step.evaluate
+
+    def evaluate_while_cut(prog, values, *args):
+        old = flint.ctx.cap
+        flint.ctx.cap = 3  # as another thread would, between two operations
+        try:
+            return real(prog, values, *args)
+        finally:
+            flint.ctx.cap = old
+
+    monkeypatch.setattr(validated_step, "evaluate", evaluate_while_cut)
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    with pytest.raises(RuntimeError, match=r"flint\.ctx\.cap"):
+        validated_integrate(body, body.initial_state(omega=RIGID_OMEGA), t=Fraction(1, 4), dps=30)

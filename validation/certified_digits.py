@@ -27,7 +27,7 @@ import lieseries as ls
 from lieseries import exact
 from lieseries.precision import to_fraction
 from lieseries.folder import FolderError, ReportFolder
-from lieseries.validated import certified_digits, radii, validated_integrate
+from lieseries.validated import certified_digits, radii, validated_integrate, working_precision
 
 ROOT = Path(__file__).resolve().parents[1]
 FILES = ("report.md", "certified_digits.png", "data.json")
@@ -37,12 +37,8 @@ TENSOR = [[2, "1/2", 0], ["1/2", 3, "1/4"], [0, "1/4", 4]]
 def inside(ball, value) -> bool:
     """``value`` (exact or mpf) lies in ``ball``, decided at a precision far beyond the ball's width."""
     q = to_fraction(value)
-    old = flint.ctx.prec
-    flint.ctx.prec = max(old, 512, 64 + q.numerator.bit_length() + q.denominator.bit_length())
-    try:
+    with working_precision(max(512, 64 + q.numerator.bit_length() + q.denominator.bit_length())):
         return ball.contains(flint.arb(flint.fmpq(q.numerator, q.denominator)))
-    finally:
-        flint.ctx.prec = old
 
 
 def double_width(state):

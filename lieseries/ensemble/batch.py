@@ -117,22 +117,9 @@ def _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, even
 
 def run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, n_threads, res, progress):
     """Integrate every member in batches of B lanes over ``n_threads`` threads; return the members to hand over."""
-    k, n = Ynat.shape
-    npar = len(ps.parameter_values)
-    par_rows = None
-    if npar:
-        base = np.array([float(v) for v in ps.parameter_values])
-        par_rows = np.tile(base, (k, 1)) if pars is None else np.array([[float(v) for v in r] for r in pars])
-    simple = len(tgrid) == 2 and tgrid[0] == t0n
-    t_end = float(tgrid[-1])
-    if not simple:
-        lead = tgrid[0] != t0n
-        times = [float(t0n)] * lead + [float(g) for g in tgrid]
-        grid = np.repeat(np.array(times), B).reshape(-1, B)
-    success_msg = run_message("success", t=tgrid[-1])
-    zeros = [0.0] * B
-    n_batches = -(-k // B)
-    counter = iter(range(n_batches))
+    k = Ynat.shape[0]
+    batches = _Batches(event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, res)
+    counter = iter(range(-(-k // B)))
     lock = threading.Lock()
     handed = []
     done = [0]
@@ -140,68 +127,112 @@ def run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, 
     def work(_):
         ta, free = cache.checkout(ta0)
         try:
-            _work(ta)
+            batches.shared_parameters(ta)
+            while True:
+                with lock:
+                    b = next(counter, None)
+                if b is None:
+                    return
+                lo, hi = b * B, min(k, b * B + B)
+                mine = batches.run(ta, lo, hi)
+                with lock:
+                    handed.extend(mine)
+                    done[0] += hi - lo - len(mine)
+                    if progress is not None:
+                        progress(done[0], k)
         finally:
             cache.release(ta, free)
 
-    def _work(ta):
-        state, t0f = ta.state, float(t0n)
-        if npar and pars is None:
-            ta.pars[:] = par_rows[:B].T if k >= B else par_rows[[0] * B].T  # the same for every member
-        while True:
-            with lock:
-                b = next(counter, None)
-            if b is None:
-                return
-            lo, hi = b * B, min(k, b * B + B)
-            if hi - lo == B:
-                idx = range(lo, hi)
-                state[:] = Ynat[lo:hi].T
-            else:
-                idx = list(range(lo, hi)) + [lo] * (B - (hi - lo))  # pad the last batch with copies of its first
-                state[:] = Ynat[idx].T
-            ta.set_time(t0f)
-            if npar and pars is not None:
-                ta.pars[:] = par_rows[list(idx)].T
-            if event_info:
-                ta.reset_cooldowns()
-            if simple:
-                ta.propagate_until(t_end, max_steps=min(cap, CHUNK_STEPS))
-                out = None
-            else:
-                out = ta.propagate_grid(grid, max_steps=cap)[-1]
-                if lead:
-                    out = out[1:]
-            prs = ta.propagate_res
-            nl = hi - lo
-            # a lane that went the whole way in one step may have started where heyoka's step rule cannot see the
-            # series (its last two orders vanish or are far below the lower ones:
-            # lieseries.heyoka_build.sparse_first_step), checked below
-            one_step = [j for j in range(nl) if prs[j][3] == 1]
-            outcomes = [prs[lane][0] for lane in range(nl)]
-            mine = []
-            if all(o == TIME_LIMIT for o in outcomes):  # the common case, in bulk
-                _record_batch(res, lo, hi, ta, out, prs, Ynat, tgrid, t0n, simple, success_msg)
-            elif not simple:
-                mine = _record_grid_lanes(res, lo, nl, ta, out, outcomes, prs, Ynat, tgrid, t0n, direction,
-                                          event_info, t_end, success_msg)
-            else:
-                mine = _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, event_info, cap,
-                                       t_end, success_msg)
-            if one_step:
-                state[:] = Ynat[idx].T
-                ta.set_time(t0f)
-                bounds = sparse_first_step(ta, zeros)
-                if bounds is not None:  # the single run bounds the first step
-                    mine = sorted(set(mine) | {lo + j for j in one_step if bounds[j] is not None})
-            with lock:
-                handed.extend(mine)
-                done[0] += hi - lo - len(mine)
-                if progress is not None:
-                    progress(done[0], k)
-
     over_threads(work, n_threads)
     return sorted(handed)
+
+
+class _Batches:
+    """What the threads of one :func:`run_batches` share: the members' states and parameters, the output grid,
+    where to record; :meth:`run` integrates one batch on a thread's integrator."""
+
+    def __init__(self, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, res):
+        self.event_info, self.Ynat, self.tgrid, self.t0n, self.direction = event_info, Ynat, tgrid, t0n, direction
+        self.B, self.cap, self.res = B, cap, res
+        k = Ynat.shape[0]
+        self.par_rows = None  # per member, or None without runtime parameters
+        if len(ps.parameter_values):
+            base = np.array([float(v) for v in ps.parameter_values])
+            self.par_rows = (np.tile(base, (k, 1)) if pars is None
+                             else np.array([[float(v) for v in r] for r in pars]))
+        self.per_member = pars is not None
+        self.simple = len(tgrid) == 2 and tgrid[0] == t0n
+        self.t_end = float(tgrid[-1])
+        if not self.simple:
+            self.lead = tgrid[0] != t0n
+            times = [float(t0n)] * self.lead + [float(g) for g in tgrid]
+            self.grid = np.repeat(np.array(times), B).reshape(-1, B)
+        self.success_msg = run_message("success", t=tgrid[-1])
+        self.zeros = [0.0] * B
+
+    def shared_parameters(self, ta) -> None:
+        """The parameters of the thread's integrator ``ta`` when they are the same for every member (set once)."""
+        if self.par_rows is not None and not self.per_member:
+            B = self.B
+            ta.pars[:] = self.par_rows[:B].T if len(self.par_rows) >= B else self.par_rows[[0] * B].T
+
+    def load(self, ta, lo, hi):
+        """Members lo..hi-1 into the lanes of ``ta`` at the start time (the last batch padded with copies of its
+        first member); returns the members of the lanes."""
+        B, state = self.B, ta.state
+        if hi - lo == B:
+            idx = range(lo, hi)
+            state[:] = self.Ynat[lo:hi].T
+        else:
+            idx = list(range(lo, hi)) + [lo] * (B - (hi - lo))
+            state[:] = self.Ynat[idx].T
+        ta.set_time(float(self.t0n))
+        if self.par_rows is not None and self.per_member:
+            ta.pars[:] = self.par_rows[list(idx)].T
+        if self.event_info:
+            ta.reset_cooldowns()
+        return idx
+
+    def run(self, ta, lo, hi) -> list:
+        """Integrate members lo..hi-1 on ``ta`` and record them; return those handed to single runs."""
+        idx = self.load(ta, lo, hi)
+        if self.simple:
+            ta.propagate_until(self.t_end, max_steps=min(self.cap, CHUNK_STEPS))
+            out = None
+        else:
+            out = ta.propagate_grid(self.grid, max_steps=self.cap)[-1]
+            if self.lead:
+                out = out[1:]
+        prs = ta.propagate_res
+        nl = hi - lo
+        # a lane that went the whole way in one step may have started where heyoka's step rule cannot see the
+        # series (its last two orders vanish or are far below the lower ones:
+        # lieseries.heyoka_build.sparse_first_step), checked below
+        one_step = [j for j in range(nl) if prs[j][3] == 1]
+        mine = self._record(ta, lo, hi, idx, out, prs)
+        if one_step:
+            ta.state[:] = self.Ynat[idx].T
+            ta.set_time(float(self.t0n))
+            bounds = sparse_first_step(ta, self.zeros)
+            if bounds is not None:  # the single run bounds the first step
+                mine = sorted(set(mine) | {lo + j for j in one_step if bounds[j] is not None})
+        return mine
+
+    def _record(self, ta, lo, hi, idx, out, prs) -> list:
+        """Record the batch's members once ``ta`` has run them (a final-time run that did not finish goes on);
+        return those handed to single runs."""
+        res, Ynat, tgrid, t0n, simple, success_msg = (self.res, self.Ynat, self.tgrid, self.t0n, self.simple,
+                                                      self.success_msg)
+        nl = hi - lo
+        outcomes = [prs[lane][0] for lane in range(nl)]
+        if all(o == TIME_LIMIT for o in outcomes):  # the common case, in bulk
+            _record_batch(res, lo, hi, ta, out, prs, Ynat, tgrid, t0n, simple, success_msg)
+            return []
+        if not simple:
+            return _record_grid_lanes(res, lo, nl, ta, out, outcomes, prs, Ynat, tgrid, t0n, self.direction,
+                                      self.event_info, self.t_end, success_msg)
+        return _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, self.direction, self.event_info,
+                               self.cap, self.t_end, success_msg)
 
 
 def over_threads(work, n_threads) -> None:

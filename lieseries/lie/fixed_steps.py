@@ -177,66 +177,16 @@ def mk_sop(run, out, prods, lins, offset, state=None):
     all terms exact at their finest exponent, one rounding (a lin whose terms' products were fused into it).
     With ``state`` = i (out is the right-hand side of state variable i and used nowhere else) the step appends
     the state's next coefficient sigma out_k / (k + 1) instead, with the same single rounding."""
-    J, U, F = run.J, run.U, run.F
-    C = J[out]
+    C = run.J[out]
     nxt = run.nxt
     terms = []
     st = {}
 
-    def const(c):
-        if c is None:
-            return 1, 0, 0
-        cs, cm, ce, cbc = c
-        return (-run.Z(cm) if cs else run.Z(cm)), ce, cbc
-
     def step(k):
         if k == 0:
-            xs, noms, sizes, bounds = [], [], [], []
-            sized = state is None and run.sizes is not None
-            raw_terms = []
-            for a, b, c, ng, key in prods:
-                cm, ce, cbc = const(c)
-                if not cm:
-                    continue
-                x = U[a] + U[b] + ce
-                xs.append(x)
-                noms.append(x + F + cbc)
-                if sized:
-                    bounds.append(run.bound(a) + run.bound(b) + ce + F + cbc)
-                    e = run.size(a, b)
-                    if e is not None:  # (a term measured zero: finer is never less accurate)
-                        sizes.append(e + ce + cbc)
-                raw_terms.append((J[a], run.product(a, b) if key is None else key,
-                                  -cm if ng else cm, x))
-            for a, c, ng in lins:
-                cm, ce, cbc = const(c)
-                if not cm:
-                    continue
-                x = U[a] + ce
-                xs.append(x)
-                noms.append(x + cbc)
-                if sized:
-                    bounds.append(run.bound(a) + ce + cbc)
-                    e = run.size(a)
-                    if e is not None:
-                        sizes.append(e + ce + cbc)
-                raw_terms.append((J[a], None, -cm if ng else cm, x))
-            if not xs:
-                xs = noms = [min(U[a] for a, *_ in list(prods) + list(lins))]
-            x0 = min(xs)
-            uo = min(noms)
-            if bounds:
-                if offset is not None and offset[1]:
-                    sizes.append(eraw(offset))
-                uo = run.exponent(out, uo, min(bounds), max(sizes) if sizes else None)
-            U[out] = uo
-            for A, B, cm, x in raw_terms:
-                if isinstance(B, int):  # a dot product computed by a dots step
-                    A, B = B, None
-                terms.append((A, B, None if cm == 1 else (-1 if cm == -1 else cm), x - x0))
-            st.update(fin=uo - x0 if state is None else x0 + run.s - U[state],
-                      off=to_int(offset, x0) if offset is not None else 0)
-            attrs["terms"], attrs["fin"] = terms, st["fin"]  # (step.terms, step.fin)
+            terms[:], fin, off = _sop_terms(run, out, prods, lins, offset, state)
+            st.update(fin=fin, off=off)
+            attrs["terms"], attrs["fin"] = terms, fin  # (step.terms, step.fin)
         tot = st["off"] if k == 0 else 0
         dv = run.dv
         for A, B, cm, d in terms:
@@ -256,6 +206,73 @@ def mk_sop(run, out, prods, lins, offset, state=None):
     attrs = step.__dict__
     step.kind, step.C, step.state = "sop", C, state
     return step
+
+
+def _sop_terms(run, out, prods, lins, offset, state):
+    """Order 0 of a :func:`mk_sop` step: sets the exponent ``U[out]`` and returns (terms, fin, off): per term (its
+    jet, or the dots product's slot; its product's evaluator or None; its constant, None for 1; its shift above
+    the finest term), the shift of the sum to the result, and the offset at the finest term's exponent."""
+    U = run.U
+    xs, noms, sizes, bounds, raw_terms = _sop_exponents(run, prods, lins, state is None and run.sizes is not None)
+    if not xs:
+        xs = noms = [min(U[a] for a, *_ in list(prods) + list(lins))]
+    x0 = min(xs)
+    uo = min(noms)
+    if bounds:
+        if offset is not None and offset[1]:
+            sizes.append(eraw(offset))
+        uo = run.exponent(out, uo, min(bounds), max(sizes) if sizes else None)
+    U[out] = uo
+    terms = []
+    for A, B, cm, x in raw_terms:
+        if isinstance(B, int):  # a dot product computed by a dots step
+            A, B = B, None
+        terms.append((A, B, None if cm == 1 else (-1 if cm == -1 else cm), x - x0))
+    fin = uo - x0 if state is None else x0 + run.s - U[state]
+    return terms, fin, to_int(offset, x0) if offset is not None else 0
+
+
+def _sop_exponents(run, prods, lins, sized):
+    """The nonzero terms of a :func:`mk_sop` step at order 0, as (xs, noms, sizes, bounds, raw_terms): each term's
+    exponent, its nominal exponent (the finest the result needs of it), with ``sized`` the bounds and measured
+    sizes :meth:`Run.exponent` reads, and per term (jet, product or None, signed constant, exponent)."""
+    J, U, F = run.J, run.U, run.F
+    xs, noms, sizes, bounds, raw_terms = [], [], [], [], []
+    for a, b, c, ng, key in prods:
+        cm, ce, cbc = _sop_constant(run, c)
+        if not cm:
+            continue
+        x = U[a] + U[b] + ce
+        xs.append(x)
+        noms.append(x + F + cbc)
+        if sized:
+            bounds.append(run.bound(a) + run.bound(b) + ce + F + cbc)
+            e = run.size(a, b)
+            if e is not None:  # (a term measured zero: finer is never less accurate)
+                sizes.append(e + ce + cbc)
+        raw_terms.append((J[a], run.product(a, b) if key is None else key, -cm if ng else cm, x))
+    for a, c, ng in lins:
+        cm, ce, cbc = _sop_constant(run, c)
+        if not cm:
+            continue
+        x = U[a] + ce
+        xs.append(x)
+        noms.append(x + cbc)
+        if sized:
+            bounds.append(run.bound(a) + ce + cbc)
+            e = run.size(a)
+            if e is not None:
+                sizes.append(e + ce + cbc)
+        raw_terms.append((J[a], None, -cm if ng else cm, x))
+    return xs, noms, sizes, bounds, raw_terms
+
+
+def _sop_constant(run, c):
+    """A term's raw constant ``c`` (None for 1) as (signed integer mantissa, exponent, bit count)."""
+    if c is None:
+        return 1, 0, 0
+    cs, cm, ce, cbc = c
+    return (-run.Z(cm) if cs else run.Z(cm)), ce, cbc
 
 
 class Dots:
