@@ -13,9 +13,8 @@ from fractions import Fraction
 
 from .lie.plan import DeadlineExceeded
 
-__all__ = ["SUPPORTED_OPS", "flint_module", "working_precision", "whole_series", "Singular", "ball_constant", "exact_constant",
-           "evaluate",
-           "check_ops", "taylor_coefficients"]
+__all__ = ["SUPPORTED_OPS", "flint_module", "working_precision", "whole_series", "Singular", "ball_constant",
+           "exact_constant", "evaluate", "check_ops", "taylor_coefficients"]
 
 #: Operations of a vector field that the validated engine evaluates in ball arithmetic.
 SUPPORTED_OPS = ("add", "sub", "neg", "mul", "div", "powi", "pow", "sqrt", "exp", "log", "sin", "cos", "tan",
@@ -95,7 +94,8 @@ def whole_series(series, length: int):
     """``series``, checked to hold its first ``length`` terms. python-flint cuts every series operation's result
     at the process-wide cap (its O(x^n) then says so): code in another thread that lowers ``flint.ctx.cap``
     without :func:`working_precision` would cut a series mid-computation, and the terms missing would read as
-    zeros. Such a series raises RuntimeError (python-flint 0.8 and later; earlier ones do not tell)."""
+    zeros. Such a series raises RuntimeError (python-flint 0.8 and later say how many terms a series holds: the
+    project requires them)."""
     held = getattr(series, "prec", None)
     if held is not None and held < length:
         raise RuntimeError(f"a ball series holds {held} terms where {length} were computed: python-flint's series "
