@@ -553,117 +553,95 @@ def _rounding_error(instrs, to_state, cv, outputs, run, S):
     derivatives need, and the result is as far off."""
     J, U = run.J, run.U
     bl = bit_length_function()
-    NEG, INF = -math.inf, math.inf
-    S = [NEG if v is None else v for v in S]  # (a zero jet: nothing)
-    E = [NEG] * len(J)  # the error bound's exponent (-inf: exact)
+    S = [_NEG if v is None else v for v in S]  # (a zero jet: nothing)
+    E = [_NEG] * len(J)  # the error bound's exponent (-inf: exact)
 
     def value(x):  # the exponent of |c_0| (divisors: the recurrences divide by it)
         return U[x] + bl(J[x][0])
 
-    def cexp(c):  # the exponent of a raw constant
-        return c[2] + c[3]
-
     out_err = {}
     for kind, out, args, extra in instrs:
         if kind == "sop" or kind == "lin":
-            e, x0 = NEG, INF
-            if kind == "sop":
-                for a, b, c, _, _ in args[0]:
-                    ce = 0 if c is None else (c[2] + c[3] if c[1] else None)
-                    if ce is not None:
-                        ea, eb = E[a] + S[b], E[b] + S[a]
-                        t = (ea if ea > eb else eb) + ce
-                        if t > e:
-                            e = t
-                        t = U[a] + U[b] + ce
-                        if t < x0:
-                            x0 = t
-                for a, c, _ in args[1]:
-                    ce = 0 if c is None else (c[2] + c[3] if c[1] else None)
-                    if ce is not None:
-                        if E[a] + ce > e:
-                            e = E[a] + ce
-                        if U[a] + ce < x0:
-                            x0 = U[a] + ce
-            else:
-                for a, _ in args:
-                    e, x0 = max(e, E[a]), min(x0, U[a])
-            if extra is not None and extra[1] and x0 < INF:  # the offset, rounded at the finest term's exponent
-                e = max(e, x0 - 1)
+            e = _sum_error(kind, args, extra, E, S, U)
             if out in to_state:
                 out_err[to_state[out]] = e
             else:
                 E[out] = max(e, U[out] - 1)
-        elif kind == "dots":
-            continue
-        elif kind == "scale":
-            c = cv[extra]
-            E[out] = E[args[0]] + cexp(c) if c[1] else NEG
-        elif kind == "mul" or kind == "sqr":
-            a = args[0]
-            b = args[1] if kind == "mul" else a
-            E[out] = max(E[a] + S[b], E[b] + S[a], U[out] - 1)
-        elif kind == "div" or kind == "rdiv":
-            b = args[-1]
-            d = value(b)
-            ea = E[args[0]] - d if kind == "div" else NEG
-            E[out] = max(ea, E[b] + S[out] - d, U[out] - 1)
-        elif kind in ("pow", "sqrt", "exp", "log"):
-            # |d out / d a|: |r| |out| / |a|, |out| / (2 |a|), |out|, 1 / |a|
-            a = args[0]
-            if kind == "pow":
-                c = cv[extra[0]]
-                g = (cexp(c) if c[1] else NEG) + S[out] - value(a)
-            elif kind == "sqrt":
-                g = S[out] - value(a)
-            else:
-                g = S[out] if kind == "exp" else -value(a)
-            E[out] = max(E[a] + g + 1, U[out] - 1)
-        elif kind == "tan" or kind == "tanh":  # t' = u a', u = 1 +- t^2
-            t, u = out
-            E[t] = max(E[args[0]] + S[u] + 1, U[t] - 1)
-            E[u] = max(E[t] + S[t] + 2, U[u] - 1)
-        elif kind == "atan":  # u t' = a', u = 1 + a^2
-            t, u = out
-            a = args[0]
-            E[u] = max(E[a] + S[a] + 2, U[u] - 1)
-            E[t] = max(E[a] - value(u) + 1, U[t] - 1)
-        else:  # sincos, sinhcosh: |d/da| of each at most the size of the other
-            g = E[args[0]] + max(S[o] for o in out) + 1
-            for o in out:
-                E[o] = max(g, U[o] - 1)
+        elif kind != "dots":
+            _op_error(kind, out, args, extra, E, S, U, cv, value)
     s, F = run.s, run.F
-    out = []
+    got = []
     for i, o in enumerate(outputs):
         e = out_err[i] if i in out_err else E[o]
-        out.append((None, None) if e == NEG else (e + s, max(S[i], U[i] + F)))
-    return out
+        got.append((None, None) if e == _NEG else (e + s, max(S[i], U[i] + F)))
+    return got
 
 
-def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked, sizes=None, measured=None):
-    """:func:`expand`; None when ``checked`` is false and a packed dot product's fields did not fit every order."""
-    plan = jet_plan(program)
-    # packed dot products pay off with Python ints up to about 100 digits, with gmpy2 up to about 300
-    Z = bigint.integer_type()
-    grouped = wp <= (_GMP_GROUP_BITS if Z is not int else _INT_GROUP_BITS)
-    instrs, nkeys, to_state, cv = _prepared(plan, grouped, wp, pars_raw)
-    run = Run(plan.nslots, wp, Z, sizes)
-    J, U = run.J, run.U
-    nvars = program.nvars
-    is_const = plan.is_const
-    for i, e in enumerate(_state_exponents(y0_raw)):
-        if sizes is not None and not y0_raw[i][1] and sizes[i] is not None:
-            e = min(e, sizes[i])  # a state at zero: F bits below what it carried, where that is finer
-        U[i] = e - wp
-        J[i] = [to_int(y0_raw[i], U[i])]
-    for x in range(nvars, plan.nslots):
-        if not is_const[x]:
-            J[x] = []
+_NEG = -math.inf
+
+
+def _sum_error(kind, args, extra, E, S, U):
+    """:func:`_rounding_error` of a sum of products (``sop``) or of jets (``lin``) before its own rounding: its
+    terms' errors, and the offset's rounding at the finest term's exponent."""
+    e, x0 = _NEG, math.inf
+    if kind == "sop":
+        for a, b, c, _, _ in args[0]:
+            ce = 0 if c is None else (c[2] + c[3] if c[1] else None)
+            if ce is not None:
+                ea, eb = E[a] + S[b], E[b] + S[a]
+                e = max(e, (ea if ea > eb else eb) + ce)
+                x0 = min(x0, U[a] + U[b] + ce)
+        for a, c, _ in args[1]:
+            ce = 0 if c is None else (c[2] + c[3] if c[1] else None)
+            if ce is not None:
+                e, x0 = max(e, E[a] + ce), min(x0, U[a] + ce)
+    else:
+        for a, _ in args:
+            e, x0 = max(e, E[a]), min(x0, U[a])
+    if extra is not None and extra[1] and x0 < math.inf:
+        e = max(e, x0 - 1)
+    return e
+
+
+def _op_error(kind, out, args, extra, E, S, U, cv, value):
+    """:func:`_rounding_error` of the other instructions: ``E`` of their jets."""
+    def cexp(c):  # the exponent of a raw constant
+        return c[2] + c[3] if c[1] else _NEG
+
+    if kind == "scale":
+        E[out] = E[args[0]] + cexp(cv[extra])
+    elif kind == "mul" or kind == "sqr":
+        a = args[0]
+        b = args[1] if kind == "mul" else a
+        E[out] = max(E[a] + S[b], E[b] + S[a], U[out] - 1)
+    elif kind == "div" or kind == "rdiv":
+        b = args[-1]
+        d = value(b)
+        ea = E[args[0]] - d if kind == "div" else _NEG
+        E[out] = max(ea, E[b] + S[out] - d, U[out] - 1)
+    elif kind in ("pow", "sqrt", "exp", "log"):  # |d out / d a|: |r out / a|, |out / 2a|, |out|, 1 / |a|
+        a = args[0]
+        g = {"pow": lambda: cexp(cv[extra[0]]) + S[out] - value(a), "sqrt": lambda: S[out] - value(a),
+             "exp": lambda: S[out], "log": lambda: -value(a)}[kind]()
+        E[out] = max(E[a] + g + 1, U[out] - 1)
+    elif kind == "tan" or kind == "tanh":  # t' = u a', u = 1 +- t^2
+        t, u = out
+        E[t] = max(E[args[0]] + S[u] + 1, U[t] - 1)
+        E[u] = max(E[t] + S[t] + 2, U[u] - 1)
+    elif kind == "atan":  # u t' = a', u = 1 + a^2
+        t, u = out
+        a = args[0]
+        E[u] = max(E[a] + S[a] + 2, U[u] - 1)
+        E[t] = max(E[a] - value(u) + 1, U[t] - 1)
+    else:  # sincos, sinhcosh: |d/da| of each at most the size of the other
+        g = E[args[0]] + max(S[o] for o in out) + 1
+        for o in out:
+            E[o] = max(g, U[o] - 1)
+
+
+def _steps(run, instrs, to_state, cv, wp):
+    """The step of each prepared instruction (:mod:`lieseries.lie.fixed_steps`) over the expansion ``run``."""
     steps = []
-    run.dv = [None] * nkeys
-    run.nxt = [None] * nvars
-    run.s = s
-    run.order = order
     for kind, out, args, extra in instrs:
         if kind == "dots":
             steps.append(Dots(run, args[0], args[1], extra))
@@ -698,6 +676,33 @@ def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked, sizes=No
             steps.append(mk_atan(run, out[0], out[1], args[0], wp))
         else:  # pragma: no cover
             raise AssertionError(kind)
+    return steps
+
+
+def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked, sizes=None, measured=None):
+    """:func:`expand`; None when ``checked`` is false and a packed dot product's fields did not fit every order."""
+    plan = jet_plan(program)
+    # packed dot products pay off with Python ints up to about 100 digits, with gmpy2 up to about 300
+    Z = bigint.integer_type()
+    grouped = wp <= (_GMP_GROUP_BITS if Z is not int else _INT_GROUP_BITS)
+    instrs, nkeys, to_state, cv = _prepared(plan, grouped, wp, pars_raw)
+    run = Run(plan.nslots, wp, Z, sizes)
+    J, U = run.J, run.U
+    nvars = program.nvars
+    is_const = plan.is_const
+    for i, e in enumerate(_state_exponents(y0_raw)):
+        if sizes is not None and not y0_raw[i][1] and sizes[i] is not None:
+            e = min(e, sizes[i])  # a state at zero: F bits below what it carried, where that is finer
+        U[i] = e - wp
+        J[i] = [to_int(y0_raw[i], U[i])]
+    for x in range(nvars, plan.nslots):
+        if not is_const[x]:
+            J[x] = []
+    run.dv = [None] * nkeys
+    run.nxt = [None] * nvars
+    run.s = s
+    run.order = order
+    steps = _steps(run, instrs, to_state, cv, wp)
     srcs = []
     fused_out = {o for kind, o, *_ in instrs if kind == "sop" and o in to_state}
     deferred = [(J[to_state[o]], to_state[o]) for o in fused_out]
