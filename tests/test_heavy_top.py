@@ -278,11 +278,13 @@ def test_constrained_system_of_a_heavy_top_with_a_full_inertia_tensor_gives_its_
 
 
 def _field(model, z, rows=None):
+    """The field of ``model`` at ``z``, at 50 digits (compiled without sympy's cse: evaluated once, the search for
+    shared sub-sums costs more than it saves)."""
     from lieseries.expr import compile_expressions
 
     ps = model.poisson
     exprs = ps.vector_field if rows is None else ps.vector_field[:rows]
-    prog = compile_expressions(ps.variables, exprs, len(ps.parameter_values))
+    prog = compile_expressions(ps.variables, exprs, len(ps.parameter_values), cse=False)
     return prog.evaluate(list(z), list(ps.parameter_values), 50)
 
 
