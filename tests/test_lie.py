@@ -424,3 +424,18 @@ def test_error_estimates_below_a_doubles_range_keep_their_size():
     c = private_ctx(440)
     ex = ls.exact.euler_poisson((1, 2, 3), (1, "0.1", "0.5"), "0.05", dps=440)
     assert max(abs(ctx_mpf(c, a) - ctx_mpf(c, b)) for a, b in zip(sol.y[-1], ex)) < c.mpf(10) ** -399
+
+
+@pytest.mark.parametrize("y0", ["1e-35", "1e-60"])
+def test_a_tiny_component_keeps_its_digits_beside_one_of_size_one(y0):
+    # y' = -100 y cos(x)^2 beside x' = -sin x: y is tiny but its digits are its own (nothing rounds into it from x).
+    # A floor on every scale at the largest's times 2^-(working bits) (meant for components that are the others'
+    # roundings: a sphere's momentum in its intermediate form) cost y = 1e-60 18 of its digits with `success`
+    x, y = hy.make_vars("x", "y")
+    sy = ls.PoissonSystem([x, y], [[0, 0], [0, 0]], 0.0 * x,
+                          extra_field=[-hy.sin(x), -100.0 * y * hy.cos(x) ** 2], jacobi=False)
+    sol = ls.lie_integrate(sy, [1, y0], "0.5", dps=30)
+    ref = ls.lie_integrate(sy, [1, y0], "0.5", dps=60)
+    assert sol.status == "success" and ref.status == "success"
+    with mp.workdps(80):  # relative to its largest value (the tolerance's scale): y0
+        assert abs(mp.mpf(sol.y[-1][1]) - mp.mpf(ref.y[-1][1])) <= mp.mpf(10) ** -30 * mp.mpf(y0)

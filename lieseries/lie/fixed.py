@@ -97,6 +97,9 @@ class FixedJets:
         self.rho = None
         self.log2_rho = None
         self.stepper = None
+        # per state, log2 of the bound on what the expansion's roundings put into its terms c_k sigma^k (None: not
+        # measured, or nothing to bound): below it a state's digits are the roundings' (NodeSizes.errors)
+        self.noise = None
         self._norms = None
         self._abs = None
         self._log_cols = {}
@@ -362,8 +365,10 @@ class FixedStepper:
         if span:  # (no step goes beyond the span: a time scale above it holds the jets coarser than a step needs)
             self.s = min(self.s, _ceil_log2(span))
         for _ in range(3):
-            M, U, _ = self._measured(zr, self.order, self.s, deadline, NodeSizes() if self.measure else None)
+            M, U, got = self._measured(zr, self.order, self.s, deadline, NodeSizes() if self.measure else None)
             jets = FixedJets(M, U, self.s, self.prec)
+            if got is not None and got.errors:
+                jets.noise = [e for e, _ in got.errors]
             jets.rho, jets.log2_rho = _estimate_radius(jets)
             self.last_rho = jets.rho
             jets.stepper = self

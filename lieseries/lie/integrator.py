@@ -21,10 +21,10 @@ so far (a component passing through zero keeps the scale of its swing). The tole
 component, in any units: relative to the largest component, a momentum of size 1 beside positions of size 1e6 kept
 only tol * 1e6 of its digits; absolute below 1, a momentum of size 1e-5 kept only tol / 1e-5 of them, and when the
 velocity is the momentum over 1e-5 its error went into the positions at once (3.5 digits lost at 30 digits, the
-estimates saying 2e-32). A component that is zero so far and over the step asks nothing; no scale lies below the
-largest component's times 2^-(working bits), where a component is at the level of the others' roundings (a sphere's
-momentum along x1 in the intermediate form, zero along a great circle but for them, 1e-45 against 1.5: held to its
-own noise, 1048 steps to the chart's edge where 21 serve). The step is capped at half
+estimates saying 2e-32). A component that is zero so far and over the step asks nothing; no component is asked for
+less than what the jets' own roundings put into it (their bound, where they measure one: a sphere's momentum along
+x1 in the intermediate form, zero along a great circle but for the roundings, 1e-45 against 1.5: held to its own
+noise, it took 1048 steps to the chart's edge where 21 serve). The step is capped at half
 the radius of convergence estimated from the coefficients, so that a step never reaches the singularity where the
 series diverges. The last step is shortened to land on the final time; output times inside a step are evaluated
 from that step's polynomial (dense output of the same accuracy).
@@ -271,7 +271,6 @@ class _LieEngine:
         # every estimate is at least the data's own relative uncertainty (an mpf below a float's range)
         self.floor = 0.0 if bits is None else math.ldexp(1.0, -bits) if bits < 1000 else mp.ldexp(mp.mpf(1), -bits)
         self.log2_tol = _log2(tolm)
-        self.noise_bits = wdps * math.log2(10)  # the working precision in bits (_log2_scales)
         self.collapse = mp.mpf(10) ** (-wdps + 2)  # a step below |t| * collapse has collapsed
         self.sgn, self.events, self.user, self.deadline = sgn, events, user, deadline
         self.segments = [] if dense else None
@@ -284,7 +283,7 @@ class _LieEngine:
         sum of |c_k,i| h^k) and its largest |value| at the steps' starts so far; ``-inf`` for a component that is
         zero so far and over the step. ``jet.log2_scales`` reads the size at 1 and above (0 below): below 1 the
         size is bounded below by its terms k = 0, 1 (and by every term, for a component zero so far whose first
-        two terms vanish). No scale lies below the largest's times 2^-(working bits)."""
+        two terms vanish). No scale lies below the jets' bound on their roundings over tol (``jet.noise``)."""
         out = []
         col1 = None
         lh = _log2(h)
@@ -296,12 +295,15 @@ class _LieEngine:
                 if lsize == -math.inf and lpeak == -math.inf:  # zero so far, with no first-order term
                     lsize = max((jet.log2_column(k)[i] + k * lh for k in range(2, self.N + 1)), default=-math.inf)
             out.append(max(lsize, lpeak))
-        # no scale below the working precision's unit of the largest: a component there is at the level of the others'
-        # roundings (a sphere's momentum along x1 in the intermediate form, zero along a great circle through the x2
-        # axis but for them, at 1e-45 against 1.5: its own scale took 1048 steps to the chart's edge at 20 digits,
-        # the local chart 21)
-        lfloor = max(out, default=-math.inf) - self.noise_bits
-        return [x if x >= lfloor else lfloor for x in out]
+        # no scale that would ask a component for less than what the expansion's own roundings put into it (the
+        # jets' bound, where they measure it): such a component's digits are the roundings' (a sphere's momentum
+        # along x1 in the intermediate form, zero along a great circle through the x2 axis but for them, at 1e-45
+        # against 1.5: its own scale took 1048 steps to the chart's edge at 20 digits, the local chart 21)
+        noise = jet.noise
+        if noise is not None:
+            ltol = self.log2_tol
+            out = [x if e is None or x >= e - ltol else e - ltol for x, e in zip(out, noise)]
+        return out
 
     def step(self, tcur, z, tend):
         N, tolm, sgn = self.N, self.tolm, self.sgn
