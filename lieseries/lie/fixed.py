@@ -34,7 +34,8 @@ Scaling (why fixed point loses nothing)
   cost the states (:class:`~lieseries.lie.fixed_orders.NodeSizes`' ``errors``: first-order error bounds carried
   through the instructions, the states' own values exact), and where that is more than the guard bits of a
   state's scale, :class:`FixedStepper` runs it again with as many working bits more as leave :data:`LOST_BITS` of
-  them, and keeps them for the later steps (:func:`extra_bits`; beyond :data:`MAX_EXTRA` times F a ValueError says so).
+  them, and keeps them for the later steps (:func:`extra_bits`; beyond :data:`MAX_EXTRA` times F a ValueError
+  says so).
 * The integers hold ``c_k sigma**k`` to ``F`` bits relative to the state's scale, i.e. each ``c_k`` with the
   absolute accuracy that a step of at most ``sigma`` needs: a Lie step ``h <= sigma`` multiplies the error of
   ``c_k`` by ``h**k``, so every term of the step's sum is known to ``F`` bits of the state.  :class:`FixedStepper`
@@ -308,18 +309,19 @@ class FixedStepper:
     """Repeated expansions of one system at one order and precision (the Lie step's jets).
 
     ``precision`` is a :class:`~lieseries.precision.Precision`: the jets hold its working bits (guard included) and
-    :func:`~lieseries.lie.plan.jet_guard_bits` more.  ``expand(z, span)`` returns :class:`FixedJets` for the state ``z`` (mpf) with a time scale ``sigma`` (a power
-    of two, ``max_step`` of the result) that the caller's step must not exceed.  Integers hold
-    ``c_k sigma**k`` to a fixed number of bits relative to the state, so a coefficient carries exactly the
-    absolute accuracy that a step of at most ``sigma`` needs, and no more: with ``sigma`` a few times the step
-    (and below the radius of convergence) the high orders, which a step multiplies by ``(h / rho)**k``, are
-    held with correspondingly fewer bits.  ``sigma`` is ``2**(ceil(log2 h) + 1)`` for the last step ``h`` that
-    :meth:`FixedJets.horner` evaluated (at most the largest power of two below the last radius estimate), a
-    quarter of the radius estimated by a short expansion at the first call, and at least ``span`` when the
-    solution is a polynomial (an infinite radius); never above ``span`` (no step goes beyond it).  ``sizes`` are what the nodes carried at the last expansion
-    (:class:`~lieseries.lie.fixed_orders.NodeSizes`, the module docstring's Scaling), and ``redone`` counts the
-    expansions run again because a node's scale lay above what it carried; ``extra`` the working bits the
-    expansions run with beyond F since one's roundings might cost a state its guard bits (:func:`extra_bits`).
+    :func:`~lieseries.lie.plan.jet_guard_bits` more.  ``expand(z, span)`` returns :class:`FixedJets` for the state
+    ``z`` (mpf) with a time scale ``sigma`` (a power of two, ``max_step`` of the result) that the caller's step must
+    not exceed.  Integers hold ``c_k sigma**k`` to a fixed number of bits relative to the state, so a coefficient
+    carries exactly the absolute accuracy that a step of at most ``sigma`` needs, and no more: with ``sigma`` a few
+    times the step (and below the radius of convergence) the high orders, which a step multiplies by
+    ``(h / rho)**k``, are held with correspondingly fewer bits.  ``sigma`` is ``2**(ceil(log2 h) + 1)`` for the last
+    step ``h`` that :meth:`FixedJets.horner` evaluated (at most the largest power of two below the last radius
+    estimate), a quarter of the radius estimated by a short expansion at the first call, and at least ``span`` when
+    the solution is a polynomial (an infinite radius); never above ``span`` (no step goes beyond it).  ``sizes`` are
+    what the nodes carried at the last expansion (:class:`~lieseries.lie.fixed_orders.NodeSizes`, the module
+    docstring's Scaling), and ``redone`` counts the expansions run again because a node's scale lay above what it
+    carried; ``extra`` the working bits the expansions run with beyond F since one's roundings might cost a state
+    its guard bits (:func:`extra_bits`).
     """
 
     def __init__(self, program, pars, order, precision):
@@ -465,6 +467,8 @@ def cancelling_bits(program_or_system, y0, pars, bits):
 
 
 def check_extra(extra, F):
+    """A ValueError when the jets would need more than :data:`MAX_EXTRA` times their F bits more
+    (:func:`extra_bits`)."""
     if extra > MAX_EXTRA * F:
         raise ValueError(
             f"the vector field's expression cancels about {extra} bits at this state: sums of terms far larger "
