@@ -17,7 +17,7 @@ from .poisson import as_poisson_system
 from .precision import check_tolerance, resolve_precision, to_fraction
 
 __all__ = ["build_integrator", "integrator_count", "event_function", "Recorder", "CrossingGuard", "Both",
-           "sparse_first_step", "first_step_bound"]
+           "sparse_first_step", "first_step_bound", "lane_bounds", "series_norms", "norm_bounds"]
 
 #: Compiled integrators (the templates runs copy, :func:`lieseries.cache.checkout`) by structure, precision,
 #: tolerance, events and options, in the shared cache (:mod:`lieseries.cache`); an evicted template takes its pooled
@@ -291,7 +291,7 @@ def sparse_first_step(ta, zero):
     tc = ta.tc
     p = ta.order
     if tc.ndim == 3:  # a batch: (variables, orders, lanes)
-        bounds = [first_step_bound(tc[:, :, j], p) for j in range(tc.shape[2])]
+        bounds = lane_bounds(tc, p)
         return None if all(b is None for b in bounds) else bounds
     return first_step_bound(tc, p)
 
@@ -321,6 +321,44 @@ def first_step_bound(tc, p):
     if heyoka_rho - smallest <= math.log(ENVELOPE_RATIO):
         return None
     return _step_at(smallest, p)
+
+
+def lane_bounds(tc, p):
+    """:func:`first_step_bound` of every lane of Taylor coefficients (variables x orders x lanes: a batch's); for
+    doubles in numpy, all lanes at once (:func:`series_norms`, :func:`norm_bounds`), except lanes whose last two
+    orders vanish (:func:`_gap_bound`, lane by lane)."""
+    if tc.dtype != np.float64:
+        return [first_step_bound(tc[:, :, j], p) for j in range(tc.shape[2])]
+    x0, top = series_norms(tc, p)
+    out = norm_bounds(x0, top, p)
+    for j in np.flatnonzero(top[-2:].max(axis=0) == 0):  # (NaN compares False: heyoka's checks see it)
+        out[j] = first_step_bound(tc[:, :, j], p)
+    return out
+
+
+def series_norms(tc, p, orders=False):
+    """What :func:`norm_bounds` reads of double Taylor coefficients (variables x orders x lanes): per lane, the
+    max-norm of order 0 and of the orders p - K .. p (K = max(4, p // 5)). ``orders``: ``tc`` holds only those
+    orders, 0 first (what an ensemble keeps of every member's series)."""
+    if orders:
+        return np.abs(tc[:, 0, :]).max(axis=0), np.abs(tc[:, 1:, :]).max(axis=0)
+    return np.abs(tc[:, 0, :]).max(axis=0), np.abs(tc[:, p - max(4, p // 5):, :]).max(axis=0)
+
+
+def norm_bounds(x0, top, p):
+    """:func:`first_step_bound` of lanes from their :func:`series_norms`; None for a lane whose last two orders
+    vanish (:func:`_gap_bound` needs its whole series) or with a non-finite coefficient (heyoka's own checks see the
+    run's trouble)."""
+    K = top.shape[0] - 1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        log_scale = np.log(np.maximum(1.0, x0))
+        lr = np.where(top > 0, (log_scale - np.log(top)) / np.arange(p - K, p + 1)[:, None], np.inf)
+        smallest = lr.min(axis=0)
+        bounded = np.isfinite(top).all(axis=0) & (lr[-2:].min(axis=0) - smallest > math.log(ENVELOPE_RATIO))
+    out = [None] * top.shape[1]
+    for j in np.flatnonzero(bounded):
+        out[j] = _step_at(float(smallest[j]), p)
+    return out
 
 
 def _log_abs(v):

@@ -11,7 +11,7 @@ import numpy as np
 
 from .. import cache
 from ..driver import run_message
-from ..heyoka_build import sparse_first_step
+from ..heyoka_build import norm_bounds, series_norms
 from ..precision import to_fraction
 from .result import TIME_LIMIT, outcome_kind
 
@@ -144,7 +144,7 @@ def run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, 
             cache.release(ta, free)
 
     over_threads(work, n_threads)
-    return sorted(handed)
+    return sorted(set(handed) | set(batches.first_steps()))
 
 
 class _Batches:
@@ -169,6 +169,8 @@ class _Batches:
             self.grid = np.repeat(np.array(times), B).reshape(-1, B)
         self.success_msg = run_message("success", t=tgrid[-1])
         self.zeros = [0.0] * B
+        self.starts = []  # (first member, members, the series at their start) of every batch run: first_steps
+        self.order = None
 
     def shared_parameters(self, ta) -> None:
         """The parameters of the thread's integrator ``ta`` when they are the same for every member (set once)."""
@@ -205,18 +207,33 @@ class _Batches:
                 out = out[1:]
         prs = ta.propagate_res
         nl = hi - lo
-        # a lane that went the whole way in one step may have started where heyoka's step rule cannot see the
-        # series (its last two orders vanish or are far below the lower ones:
-        # lieseries.heyoka_build.sparse_first_step), checked below
-        one_step = [j for j in range(nl) if prs[j][3] == 1]
         mine = self._record(ta, lo, hi, idx, out, prs)
-        if one_step:
-            ta.state[:] = self.Ynat[idx].T
-            ta.set_time(float(self.t0n))
-            bounds = sparse_first_step(ta, self.zeros)
-            if bounds is not None:  # the single run bounds the first step
-                mine = sorted(set(mine) | {lo + j for j in one_step if bounds[j] is not None})
+        # the series at the lanes' start (a zero-length step of the batch that writes it), for first_steps
+        ta.state[:] = self.Ynat[idx].T
+        ta.set_time(float(self.t0n))
+        ta.step(self.zeros, write_tc=True)
+        p = self.order = ta.order
+        self.starts.append((lo, nl, ta.tc[:, [0] + list(range(p - max(4, p // 5), p + 1)), :]))  # (series_norms)
         return mine
+
+    def first_steps(self) -> list:
+        """The members whose first step heyoka's step rule could not size: their series at the start has its last
+        two orders vanish or far below the lower ones (:func:`lieseries.heyoka_build.sparse_first_step`), and the
+        step was too long whether the member went the whole way in it or not (from q = 1e-6, q'' = 1 - 3 q^2 in
+        double: 6e-14 off, success); a single run bounds it. Every batch's series read at once (the orders 0 and
+        p - K .. p of each kept); a member whose last two orders vanish is handed over too (its single run reads
+        the whole series)."""
+        if not self.starts:
+            return []
+        p = self.order
+        x0, top = series_norms(np.concatenate([tc for _, _, tc in self.starts], axis=2), p, orders=True)
+        bounds = norm_bounds(x0, top, p)
+        gap = top[-2:].max(axis=0) == 0  # (the lanes' whole series would tell: the single run reads it)
+        out, at = [], 0
+        for lo, nl, tc in self.starts:
+            out.extend(lo + j for j in range(nl) if bounds[at + j] is not None or gap[at + j])
+            at += tc.shape[2]
+        return out
 
     def _record(self, ta, lo, hi, idx, out, prs) -> list:
         """Record the batch's members once ``ta`` has run them (a final-time run that did not finish goes on);

@@ -58,14 +58,13 @@ def run_scalar(ta0, event_info, Ynat, pars, ps, prec, tgrid, t0n, direction, cap
                         reached_message=reached)
         except _HandOver:
             return False
-        if out.steps == 1:
-            # the whole way in one step: heyoka's step rule may not have seen the series at y0 (its last two orders
-            # vanish or are far below the lower ones: lieseries.heyoka_build.sparse_first_step); the single run
-            # then bounds the first step
-            ta.time = t0_nat
-            ta.state[:] = Ynat[i]
-            if sparse_first_step(ta, zero) is not None:
-                return False
+        # heyoka's step rule may not have seen the series at y0 (its last two orders vanish or are far below the
+        # lower ones: lieseries.heyoka_build.sparse_first_step), whether the run took one step or more (from
+        # q = 1e-6, q'' = 1 - 3 q^2 in quad: 8e-32 off, success); the single run then bounds the first step
+        ta.time = t0_nat
+        ta.state[:] = Ynat[i]
+        if sparse_first_step(ta, zero) is not None:
+            return False
         for j, y in zip(out.rows_t, out.rows_y):
             res.y[i, j] = y
         res.rows[i] = len(out.rows_t)
