@@ -133,7 +133,9 @@ def lie_integrate(
         polynomial is sampled for sign changes, and every crossing is solved for in mpmath at the working
         precision (a bracketed secant method on the step's polynomial).
     max_steps, max_time :
-        Budgets; the run stops with status ``step_budget`` / ``time_budget`` and keeps what it computed.
+        Budgets; the run stops with status ``step_budget`` / ``time_budget`` and keeps what it computed. After 64
+        steps, a run that at its step size would need more than 10 times the steps left stops at once, saying so
+        (``step_collapse`` where its steps have shrunk below 1/100 of its longest).
     progress : callable or True, optional
         Called as ``progress(fraction_done)`` after each step; True shows a bar (on a terminal).
     atlas : bool, optional
@@ -181,7 +183,7 @@ def lie_integrate(
     user_events = resolve_events(user_events_arg, system, ps)
     wdps = prec.working_dps
     with mp.workdps(wdps):
-        engine = _LieEngine(stepper, N, N_auto if order is not None else None, tolm, wdps, bits,
+        engine = _LieEngine(stepper, N, N_auto if order is not None else None, tolm, wdps, bits, max_steps,
                             1 if direction >= 0 else -1, _event_checks(model, ps),
                             _UserEvents(user_events, ps, pars) if user_events else None,
                             None if max_time is None else start + max_time, dense)
@@ -266,8 +268,9 @@ def _series_order(order, tolm, tol, prec):
 class _LieEngine:
     """One Lie-series step for :func:`lieseries.driver.drive` (module docstring: order, step and error rules)."""
 
-    def __init__(self, stepper, N, N_auto, tolm, wdps, bits, sgn, events, user, deadline, dense):
+    def __init__(self, stepper, N, N_auto, tolm, wdps, bits, max_steps, sgn, events, user, deadline, dense):
         self.stepper, self.N, self.N_auto, self.tolm, self.wdps = stepper, N, N_auto, tolm, wdps
+        self.max_steps, self.steps, self.max_h = max_steps, 0, None  # (_ahead)
         # every estimate is at least the data's own relative uncertainty (an mpf below a float's range)
         self.floor = 0.0 if bits is None else math.ldexp(1.0, -bits) if bits < 1000 else mp.ldexp(mp.mpf(1), -bits)
         self.log2_tol = _log2(tolm)
@@ -312,8 +315,8 @@ class _LieEngine:
         rho, lrho = jet.rho, jet.log2_rho  # estimate_radius of the norms, computed once by the stepper
         h, lscales, last, quiet = self._step_size(jet, z, span)
         if h <= abs(tcur) * self.collapse or h == 0:
-            raise Stop("step_collapse", f"it fell to {mp.nstr(h, 3)}, and the series' radius of convergence there "
-                       f"is ~{mp.nstr(rho, 3)}: the solution is singular nearby")
+            raise self._collapsed(h, rho)
+        self._ahead(h, span, rho)
         lh = _log2(h)
         hs = h * sgn
         err = self._estimate(jet, lh, lscales, last, quiet)
@@ -350,6 +353,32 @@ class _LieEngine:
             return list(znew) if stop is None and tau == hs else jet.evaluate(tau)
 
         return StepResult(tnew, znew, h=h, row=row, error=err, stop=end)
+
+    @staticmethod
+    def _collapsed(h, rho):
+        return Stop("step_collapse", f"it fell to {mp.nstr(h, 3)}, and the series' radius of convergence there is "
+                    f"~{mp.nstr(rho, 3)}: the solution is singular nearby, or at this precision its series there is "
+                    "the roundings' (a run with more digits tells)")
+
+    def _ahead(self, h, span, rho):
+        """A stop when, after :data:`AHEAD_AFTER` steps, finishing at this step size would take more than
+        :data:`AHEAD_MARGIN` times the steps the budget has left: the run would spend it all and stop anyway (the
+        field of tests/test_fixed_jets.py at x = 1e60, whose steps fall below 1e-9 of a span of 1, took 100000 steps
+        and two minutes to say so). ``step_collapse`` where the steps have shrunk below 1/100 of the longest so far
+        (as heyoka's runs say), else ``step_budget``."""
+        self.steps += 1
+        self.max_h = h if self.max_h is None or h > self.max_h else self.max_h
+        left = self.max_steps - self.steps
+        if self.steps < AHEAD_AFTER or h >= span or left <= 0:
+            return
+        need = span / h
+        if need <= AHEAD_MARGIN * left:
+            return
+        if h < self.max_h / 100:
+            raise self._collapsed(h, rho)
+        raise Stop("step_budget", f"{mp.nstr(span, 3)} time units remain, about {mp.nstr(need, 3)} steps at the "
+                   f"step size {mp.nstr(h, 3)}", reason="step_budget.hopeless" if need > AHEAD_HOPELESS else
+                   "step_budget.ahead")
 
     def _expand(self, z, span):
         """The jets at ``z`` (:class:`~lieseries.lie.fixed.FixedJets`); a budget or a domain stop as a Stop."""
@@ -424,6 +453,13 @@ class _LieEngine:
         err = math.inf if lerr >= 1024 else 2.0 ** lerr if lerr > -1000 else mp.mpf(2) ** lerr
         return max(err, self.floor)
 
+
+#: Steps a run takes before it judges whether its step budget can suffice (:meth:`_LieEngine._ahead`), and how many
+#: times the steps left finishing at the current step size must exceed for the run to stop early (steps can grow)
+AHEAD_AFTER = 64
+AHEAD_MARGIN = 10
+#: Steps beyond any budget of a Lie run (a step takes 0.1 ms or more: a day's work)
+AHEAD_HOPELESS = 10**9
 
 #: The last orders whose terms the error estimate reads when they decay more slowly than h / rho says.
 TAIL_WINDOW = 8
