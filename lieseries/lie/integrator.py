@@ -134,8 +134,9 @@ def lie_integrate(
         precision (a bracketed secant method on the step's polynomial).
     max_steps, max_time :
         Budgets; the run stops with status ``step_budget`` / ``time_budget`` and keeps what it computed. After 64
-        steps, a run that at its step size would need more than 10 times the steps left stops at once, saying so
-        (``step_collapse`` where its steps have shrunk below 1/100 of its longest).
+        steps (or 1% of ``max_steps``), a run that at its step size and at its average step would need more than
+        10 times the steps left stops at once, saying so (``step_collapse`` where its steps have shrunk below
+        1/100 of its longest).
     progress : callable or True, optional
         Called as ``progress(fraction_done)`` after each step; True shows a bar (on a terminal).
     atlas : bool, optional
@@ -270,7 +271,7 @@ class _LieEngine:
 
     def __init__(self, stepper, N, N_auto, tolm, wdps, bits, max_steps, sgn, events, user, deadline, dense):
         self.stepper, self.N, self.N_auto, self.tolm, self.wdps = stepper, N, N_auto, tolm, wdps
-        self.max_steps, self.steps, self.max_h = max_steps, 0, None  # (_ahead)
+        self.max_steps, self.steps, self.max_h, self.t_first = max_steps, 0, None, None  # (_ahead)
         # every estimate is at least the data's own relative uncertainty (an mpf below a float's range)
         self.floor = 0.0 if bits is None else math.ldexp(1.0, -bits) if bits < 1000 else mp.ldexp(mp.mpf(1), -bits)
         self.log2_tol = _log2(tolm)
@@ -316,7 +317,7 @@ class _LieEngine:
         h, lscales, last, quiet = self._step_size(jet, z, span)
         if h <= abs(tcur) * self.collapse or h == 0:
             raise self._collapsed(h, rho)
-        self._ahead(h, span, rho)
+        self._ahead(h, span, rho, tcur)
         lh = _log2(h)
         hs = h * sgn
         err = self._estimate(jet, lh, lscales, last, quiet)
@@ -360,24 +361,28 @@ class _LieEngine:
                     f"~{mp.nstr(rho, 3)}: the solution is singular nearby, or at this precision its series there is "
                     "the roundings' (a run with more digits tells)")
 
-    def _ahead(self, h, span, rho):
-        """A stop when, after :data:`AHEAD_AFTER` steps, finishing at this step size would take more than
-        :data:`AHEAD_MARGIN` times the steps the budget has left: the run would spend it all and stop anyway (the
-        field of tests/test_fixed_jets.py at x = 1e60, whose steps fall below 1e-9 of a span of 1, took 100000 steps
-        and two minutes to say so). ``step_collapse`` where the steps have shrunk below 1/100 of the longest so far
-        (as heyoka's runs say), else ``step_budget``."""
+    def _ahead(self, h, span, rho, tcur):
+        """A stop when, after :data:`AHEAD_AFTER` steps (or a hundredth of the budget, if more), finishing would
+        take more than :data:`AHEAD_MARGIN` times the steps the budget has left, at the larger of this step and the
+        run's average step (a run that slows down for a while, as Kepler's through its pericentre, is judged by the
+        steps of its whole way): it would spend its budget and stop anyway (the field of tests/test_fixed_jets.py
+        at x = 1e60, whose steps stay below 1e-12 of a span of 1, took 100000 steps and two minutes to say so).
+        ``step_collapse`` where the steps have shrunk below 1/100 of the longest so far (as heyoka's runs say),
+        else ``step_budget``."""
+        if self.t_first is None:
+            self.t_first = tcur
         self.steps += 1
         self.max_h = h if self.max_h is None or h > self.max_h else self.max_h
         left = self.max_steps - self.steps
-        if self.steps < AHEAD_AFTER or h >= span or left <= 0:
+        if self.steps < max(AHEAD_AFTER, self.max_steps // 100) or h >= span or left <= 0:
             return
-        need = span / h
+        need = span / max(h, abs(tcur - self.t_first) / (self.steps - 1))
         if need <= AHEAD_MARGIN * left:
             return
         if h < self.max_h / 100:
             raise self._collapsed(h, rho)
         raise Stop("step_budget", f"{mp.nstr(span, 3)} time units remain, about {mp.nstr(need, 3)} steps at the "
-                   f"step size {mp.nstr(h, 3)}", reason="step_budget.hopeless" if need > AHEAD_HOPELESS else
+                   f"run's step size so far", reason="step_budget.hopeless" if need > AHEAD_HOPELESS else
                    "step_budget.ahead")
 
     def _expand(self, z, span):
