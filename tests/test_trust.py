@@ -717,6 +717,9 @@ def test_heyoka_above_64_bits_warns_of_a_field_that_cancels_at_y0():
                           parameters=["6e-21", "1e-14"], jacobi=False)
     with pytest.warns(PrecisionWarning, match=r"cancels at `y0`: rounded to 226 bits.*138 of the 226 bits"):
         sol = ls.integrate(sy, [6 * 10**20, 1], 1, precision=226)
+    # an ensemble in quad (its members run by the scalar threads, not as single runs): one warning, naming them
+    with pytest.warns(PrecisionWarning, match=r"cancels at `Y0\[0\]`, `Y0\[2\]` \(2 of the 3 members\)"):
+        ls.integrate(sy, [[6 * 10**20, 1], [1, 1], [6 * 10**20, 2]], 1, precision="quad")
     ref = ls.lie_integrate(sy, [6 * 10**20, 1], 1, dps=80)
     with mp.workdps(100):
         f = to_fraction(sol.y[-1][1])

@@ -14,6 +14,7 @@ from ..driver import run_message
 from ..energy import drift_message, energy_check, energy_drift
 from ..solution import EnsembleSolution
 from ..taylor import integrate as run_single
+from ..taylor.plan import warn_cancelling_field
 from .batch import BATCH_STEPS, run_batches
 from .build import build_batch_integrator, build_scalar_integrator
 from .cluster import run_dask
@@ -149,6 +150,8 @@ def _run_path(plan, res, progress) -> PathRun:
                              plan.direction, plan.B, cap, workers, res, progress)
         path = PathRun("batch", workers, int(ta.order), build, handed, event_info)
     elif prec.name in ("long double", "quad") and scalar_ok:
+        if plan.members is None:  # (single runs warn themselves; models of their own each are not checked here)
+            warn_cancelling_field(plan.ps, plan.Ynat, prec.bits, plan.pars, where="Y0")
         ta, build, event_info = build_scalar_integrator(plan.run_system, prec, plan.tolf,
                                                         compact_mode=plan.compact_mode,
                                                         high_accuracy=plan.high_accuracy)

@@ -119,24 +119,37 @@ def warn_coarse_inputs(ps, y0, times, work_bits: int) -> bool:
 CANCELLING_BITS = 32
 
 
-def warn_cancelling_field(ps, z0, work_bits: int) -> bool:
+def warn_cancelling_field(ps, z0, work_bits: int, pars=None, where="`y0`") -> bool:
     """A :class:`~lieseries.precision.PrecisionWarning` when, rounded to ``work_bits`` as heyoka rounds, the vector
     field's expression cancels at the exact state ``z0`` far below its terms (:data:`CANCELLING_BITS`); True when
-    there was one. Runs above 64 bits only (the check compiles the field for the Lie engine once per system, ~0.7 s
-    for a heavy top's intermediate form, against seconds for heyoka's own compilation at those precisions)."""
+    there was one. ``z0`` may be a list of states (an ensemble's members: ``pars`` their parameter rows, or None
+    for the system's own), one warning naming those it concerns. Runs above 64 bits only (the check compiles the
+    field for the Lie engine once per system, ~0.7 s for a heavy top's intermediate form, against seconds for
+    heyoka's own compilation at those precisions)."""
     if work_bits <= 64:
         return False
     from ..lie.fixed import cancelling_bits
 
-    lost = cancelling_bits(ps.program, list(z0), list(ps.parameter_values), work_bits)
-    if lost <= CANCELLING_BITS:
+    own = list(ps.parameter_values)
+    many = len(z0) > 0 and isinstance(z0[0], (list, tuple, np.ndarray))
+    rows = list(z0) if many else [z0]
+    lost = [(i, cancelling_bits(ps.program, list(r), own if pars is None else list(pars[i]), work_bits))
+            for i, r in enumerate(rows)]
+    lost = [(i, b) for i, b in lost if b > CANCELLING_BITS]
+    if not lost:
         return False
+    worst = max(b for _, b in lost)
+    if many:
+        shown = ", ".join(f"`{where}[{i}]`" for i, _ in lost[:6]) + (", ..." if len(lost) > 6 else "")
+        at = f"{shown} ({len(lost)} of the {len(rows)} members)"
+    else:
+        at = where
     warnings.warn(PrecisionWarning(
-        f"the vector field's expression cancels at `y0`: rounded to {work_bits} bits, as heyoka computes it, its "
-        f"terms may leave a state's rate off by up to 2^{lost - work_bits} of the state per unit time (a bound; "
-        f"{lost} of the {work_bits} bits) -- heyoka's arithmetic cannot hold more, and the run's error estimate does "
-        "not see it. `lie_integrate` evaluates such a field at the bits it needs; or write the expression without "
-        "the terms that cancel."), stacklevel=stacklevel())
+        f"the vector field's expression cancels at {at}: rounded to {work_bits} bits, as heyoka computes it, its "
+        f"terms may leave a state's rate off by up to 2^{worst - work_bits} of the state per unit time (a bound; "
+        f"{worst} of the {work_bits} bits) -- heyoka's arithmetic cannot hold more, and the run's error estimate "
+        "does not see it. `lie_integrate` evaluates such a field at the bits it needs; or write the expression "
+        "without the terms that cancel."), stacklevel=stacklevel())
     return True
 
 
