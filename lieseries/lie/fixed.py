@@ -385,7 +385,7 @@ class FixedStepper:
         to go unmeasured): run again from what the nodes carried when a node's scale lay more than
         :data:`COARSE_BITS` above it (beyond what the sizes it was given knew), and at more working bits when the
         roundings may cost a state more than its guard bits (:func:`extra_bits`)."""
-        for _ in range(4):
+        while True:  # (the extra bits grow by 16 or more a round: check_extra ends it)
             wp = self.wp + self.extra
             first = self.sizes
             M, U = expand(self.program, zr, self.pars_raw, order, wp, s, deadline, first, got)
@@ -402,7 +402,7 @@ class FixedStepper:
                 return M, U, got
             self.extra += more
             check_extra(self.extra, self.wp)
-        return M, U, got
+            got = NodeSizes()  # (got is measured: it has errors)
 
 
 #: What the roundings may cost a state of the jets' guard bits (F less the working bits) after the expansion is run
@@ -508,7 +508,7 @@ def fixed_taylor_coefficients(program_or_system, y0, pars, order, dps, time_scal
     try:
         got, extra = NodeSizes(), 0
         M, U = expand(program, y0r, pr, order, wp, int(time_scale), measured=got)
-        for _ in range(4):
+        while True:  # (the extra bits grow by 16 or more a round: check_extra ends it)
             if got.coarse(COARSE_BITS):  # rounded coarser than the nodes carry: again, from what they carried
                 sizes, got = got, NodeSizes()
                 M, U = expand(program, y0r, pr, order, wp + extra, int(time_scale), sizes=sizes, measured=got)
