@@ -66,7 +66,7 @@ import numpy as np
 from mpmath.libmp import from_man_exp, fzero
 
 from .. import expr as _expr
-from ..precision import check_dps, check_order, dps_to_bits, mp_context
+from ..precision import Precision, check_dps, check_order, mp_context
 from ..precision import thread_mp as mp
 from . import bigint
 from .bigint import greater_abs, log2_abs, to_raw, round_shift, backend, set_backend
@@ -500,30 +500,16 @@ def fixed_taylor_coefficients(program_or_system, y0, pars, order, dps, time_scal
     """
     program = resolve_program(program_or_system)
     order = check_order(order)
-    dps = check_dps(dps)
-    prec = dps_to_bits(dps)
-    wp = prec + jet_guard_bits(order)
-    y0r = _expr.convert_vector(y0, program.nvars, wp, "y0")
-    pr = _expr.convert_vector(pars, program.npars, wp, "pars")
+    prec = Precision.of(dps=check_dps(dps))
+    stepper = FixedStepper(program, pars, order, prec)  # (its expansions, at the time scale given)
+    y0r = _expr.convert_vector(y0, program.nvars, stepper.wp, "y0")
     try:
-        got, extra = NodeSizes(), 0
-        M, U = expand(program, y0r, pr, order, wp, int(time_scale), measured=got)
-        while True:  # (the extra bits grow by 16 or more a round: check_extra ends it)
-            if got.coarse(COARSE_BITS):  # rounded coarser than the nodes carry: again, from what they carried
-                sizes, got = got, NodeSizes()
-                M, U = expand(program, y0r, pr, order, wp + extra, int(time_scale), sizes=sizes, measured=got)
-            more = extra_bits(got, wp, prec)
-            if not more:
-                break
-            extra += more
-            check_extra(extra, wp)
-            sizes, got = got, NodeSizes()
-            M, U = expand(program, y0r, pr, order, wp + extra, int(time_scale), sizes=sizes, measured=got)
+        M, U, _ = stepper._measured(y0r, order, int(time_scale), None, NodeSizes())
     except ZeroDivisionError as exc:
         raise ValueError(
             f"the Taylor expansion does not exist at `y0` ({exc}; a zero denominator "
             "or a log/sqrt/non-integer power at zero)"
         ) from None
     make = (ctx or mp_context()).make_mpf
-    s = int(time_scale)
-    return [[make(to_raw(M[i][k], U[i] - s * k, prec)) for i in range(program.nvars)] for k in range(order + 1)]
+    s, bits = int(time_scale), prec.working_bits
+    return [[make(to_raw(M[i][k], U[i] - s * k, bits)) for i in range(program.nvars)] for k in range(order + 1)]

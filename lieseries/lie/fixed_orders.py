@@ -621,8 +621,11 @@ def _op_error(kind, out, args, extra, E, S, U, cv, value):
         E[out] = max(ea, E[b] + S[out] - d, U[out] - 1)
     elif kind in ("pow", "sqrt", "exp", "log"):  # |d out / d a|: |r out / a|, |out / 2a|, |out|, 1 / |a|
         a = args[0]
-        g = {"pow": lambda: cexp(cv[extra[0]]) + S[out] - value(a), "sqrt": lambda: S[out] - value(a),
-             "exp": lambda: S[out], "log": lambda: -value(a)}[kind]()
+        g = S[out] if kind != "log" else 0
+        if kind != "exp":
+            g -= value(a)
+        if kind == "pow":
+            g += cexp(cv[extra[0]])
         E[out] = max(E[a] + g + 1, U[out] - 1)
     elif kind == "tan" or kind == "tanh":  # t' = u a', u = 1 +- t^2
         t, u = out
