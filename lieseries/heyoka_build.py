@@ -303,24 +303,19 @@ ENVELOPE_RATIO = 1.25
 
 def first_step_bound(tc, p):
     """:func:`sparse_first_step` for the Taylor coefficients ``tc`` (variables x orders 0..p) of one state: what a
-    step taken from that state with ``write_tc=True`` leaves in ``ta.tc`` (``p``: ``ta.order``)."""
+    step taken from that state with ``write_tc=True`` leaves in ``ta.tc`` (``p``: ``ta.order``); its numbers in
+    any of heyoka's formats (their logarithms exact beyond the double range)."""
     logs0 = [_log_abs(v) for v in tc[:, 0]]
-    log_scale = max([0.0] + [x for x in logs0 if x is not None])  # heyoka's: max(1, |x0|_inf)
+    log_x0 = max([-math.inf] + [x for x in logs0 if x is not None])
     if not (tc[:, p - 1:] != 0).any():
-        return _gap_bound(tc, p, log_scale)
-    K = max(4, p // 5)
-    log_rho = {}
-    for k in range(p - K, p + 1):
+        return _gap_bound(tc, p, max(0.0, log_x0))  # (heyoka's scale: max(1, |x0|_inf))
+    log_top = []
+    for k in range(p - max(4, p // 5), p + 1):
         logs = [_log_abs(v) for v in tc[:, k] if v != 0]
         if None in logs:  # a non-finite coefficient: heyoka's own checks see the run's trouble
             return None
-        if logs:
-            log_rho[k] = (log_scale - max(logs)) / k
-    heyoka_rho = min(log_rho[k] for k in (p - 1, p) if k in log_rho)
-    smallest = min(log_rho.values())
-    if heyoka_rho - smallest <= math.log(ENVELOPE_RATIO):
-        return None
-    return _step_at(smallest, p)
+        log_top.append(max(logs, default=-math.inf))
+    return _log_bounds(np.array([log_x0]), np.array(log_top)[:, None], p)[0]
 
 
 def lane_bounds(tc, p):
@@ -349,13 +344,22 @@ def norm_bounds(x0, top, p):
     """:func:`first_step_bound` of lanes from their :func:`series_norms`; None for a lane whose last two orders
     vanish (:func:`_gap_bound` needs its whole series) or with a non-finite coefficient (heyoka's own checks see the
     run's trouble)."""
-    K = top.shape[0] - 1
     with np.errstate(divide="ignore", invalid="ignore"):
-        log_scale = np.log(np.maximum(1.0, x0))
-        lr = np.where(top > 0, (log_scale - np.log(top)) / np.arange(p - K, p + 1)[:, None], np.inf)
+        return _log_bounds(np.log(x0), np.log(top), p)
+
+
+def _log_bounds(log_x0, log_top, p):
+    """The rule of :func:`sparse_first_step` for lanes given the logarithms of the max-norms of their order 0
+    (``log_x0``, per lane) and of their orders p - K .. p (``log_top``, orders x lanes; -inf for a zero order, NaN or
+    inf for a non-finite one: no bound)."""
+    K = log_top.shape[0] - 1
+    with np.errstate(invalid="ignore"):
+        log_scale = np.fmax(0.0, log_x0)  # heyoka's: max(1, |x0|_inf)
+        lr = np.where(log_top > -np.inf, (log_scale - log_top) / np.arange(p - K, p + 1)[:, None], np.inf)
         smallest = lr.min(axis=0)
-        bounded = np.isfinite(top).all(axis=0) & (lr[-2:].min(axis=0) - smallest > math.log(ENVELOPE_RATIO))
-    out = [None] * top.shape[1]
+        finite = (log_top < np.inf).all(axis=0)  # (NaN compares False)
+        bounded = finite & (lr[-2:].min(axis=0) - smallest > math.log(ENVELOPE_RATIO))
+    out = [None] * log_top.shape[1]
     for j in np.flatnonzero(bounded):
         out[j] = _step_at(float(smallest[j]), p)
     return out
