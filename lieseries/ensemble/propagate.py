@@ -151,7 +151,7 @@ def _run_path(plan, res, progress) -> PathRun:
         path = PathRun("batch", workers, int(ta.order), build, handed, event_info)
     elif prec.name in ("long double", "quad") and scalar_ok:
         if plan.members is None:  # (single runs warn themselves; models of their own each are not checked here)
-            warn_cancelling_field(plan.ps, plan.Ynat, prec.bits, plan.pars, where="Y0")
+            warn_cancelling_field(plan.ps, plan.Ynat, prec.bits, plan.pars, members=True)
         ta, build, event_info = build_scalar_integrator(plan.run_system, prec, plan.tolf,
                                                         compact_mode=plan.compact_mode,
                                                         high_accuracy=plan.high_accuracy)

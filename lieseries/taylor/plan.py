@@ -119,31 +119,29 @@ def warn_coarse_inputs(ps, y0, times, work_bits: int) -> bool:
 CANCELLING_BITS = 32
 
 
-def warn_cancelling_field(ps, z0, work_bits: int, pars=None, where="`y0`") -> bool:
+def warn_cancelling_field(ps, rows, work_bits: int, pars=None, members: bool = False) -> bool:
     """A :class:`~lieseries.precision.PrecisionWarning` when, rounded to ``work_bits`` as heyoka rounds, the vector
-    field's expression cancels at the exact state ``z0`` far below its terms (:data:`CANCELLING_BITS`); True when
-    there was one. ``z0`` may be a list of states (an ensemble's members: ``pars`` their parameter rows, or None
-    for the system's own), one warning naming those it concerns. Runs above 64 bits only (the check compiles the
-    field for the Lie engine once per system, ~0.7 s for a heavy top's intermediate form, against seconds for
-    heyoka's own compilation at those precisions)."""
+    field's expression cancels far below its terms (:data:`CANCELLING_BITS`) at one of the exact states ``rows``
+    (a single run's ``y0``, or an ensemble's members when ``members``: ``pars`` their parameter rows, or None for the
+    system's own), one warning naming those it concerns; True when there was one. Runs above 64 bits only (the check
+    compiles the field for the Lie engine once per system, ~0.7 s for a heavy top's intermediate form, against
+    seconds for heyoka's own compilation at those precisions)."""
     if work_bits <= 64:
         return False
     from ..lie.fixed import cancelling_bits
 
     own = list(ps.parameter_values)
-    many = len(z0) > 0 and isinstance(z0[0], (list, tuple, np.ndarray))
-    rows = list(z0) if many else [z0]
     lost = [(i, cancelling_bits(ps.program, list(r), own if pars is None else list(pars[i]), work_bits))
             for i, r in enumerate(rows)]
     lost = [(i, b) for i, b in lost if b > CANCELLING_BITS]
     if not lost:
         return False
     worst = max(b for _, b in lost)
-    if many:
-        shown = ", ".join(f"`{where}[{i}]`" for i, _ in lost[:6]) + (", ..." if len(lost) > 6 else "")
+    if members:
+        shown = ", ".join(f"`Y0[{i}]`" for i, _ in lost[:6]) + (", ..." if len(lost) > 6 else "")
         at = f"{shown} ({len(lost)} of the {len(rows)} members)"
     else:
-        at = where
+        at = "`y0`"
     warnings.warn(PrecisionWarning(
         f"the vector field's expression cancels at {at}: rounded to {work_bits} bits, as heyoka computes it, its "
         f"terms may leave a state's rate off by up to 2^{worst - work_bits} of the state per unit time (a bound; "
