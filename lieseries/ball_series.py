@@ -12,6 +12,7 @@ from contextlib import contextmanager
 from fractions import Fraction
 
 from .lie.plan import DeadlineExceeded
+from .precision import check_count
 
 __all__ = ["SUPPORTED_OPS", "flint_module", "working_precision", "whole_series", "Singular", "ball_constant",
            "exact_constant", "evaluate", "check_ops", "taylor_coefficients"]
@@ -75,13 +76,15 @@ def working_precision(bits: int, cap: int | None = None):
     RLock: the stretches nest), so threads take turns. Code that sets ``flint.ctx`` in another thread without this
     function is not covered. Series longer than the cap are cut (their O(x^n) says so): the cap must exceed the
     orders in use."""
+    bits = check_count(bits, "bits", low=2)
+    cap = None if cap is None else check_count(cap, "cap")
     flint = flint_module()
     with _LOCK:
         old = flint.ctx.prec, flint.ctx.cap
         try:
-            flint.ctx.prec = int(bits)
+            flint.ctx.prec = bits
             if cap is not None:
-                flint.ctx.cap = int(cap)
+                flint.ctx.cap = cap
             yield flint
         finally:
             try:

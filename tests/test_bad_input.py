@@ -4,8 +4,15 @@ import numpy as np
 import pytest
 
 import lieseries as ls
-from lieseries import exact, studies
+from lieseries import exact, studies, validated
 from lieseries.scenes import SceneError, load_scene
+
+
+def _enter(make):
+    """Enter the context manager ``make()`` gives (its checks run on entering)."""
+    with make():
+        pass
+
 
 BODY = ls.EulerPoisson((1, 2, 3))
 Y0 = BODY.initial_state((1, 0.1, 0.5))
@@ -83,6 +90,9 @@ CASES.update({
                                              "`progress`"),
     "lie_integrate: max_steps 1.5": (lambda: ls.lie_integrate(BODY, Y0, t=1, max_steps=1.5), TypeError,
                                      "`max_steps`"),
+    "working_precision: bits 2.5": (lambda: _enter(lambda: validated.working_precision(2.5)), TypeError, "`bits`"),
+    "working_precision: cap 0": (lambda: _enter(lambda: validated.working_precision(100, cap=0)), ValueError,
+                                 "`cap`"),
     "LieSeries(t): string": (lambda: ls.lie_series(BODY, Y0, order=4, dps=20)("soon"), ValueError, "`t`"),
     "LieSeries(t): nan": (lambda: ls.lie_series(BODY, Y0, order=4, dps=20)(float("nan")), ValueError, "`t`"),
     "exact: nan + 1j": (lambda: exact.angular_velocity((1, 2, 3), (1, 0, 0), complex(float("nan"), 1)),
