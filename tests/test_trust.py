@@ -735,3 +735,62 @@ def test_heyoka_above_64_bits_warns_of_a_field_that_cancels_at_y0():
                       (sphere, sphere.initial_state(("0.6", "0", "0.8"), ("0", "1", "0")))]:
         ps = as_poisson_system(model)
         assert cancelling_bits(ps.program, list(y0), list(ps.parameter_values), 113) <= CANCELLING_BITS
+
+
+def _cancelling_system():
+    # y' = (p + x)^2 - p^2 - 2 p x - x^2 + r cos y = r cos y: the squares of x cancel
+    x, y = hy.make_vars("x", "y")
+    p, r = hy.par[0], hy.par[1]
+    return ls.PoissonSystem([x, y], [[0, 0], [0, 0]], 0.0 * x,
+                            extra_field=[r * y, (p + x) * (p + x) - p * p - 2.0 * p * x - x * x + r * hy.cos(y)],
+                            parameters=["3", "1"], jacobi=False)
+
+
+def test_heyoka_in_double_and_long_double_warns_of_a_field_that_cancels_at_y0():
+    # beside x = 1e10, double ended `success` with y 17.9 off (its tolerance, relative to the largest state, allows
+    # 2e-6) and long double 1.2 off: each now warns, and the warning says what the run shows
+    sy = _cancelling_system()
+    ref = ls.lie_integrate(sy, [10**10, 1], 1, dps=40)
+    for precision in ("double", "long double"):
+        with pytest.warns(PrecisionWarning, match=r"cancels at `y0`: rounded to (53|64) bits"):
+            sol = ls.integrate(sy, [10**10, 1], 1, precision=precision)
+        assert abs(mp.mpf(str(sol.y[-1][1])) - ref.y[-1][1]) > 1e-3  # as it says
+    # an ensemble in double (heyoka's batch mode): one warning, naming the member concerned
+    with pytest.warns(PrecisionWarning, match=r"cancels at `Y0\[1\]` \(1 of the 2 members\)"):
+        ls.integrate(sy, [[1, 1], [10**10, 1]], 1)
+    # where nothing cancels beyond the bound's slack, no warning (a heavy top, a sphere, the rigid body)
+    top = ls.HeavyTop((2, 2, 1), com=(0, 0, "0.5"), g="9.81")
+    sphere = ls.Sphere()
+    body = ls.EulerPoisson(INERTIA)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PrecisionWarning)
+        for model, y0 in [(top, top.initial_state(omega=(1, "0.5", 5))),
+                          (sphere, sphere.initial_state(("0.6", "0", "0.8"), ("0", "1", "0"))),
+                          (body, body.initial_state(omega=OMEGA))]:
+            for precision in ("double", "long double"):
+                ls.integrate(model, y0, "0.5", precision=precision)
+
+
+def test_the_float_rounding_bound_agrees_with_the_jets_bound():
+    # two bounds of the same roundings by different means: floats relative to each value (lieseries.expr.rounding,
+    # heyoka's arithmetic) and the fixed-point jets' first order (lieseries.lie.fixed.cancelling_bits)
+    from lieseries.expr.rounding import lost_bits
+    from lieseries.lie.fixed import cancelling_bits
+    from lieseries.poisson import as_poisson_system
+
+    ps = as_poisson_system(_cancelling_system())
+    pars = list(ps.parameter_values)
+    for X in (10**4, 10**6, 10**8, 10**10):
+        fl = lost_bits(ps.program, [[X, 1]], pars, 53)[0]
+        ex = cancelling_bits(ps.program, [X, 1], pars, 53)
+        assert ex - 2 <= fl <= ex + 8, (X, fl, ex)
+    # y beside x = 1e12 lies 37 bits below x's precision: judged against x (heyoka's tolerance is relative to the
+    # largest state), still far beyond it (its rate's error bound 1e9 against 1e12 eps)
+    from lieseries.taylor.plan import CANCELLING_BITS
+
+    assert lost_bits(ps.program, [[10**12, 1]], pars, 53)[0] > CANCELLING_BITS
+    many = lost_bits(ps.program, np.array([[1e4, 1], [1e10, 1], [1, 1]]), pars, 53)  # vectorised: the same
+    assert many == [lost_bits(ps.program, [r], pars, 53)[0] for r in ([1e4, 1], [1e10, 1], [1, 1])]
+    # beyond a float's range, or singular: None (the exact check decides)
+    assert lost_bits(ps.program, [[10**400, 1]], pars, 53) == [None]
+    assert lost_bits(ps.program, np.array([[1.0, 1], [np.inf, 1]]), pars, 53)[1] is None

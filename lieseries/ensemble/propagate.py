@@ -139,6 +139,8 @@ def _run_path(plan, res, progress) -> PathRun:
     if plan.atlas and plan.pars is not None:  # per-member parameters across an atlas: single runs
         return PathRun("single", 1, handed=range(k))
     if prec.name == "double" and scalar_ok:
+        if plan.members is None:  # (single runs warn themselves; models of their own each are not checked here)
+            warn_cancelling_field(plan.ps, plan.Ynat, prec.bits, plan.pars, members=True)
         ta, build, event_info = build_batch_integrator(plan.run_system, plan.tolf, plan.B,
                                                        compact_mode=plan.compact_mode,
                                                        high_accuracy=plan.high_accuracy)

@@ -460,7 +460,7 @@ def cancelling_bits(program_or_system, y0, pars, bits):
         if got.coarse(COARSE_BITS):
             sizes, got = got, NodeSizes()
             expand(program, y0r, pr, 1, bits, 0, sizes=sizes, measured=got)
-    except ZeroDivisionError:
+    except (ArithmeticError, ValueError):  # a field singular at y0 (log of a negative number): the run says so
         return 0
     lost = lost_bits(got, bits, bits)
     return max(0, int(lost)) if lost != -math.inf else 0
