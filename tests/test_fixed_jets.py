@@ -226,6 +226,7 @@ def test_lie_integrate_through_a_cancelling_square(bigint, x0, guard):
     assert sol.status == "success" or x0 > 10**30
     if sol.status != "success":  # early (its steps of 1e-13 took the default budget of 100000 and two minutes)
         assert sol.status == "step_budget" and sol.stats.steps <= 1000 and "more than any step budget" in sol.message
+        assert "cancels" in sol.message and "more digits" in sol.message  # (150 digits are right)
     if sol.status == "success":
         with mp.workdps(200):
             assert abs(mp.mpf(sol.y[-1][0]) - mp.mpf(ref.y[-1][0])) <= mp.mpf(10) ** -30 * x0

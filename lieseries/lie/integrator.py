@@ -381,8 +381,12 @@ class _LieEngine:
             return
         if h < self.max_h / 100:
             raise self._collapsed(h, rho)
-        raise Stop("step_budget", f"{mp.nstr(span, 3)} time units remain, about {mp.nstr(need, 3)} steps at the "
-                   f"run's step size so far", reason="step_budget.hopeless" if need > AHEAD_HOPELESS else
+        detail = f"{mp.nstr(span, 3)} time units remain, about {mp.nstr(need, 3)} steps at the run's step size so far"
+        if self.stepper.extra:  # the field cancels: its roundings at this precision may be what the steps follow
+            detail += (f" (the vector field's expression cancels: its jets needed {self.stepper.extra} working bits "
+                       "more, and what its roundings leave at this precision may be what the steps follow; a run "
+                       "with more digits tells)")
+        raise Stop("step_budget", detail, reason="step_budget.hopeless" if need > AHEAD_HOPELESS else
                    "step_budget.ahead")
 
     def _expand(self, z, span):
