@@ -9,12 +9,12 @@ propagated to first order through the program's operations (``e(a + b) = e(a) + 
 ``e(a b) = |a| e(b) + |b| e(a) + |a b|``, ``e(f(a)) = |f'(a)| e(a) + |f(a)|``, ...), the states and parameters
 exact (their rounding is the problem's conditioning, the same for any arithmetic) and constants rounded once.
 The errors never cancel in the bound. A state's loss is ``log2(e / scale)`` with ``scale = max(|y_i|,
-|f_i(y)| - e u)`` (u the unit roundoff; the computed rate less its error bound, for where the terms cancel it is
-noise): the bits of the format its rate may be off by per unit time, relative to the state; a state whose scale
-lies more than :data:`JUDGED_BITS` bits under the format's precision below the largest one's is judged relative to
-the largest instead (heyoka's tolerance is relative to it). The bound is
-computed in floats (its own roundings are far below what it judges); a state or field beyond a float's range
-gives None, for an exact check to decide (:func:`lieseries.lie.fixed.cancelling_bits`).
+|f_i(y)| - e 2^-53)`` (the rate computed in floats less its error bound: where the terms cancel it is noise): the
+bits of the format its rate may be off by per unit time, relative to the state. A state whose scale lies more than
+:data:`JUDGED_BITS` bits under the format's precision below the largest one's is judged relative to the largest
+instead (heyoka's tolerance is relative to it). The bound is computed in floats (its own roundings are far below
+what it judges); a state or field beyond a float's range gives None, for an exact check to decide
+(:func:`lieseries.lie.fixed.cancelling_bits`).
 
 One generated function per program and kind of operand (Python floats for a state, numpy arrays for many), cached.
 """
@@ -32,6 +32,10 @@ __all__ = ["lost_bits", "JUDGED_BITS"]
 #: relative to the largest: their own size is at the level of the others' roundings (a sphere's momentum zero but
 #: for them).
 JUDGED_BITS = 16
+
+#: The unit roundoff of the floats the bound is computed in: the computed rate |f| less e _U is a lower bound of
+#: the rate (where the field cancels, f is the floats' noise, whatever the format judged)
+_U = 2.0 ** -53
 
 _FUNCTIONS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()  # program -> {vectorised: function}
 
@@ -167,8 +171,7 @@ def lost_bits(prog, rows, pars_rows, bits: int) -> list:
             f, e = _function(prog, False)(y, pars, consts)
             if not all(map(math.isfinite, y + pars + f + e)):
                 return [None]
-            u = 2.0 ** -bits  # (|f| less its error bound: the computed rate is noise where they cancel)
-            scale = [max(abs(a), abs(b) - ei * u) for a, b, ei in zip(y, f, e)]
+            scale = [max(abs(a), abs(b) - ei * _U) for a, b, ei in zip(y, f, e)]
             big = max(scale)
             floor = big * 2.0 ** (JUDGED_BITS - bits)
             top = max((ei / (si if si >= floor else big) for ei, si in zip(e, scale) if big > 0), default=0.0)
@@ -190,7 +193,7 @@ def lost_bits(prog, rows, pars_rows, bits: int) -> list:
         f, e = _function(prog, True)(list(Y.T), P, consts)
         f = np.column_stack([np.broadcast_to(v, k) for v in f])
         e = np.column_stack([np.broadcast_to(v, k) for v in e])
-        scale = np.maximum(np.abs(Y), np.abs(f) - e * 2.0 ** -bits)
+        scale = np.maximum(np.abs(Y), np.abs(f) - e * _U)
         big = scale.max(axis=1, keepdims=True)
         judged = scale >= big * 2.0 ** (JUDGED_BITS - bits)
         top = np.where(big > 0, e / np.where(judged, scale, big), 0.0).max(axis=1)
