@@ -116,8 +116,8 @@ def warn_coarse_inputs(ps, y0, times, work_bits: int) -> bool:
 
 
 #: Bits a state's rate may lose to the vector field's own roundings at y0 (the bound of
-#: :func:`lieseries.lie.fixed.cancelling_bits` above 64 bits, of :func:`lieseries.expr.rounding.lost_bits` in double
-#: and long double; up to ~14 bits above what is lost) before a run warns
+#: :func:`lieseries.expr.rounding.lost_bits`, or :func:`lieseries.lie.fixed.cancelling_bits` where floats cannot
+#: take it; up to ~14 bits above what is lost) before a run warns
 CANCELLING_BITS = 32
 
 
@@ -125,18 +125,16 @@ def warn_cancelling_field(ps, rows, work_bits: int, pars=None, members: bool = F
     """A :class:`~lieseries.precision.PrecisionWarning` when, rounded to ``work_bits`` as heyoka rounds, the vector
     field's expression cancels far below its terms (:data:`CANCELLING_BITS`) at one of the exact states ``rows``
     (a single run's ``y0``, or an ensemble's members when ``members``: ``pars`` their parameter rows, or None for the
-    system's own), one warning naming those it concerns; True when there was one. Above 64 bits the bound is the
-    fixed-point jets' (it compiles the field for the Lie engine once per system, ~0.7 s for a heavy top's
-    intermediate form, against seconds for heyoka's own compilation at those precisions); in double and long double
-    the same bound in floats (a generated function per program, ~25 us a state), the jets' where a value leaves a
-    float's range."""
+    system's own), one warning naming those it concerns; True when there was one. The bound is taken in floats (a
+    generated function per program, ~25 us a state, ~3-4 ms for 4096 at once); where a value leaves a float's range,
+    by the Lie engine's fixed-point jets (which compile the field once per system, ~0.7 s for a heavy top's
+    intermediate form)."""
     from ..lie.fixed import cancelling_bits
 
     own = list(ps.parameter_values)
-    if work_bits <= 64:  # heyoka in double or long double: the bound in floats, exact where floats cannot hold it
-        got = rounding.lost_bits(ps.program, rows, own if pars is None else pars, work_bits)
-    else:
-        got = [None] * len(rows)
+    # the bound in floats, each operation rounded relative to its value as heyoka's are; the fixed-point jets' where
+    # floats cannot hold it (a value beyond their range, a singular derivative)
+    got = rounding.lost_bits(ps.program, rows, own if pars is None else pars, work_bits)
     lost = [(i, b if b is not None else cancelling_bits(ps.program, list(r), own if pars is None else list(pars[i]),
                                                         work_bits))
             for i, (r, b) in enumerate(zip(rows, got))]
