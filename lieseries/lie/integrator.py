@@ -73,6 +73,7 @@ from ..precision import (
 from ..precision import thread_mp as mp
 from ..solution import Solution, Stats
 from ..timegrid import parse_times
+from .crossings import UserEvents
 from .plan import radius_from_logs
 from .operator import (
     GUARD_DIGITS,
@@ -129,9 +130,10 @@ def lie_integrate(
     dense : bool
         Keep every step's polynomial so that ``sol(t)`` works anywhere in the interval.
     events : list of :class:`lieseries.Event`, optional
-        Zero crossings to record (``sol.events[name]``) or stop at (terminal: status ``event``): each step's
-        polynomial is sampled for sign changes, and every crossing is solved for in mpmath at the working
-        precision (a bracketed secant method on the step's polynomial).
+        Zero crossings to record (``sol.events[name]``) or stop at (terminal: status ``event``): each event
+        expression is resolved on each step's polynomial (Chebyshev samples until its interpolant is, on halves of
+        the step where 65 do not: :mod:`lieseries.lie.crossings`), and every crossing is solved for in mpmath at the
+        working precision (a bracketed secant method on the step's polynomial).
     max_steps, max_time :
         Budgets; the run stops with status ``step_budget`` / ``time_budget`` and keeps what it computed. After 64
         steps (or 1% of ``max_steps``), a run that at its step size and at its average step would need more than
@@ -186,7 +188,7 @@ def lie_integrate(
     with mp.workdps(wdps):
         engine = _LieEngine(stepper, N, N_auto if order is not None else None, tolm, wdps, bits, max_steps,
                             1 if direction >= 0 else -1, _event_checks(model, ps),
-                            _UserEvents(user_events, ps, pars) if user_events else None,
+                            UserEvents(user_events, ps, pars) if user_events else None,
                             None if max_time is None else start + max_time, dense)
         z = [to_mpf(v, ctx=mp_context()) for v in z0]
         tstart = to_mpf(t0f, ctx=mp_context())
@@ -217,6 +219,15 @@ def _solution(out, engine, prec, tolm, N, bits, grid, n, dense) -> Solution:
     tarr = np.array([float(v) for v in out.rows_t])
     dense_fn = _Dense(engine.segments, prec.dps, engine.sgn) if dense else None
     user = engine.user
+    if user is not None and user.unresolved:
+        extra["events_unresolved"] = dict(user.unresolved)
+        warnings.warn(
+            "event expressions not resolved on some steps (" + ", ".join(f"{name!r}: {k}" for name, k in
+                                                             user.unresolved.items()) +
+            ") by 65 samples even on 1/4096 of a step: a pole (a sign change through it is no crossing), or a "
+            "function faster than the steps; there, crossings closer together than 1/64 of the step may be missed "
+            "in pairs (`stats.extra['events_unresolved']`). Give an expression whose zeros are the crossings and "
+            "that is smooth near them (the numerator of 1/M2: none)", RuntimeWarning, stacklevel=stacklevel())
     return Solution(tarr, y, stats, out.status, out.message, t_reached=to_fraction(out.t), dense=dense_fn,
                     t_requested=grid, y_reached=y_reached,
                     events=user.records(prec.bits, n) if user is not None else None)
@@ -329,7 +340,7 @@ class _LieEngine:
         tnew = tcur + hs if span != h else tend
         coeffs = jet.coefficients
         try:
-            stop = self.user.step(coeffs, tcur, hs, sgn) if self.user is not None else None
+            stop = self.user.step(jet.evaluate, tcur, hs, sgn) if self.user is not None else None
         except (ValueError, ZeroDivisionError, OverflowError) as exc:
             raise Stop("non_finite", f"an event expression cannot be evaluated in the step ({exc}): the state "
                        "leaves its domain there") from None
@@ -599,103 +610,6 @@ class _Dense:
                 vals = horner(coeffs, tv - mp.make_mpf(seg[0]._mpf_))
                 rows.append(export_mpf(np.array(vals, dtype=object), dps_to_bits(self.dps)))
         return rows[0] if scalar else np.stack(rows)
-
-
-class _UserEvents:
-    """Crossings of the user's events on each step's polynomial P(tau), tau in [0, h] (in time order)."""
-
-    #: Interior sample points per step: crossings closer together than h / SAMPLES may be missed in pairs.
-    SAMPLES = 8
-
-    def __init__(self, user_events, ps, pars):
-        from ..expr import compile_expressions
-
-        self.events = user_events
-        npars = len(ps.parameter_values)
-        for i, (name, expr, _direction, _terminal) in enumerate(user_events):
-            try:
-                compile_expressions(ps.variables, [expr], npars)
-            except (NotImplementedError, ValueError, TypeError) as exc:
-                raise ValueError(
-                    f"`events[{i}]` ({name!r}, {expr}) cannot be evaluated by lie_integrate: {exc}. Write it with "
-                    "the supported functions (an absolute value |f| has the same crossings as f: give f)"
-                ) from None
-        self.prog = compile_expressions(ps.variables, [e[1] for e in user_events], npars)
-        self.pars = pars
-        self.found = {e[0]: [] for e in user_events}
-        self.fired = None
-
-    def _g(self, coeffs, tau):
-        return self.prog.evaluate(horner(coeffs, tau), self.pars, mp.dps, mp_context())
-
-    def step(self, coeffs, t0, hs, sgn):
-        """Record the crossings in (t0, t0 + hs]; the time of the first terminal one, or None."""
-        taus = [hs * k / self.SAMPLES for k in range(self.SAMPLES + 1)]
-        vals = [self._g(coeffs, tau) for tau in taus]
-        hits = []
-        for i, (name, _expr, direction, terminal) in enumerate(self.events):
-            for a in range(self.SAMPLES):
-                ga, gb = vals[a][i], vals[a + 1][i]
-                if not ((ga < 0 < gb) or (gb < 0 < ga) or (gb == 0 and ga != 0)):
-                    continue  # (a zero at tau = 0 was the previous step's crossing)
-                rising = (gb > ga) if sgn > 0 else (gb < ga)
-                if direction and (rising != (direction > 0)):
-                    continue
-                if gb == 0:
-                    tau = taus[a + 1]
-                else:
-                    tau = self._solve(coeffs, i, taus[a], taus[a + 1], ga, gb)
-                    if tau is None:
-                        continue  # a sign change through a pole (1/M2), not a zero
-                hits.append((abs(tau), t0 + tau, name, terminal, tau))
-        hits.sort(key=lambda h: h[0])
-        for _, t_hit, name, terminal, tau in hits:
-            self.found[name].append((t_hit, horner(coeffs, tau)))
-            if terminal:
-                self.fired = f"the event {name!r} fired"
-                return t_hit
-        return None
-
-    def _solve(self, coeffs, i, lo, hi, glo, ghi):
-        """The zero of event ``i`` between ``lo`` and ``hi`` (opposite signs ``glo``, ``ghi``) on the step's
-        polynomial: Anderson's method, bisection when it fails or leaves the bracket; None when the sign changes
-        through a pole (the function grows instead of vanishing)."""
-        def g(x):
-            try:
-                return self._g(coeffs, x)[i]
-            except ZeroDivisionError:  # on a pole
-                return mp.inf
-
-        tau = None
-        try:
-            tau = mp.findroot(g, (lo, hi), solver="anderson")
-        except (ValueError, ZeroDivisionError):
-            pass
-        if tau is None or not (min(lo, hi) <= tau <= max(lo, hi)):
-            a, b, ga = lo, hi, glo
-            for _ in range(4 * mp.prec):
-                mid = (a + b) / 2
-                if mid == a or mid == b:
-                    break
-                gm = g(mid)
-                if gm == 0:
-                    a = b = mid
-                    break
-                if (gm < 0) == (ga < 0):
-                    a, ga = mid, gm
-                else:
-                    b = mid
-            tau = b
-        if abs(g(tau)) > max(abs(glo), abs(ghi)):
-            return None
-        return tau
-
-    def records(self, prec, n):
-        """The crossings found, rounded to ``prec`` bits."""
-        return {name: {"t": np.array([export_mpf(t, prec) for t, _ in hits], dtype=object),
-                       "y": (np.stack([export_mpf(np.array(y, dtype=object), prec) for _, y in hits]) if hits
-                             else np.empty((0, n), dtype=object))}
-                for name, hits in self.found.items()}
 
 
 def _event_checks(model, ps):
