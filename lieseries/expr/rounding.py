@@ -56,12 +56,16 @@ _UNARY = {
 
 
 def _constant(c) -> float:
+    """A program's constant as a float (inf beyond their range: the bound is then not taken in floats)."""
     kind, value = c
-    if kind == "rational":
-        return value[0] / value[1]
-    if kind == "binary":
-        sign, man, exp, _ = value
-        return math.ldexp(-float(man) if sign else float(man), exp)
+    try:
+        if kind == "rational":
+            return value[0] / value[1]
+        if kind == "binary":
+            sign, man, exp, _ = value
+            return math.ldexp(-float(man) if sign else float(man), exp)
+    except OverflowError:
+        return math.inf
     return math.pi if kind == "pi" else math.e
 
 
