@@ -1,5 +1,7 @@
 """Events in both engines, against crossings computed independently from the closed forms."""
 
+from fractions import Fraction
+
 import heyoka as hy
 import mpmath as mp
 import pytest
@@ -245,6 +247,27 @@ def test_every_crossing_of_an_event_that_changes_sign_many_times_in_a_step(engin
     got = [ctx.mpf(to_fraction(t).numerator) / to_fraction(t).denominator for t in sol.events["s"]["t"]]
     assert len(got) == len(exact_t) == 81
     assert max(abs(a - b) for a, b in zip(got, exact_t)) < bound
+
+
+@pytest.mark.parametrize("above", ["1e-8", "1e-20", "1e-29", "0", "-1e-20"])
+def test_a_pair_of_crossings_around_a_shallow_dip(above):
+    """q = p0 sin t reaches q = 1 when p0 > 1: two crossings of q - 1, 2 sqrt(2 (p0 - 1)) apart, at asin(1/p0) and
+    pi - asin(1/p0); none when p0 <= 1. A dip of 1e-20 lies below the accuracy of the step's interpolant (2^-40 of
+    the event's size) and was missed (heyoka in quad found it); its bottom is now looked at on the event itself."""
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], (p**2 + q**2) / 2)
+    p0 = 1 + Fraction(above)
+    sol = ls.lie_integrate(osc, [0, p0], t=3, dps=30, events=[ls.Event(q - 1.0, name="top")])
+    assert sol.success, sol.message
+    ctx = mp.MPContext()
+    ctx.prec = 200
+    got = [ctx.mpf(to_fraction(t).numerator) / to_fraction(t).denominator for t in sol.events["top"]["t"]]
+    if p0 <= 1:
+        assert got == []
+        return
+    first = ctx.asin(ctx.mpf(p0.denominator) / p0.numerator)
+    assert len(got) == 2
+    assert abs(got[0] - first) < 1e-19 and abs(got[1] - (ctx.pi - first)) < 1e-19
 
 
 def test_an_event_through_a_pole_is_no_crossing_and_is_said_to_be_unresolved():

@@ -7,9 +7,10 @@ crossings found with `success`). Here g is first *resolved* on the step: sampled
 :data:`RESOLVED` of the largest; where 65 points do not resolve it, the step is sampled in halves, each resolved
 alike (down to 2^-12 of the step; beyond, a pole or a function faster than that, the sign changes of the piece's
 65 samples, counted and warned of). The interpolants' real roots (their colleague matrices) give brackets, each
-checked for a sign change of g itself at the working precision and solved there; a crossing pair whose dip the
-interpolant cannot tell from a tangency (below :data:`RESOLVED` of g's size over the piece) is reported by neither
-engine (docs/api.md, events)."""
+checked for a sign change of g itself at the working precision and solved there. An extremum of an interpolant
+within :data:`DIP` of zero is looked at on g itself (Newton's method on its central differences): a dip whose bottom
+crosses zero is a pair of crossings however shallow (q = p0 sin t against q = 1 with p0 = 1 + 1e-20 at 30 digits:
+two crossings 2.8e-10 apart, each to 1e-26); a tangency, no crossing."""
 
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ import numpy as np
 from ..precision import export_mpf, mp_context
 from ..precision import thread_mp as mp
 
-__all__ = ["UserEvents", "RESOLVED", "MAX_POINTS", "MAX_HALVINGS"]
+__all__ = ["UserEvents", "RESOLVED", "MAX_POINTS", "MAX_HALVINGS", "DIP", "DIP_ITERATIONS"]
 
 #: A step's event expression is resolved when its interpolant's last three Chebyshev coefficients are below this
 #: fraction of its largest (the interpolant then follows g to about this fraction of g's size over the step).
@@ -30,6 +31,12 @@ MAX_POINTS = 65
 #: The most halvings of a step's pieces for its events: beyond, the piece's samples' sign changes (a pole such as
 #: 1/M2 is no crossing, and no piece resolves it), and the run says so (``stats.extra["events_unresolved"]``).
 MAX_HALVINGS = 12
+
+#: An extremum of a resolved interpolant within this fraction of g's size over the piece is looked at on g itself
+#: (:meth:`UserEvents._dip`): two crossings around a dip shallower than the interpolant's accuracy.
+DIP = 2.0 ** -24
+#: Newton iterations on such a dip.
+DIP_ITERATIONS = 12
 
 _COSINES: dict = {}  # M -> the DCT-I matrix of M Chebyshev-Lobatto points
 
@@ -114,8 +121,8 @@ class UserEvents:
                 for (name, *_), r in zip(self.events, roots):
                     if r is None:
                         self.unresolved[name] = self.unresolved.get(name, 0) + 1
-            return [(lo, hi, taus, rows, [None if r is None else [lo + (hi - lo) * (x + 1) / 2 for x in r]
-                                          for r in roots])]
+            return [(lo, hi, taus, rows, [None if r is None else tuple([lo + (hi - lo) * (x + 1) / 2 for x in xs]
+                                                                       for xs in r) for r in roots])]
         mid = (lo + hi) / 2
         return self._pieces(at, lo, mid, depth + 1) + self._pieces(at, mid, hi, depth + 1)
 
@@ -140,14 +147,14 @@ class UserEvents:
                 col = [r[i] for r in rows]
                 big = max(abs(v) for v in col)
                 if not big:
-                    roots[i] = []
+                    roots[i] = ([], [])
                     continue
                 c = _chebyshev([float(v / big) for v in col])
                 if not np.isfinite(c).all():
                     raise ValueError("an event expression is not finite in the step")
                 top = float(np.max(np.abs(c)))
                 if float(np.max(np.abs(c[-3:]))) <= RESOLVED * top:
-                    roots[i] = _roots(c, RESOLVED * top)
+                    roots[i] = (_roots(c, RESOLVED * top), _dips(c, RESOLVED * top))
             if all(r is not None for r in roots) or M == MAX_POINTS:
                 return taus, rows, roots
             M = 2 * M - 1
@@ -155,18 +162,23 @@ class UserEvents:
     def _brackets(self, at, i, pieces, hs):
         """Intervals (lo, hi, g(lo), g(hi)) of the step around each candidate crossing of event ``i``: the roots
         of its interpolants and its samples' sign changes (between two samples of opposite signs, at a sample that
-        is zero), split at the midpoints between consecutive candidates, where g is evaluated."""
-        cand = []
+        is zero), split at the midpoints between consecutive candidates, where g is evaluated, and at the bottom
+        of each shallow dip that crossed zero (:meth:`_dip`)."""
+        cand, dips = [], []
         for lo, hi, taus, rows, roots in pieces:
-            if roots[i]:
-                cand.extend(roots[i])
             col = [r[i] for r in rows]
+            found, low = roots[i] if roots[i] is not None else ((), ())
+            cand.extend(found)
+            for tau in low:  # (the side g comes from: its sample nearest to the dip)
+                near = min(range(len(taus)), key=lambda j: abs(taus[j] - tau))
+                dips.append(self._dip(at, i, tau, lo, hi, col[near] > 0) if col[near] else None)
             for a in range(len(col) - 1):
                 if (col[a] < 0 < col[a + 1]) or (col[a + 1] < 0 < col[a]):
                     cand.append((taus[a] + taus[a + 1]) / 2)
                 elif col[a + 1] == 0 and col[a] != 0:
                     cand.append(taus[a + 1])
-        if not cand:
+        dips = [d for d in dips if d is not None]
+        if not cand and not dips:
             return []
         cand.sort(key=abs)
         first, last = pieces[0][3][0][i], pieces[-1][3][-1][i]  # g at tau = 0 and at hs (samples)
@@ -176,7 +188,34 @@ class UserEvents:
                 m = (a + b) / 2
                 ends.append((m, self._g(at, m)[i]))
         ends.append((hs, last))
+        # a dip of g that the interpolants cannot tell from a tangency, whose bottom g itself shows across zero:
+        # a pair of crossings, one on either side of it
+        ends = sorted(ends + dips, key=lambda e: abs(e[0]))
         return [(lo, hi, ga, gb) for (lo, ga), (hi, gb) in zip(ends, ends[1:]) if lo != hi]
+
+    def _dip(self, at, i, tau, lo, hi, positive):
+        """(tau_m, g(tau_m)) at the bottom of a dip of event ``i`` towards zero near ``tau`` (an extremum of its
+        interpolant on the piece [lo, hi] within :data:`DIP` of zero; g is ``positive`` or negative around it),
+        found on g itself by Newton's method on its central differences, when g there has crossed zero: a pair of
+        crossings, one on either side; else None."""
+        sgn = 1 if positive else -1
+        g0 = self._g(at, tau)[i]
+        d = (hi - lo) * mp.mpf(2) ** (-(mp.prec // 3))
+        for _ in range(DIP_ITERATIONS):
+            if sgn * g0 <= 0:
+                return (tau, g0) if g0 else None
+            gm, gp = self._g(at, tau - d)[i], self._g(at, tau + d)[i]
+            curv = sgn * (gp - 2 * g0 + gm)
+            if curv <= 0:  # not a dip towards zero here
+                return None
+            step = d * (gp - gm) / (2 * (gp - 2 * g0 + gm))
+            tau -= step
+            if not (min(lo, hi) <= tau <= max(lo, hi)):
+                return None
+            g0 = self._g(at, tau)[i]
+            if abs(step) <= d:
+                break
+        return (tau, g0) if sgn * g0 < 0 else None
 
     def _solve(self, at, i, lo, hi, glo, ghi):
         """The zero of event ``i`` between ``lo`` and ``hi`` (opposite signs ``glo``, ``ghi``) on the step's
@@ -218,6 +257,23 @@ class UserEvents:
                        "y": (np.stack([export_mpf(np.array(y, dtype=object), prec) for _, y in hits]) if hits
                              else np.empty((0, n), dtype=object))}
                 for name, hits in self.found.items()}
+
+
+def _dips(c, floor):
+    """The extrema in (-1, 1) of the Chebyshev series ``c`` (normalised to g's size) within :data:`DIP` of zero and
+    not at a root of it, as floats."""
+    k = len(c)
+    while k > 1 and abs(c[k - 1]) <= floor:
+        k -= 1
+    if k <= 2:
+        return []
+    d = np.polynomial.chebyshev.chebder(c[:k])
+    out = []
+    for x in _roots(d, 0.0):
+        v = np.polynomial.chebyshev.chebval(x, c[:k])
+        if abs(v) <= DIP and -1 < x < 1:
+            out.append(x)
+    return out
 
 
 def _roots(c, floor):
