@@ -148,10 +148,20 @@ def member_parameters(model, ps, params, members, k):
             f"`params` must have shape (k, npar) = ({k}, {npar}): one row per member with the values of "
             f"{list(ps.parameter_names)} in that order; got shape {arr.shape}"
         )
-    rows = [[to_fraction(arr[i, j], f"params[{i}][{j}]") for j in range(npar)] for i in range(k)]
-    if model is not None:
-        for i, row in enumerate(rows):
-            model.check_parameters(row, f"params[{i}]")
+    # rows that repeat (a few parameter sets over many members) are converted and checked once: the same values,
+    # the same exact Fractions, the same verdict
+    done = {}
+    rows = []
+    for i in range(k):
+        key = tuple(arr[i].tolist()) if arr.dtype.kind == "f" else None
+        row = done.get(key) if key is not None else None
+        if row is None:
+            row = [to_fraction(arr[i, j], f"params[{i}][{j}]") for j in range(npar)]
+            if model is not None:
+                model.check_parameters(row, f"params[{i}]")
+            if key is not None:
+                done[key] = row
+        rows.append(row)
     return rows
 
 
