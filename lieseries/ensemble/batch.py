@@ -4,6 +4,7 @@ to single runs (see the package docstring)."""
 
 from __future__ import annotations
 
+import math
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -11,9 +12,9 @@ import numpy as np
 
 from .. import cache
 from ..driver import run_message
-from ..heyoka_build import norm_bounds, series_norms
+from ..heyoka_build import norm_bounds, read_orders, series_norms
 from ..precision import to_fraction
-from .result import TIME_LIMIT, outcome_kind
+from .result import SUCCESS, TIME_LIMIT, outcome_kind
 
 __all__ = ["run_batches", "over_threads", "BATCH_STEPS", "CHUNK_STEPS"]
 
@@ -162,7 +163,8 @@ class _Batches:
                              else np.array([[float(v) for v in r] for r in pars]))
         self.per_member = pars is not None
         self.simple = len(tgrid) == 2 and tgrid[0] == t0n
-        self.t_end = float(tgrid[-1])
+        self.t0f, self.t_end = float(t0n), float(tgrid[-1])
+        self.spans = [self.t_end - self.t0f] * B  # the longest first step towards the final time, per lane
         if not self.simple:
             self.lead = tgrid[0] != t0n
             times = [float(t0n)] * self.lead + [float(g) for g in tgrid]
@@ -170,7 +172,7 @@ class _Batches:
         self.success_msg = run_message("success", t=tgrid[-1])
         self.zeros = [0.0] * B
         self.starts = []  # (first member, members, the series at their start) of every batch run: first_steps
-        self.order = None
+        self.order = self.kept = None  # the integrators' order, the orders of the series kept (_keep)
 
     def shared_parameters(self, ta) -> None:
         """The parameters of the thread's integrator ``ta`` when they are the same for every member (set once)."""
@@ -188,7 +190,7 @@ class _Batches:
         else:
             idx = list(range(lo, hi)) + [lo] * (B - (hi - lo))
             state[:] = self.Ynat[idx].T
-        ta.set_time(float(self.t0n))
+        ta.set_time(self.t0f)
         if self.par_rows is not None and self.per_member:
             ta.pars[:] = self.par_rows[list(idx)].T
         if self.event_info:
@@ -198,35 +200,70 @@ class _Batches:
     def run(self, ta, lo, hi) -> list:
         """Integrate members lo..hi-1 on ``ta`` and record them; return those handed to single runs."""
         idx = self.load(ta, lo, hi)
+        nl = hi - lo
         if self.simple:
-            ta.propagate_until(self.t_end, max_steps=min(self.cap, CHUNK_STEPS))
+            prs = self._until(ta, lo, nl)
             out = None
         else:
             out = ta.propagate_grid(self.grid, max_steps=self.cap)[-1]
             if self.lead:
                 out = out[1:]
-        prs = ta.propagate_res
-        nl = hi - lo
+            prs = ta.propagate_res
         mine = self._record(ta, lo, hi, idx, out, prs)
-        # the series at the lanes' start (a zero-length step of the batch that writes it), for first_steps
-        ta.state[:] = self.Ynat[idx].T
-        ta.set_time(float(self.t0n))
-        ta.step(self.zeros, write_tc=True)
-        p = self.order = ta.order
-        self.starts.append((lo, nl, ta.tc[:, [0] + list(range(p - max(4, p // 5), p + 1)), :]))  # (series_norms)
+        if not self.simple:
+            # propagate_grid's steps cannot be split without moving its rows (its first grid time must be the
+            # current time): the series at the lanes' start from a zero-length step of the batch that writes it
+            ta.state[:] = self.Ynat[idx].T
+            ta.set_time(self.t0f)
+            ta.step(self.zeros, write_tc=True)
+            self._keep(ta, lo, nl)
         return mine
+
+    def _until(self, ta, lo, nl):
+        """The batch's first chunk towards the final time (at most :data:`CHUNK_STEPS` steps): heyoka's answer (per
+        lane: outcome, smallest and largest step, steps) of one ``propagate_until``, whose first step writes the
+        series at the lanes' start (kept for :meth:`first_steps`). That step is taken alone (the step
+        ``propagate_until`` takes: at most t_end - t0, rounded), then the rest in one call, which sizes each step
+        from the state alone as the one call would. A lane that ended in its first step (at the final time, an
+        event, a non-finite state) while others went on: the chunk runs again in one call."""
+        chunk, t_end = min(self.cap, CHUNK_STEPS), self.t_end
+        if chunk == 1:  # the chunk is the first step
+            ta.propagate_until(t_end, max_steps=1, write_tc=True)
+            self._keep(ta, lo, nl)
+            return ta.propagate_res
+        ta.step(self.spans, write_tc=True)
+        self._keep(ta, lo, nl)
+        first = ta.step_res
+        if all(o == SUCCESS for o, _ in first):
+            ta.propagate_until(t_end, max_steps=chunk - 1)
+            return [(o, min(a, abs(h)), max(b, abs(h)), n + 1)
+                    for (_, h), (o, a, b, n) in zip(first, ta.propagate_res)]
+        if all(o == TIME_LIMIT for o, _ in first):  # every lane went the whole way in its first step
+            return [(TIME_LIMIT, math.inf, 0.0, 1)] * len(first)
+        self.load(ta, lo, lo + nl)  # (a padded batch padded again)
+        ta.propagate_until(t_end, max_steps=chunk)
+        return ta.propagate_res
+
+    def _keep(self, ta, lo, nl) -> None:
+        """What :meth:`first_steps` reads of the series ``ta`` holds (the lanes' series at their start): the orders
+        :func:`~lieseries.heyoka_build.read_orders` names."""
+        if self.kept is None:
+            self.order = ta.order
+            self.kept = read_orders(self.order)
+        self.starts.append((lo, nl, ta.tc[:, self.kept, :]))
 
     def first_steps(self) -> list:
         """The members whose first step heyoka's step rule could not size: their series at the start has its last
         two orders vanish or far below the lower ones (:func:`lieseries.heyoka_build.sparse_first_step`), and the
         step was too long whether the member went the whole way in it or not (from q = 1e-6, q'' = 1 - 3 q^2 in
-        double: 6e-14 off, success); a single run bounds it. Every batch's series read at once (the orders 0 and
-        p - K .. p of each kept); a member whose last two orders vanish is handed over too (its single run reads
+        double: 6e-14 off, success); a single run bounds it. Every batch's series read at once (the orders
+        :func:`~lieseries.heyoka_build.read_orders` names, kept from its first step: :meth:`_until`, or for output
+        times a zero-length step); a member whose last two orders vanish is handed over too (its single run reads
         the whole series)."""
         if not self.starts:
             return []
         p = self.order
-        x0, top = series_norms(np.concatenate([tc for _, _, tc in self.starts], axis=2), p, orders=True)
+        x0, top = series_norms(np.concatenate([tc for _, _, tc in self.starts], axis=2))
         bounds = norm_bounds(x0, top, p)
         gap = top[-2:].max(axis=0) == 0  # (the lanes' whole series would tell: the single run reads it)
         out, at = [], 0
