@@ -4,7 +4,6 @@ to single runs (see the package docstring)."""
 
 from __future__ import annotations
 
-import math
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -12,9 +11,9 @@ import numpy as np
 
 from .. import cache
 from ..driver import run_message
-from ..heyoka_build import norm_bounds, read_orders, series_norms
+from ..heyoka_build import norm_bounds, top_orders
 from ..precision import to_fraction
-from .result import SUCCESS, TIME_LIMIT, outcome_kind
+from .result import STEP_LIMIT, TIME_LIMIT, outcome_kind
 
 __all__ = ["run_batches", "over_threads", "BATCH_STEPS", "CHUNK_STEPS"]
 
@@ -51,7 +50,8 @@ def _record_lane(res, i, lane, kind, ta, out, Ynat, tgrid, t0n, direction, simpl
                    nsteps)
 
 
-def _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, event_info, cap, t_end, success_msg):
+def _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, event_info, cap, t_end, success_msg,
+                    before):
     """Finish a batch (final-time run) that did not finish in one go.
 
     Either a lane stopped the batch (a terminal event, a non-finite state) or the batch used up its chunk of
@@ -59,11 +59,12 @@ def _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, even
     on a finite state (they take no more steps); the others go on. heyoka's step size depends on the current state
     alone, so a lane that goes on takes the steps it would have taken without the stop. Returned (for single runs):
     the lanes that became non-finite, and those that at their current step size would need more than ``cap``
-    steps in all (a long, stiff or collapsing run: the single run's guard decides which).
+    steps in all (a long, stiff or collapsing run: the single run's guard decides which). ``before``: the steps
+    every lane took before ``prs``.
     """
     B = len(idx)
     decided = np.zeros(B, dtype=bool)
-    steps = np.zeros(B, dtype=np.int64)
+    steps = np.full(B, before, dtype=np.int64)
     handed = []
     n_events = len(event_info)
     chunk = CHUNK_STEPS
@@ -119,7 +120,7 @@ def _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, even
 def run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, n_threads, res, progress):
     """Integrate every member in batches of B lanes over ``n_threads`` threads; return the members to hand over."""
     k = Ynat.shape[0]
-    batches = _Batches(event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, res)
+    batches = _Batches(event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, res, ta0.order)
     counter = iter(range(-(-k // B)))
     lock = threading.Lock()
     handed = []
@@ -152,7 +153,7 @@ class _Batches:
     """What the threads of one :func:`run_batches` share: the members' states and parameters, the output grid,
     where to record; :meth:`run` integrates one batch on a thread's integrator."""
 
-    def __init__(self, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, res):
+    def __init__(self, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, res, order):
         self.event_info, self.Ynat, self.tgrid, self.t0n, self.direction = event_info, Ynat, tgrid, t0n, direction
         self.B, self.cap, self.res = B, cap, res
         k = Ynat.shape[0]
@@ -164,15 +165,20 @@ class _Batches:
         self.per_member = pars is not None
         self.simple = len(tgrid) == 2 and tgrid[0] == t0n
         self.t0f, self.t_end = float(t0n), float(tgrid[-1])
-        self.spans = [self.t_end - self.t0f] * B  # the longest first step towards the final time, per lane
+        # a lane whose first step went the whole way (t_end - t0 rounded, as propagate_until clamps it) ended at
+        # t_end exactly when that difference is a double (_until)
+        span = self.t_end - self.t0f
+        self.span, self.span_exact = span, to_fraction(self.t_end) - to_fraction(self.t0f) == to_fraction(span)
         if not self.simple:
             self.lead = tgrid[0] != t0n
             times = [float(t0n)] * self.lead + [float(g) for g in tgrid]
             self.grid = np.repeat(np.array(times), B).reshape(-1, B)
         self.success_msg = run_message("success", t=tgrid[-1])
         self.zeros = [0.0] * B
-        self.starts = []  # (first member, members, the series at their start) of every batch run: first_steps
-        self.order = self.kept = None  # the integrators' order, the orders of the series kept (_keep)
+        # of every lane's series at its start, the orders p - K .. p (heyoka_build.top_orders), one column per
+        # lane of every batch (the padding of the last one included): first_steps
+        self.order, self.top = order, top_orders(order).start
+        self.tops = np.empty((Ynat.shape[1], order + 1 - self.top, -(-k // B) * B))
 
     def shared_parameters(self, ta) -> None:
         """The parameters of the thread's integrator ``ta`` when they are the same for every member (set once)."""
@@ -200,93 +206,70 @@ class _Batches:
     def run(self, ta, lo, hi) -> list:
         """Integrate members lo..hi-1 on ``ta`` and record them; return those handed to single runs."""
         idx = self.load(ta, lo, hi)
-        nl = hi - lo
         if self.simple:
-            prs = self._until(ta, lo, nl)
-            out = None
-        else:
-            out = ta.propagate_grid(self.grid, max_steps=self.cap)[-1]
-            if self.lead:
-                out = out[1:]
-            prs = ta.propagate_res
-        mine = self._record(ta, lo, hi, idx, out, prs)
-        if not self.simple:
-            # propagate_grid's steps cannot be split without moving its rows (its first grid time must be the
-            # current time): the series at the lanes' start from a zero-length step of the batch that writes it
-            ta.state[:] = self.Ynat[idx].T
-            ta.set_time(self.t0f)
-            ta.step(self.zeros, write_tc=True)
-            self._keep(ta, lo, nl)
+            prs, before = self._until(ta, lo, hi)
+            return self._record(ta, lo, hi, idx, None, prs, before)
+        out = ta.propagate_grid(self.grid, max_steps=self.cap)[-1]
+        mine = self._record(ta, lo, hi, idx, out[1:] if self.lead else out, ta.propagate_res, 0)
+        # propagate_grid cannot be split without moving its rows (its first grid time must be the current time):
+        # the series at the lanes' start from a zero-length step that writes it
+        ta.state[:] = self.Ynat[idx].T
+        ta.set_time(self.t0f)
+        ta.step(self.zeros, write_tc=True)
+        self.tops[:, :, lo:lo + self.B] = ta.tc[:, self.top:, :]
         return mine
 
-    def _until(self, ta, lo, nl):
-        """The batch's first chunk towards the final time (at most :data:`CHUNK_STEPS` steps): heyoka's answer (per
-        lane: outcome, smallest and largest step, steps) of one ``propagate_until``, whose first step writes the
-        series at the lanes' start (kept for :meth:`first_steps`). That step is taken alone (the step
-        ``propagate_until`` takes: at most t_end - t0, rounded), then the rest in one call, which sizes each step
-        from the state alone as the one call would. A lane that ended in its first step (at the final time, an
-        event, a non-finite state) while others went on: the chunk runs again in one call."""
+    def _until(self, ta, lo, hi):
+        """The batch's first chunk towards the final time (at most :data:`CHUNK_STEPS` steps) as one
+        ``propagate_until`` runs it, in two calls: its first step, which writes the series at the lanes' start (kept
+        for :meth:`first_steps`), then the rest (heyoka sizes each step from the state alone). Returns heyoka's
+        answer and the steps taken before it (1, or 0 when it is the whole chunk's): the chunk ended in its first
+        step (every lane at the final time, an event, a non-finite state) or was that step. A lane that went the
+        whole way in its first step takes zero-length steps in the second call as in the one -- unless t_end - t0
+        is not a double (that step, the difference rounded, ended off t_end): the chunk then runs again in one
+        call."""
         chunk, t_end = min(self.cap, CHUNK_STEPS), self.t_end
-        if chunk == 1:  # the chunk is the first step
-            ta.propagate_until(t_end, max_steps=1, write_tc=True)
-            self._keep(ta, lo, nl)
-            return ta.propagate_res
-        ta.step(self.spans, write_tc=True)
-        self._keep(ta, lo, nl)
-        first = ta.step_res
-        if all(o == SUCCESS for o, _ in first):
-            ta.propagate_until(t_end, max_steps=chunk - 1)
-            return [(o, min(a, abs(h)), max(b, abs(h)), n + 1)
-                    for (_, h), (o, a, b, n) in zip(first, ta.propagate_res)]
-        if all(o == TIME_LIMIT for o, _ in first):  # every lane went the whole way in its first step
-            return [(TIME_LIMIT, math.inf, 0.0, 1)] * len(first)
-        self.load(ta, lo, lo + nl)  # (a padded batch padded again)
-        ta.propagate_until(t_end, max_steps=chunk)
-        return ta.propagate_res
-
-    def _keep(self, ta, lo, nl) -> None:
-        """What :meth:`first_steps` reads of the series ``ta`` holds (the lanes' series at their start): the orders
-        :func:`~lieseries.heyoka_build.read_orders` names."""
-        if self.kept is None:
-            self.order = ta.order
-            self.kept = read_orders(self.order)
-        self.starts.append((lo, nl, ta.tc[:, self.kept, :]))
+        ta.propagate_until(t_end, max_steps=1, write_tc=True)
+        self.tops[:, :, lo:lo + self.B] = ta.tc[:, self.top:, :]
+        prs = ta.propagate_res
+        if chunk == 1 or prs[0][0] != STEP_LIMIT:
+            return prs, 0
+        if not self.span_exact and (np.asarray(ta.last_h) == self.span).any():
+            self.load(ta, lo, hi)
+            ta.propagate_until(t_end, max_steps=chunk)
+            return ta.propagate_res, 0
+        ta.propagate_until(t_end, max_steps=chunk - 1)
+        return ta.propagate_res, 1
 
     def first_steps(self) -> list:
         """The members whose first step heyoka's step rule could not size: their series at the start has its last
         two orders vanish or far below the lower ones (:func:`lieseries.heyoka_build.sparse_first_step`), and the
         step was too long whether the member went the whole way in it or not (from q = 1e-6, q'' = 1 - 3 q^2 in
-        double: 6e-14 off, success); a single run bounds it. Every batch's series read at once (the orders
-        :func:`~lieseries.heyoka_build.read_orders` names, kept from its first step: :meth:`_until`, or for output
-        times a zero-length step); a member whose last two orders vanish is handed over too (its single run reads
-        the whole series)."""
-        if not self.starts:
-            return []
-        p = self.order
-        x0, top = series_norms(np.concatenate([tc for _, _, tc in self.starts], axis=2))
-        bounds = norm_bounds(x0, top, p)
+        double: 6e-14 off, success); a single run bounds it. Every member's series read at once (its orders
+        p - K .. p kept from its batch's first step, or for output times from a zero-length step; order 0 is y0);
+        a member whose last two orders vanish is handed over too (its single run reads the whole series)."""
+        k = self.Ynat.shape[0]
+        x0 = np.abs(self.Ynat).max(axis=1)
+        top = np.abs(self.tops[:, :, :k]).max(axis=0)
+        bounds = norm_bounds(x0, top, self.order)
         gap = top[-2:].max(axis=0) == 0  # (the lanes' whole series would tell: the single run reads it)
-        out, at = [], 0
-        for lo, nl, tc in self.starts:
-            out.extend(lo + j for j in range(nl) if bounds[at + j] is not None or gap[at + j])
-            at += tc.shape[2]
-        return out
+        return [i for i in range(k) if bounds[i] is not None or gap[i]]
 
-    def _record(self, ta, lo, hi, idx, out, prs) -> list:
+    def _record(self, ta, lo, hi, idx, out, prs, before) -> list:
         """Record the batch's members once ``ta`` has run them (a final-time run that did not finish goes on);
-        return those handed to single runs."""
+        return those handed to single runs. ``prs``: heyoka's answer, after ``before`` steps of every lane."""
         res, Ynat, tgrid, t0n, simple, success_msg = (self.res, self.Ynat, self.tgrid, self.t0n, self.simple,
                                                       self.success_msg)
         nl = hi - lo
         outcomes = [prs[lane][0] for lane in range(nl)]
         if all(o == TIME_LIMIT for o in outcomes):  # the common case, in bulk
-            _record_batch(res, lo, hi, ta, out, prs, Ynat, tgrid, t0n, simple, success_msg)
+            _record_batch(res, lo, hi, ta, out, prs, Ynat, tgrid, t0n, simple, success_msg, before)
             return []
         if not simple:
             return _record_grid_lanes(res, lo, nl, ta, out, outcomes, prs, Ynat, tgrid, t0n, self.direction,
                                       self.event_info, self.t_end, success_msg)
         return _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, self.direction, self.event_info,
-                               self.cap, self.t_end, success_msg)
+                               self.cap, self.t_end, success_msg, before)
 
 
 def over_threads(work, n_threads) -> None:
@@ -298,8 +281,8 @@ def over_threads(work, n_threads) -> None:
             list(pool.map(work, range(n_threads)))
 
 
-def _record_batch(res, lo, hi, ta, out, prs, Ynat, tgrid, t0n, simple, success_msg) -> None:
-    """Record members lo..hi-1, every lane of which reached the final time."""
+def _record_batch(res, lo, hi, ta, out, prs, Ynat, tgrid, t0n, simple, success_msg, before) -> None:
+    """Record members lo..hi-1, every lane of which reached the final time (``before`` steps, then ``prs``)."""
     nl = hi - lo
     state = ta.state
     res.y_reached[lo:hi] = state.T[:nl]
@@ -315,7 +298,7 @@ def _record_batch(res, lo, hi, ta, out, prs, Ynat, tgrid, t0n, simple, success_m
     res.status[lo:hi] = "success"
     res.message[lo:hi] = [success_msg] * nl
     res.t_reached[lo:hi] = [tgrid[-1]] * nl
-    res.steps[lo:hi] = [prs[lane][3] for lane in range(nl)]
+    res.steps[lo:hi] = [prs[lane][3] + before for lane in range(nl)]
 
 
 def _record_grid_lanes(res, lo, nl, ta, out, outcomes, prs, Ynat, tgrid, t0n, direction, event_info, t_end,
