@@ -130,13 +130,14 @@ def run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, 
         ta, free = cache.checkout(ta0)
         try:
             batches.shared_parameters(ta)
+            tops = ta.tc[:, batches.top:, :]  # the orders p - K .. p of the series ta writes (a live view)
             while True:
                 with lock:
                     b = next(counter, None)
                 if b is None:
                     return
                 lo, hi = b * B, min(k, b * B + B)
-                mine = batches.run(ta, lo, hi)
+                mine = batches.run(ta, tops, lo, hi)
                 with lock:
                     handed.extend(mine)
                     done[0] += hi - lo - len(mine)
@@ -203,11 +204,12 @@ class _Batches:
             ta.reset_cooldowns()
         return idx
 
-    def run(self, ta, lo, hi) -> list:
-        """Integrate members lo..hi-1 on ``ta`` and record them; return those handed to single runs."""
+    def run(self, ta, tops, lo, hi) -> list:
+        """Integrate members lo..hi-1 on ``ta`` and record them; return those handed to single runs. ``tops``:
+        ``ta.tc[:, self.top:, :]``, the orders of the series :meth:`first_steps` reads."""
         idx = self.load(ta, lo, hi)
         if self.simple:
-            prs, before = self._until(ta, lo, hi)
+            prs, before = self._until(ta, tops, lo, hi)
             return self._record(ta, lo, hi, idx, None, prs, before)
         out = ta.propagate_grid(self.grid, max_steps=self.cap)[-1]
         mine = self._record(ta, lo, hi, idx, out[1:] if self.lead else out, ta.propagate_res, 0)
@@ -216,10 +218,10 @@ class _Batches:
         ta.state[:] = self.Ynat[idx].T
         ta.set_time(self.t0f)
         ta.step(self.zeros, write_tc=True)
-        self.tops[:, :, lo:lo + self.B] = ta.tc[:, self.top:, :]
+        self.tops[:, :, lo:lo + self.B] = tops
         return mine
 
-    def _until(self, ta, lo, hi):
+    def _until(self, ta, tops, lo, hi):
         """The batch's first chunk towards the final time (at most :data:`CHUNK_STEPS` steps) as one
         ``propagate_until`` runs it, in two calls: its first step, which writes the series at the lanes' start (kept
         for :meth:`first_steps`), then the rest (heyoka sizes each step from the state alone). Returns heyoka's
@@ -230,7 +232,7 @@ class _Batches:
         call."""
         chunk, t_end = min(self.cap, CHUNK_STEPS), self.t_end
         ta.propagate_until(t_end, max_steps=1, write_tc=True)
-        self.tops[:, :, lo:lo + self.B] = ta.tc[:, self.top:, :]
+        self.tops[:, :, lo:lo + self.B] = tops
         prs = ta.propagate_res
         if chunk == 1 or prs[0][0] != STEP_LIMIT:
             return prs, 0
@@ -252,8 +254,8 @@ class _Batches:
         x0 = np.abs(self.Ynat).max(axis=1)
         top = np.abs(self.tops[:, :, :k]).max(axis=0)
         bounds = norm_bounds(x0, top, self.order)
-        gap = top[-2:].max(axis=0) == 0  # (the lanes' whole series would tell: the single run reads it)
-        return [i for i in range(k) if bounds[i] is not None or gap[i]]
+        gap = np.flatnonzero(top[-2:].max(axis=0) == 0)  # (their whole series would tell: the single run reads it)
+        return [i for i, b in enumerate(bounds) if b is not None] + gap.tolist()
 
     def _record(self, ta, lo, hi, idx, out, prs, before) -> list:
         """Record the batch's members once ``ta`` has run them (a final-time run that did not finish goes on);
