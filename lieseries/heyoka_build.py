@@ -17,7 +17,7 @@ from .poisson import as_poisson_system
 from .precision import check_tolerance, resolve_precision, to_fraction
 
 __all__ = ["build_integrator", "integrator_count", "event_function", "Recorder", "CrossingGuard", "Both",
-           "sparse_first_step", "first_step_bound", "lane_bounds", "series_norms", "norm_bounds"]
+           "sparse_first_step", "first_step_bound", "top_orders", "norm_bounds"]
 
 #: Compiled integrators (the templates runs copy, :func:`lieseries.cache.checkout`) by structure, precision,
 #: tolerance, events and options, in the shared cache (:mod:`lieseries.cache`); an evicted template takes its pooled
@@ -285,15 +285,9 @@ def sparse_first_step(ta, zero):
     without gaps reads nearly the same rho from each of its last orders (1.00-1.04 for the rigid body, the sphere,
     a heavy top, a pendulum, Kepler; 1.17 for the entire series of an oscillator); from q = 1e-3 the ratio is 1.32,
     from 1e-6 1.9. The bound is a Fraction. Only the series at a run's start is read: a state on the way is
-    generic. For a batch integrator (``zero`` a list of zeros, one per lane): None when no lane needs a bound, else
-    a list, one per lane."""
+    generic. An ensemble's batch reads its lanes' series at once (:func:`norm_bounds`)."""
     ta.step(zero, write_tc=True)
-    tc = ta.tc
-    p = ta.order
-    if tc.ndim == 3:  # a batch: (variables, orders, lanes)
-        bounds = lane_bounds(tc, p)
-        return None if all(b is None for b in bounds) else bounds
-    return first_step_bound(tc, p)
+    return first_step_bound(ta.tc, ta.order)
 
 
 #: heyoka's radius (from its last two orders) against the smallest from its last K + 1 orders beyond which the
@@ -310,7 +304,7 @@ def first_step_bound(tc, p):
     if not (tc[:, p - 1:] != 0).any():
         return _gap_bound(tc, p, max(0.0, log_x0))  # (heyoka's scale: max(1, |x0|_inf))
     log_top = []
-    for k in range(p - max(4, p // 5), p + 1):
+    for k in top_orders(p):
         logs = [_log_abs(v) for v in tc[:, k] if v != 0]
         if None in logs:  # a non-finite coefficient: heyoka's own checks see the run's trouble
             return None
@@ -318,32 +312,17 @@ def first_step_bound(tc, p):
     return _log_bounds(np.array([log_x0]), np.array(log_top)[:, None], p)[0]
 
 
-def lane_bounds(tc, p):
-    """:func:`first_step_bound` of every lane of Taylor coefficients (variables x orders x lanes: a batch's); for
-    doubles in numpy, all lanes at once (:func:`series_norms`, :func:`norm_bounds`), except lanes whose last two
-    orders vanish (:func:`_gap_bound`, lane by lane)."""
-    if tc.dtype != np.float64:
-        return [first_step_bound(tc[:, :, j], p) for j in range(tc.shape[2])]
-    x0, top = series_norms(tc, p)
-    out = norm_bounds(x0, top, p)
-    for j in np.flatnonzero(top[-2:].max(axis=0) == 0):  # (NaN compares False: heyoka's checks see it)
-        out[j] = first_step_bound(tc[:, :, j], p)
-    return out
-
-
-def series_norms(tc, p, orders=False):
-    """What :func:`norm_bounds` reads of double Taylor coefficients (variables x orders x lanes): per lane, the
-    max-norm of order 0 and of the orders p - K .. p (K = max(4, p // 5)). ``orders``: ``tc`` holds only those
-    orders, 0 first (what an ensemble keeps of every member's series)."""
-    if orders:
-        return np.abs(tc[:, 0, :]).max(axis=0), np.abs(tc[:, 1:, :]).max(axis=0)
-    return np.abs(tc[:, 0, :]).max(axis=0), np.abs(tc[:, p - max(4, p // 5):, :]).max(axis=0)
+def top_orders(p):
+    """The orders p - K .. p (K = max(4, p // 5)) of a series of order ``p`` that the rule of
+    :func:`sparse_first_step` reads (with order 0)."""
+    return range(p - max(4, p // 5), p + 1)
 
 
 def norm_bounds(x0, top, p):
-    """:func:`first_step_bound` of lanes from their :func:`series_norms`; None for a lane whose last two orders
-    vanish (:func:`_gap_bound` needs its whole series) or with a non-finite coefficient (heyoka's own checks see the
-    run's trouble)."""
+    """:func:`first_step_bound` of lanes from the max-norms over the components of their double Taylor
+    coefficients: of order 0 (``x0``, per lane) and of the orders :func:`top_orders` (``top``, orders x lanes); None
+    for a lane whose last two orders vanish (:func:`_gap_bound` needs its whole series) or with a non-finite
+    coefficient (heyoka's own checks see the run's trouble)."""
     with np.errstate(divide="ignore", invalid="ignore"):
         return _log_bounds(np.log(x0), np.log(top), p)
 

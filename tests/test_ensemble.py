@@ -75,6 +75,34 @@ def test_output_grid_and_backward():
         assert close(back.y[i], sb.y, 0) <= 64 * EPS and back.t_reached[i] == -3
 
 
+def test_members_that_end_in_their_first_step_beside_members_that_go_on():
+    """A batch reads its members' series from its own first step, taken alone, then goes on: members that go the
+    whole way in that step (slow ones) or stop in it (at a chart's edge) sit beside members that go on, from t0 = 0
+    and from t0 = 0.1 (t_end - t0 is then not a double: the batch runs its first chunk again in one call), forward
+    and backward. Each member takes the steps of its single run and ends where it does."""
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    Y0 = body_states(body, omegas(8, seed=2))
+    Y0[1::2, 9:] *= 1e-4  # slow: the whole span in one step
+    for t0, t in ((0, 3), (0.1, 2.3), (0.1, -2.2)):
+        es = run(body, Y0, t, t0=t0, batch_size=4)
+        assert es.stats["path"] == "batch" and es.stats["single_runs"] == 0 and es.success
+        for i in range(8):
+            sol = ls.integrate(body, Y0[i], t, t0=t0)
+            assert es.stats["steps"][i] == sol.stats.steps and (sol.stats.steps == 1) == (i % 2 == 1)
+            assert close(es.y[i], sol.y, 0) <= 64 * EPS and es.t_reached[i] == sol.t_reached
+    sphere = ls.Sphere(mass=1, radius=1)
+    # x3 = 0.0502 |x| running down to the edge 0.05 |x| (within the first step), beside x3 = 0.6 |x|
+    states = [sphere.initial_state(x=(float(np.sqrt(1 - c * c)), 0, c), v=(c, 0, -float(np.sqrt(1 - c * c))))
+              for c in (0.0502, 0.6) * 3]
+    es = run(sphere, np.stack(states), 0.2, batch_size=4, atlas=False)
+    assert list(es.status) == ["chart_edge", "success"] * 3 and es.stats["single_runs"] == 0
+    for i, y0 in enumerate(states):
+        sol = ls.integrate(sphere, y0, 0.2, atlas=False)
+        assert sol.status == es.status[i] and es.stats["steps"][i] == sol.stats.steps
+        assert (sol.stats.steps == 1) == (i % 2 == 0) and es.t_reached[i] == sol.t_reached
+        assert close(es.y_reached[i], sol.y_reached, 0) <= 64 * EPS
+
+
 def test_exact_input_rounded_once():
     body = ls.EulerPoisson(inertia=(1, 2, 3))
     y_str = [1, 0, 0, 0, 1, 0, 0, 0, 1, "1", "0.2", "1.5"]

@@ -11,9 +11,9 @@ import numpy as np
 
 from .. import cache
 from ..driver import run_message
-from ..heyoka_build import norm_bounds, series_norms
+from ..heyoka_build import norm_bounds, top_orders
 from ..precision import to_fraction
-from .result import TIME_LIMIT, outcome_kind
+from .result import STEP_LIMIT, TIME_LIMIT, outcome_kind
 
 __all__ = ["run_batches", "over_threads", "BATCH_STEPS", "CHUNK_STEPS"]
 
@@ -50,7 +50,8 @@ def _record_lane(res, i, lane, kind, ta, out, Ynat, tgrid, t0n, direction, simpl
                    nsteps)
 
 
-def _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, event_info, cap, t_end, success_msg):
+def _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, event_info, cap, t_end, success_msg,
+                    before):
     """Finish a batch (final-time run) that did not finish in one go.
 
     Either a lane stopped the batch (a terminal event, a non-finite state) or the batch used up its chunk of
@@ -58,11 +59,12 @@ def _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, even
     on a finite state (they take no more steps); the others go on. heyoka's step size depends on the current state
     alone, so a lane that goes on takes the steps it would have taken without the stop. Returned (for single runs):
     the lanes that became non-finite, and those that at their current step size would need more than ``cap``
-    steps in all (a long, stiff or collapsing run: the single run's guard decides which).
+    steps in all (a long, stiff or collapsing run: the single run's guard decides which). ``before``: the steps
+    every lane took before ``prs``.
     """
     B = len(idx)
     decided = np.zeros(B, dtype=bool)
-    steps = np.zeros(B, dtype=np.int64)
+    steps = np.full(B, before, dtype=np.int64)
     handed = []
     n_events = len(event_info)
     chunk = CHUNK_STEPS
@@ -118,7 +120,7 @@ def _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, direction, even
 def run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, n_threads, res, progress):
     """Integrate every member in batches of B lanes over ``n_threads`` threads; return the members to hand over."""
     k = Ynat.shape[0]
-    batches = _Batches(event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, res)
+    batches = _Batches(event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, res, ta0.order)
     counter = iter(range(-(-k // B)))
     lock = threading.Lock()
     handed = []
@@ -128,13 +130,14 @@ def run_batches(ta0, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, 
         ta, free = cache.checkout(ta0)
         try:
             batches.shared_parameters(ta)
+            tops = ta.tc[:, batches.top:, :]  # the orders p - K .. p of the series ta writes (a live view)
             while True:
                 with lock:
                     b = next(counter, None)
                 if b is None:
                     return
                 lo, hi = b * B, min(k, b * B + B)
-                mine = batches.run(ta, lo, hi)
+                mine = batches.run(ta, tops, lo, hi)
                 with lock:
                     handed.extend(mine)
                     done[0] += hi - lo - len(mine)
@@ -151,7 +154,7 @@ class _Batches:
     """What the threads of one :func:`run_batches` share: the members' states and parameters, the output grid,
     where to record; :meth:`run` integrates one batch on a thread's integrator."""
 
-    def __init__(self, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, res):
+    def __init__(self, event_info, Ynat, pars, ps, tgrid, t0n, direction, B, cap, res, order):
         self.event_info, self.Ynat, self.tgrid, self.t0n, self.direction = event_info, Ynat, tgrid, t0n, direction
         self.B, self.cap, self.res = B, cap, res
         k = Ynat.shape[0]
@@ -162,15 +165,21 @@ class _Batches:
                              else np.array([[float(v) for v in r] for r in pars]))
         self.per_member = pars is not None
         self.simple = len(tgrid) == 2 and tgrid[0] == t0n
-        self.t_end = float(tgrid[-1])
+        self.t0f, self.t_end = float(t0n), float(tgrid[-1])
+        # a lane whose first step went the whole way (t_end - t0 rounded, as propagate_until clamps it) ended at
+        # t_end exactly when that difference is a double (_until)
+        span = self.t_end - self.t0f
+        self.span, self.span_exact = span, to_fraction(self.t_end) - to_fraction(self.t0f) == to_fraction(span)
         if not self.simple:
             self.lead = tgrid[0] != t0n
             times = [float(t0n)] * self.lead + [float(g) for g in tgrid]
             self.grid = np.repeat(np.array(times), B).reshape(-1, B)
         self.success_msg = run_message("success", t=tgrid[-1])
         self.zeros = [0.0] * B
-        self.starts = []  # (first member, members, the series at their start) of every batch run: first_steps
-        self.order = None
+        # of every lane's series at its start, the orders p - K .. p (heyoka_build.top_orders), one column per
+        # lane of every batch (the padding of the last one included): first_steps
+        self.order, self.top = order, top_orders(order).start
+        self.tops = np.empty((Ynat.shape[1], order + 1 - self.top, -(-k // B) * B))
 
     def shared_parameters(self, ta) -> None:
         """The parameters of the thread's integrator ``ta`` when they are the same for every member (set once)."""
@@ -188,68 +197,81 @@ class _Batches:
         else:
             idx = list(range(lo, hi)) + [lo] * (B - (hi - lo))
             state[:] = self.Ynat[idx].T
-        ta.set_time(float(self.t0n))
+        ta.set_time(self.t0f)
         if self.par_rows is not None and self.per_member:
             ta.pars[:] = self.par_rows[list(idx)].T
         if self.event_info:
             ta.reset_cooldowns()
         return idx
 
-    def run(self, ta, lo, hi) -> list:
-        """Integrate members lo..hi-1 on ``ta`` and record them; return those handed to single runs."""
+    def run(self, ta, tops, lo, hi) -> list:
+        """Integrate members lo..hi-1 on ``ta`` and record them; return those handed to single runs. ``tops``:
+        ``ta.tc[:, self.top:, :]``, the orders of the series :meth:`first_steps` reads."""
         idx = self.load(ta, lo, hi)
         if self.simple:
-            ta.propagate_until(self.t_end, max_steps=min(self.cap, CHUNK_STEPS))
-            out = None
-        else:
-            out = ta.propagate_grid(self.grid, max_steps=self.cap)[-1]
-            if self.lead:
-                out = out[1:]
-        prs = ta.propagate_res
-        nl = hi - lo
-        mine = self._record(ta, lo, hi, idx, out, prs)
-        # the series at the lanes' start (a zero-length step of the batch that writes it), for first_steps
+            prs, before = self._until(ta, tops, lo, hi)
+            return self._record(ta, lo, hi, idx, None, prs, before)
+        out = ta.propagate_grid(self.grid, max_steps=self.cap)[-1]
+        mine = self._record(ta, lo, hi, idx, out[1:] if self.lead else out, ta.propagate_res, 0)
+        # propagate_grid cannot be split without moving its rows (its first grid time must be the current time):
+        # the series at the lanes' start from a zero-length step that writes it
         ta.state[:] = self.Ynat[idx].T
-        ta.set_time(float(self.t0n))
+        ta.set_time(self.t0f)
         ta.step(self.zeros, write_tc=True)
-        p = self.order = ta.order
-        self.starts.append((lo, nl, ta.tc[:, [0] + list(range(p - max(4, p // 5), p + 1)), :]))  # (series_norms)
+        self.tops[:, :, lo:lo + self.B] = tops
         return mine
+
+    def _until(self, ta, tops, lo, hi):
+        """The batch's first chunk towards the final time (at most :data:`CHUNK_STEPS` steps) as one
+        ``propagate_until`` runs it, in two calls: its first step, which writes the series at the lanes' start (kept
+        for :meth:`first_steps`), then the rest (heyoka sizes each step from the state alone). Returns heyoka's
+        answer and the steps taken before it (1, or 0 when it is the whole chunk's): the chunk ended in its first
+        step (every lane at the final time, an event, a non-finite state) or was that step. A lane that went the
+        whole way in its first step takes zero-length steps in the second call as in the one -- unless t_end - t0
+        is not a double (that step, the difference rounded, ended off t_end): the chunk then runs again in one
+        call."""
+        chunk, t_end = min(self.cap, CHUNK_STEPS), self.t_end
+        ta.propagate_until(t_end, max_steps=1, write_tc=True)
+        self.tops[:, :, lo:lo + self.B] = tops
+        prs = ta.propagate_res
+        if chunk == 1 or prs[0][0] != STEP_LIMIT:
+            return prs, 0
+        if not self.span_exact and (np.asarray(ta.last_h) == self.span).any():
+            self.load(ta, lo, hi)
+            ta.propagate_until(t_end, max_steps=chunk)
+            return ta.propagate_res, 0
+        ta.propagate_until(t_end, max_steps=chunk - 1)
+        return ta.propagate_res, 1
 
     def first_steps(self) -> list:
         """The members whose first step heyoka's step rule could not size: their series at the start has its last
         two orders vanish or far below the lower ones (:func:`lieseries.heyoka_build.sparse_first_step`), and the
         step was too long whether the member went the whole way in it or not (from q = 1e-6, q'' = 1 - 3 q^2 in
-        double: 6e-14 off, success); a single run bounds it. Every batch's series read at once (the orders 0 and
-        p - K .. p of each kept); a member whose last two orders vanish is handed over too (its single run reads
-        the whole series)."""
-        if not self.starts:
-            return []
-        p = self.order
-        x0, top = series_norms(np.concatenate([tc for _, _, tc in self.starts], axis=2), p, orders=True)
-        bounds = norm_bounds(x0, top, p)
-        gap = top[-2:].max(axis=0) == 0  # (the lanes' whole series would tell: the single run reads it)
-        out, at = [], 0
-        for lo, nl, tc in self.starts:
-            out.extend(lo + j for j in range(nl) if bounds[at + j] is not None or gap[at + j])
-            at += tc.shape[2]
-        return out
+        double: 6e-14 off, success); a single run bounds it. Every member's series read at once (its orders
+        p - K .. p kept from its batch's first step, or for output times from a zero-length step; order 0 is y0);
+        a member whose last two orders vanish is handed over too (its single run reads the whole series)."""
+        k = self.Ynat.shape[0]
+        x0 = np.abs(self.Ynat).max(axis=1)
+        top = np.abs(self.tops[:, :, :k]).max(axis=0)
+        bounds = norm_bounds(x0, top, self.order)
+        gap = np.flatnonzero(top[-2:].max(axis=0) == 0)  # (their whole series would tell: the single run reads it)
+        return [i for i, b in enumerate(bounds) if b is not None] + gap.tolist()
 
-    def _record(self, ta, lo, hi, idx, out, prs) -> list:
+    def _record(self, ta, lo, hi, idx, out, prs, before) -> list:
         """Record the batch's members once ``ta`` has run them (a final-time run that did not finish goes on);
-        return those handed to single runs."""
+        return those handed to single runs. ``prs``: heyoka's answer, after ``before`` steps of every lane."""
         res, Ynat, tgrid, t0n, simple, success_msg = (self.res, self.Ynat, self.tgrid, self.t0n, self.simple,
                                                       self.success_msg)
         nl = hi - lo
         outcomes = [prs[lane][0] for lane in range(nl)]
         if all(o == TIME_LIMIT for o in outcomes):  # the common case, in bulk
-            _record_batch(res, lo, hi, ta, out, prs, Ynat, tgrid, t0n, simple, success_msg)
+            _record_batch(res, lo, hi, ta, out, prs, Ynat, tgrid, t0n, simple, success_msg, before)
             return []
         if not simple:
             return _record_grid_lanes(res, lo, nl, ta, out, outcomes, prs, Ynat, tgrid, t0n, self.direction,
                                       self.event_info, self.t_end, success_msg)
         return _continue_batch(ta, prs, idx, nl, res, lo, Ynat, tgrid, t0n, self.direction, self.event_info,
-                               self.cap, self.t_end, success_msg)
+                               self.cap, self.t_end, success_msg, before)
 
 
 def over_threads(work, n_threads) -> None:
@@ -261,8 +283,8 @@ def over_threads(work, n_threads) -> None:
             list(pool.map(work, range(n_threads)))
 
 
-def _record_batch(res, lo, hi, ta, out, prs, Ynat, tgrid, t0n, simple, success_msg) -> None:
-    """Record members lo..hi-1, every lane of which reached the final time."""
+def _record_batch(res, lo, hi, ta, out, prs, Ynat, tgrid, t0n, simple, success_msg, before) -> None:
+    """Record members lo..hi-1, every lane of which reached the final time (``before`` steps, then ``prs``)."""
     nl = hi - lo
     state = ta.state
     res.y_reached[lo:hi] = state.T[:nl]
@@ -278,7 +300,7 @@ def _record_batch(res, lo, hi, ta, out, prs, Ynat, tgrid, t0n, simple, success_m
     res.status[lo:hi] = "success"
     res.message[lo:hi] = [success_msg] * nl
     res.t_reached[lo:hi] = [tgrid[-1]] * nl
-    res.steps[lo:hi] = [prs[lane][3] for lane in range(nl)]
+    res.steps[lo:hi] = [prs[lane][3] + before for lane in range(nl)]
 
 
 def _record_grid_lanes(res, lo, nl, ta, out, outcomes, prs, Ynat, tgrid, t0n, direction, event_info, t_end,

@@ -9,9 +9,10 @@ import numpy as np
 from ..precision import Precision
 from ..solution import EnsembleSolution
 
-__all__ = ["Monotone", "Result", "nan_array", "outcome_kind", "TIME_LIMIT", "assemble"]
+__all__ = ["Monotone", "Result", "nan_array", "outcome_kind", "TIME_LIMIT", "STEP_LIMIT", "assemble"]
 
 TIME_LIMIT = hy.taylor_outcome.time_limit
+STEP_LIMIT = hy.taylor_outcome.step_limit
 
 
 class Monotone:

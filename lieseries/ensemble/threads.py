@@ -12,10 +12,10 @@ import numpy as np
 
 from .. import cache
 from ..driver import Stop, StepResult, drive, run_message
-from ..heyoka_build import sparse_first_step
+from ..heyoka_build import first_step_bound, sparse_first_step
 from ..precision import to_fraction
 from .batch import CHUNK_STEPS, over_threads
-from .result import outcome_kind
+from .result import STEP_LIMIT, outcome_kind
 
 __all__ = ["run_scalar", "run_singles"]
 
@@ -25,7 +25,10 @@ def run_scalar(ta0, event_info, Ynat, pars, ps, prec, tgrid, t0n, direction, cap
     (:func:`lieseries.driver.drive`, :class:`_Member`); return the members to hand over.
 
     The same decisions as a batch lane: finished or stopped by a terminal event is recorded; non-finite, or more
-    than ``cap`` steps ahead at the current step size (checked between chunks of steps), goes to a single run.
+    than ``cap`` steps ahead at the current step size (checked between chunks of steps), goes to a single run; so
+    does a member whose first step heyoka's step rule could not size (the series at y0 has its last two orders
+    vanish or far below the lower ones: :func:`lieseries.heyoka_build.sparse_first_step`; from q = 1e-6,
+    q'' = 1 - 3 q^2 in quad one step was 8e-32 off, success): the single run bounds it.
     """
     k, n = Ynat.shape
     npar = len(ps.parameter_values)
@@ -58,13 +61,14 @@ def run_scalar(ta0, event_info, Ynat, pars, ps, prec, tgrid, t0n, direction, cap
                         reached_message=reached)
         except _HandOver:
             return False
-        # heyoka's step rule may not have seen the series at y0 (its last two orders vanish or are far below the
-        # lower ones: lieseries.heyoka_build.sparse_first_step), whether the run took one step or more (from
-        # q = 1e-6, q'' = 1 - 3 q^2 in quad: 8e-32 off, success); the single run then bounds the first step
-        ta.time = t0_nat
-        ta.state[:] = Ynat[i]
-        if sparse_first_step(ta, zero) is not None:
-            return False
+        if grid is not None:
+            # propagate_grid's steps cannot be split without moving its rows, and a step callback costs more than
+            # a step in long double: the series at y0 from a zero-length step that writes it (the first chunk
+            # towards a final time reads it from its own first step: _Member._until)
+            ta.time = t0_nat
+            ta.state[:] = Ynat[i]
+            if sparse_first_step(ta, zero) is not None:
+                return False
         for j, y in zip(out.rows_t, out.rows_y):
             res.y[i, j] = y
         res.rows[i] = len(out.rows_t)
@@ -111,13 +115,13 @@ class _Member:
         self.chunk = CHUNK_STEPS
         self.steps = 0
         self.next_row = 1  # propagate_grid's row 0 is t0 (the driver gives the row at t0 itself)
+        self.first = True  # the first chunk (towards the final time) is still to run
 
     def step(self, t, z, t_end):
         ta, cap = self.ta, self.cap
         rows = None
         if self.grid is None:
-            outcome, _hmin, _hmax, nsteps = ta.propagate_until(self.t_end, max_steps=min(cap - self.steps,
-                                                                                        self.chunk))[:4]
+            outcome, nsteps = self._until(min(cap - self.steps, self.chunk))
         else:
             r = ta.propagate_grid(self.grid, max_steps=cap)
             outcome, nsteps, rows = r[0], int(r[3]), r[-1]
@@ -146,6 +150,22 @@ class _Member:
             return y_r if tk == t_r else rows[k]
 
         return StepResult(t_r, y_r, row=row, stop=stop, steps=nsteps)
+
+    def _until(self, budget):
+        """(outcome, steps) of at most ``budget`` steps towards the final time. The first chunk runs in two calls,
+        as one call would run it (a call sizes each step from the state alone): its first step writes the series
+        at y0 (a member whose first step needs a bound is handed over), then the rest."""
+        ta = self.ta
+        if not self.first:
+            return tuple(ta.propagate_until(self.t_end, max_steps=budget)[i] for i in (0, 3))
+        self.first = False
+        outcome, _hmin, _hmax, nsteps = ta.propagate_until(self.t_end, max_steps=1, write_tc=True)[:4]
+        if first_step_bound(ta.tc, ta.order) is not None:
+            raise _HandOver
+        if budget > 1 and outcome == STEP_LIMIT:
+            outcome, _hmin, _hmax, more = ta.propagate_until(self.t_end, max_steps=budget - 1)[:4]
+            nsteps += more
+        return outcome, nsteps
 
 
 def run_singles(single_run, systems, rows, t, opts, workers, progress, k, done0):
