@@ -575,3 +575,20 @@ def test_a_run_at_the_largest_heyoka_precision_succeeds_right():
     ref = exact.euler_poisson((1, 2, "2.5"), (1, "0.1", "0.5"), "0.25", dps=330)
     c = private_ctx(330)
     assert max(abs(ctx_mpf(c, a) - ctx_mpf(c, b)) for a, b in zip(sol.y[-1], ref)) < c.mpf(10) ** -305
+
+
+@pytest.mark.parametrize("precision", ["double", "long double"])
+def test_a_backward_run_that_heyoka_ends_an_ulp_past_the_final_time(precision):
+    # from t0 = 2.3 back to 0.1 heyoka's double-length time ended at 0.09999999999999998 (past 0.1) and called it
+    # the final time: the run raised "no row at t = 0.1 in a heyoka chunk". y0 is the body's state at t = 2.3 (the
+    # closed form), so the run ends on the closed form at 0.1
+    from lieseries import exact
+    from lieseries.precision import to_fraction
+
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = [to_fraction(v) for v in exact.euler_poisson((1, 2, 3), (1, "0.1", "0.5"), Fraction(23, 10), dps=40)]
+    for t in ("0.1", [1, "0.1"]):
+        sol = ls.integrate(body, y0, t, t0="2.3", precision=precision)
+        assert sol.success, sol.message
+        assert sol.t_reached == Fraction(1, 10) or float(sol.t_reached) == 0.1
+        assert rigid_error(sol.y_reached, Fraction(1, 10)) < 1e-14

@@ -66,6 +66,13 @@ def step_range(steps, lo, hi, t_end, t_start):
     return lo, hi
 
 
+def _reached(res, time, t_end):
+    """Where a chunk with heyoka's answer ``res`` ended: ``t_end`` when heyoka says it reached it (its double-length
+    time can end an ulp beside it: from t0 = 2.3 back to 0.1, at 0.09999999999999998, past the final time, whose row
+    then had no chunk), else heyoka's time."""
+    return t_end if res[0] == _OUTCOME.time_limit else time
+
+
 class Chunks:
     """The step of a heyoka run for the driver loop (:func:`lieseries.driver.drive`): a chunk of steps run inside
     heyoka (module docstring), and before it, when the last chunk used up its steps, the checks that need more than
@@ -182,7 +189,7 @@ class Chunks:
             self.t_at, self.z_at = reached
             return res[0]
         self._account(res, ta.time)
-        self.t_at, self.z_at = ta.time, np.array(ta.state, copy=True)
+        self.t_at, self.z_at = _reached(res, ta.time, t_end), np.array(ta.state, copy=True)
         if res[0] == _OUTCOME.step_limit:  # the next chunk: about CHUNK_SECONDS of work
             per_step = elapsed / max(int(res[3]), 1)
             self.chunk = int(min(4 * self.chunk, max(16, CHUNK_SECONDS / max(per_step, 1e-9)), 1 << 20))
@@ -221,7 +228,7 @@ class Chunks:
         # heyoka's own step size: the difference of the times reads 0 once the step is below the time's ulp
         self.h_last = abs(float(ta.last_h)) if _finite(ta.last_h) else abs(float(ta.time) - float(before_t))
         self.change = _relative_change(ta.state, before)
-        self.t_at, self.z_at = ta.time, np.array(ta.state, copy=True)
+        self.t_at, self.z_at = _reached(res, ta.time, t_end), np.array(ta.state, copy=True)
         return res[0]
 
     def _end(self, outcome):
