@@ -450,19 +450,22 @@ def _prepared(plan, grouped, wp, pars_raw):
     return got
 
 
-def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None, sizes=None, measured=None):
+def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None, sizes=None, measured=None, packs=None):
     """Fixed-point jets of the state: (M, U) with ``c_{i,k} = M[i][k] * 2**(U[i] - s*k)``.
 
     ``wp`` is the working precision in bits (guard bits included), ``s`` the time scale exponent, ``deadline`` an
     optional :func:`time.perf_counter` value checked after every order (:class:`DeadlineExceeded`).  ``sizes``
     (:class:`NodeSizes` of an earlier expansion, or None) gives products and sums of products their exponents from
     the magnitudes their operands carried rather than from their scales alone; a :class:`NodeSizes` given as
-    ``measured`` receives this expansion's.
+    ``measured`` receives this expansion's.  A list given as ``packs`` receives the packed partners of its dot products
+    whose partners are all state variables, as (packed coefficients of the orders 0..order-1, field width, the
+    partners' state indices, the largest bit length of their coefficients of those orders): every field of the k-th
+    integer is the coefficient k of its state (:meth:`~lieseries.lie.fixed.FixedJets.evaluate` reads them).
     """
     sz = sizes.at(s) if sizes is not None else None
-    got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, False, sz, measured)
+    got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, False, sz, measured, packs)
     if got is None:  # a packed dot product's fields were too narrow for a later order: again, checking every order
-        got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, True, sz, measured)
+        got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, True, sz, measured, packs)
     return got
 
 
@@ -682,7 +685,7 @@ def _steps(run, instrs, to_state, cv, wp):
     return steps
 
 
-def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked, sizes=None, measured=None):
+def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked, sizes=None, measured=None, packs=None):
     """:func:`expand`; None when ``checked`` is false and a packed dot product's fields did not fit every order."""
     plan = jet_plan(program)
     # packed dot products pay off with Python ints up to about 100 digits, with gmpy2 up to about 300
@@ -739,8 +742,11 @@ def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked, sizes=No
     if order > 1:
         run_orders, env = _order_loop(steps, deferred, rest if srcs else None, checked, Z)
         run_orders(1, order, deadline, env)
-        if not checked and not Dots.all_fit([st for st in steps if st.__class__ is Dots], order):
+        dots = [st for st in steps if st.__class__ is Dots]
+        if not checked and not Dots.all_fit(dots, order):
             return None
+        if packs is not None:
+            packs += [(st.P, st.W, st.slots[1:], st.bb) for st in dots if len(st.Bs) > 1 and max(st.slots[1:]) < nvars]
     if measured is not None:
         measured.fill(run, nvars)
         if measured.sizes is not None:

@@ -357,7 +357,12 @@ class Dots:
                 b = known[id(jet)] = max(map(bl, jet[:n]))
             return b
 
-        return all(bits(d.A) + max(map(bits, d.Bs)) + n.bit_length() + 2 <= d.W for d in dots)
+        for d in dots:
+            bb = max(map(bits, d.Bs))
+            if bits(d.A) + bb + n.bit_length() + 2 > d.W:
+                return False
+            d.bb = max(d.bb, bb)  # (what the partners' coefficients of every order reach: FixedJets' packed Horner)
+        return True
 
     def __call__(self, k):
         if k == 0:
