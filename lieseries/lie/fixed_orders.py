@@ -733,7 +733,19 @@ def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked, sizes=No
             else:
                 zi.append(Z(0))
 
-    if order:  # order 0 sets every jet's exponent and the constants of the later orders
+    # Order 0 sets every jet's exponent and the constants of the later orders. Where every step is a dot product of
+    # state variables or a sum of products without an offset, it sets them alone and the order loop computes order
+    # 0's values with the later orders' (the same integer operations as the steps')
+    k0 = 1
+    if order > 1 and all(extra is None or not extra[1] for kind, _, _, extra in instrs if kind == "sop") and all(
+            (st.__class__ is Dots and max(st.slots) < nvars) or getattr(st, "kind", None) == "sop" for st in steps):
+        for st in steps:
+            if st.__class__ is Dots:
+                st.setup()
+            else:
+                st(0, False)
+        k0 = 0
+    elif order:
         for st in steps:
             st(0)
         for zi, i in deferred:
@@ -741,7 +753,7 @@ def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked, sizes=No
         rest(0)
     if order > 1:
         run_orders, env = _order_loop(steps, deferred, rest if srcs else None, checked, Z)
-        run_orders(1, order, deadline, env)
+        run_orders(k0, order, deadline, env)
         dots = [st for st in steps if st.__class__ is Dots]
         if not checked and not Dots.all_fit(dots, order):
             return None
