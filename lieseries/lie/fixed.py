@@ -532,12 +532,16 @@ def check_extra(extra, F):
 
 
 def _ceil_log2(x):
-    m, e = mp.frexp(x)  # x = m 2**e, 1/2 <= m < 1
-    return int(e) if m > 0.5 else int(e) - 1
+    """e for x = m 2**e with 1/2 < m <= 1 (mp.frexp's exponent, less one where its mantissa is 1/2), from the mpf's
+    mantissa and exponent."""
+    sign, man, exp, bc = x._mpf_
+    return exp + bc if man > 1 and not sign else exp + bc - 1
 
 
 def _floor_log2(x):
-    return int(mp.frexp(x)[1]) - 1
+    """mp.frexp's exponent of x, less one."""
+    _, _, exp, bc = x._mpf_
+    return exp + bc - 1
 
 
 def fixed_taylor_coefficients(program_or_system, y0, pars, order, dps, time_scale=0, ctx=None):
