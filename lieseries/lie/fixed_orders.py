@@ -244,19 +244,22 @@ def _order_loop(steps, deferred, rest, checked, Z):
                 put(st.dot)
             if not checked:
                 put(st.bias_all)
-                half_of.update((key, st.half if len(st.Bs) > 1 else 0) for key in st.keys)
+                half_of.update(dict.fromkeys(st.keys, st.half if len(st.Bs) > 1 else 0))
             sig.append(("d", len(st.Bs), paired, tuple(st.keys)))
         elif kind == "sop":
             tsig = []
             K = 0
-            for m, (A, B, cm, d) in enumerate(st.terms):
+            jets = True  # (linear terms alone)
+            for A, B, cm, d in st.terms:
                 if B is not None:
                     src = "call"
                     put(B)
+                    jets = False
                 elif A.__class__ is int:
                     src = A  # a dot product's key
+                    jets = False
                     if not checked:  # the term reads its field plus half: minus (half times its factor) << d
-                        K -= (half_of[A] * (1 if cm is None else cm)) << d
+                        K -= (half_of[A] if cm is None else half_of[A] * cm) << d
                 else:
                     src = "jet"
                     put(A)
@@ -277,7 +280,7 @@ def _order_loop(steps, deferred, rest, checked, Z):
             # The direction of the final shift: with a product among the terms it is a right shift at every step
             # (the terms' exponents hold the F fraction bits of both factors: fin ~ -F), part of the structure;
             # for linear terms alone it follows the state's magnitudes from step to step, a variable fp
-            if all(src == "jet" for src, _ in tsig):
+            if jets:
                 put(fp)  # fp, fin, nf
                 put(max(fin, 0))
                 put(max(-fin, 0))
@@ -285,7 +288,7 @@ def _order_loop(steps, deferred, rest, checked, Z):
             else:
                 put(fin if fp else -fin)  # fin or nf
             if K:
-                put(Z(K))
+                put(K if K.__class__ is Z else Z(K))
             sig.append(("s", st.state, tuple(tsig), bool(K), fp))
         else:
             put(st)
