@@ -533,15 +533,20 @@ def check_extra(extra, F):
 
 def _ceil_log2(x):
     """e for x = m 2**e with 1/2 < m <= 1 (mp.frexp's exponent, less one where its mantissa is 1/2), from the mpf's
-    mantissa and exponent."""
-    sign, man, exp, bc = x._mpf_
+    mantissa and exponent (x an mpf or a number mp.mpf takes)."""
+    sign, man, exp, bc = _raw(x)
     return exp + bc if man > 1 and not sign else exp + bc - 1
 
 
 def _floor_log2(x):
     """mp.frexp's exponent of x, less one."""
-    _, _, exp, bc = x._mpf_
+    _, _, exp, bc = _raw(x)
     return exp + bc - 1
+
+
+def _raw(x):
+    raw = getattr(x, "_mpf_", None)
+    return raw if raw is not None else mp.mpf(x)._mpf_
 
 
 def fixed_taylor_coefficients(program_or_system, y0, pars, order, dps, time_scale=0, ctx=None):
