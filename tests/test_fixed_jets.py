@@ -337,3 +337,29 @@ def test_dense_output_pickles_and_matches_the_closed_form(bigint):
     sol = pickle.loads(pickle.dumps(ls.lie_integrate(body, y0, t=3, dps=30, dense=True)))
     for t in ("0.7", "2.9"):
         assert rigid_error(list(sol(mp.mpf(t))), mp.mpf(t), dps=50) < mp.mpf(10) ** -29
+
+
+@pytest.mark.parametrize("dps", [30, 50, 100])
+def test_packed_horner_rounds_every_state_as_its_own_horner(bigint, dps):
+    """FixedJets.evaluate runs the Horner steps of the states that the dot products packed several to an integer:
+    every field is rounded on its own, so each state comes out as the per-state Horner's integers (the same bits),
+    and both lie within the roundings of the polynomial evaluated at twice the digits; at positive and negative
+    times, at the time scale itself, and at a time with a long mantissa."""
+    prog = compile_system(*rigid_body())
+    prec = Precision.of(dps=dps)
+    stepper = fixed.FixedStepper(prog, RB_PARS, 40, prec)
+    with mp.workdps(dps + 10):
+        jets = stepper.expand([mp.mpf(v) for v in [1, 0, 0, 0, 1, 0, 0, 0, 1, 1, "0.2", "1.5"]], 10)
+        assert jets.packs
+        sigma = jets.max_step
+        for t in (sigma / 3, -sigma * mp.mpf("0.7"), sigma, mp.mpf(2) ** -40 * sigma, sigma / 7):
+            packed = jets.evaluate(t)
+            packs, jets.packs = jets.packs, None
+            plain = jets.evaluate(t)
+            jets.packs = packs
+            assert packed == plain
+            with mp.workdps(2 * dps):
+                ref = [sum(mp.mpf(c[i]) * mp.mpf(t) ** k for k, c in enumerate(jets.coefficients))
+                       for i in range(len(packed))]
+                for a, b in zip(packed, ref):
+                    assert abs(mp.mpf(a) - b) <= mp.mpf(10) ** (2 - dps) * max(1, abs(b))

@@ -92,8 +92,10 @@ class FixedJets:
     :class:`FixedStepper`) are :func:`~lieseries.lie.operator.estimate_radius` of the norms and its logarithm.
     """
 
-    def __init__(self, M, U, s, prec):
+    def __init__(self, M, U, s, prec, packs=None):
         self.M, self.U, self.s, self.prec = M, U, s, prec
+        self.packs = packs  # (expand's ``packs``: the states' coefficients packed by the dot products, or None)
+        self._cover = None
         self.max_step = mp_context().ldexp(1, s)
         self.rho = None
         self.log2_rho = None
@@ -192,19 +194,68 @@ class FixedJets:
         Z = bigint.integer_type()
         tm = -Z(tm) if sg else Z(tm)
         sh = self.s - te  # t / sigma = tm * 2**-sh
-        out = []
-        prec = self.prec
-        for Mi, ui in zip(self.M, self.U):
-            acc = Mi[-1]
+        acc = [None] * len(self.M)
+        if sh > 0 and self.packs:
+            self._packed_horner(acc, tm, sh, Z)
+        for i, Mi in enumerate(self.M):
+            if acc[i] is not None:
+                continue
+            a = Mi[-1]
             if sh > 0:
                 half = Z(1) << (sh - 1)
                 for m in Mi[-2::-1]:
-                    acc = ((acc * tm + half) >> sh) + m
+                    a = ((a * tm + half) >> sh) + m
             else:
                 for m in Mi[-2::-1]:
-                    acc = round_shift(acc * tm, sh) + m
-            out.append(make(to_raw(acc, ui, prec)))
-        return out
+                    a = round_shift(a * tm, sh) + m
+            acc[i] = a
+        prec = self.prec
+        return [make(to_raw(a, ui, prec)) for a, ui in zip(acc, self.U)]
+
+    def _packed_horner(self, acc, tm, sh, Z):
+        """:meth:`evaluate`'s Horner steps ``a = floor((a tm + 2**(sh-1)) / 2**sh) + M_k`` for the states whose
+        coefficients a dot product packed (:attr:`packs`), several states per integer operation, into ``acc`` (the
+        same integers: every field is rounded on its own).
+
+        A field ``x`` of the packed accumulator is held as ``x + 2**(W-1-sh)``; a step multiplies by ``tm`` and adds
+        ``C = 2**(W-1) + 2**(sh-1) - 2**(W-1-sh) tm`` to every field, which makes each ``z = x tm + 2**(sh-1) +
+        2**(W-1)``, in [0, 2**W) while ``|x tm| + 2**(sh-1) < 2**(W-1)``: the fields are then independent, the shift
+        by ``sh`` floors each (the low bits a field passes to the one below are masked off) and leaves it
+        ``floor((x tm + 2**(sh-1)) / 2**sh) + 2**(W-1-sh)``, to which the packed coefficients add ``M_k``."""
+        cover = self._cover
+        if cover is None:  # the packs that hold two states or more not held by a larger one
+            cover, seen = [], set()
+            for pk in sorted(self.packs, key=lambda pk: -len(pk[2])):
+                new = set(pk[2]) - seen
+                if len(new) >= 2:
+                    cover.append((pk, new))
+                    seen |= new
+            self._cover = cover
+        M = self.M
+        N = len(M[0]) - 1
+        lim = N.bit_length() + abs(tm).bit_length() + 3
+        for (P, W, states, bb), new in cover:
+            if len(P) != N or sh > W - 2:
+                continue
+            bits = max(bb, *(M[i][N].bit_length() for i in states))  # (|a| < (N + 1) 2**bits + N + 1)
+            if bits + lim > W - 1:
+                continue
+            one = Z(1)
+            rep = sum(one << (m * W) for m in range(len(states)))  # 1 in every field
+            top, low = one << (W - 1), one << (W - 1 - sh)
+            C = (top + (one << (sh - 1)) - low * tm) * rep
+            mask = ((one << (W - sh)) - 1) * rep
+            x = 0
+            for i in reversed(states):
+                x = (x << W) + M[i][N]
+            x += low * rep
+            for p in reversed(P):
+                x = (((x * tm + C) >> sh) & mask) + p
+            x += (top - low) * rep  # every field x + 2**(W-1), in [0, 2**W)
+            full = (one << W) - 1
+            for m, i in enumerate(states):
+                if i in new:
+                    acc[i] = ((x >> (m * W)) & full) - top
 
     def _abs_horner(self, h):
         """(sum_k |M_{k,i}| (|h| / sigma)^k, U_i) for every variable i, in integers."""
@@ -338,6 +389,7 @@ class FixedStepper:
         self.redone = 0  # expansions run again with the sizes their nodes carried (NodeSizes.coarse)
         self.extra = 0  # working bits added where the roundings may cost a state its guard bits (extra_bits)
         self.measure = True
+        self.packs = None  # the last expansion's packed states (expand's ``packs``)
 
     def expand(self, z, span, deadline=None):
         try:
@@ -368,7 +420,7 @@ class FixedStepper:
             self.s = min(self.s, _ceil_log2(span))
         for _ in range(3):
             M, U, got = self._measured(zr, self.order, self.s, deadline, NodeSizes() if self.measure else None)
-            jets = FixedJets(M, U, self.s, self.prec)
+            jets = FixedJets(M, U, self.s, self.prec, self.packs)
             if got is not None and got.errors:
                 jets.noise = [e for e, _ in got.errors]
             jets.rho, jets.log2_rho = _estimate_radius(jets)
@@ -388,11 +440,13 @@ class FixedStepper:
         while True:  # (the extra bits grow by 16 or more a round: check_extra ends it)
             wp = self.wp + self.extra
             first = self.sizes
-            M, U = expand(self.program, zr, self.pars_raw, order, wp, s, deadline, first, got)
+            self.packs = []
+            M, U = expand(self.program, zr, self.pars_raw, order, wp, s, deadline, first, got, self.packs)
             self.expansions += 1
             if got is not None and got.coarse(COARSE_BITS, first):  # rounded coarser than the nodes carry
                 self.sizes, got = got, NodeSizes()
-                M, U = expand(self.program, zr, self.pars_raw, order, wp, s, deadline, self.sizes, got)
+                self.packs = []
+                M, U = expand(self.program, zr, self.pars_raw, order, wp, s, deadline, self.sizes, got, self.packs)
                 self.expansions += 1
                 self.redone += 1
             if self.sizes is not None:  # (while the scales alone serve, the expansions go without sizes)
@@ -478,12 +532,21 @@ def check_extra(extra, F):
 
 
 def _ceil_log2(x):
-    m, e = mp.frexp(x)  # x = m 2**e, 1/2 <= m < 1
-    return int(e) if m > 0.5 else int(e) - 1
+    """e for x = m 2**e with 1/2 < m <= 1 (mp.frexp's exponent, less one where its mantissa is 1/2), from the mpf's
+    mantissa and exponent (x an mpf or a number mp.mpf takes)."""
+    sign, man, exp, bc = _raw(x)
+    return exp + bc if man > 1 and not sign else exp + bc - 1
 
 
 def _floor_log2(x):
-    return int(mp.frexp(x)[1]) - 1
+    """mp.frexp's exponent of x, less one."""
+    _, _, exp, bc = _raw(x)
+    return exp + bc - 1
+
+
+def _raw(x):
+    raw = getattr(x, "_mpf_", None)
+    return raw if raw is not None else mp.mpf(x)._mpf_
 
 
 def fixed_taylor_coefficients(program_or_system, y0, pars, order, dps, time_scale=0, ctx=None):

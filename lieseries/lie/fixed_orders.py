@@ -244,19 +244,22 @@ def _order_loop(steps, deferred, rest, checked, Z):
                 put(st.dot)
             if not checked:
                 put(st.bias_all)
-                half_of.update((key, st.half if len(st.Bs) > 1 else 0) for key in st.keys)
+                half_of.update(dict.fromkeys(st.keys, st.half if len(st.Bs) > 1 else 0))
             sig.append(("d", len(st.Bs), paired, tuple(st.keys)))
         elif kind == "sop":
             tsig = []
             K = 0
-            for m, (A, B, cm, d) in enumerate(st.terms):
+            jets = True  # (linear terms alone)
+            for A, B, cm, d in st.terms:
                 if B is not None:
                     src = "call"
                     put(B)
+                    jets = False
                 elif A.__class__ is int:
                     src = A  # a dot product's key
+                    jets = False
                     if not checked:  # the term reads its field plus half: minus (half times its factor) << d
-                        K -= (half_of[A] * (1 if cm is None else cm)) << d
+                        K -= (half_of[A] if cm is None else half_of[A] * cm) << d
                 else:
                     src = "jet"
                     put(A)
@@ -277,7 +280,7 @@ def _order_loop(steps, deferred, rest, checked, Z):
             # The direction of the final shift: with a product among the terms it is a right shift at every step
             # (the terms' exponents hold the F fraction bits of both factors: fin ~ -F), part of the structure;
             # for linear terms alone it follows the state's magnitudes from step to step, a variable fp
-            if all(src == "jet" for src, _ in tsig):
+            if jets:
                 put(fp)  # fp, fin, nf
                 put(max(fin, 0))
                 put(max(-fin, 0))
@@ -285,7 +288,7 @@ def _order_loop(steps, deferred, rest, checked, Z):
             else:
                 put(fin if fp else -fin)  # fin or nf
             if K:
-                put(Z(K))
+                put(K if K.__class__ is Z else Z(K))
             sig.append(("s", st.state, tuple(tsig), bool(K), fp))
         else:
             put(st)
@@ -450,19 +453,22 @@ def _prepared(plan, grouped, wp, pars_raw):
     return got
 
 
-def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None, sizes=None, measured=None):
+def expand(program, y0_raw, pars_raw, order, wp, s, deadline=None, sizes=None, measured=None, packs=None):
     """Fixed-point jets of the state: (M, U) with ``c_{i,k} = M[i][k] * 2**(U[i] - s*k)``.
 
     ``wp`` is the working precision in bits (guard bits included), ``s`` the time scale exponent, ``deadline`` an
     optional :func:`time.perf_counter` value checked after every order (:class:`DeadlineExceeded`).  ``sizes``
     (:class:`NodeSizes` of an earlier expansion, or None) gives products and sums of products their exponents from
     the magnitudes their operands carried rather than from their scales alone; a :class:`NodeSizes` given as
-    ``measured`` receives this expansion's.
+    ``measured`` receives this expansion's.  A list given as ``packs`` receives the packed partners of its dot products
+    whose partners are all state variables, as (packed coefficients of the orders 0..order-1, field width, the
+    partners' state indices, the largest bit length of their coefficients of those orders): every field of the k-th
+    integer is the coefficient k of its state (:meth:`~lieseries.lie.fixed.FixedJets.evaluate` reads them).
     """
     sz = sizes.at(s) if sizes is not None else None
-    got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, False, sz, measured)
+    got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, False, sz, measured, packs)
     if got is None:  # a packed dot product's fields were too narrow for a later order: again, checking every order
-        got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, True, sz, measured)
+        got = _expand(program, y0_raw, pars_raw, order, wp, s, deadline, True, sz, measured, packs)
     return got
 
 
@@ -682,7 +688,7 @@ def _steps(run, instrs, to_state, cv, wp):
     return steps
 
 
-def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked, sizes=None, measured=None):
+def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked, sizes=None, measured=None, packs=None):
     """:func:`expand`; None when ``checked`` is false and a packed dot product's fields did not fit every order."""
     plan = jet_plan(program)
     # packed dot products pay off with Python ints up to about 100 digits, with gmpy2 up to about 300
@@ -730,7 +736,19 @@ def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked, sizes=No
             else:
                 zi.append(Z(0))
 
-    if order:  # order 0 sets every jet's exponent and the constants of the later orders
+    # Order 0 sets every jet's exponent and the constants of the later orders. Where every step is a dot product of
+    # state variables or a sum of products without an offset, it sets them alone and the order loop computes order
+    # 0's values with the later orders' (the same integer operations as the steps')
+    k0 = 1
+    if order > 1 and all(extra is None or not extra[1] for kind, _, _, extra in instrs if kind == "sop") and all(
+            (st.__class__ is Dots and max(st.slots) < nvars) or getattr(st, "kind", None) == "sop" for st in steps):
+        for st in steps:
+            if st.__class__ is Dots:
+                st.setup()
+            else:
+                st(0, False)
+        k0 = 0
+    elif order:
         for st in steps:
             st(0)
         for zi, i in deferred:
@@ -738,9 +756,12 @@ def _expand(program, y0_raw, pars_raw, order, wp, s, deadline, checked, sizes=No
         rest(0)
     if order > 1:
         run_orders, env = _order_loop(steps, deferred, rest if srcs else None, checked, Z)
-        run_orders(1, order, deadline, env)
-        if not checked and not Dots.all_fit([st for st in steps if st.__class__ is Dots], order):
+        run_orders(k0, order, deadline, env)
+        dots = [st for st in steps if st.__class__ is Dots]
+        if not checked and not Dots.all_fit(dots, order):
             return None
+        if packs is not None:
+            packs += [(st.P, st.W, st.slots[1:], st.bb) for st in dots if len(st.Bs) > 1 and max(st.slots[1:]) < nvars]
     if measured is not None:
         measured.fill(run, nvars)
         if measured.sizes is not None:

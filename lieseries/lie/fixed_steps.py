@@ -182,11 +182,13 @@ def mk_sop(run, out, prods, lins, offset, state=None):
     terms = []
     st = {}
 
-    def step(k):
+    def step(k, values=True):
         if k == 0:
             terms[:], fin, off = _sop_terms(run, out, prods, lins, offset, state)
             st.update(fin=fin, off=off)
             attrs["terms"], attrs["fin"] = terms, fin  # (step.terms, step.fin)
+            if not values:  # order 0's exponents and terms only (the order loop computes its values)
+                return
         tot = st["off"] if k == 0 else 0
         dv = run.dv
         for A, B, cm, d in terms:
@@ -357,7 +359,20 @@ class Dots:
                 b = known[id(jet)] = max(map(bl, jet[:n]))
             return b
 
-        return all(bits(d.A) + max(map(bits, d.Bs)) + n.bit_length() + 2 <= d.W for d in dots)
+        for d in dots:
+            bb = max(map(bits, d.Bs))
+            if bits(d.A) + bb + n.bit_length() + 2 > d.W:
+                return False
+            d.bb = max(d.bb, bb)  # (what the partners' coefficients of every order reach: FixedJets' packed Horner)
+        return True
+
+    def setup(self):
+        """Order 0's field width, from the coefficients 0 of the pivot and the partners (which must be known: state
+        variables), without the order's dot product (the order loop computes it)."""
+        self.start()
+        self.ba = max(self.ba, self.A[0].bit_length())
+        self.bb = max(self.bb, *(B[0].bit_length() for B in self.Bs))
+        self.repack(0, self.ba + self.bb + 3)
 
     def __call__(self, k):
         if k == 0:

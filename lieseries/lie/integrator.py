@@ -48,6 +48,7 @@ import warnings
 from fractions import Fraction
 
 import numpy as np
+from mpmath.libmp import from_man_exp
 
 from ..caller import stacklevel
 from ..driver import StepResult, Stop, drive, energy_guard
@@ -551,7 +552,11 @@ def _pow2(r):
     if r == -math.inf:
         return mp.mpf(0)
     n = math.floor(r)
-    return mp.ldexp(mp.mpf(2.0 ** (r - n)), n)
+    m, e = math.frexp(2.0 ** (r - n))  # (the double's 53-bit mantissa, exactly)
+    return mp_context().make_mpf(from_man_exp(int(m * _TWO53), e - 53 + n))
+
+
+_TWO53 = float(2**53)
 
 
 def _largest_auto_dps() -> int:
