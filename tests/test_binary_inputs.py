@@ -111,7 +111,8 @@ def test_state_rounded_to_a_wider_format_from_binary_input_says_so():
 def test_narrow_float_arrays_carry_their_own_bits(dtype, bits):
     """A float32 (float16) array holds every number in at most 24 (11) bits, so its 0.1 is no more exact than a
     double's: lie_series carries its bits and never estimates below them (the truth, against the closed form of
-    the decimals, is about 2^-bits), and single runs and ensembles warn naming the argument, even in double."""
+    the decimals, is about 2^-bits), and single runs, validated runs and ensembles warn naming the argument, even
+    in double."""
     body = ls.EulerPoisson(BODY)
     y = np.asarray(body.initial_state(omega=(1, "0.1", "0.5")), dtype=dtype)
     series, msgs = _precision_warnings(lambda: ls.lie_series(body, y, order=30, dps=40))
@@ -122,6 +123,8 @@ def test_narrow_float_arrays_carry_their_own_bits(dtype, bits):
     assert any("`y0`" in m and f"{bits} bits" in m for m in msgs)
     _, msgs = _precision_warnings(lambda: ls.integrate(body, np.stack([y, y]), t=1, precision="quad"))
     assert any("`Y0`" in m and f"{bits} bits" in m for m in msgs)
+    _, msgs = _precision_warnings(lambda: ls.validated_integrate(body, y, t="0.01", dps=20))
+    assert any("`y0`" in m and f"{bits} bits" in m for m in msgs)
 
 
 def test_energy_check_compares_energies_in_the_working_format():
