@@ -150,7 +150,8 @@ def lie_integrate(
     -------
     Solution
         ``y`` rows are numpy object arrays of mpf; ``stats.error_estimates`` has one estimate per step (its
-        truncation error relative to each component's scale; the largest over the components);
+        truncation error relative to each component's scale; the largest over the components; never below the
+        round-off of the working digits, 10^-(dps + guard));
         ``stats.extra["max_step_over_radius"]`` is the largest step over the estimated radius of convergence
         (at most 1/2 by construction). When the data carry fewer bits than the run (binary floats), every
         per-step estimate is at least the relative uncertainty of the data (``stats.extra["data_bits"]``), and
@@ -283,8 +284,12 @@ class _LieEngine:
     def __init__(self, stepper, N, N_auto, tolm, wdps, bits, max_steps, sgn, events, user, deadline, dense):
         self.stepper, self.N, self.N_auto, self.tolm, self.wdps = stepper, N, N_auto, tolm, wdps
         self.max_steps, self.steps, self.max_h, self.t_first = max_steps, 0, None, None  # (_ahead)
-        # every estimate is at least the data's own relative uncertainty (an mpf below a float's range)
-        self.floor = 0.0 if bits is None else math.ldexp(1.0, -bits) if bits < 1000 else mp.ldexp(mp.mpf(1), -bits)
+        # every estimate is at least the data's own relative uncertainty and the round-off of the numbers a step
+        # carries (10^-wdps: an order far above the automatic one gave estimates of 1e-60, or 0.0, at 40 working
+        # digits); an mpf below a float's range
+        rounding = 10.0 ** -wdps if wdps < 300 else mp.mpf(10) ** -wdps
+        self.floor = rounding if bits is None else max(
+            rounding, math.ldexp(1.0, -bits) if bits < 1000 else mp.ldexp(mp.mpf(1), -bits))
         self.log2_tol = _log2(tolm)
         self.collapse = mp.mpf(10) ** (-wdps + 2)  # a step below |t| * collapse has collapsed
         self.sgn, self.events, self.user, self.deadline = sgn, events, user, deadline
