@@ -421,8 +421,8 @@ def test_the_radius_of_a_series_whose_odd_coefficients_are_small_is_that_of_its_
 
 def test_error_estimates_below_a_doubles_range_keep_their_size():
     """At 400 digits a step's truncation estimate is ~1e-817 (floored at the working digits' round-off, 1e-410): as
-    a float it was 0.0, an estimate that claimed every digit. It is an mpf there, and the report's notation keeps its exponent; the run itself is right to 400 digits
-    (against the closed form at 440)."""
+    a float it was 0.0, an estimate that claimed every digit. It is an mpf there, and the report's notation keeps
+    its exponent; the run itself is right to 400 digits (against the closed form at 440)."""
     from lieseries.formatting import fmt_sci
 
     body = ls.EulerPoisson((1, 2, 3))

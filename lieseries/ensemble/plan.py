@@ -275,6 +275,10 @@ def plan_ensemble(system, Y0, t, *, tol, precision, t0, params, workers, client,
     Ynat = member_states(model, ps, Y0, prec, foreign)
     k = Ynat.shape[0]
     pars = member_parameters(model, ps, params, members, k)
+    if params is not None:  # each member's parameters rounded to the run's format: an overflow names its entry
+        for i, row in enumerate(pars):
+            for j, v in enumerate(row):
+                prec.to_native(v, f"params[{i}][{j}]")
     check_member_constraints(ps, Y0, Ynat, pars, prec, members is not None)
     warn_coarse(prec, [("Y0", Y0), ("params", params), ("t", t), ("t0", t0)], members or [structure])
 
