@@ -40,7 +40,7 @@ import numpy as np
 from . import cache
 from .precision import NamedValues, bits_to_dps, carried_bits, check_dps, state_bits, to_fraction
 
-__all__ = ["PoissonSystem", "as_poisson_system"]
+__all__ = ["PoissonSystem", "as_poisson_system", "binary_constants"]
 
 #: Largest dimension whose Jacobi identity is checked at construction by default (the check grows like n^4).
 JACOBI_AUTO_DIMENSION = 6
@@ -555,18 +555,13 @@ class PoissonSystem:
         if not self._constants_checked:
             # the expressions as given (not the derived vector field: 0.1 q**4 in H is "the constant 0.1 in
             # `hamiltonian`", not the 0.4 of its derivative)
-            import sympy
-
             named = [("hamiltonian", self._hamiltonian)]
             named += [(f"tensor[{i}][{j}]", e) for i, r in enumerate(self._tensor) for j, e in enumerate(r)
                       if e is not None]
             named += [(f"extra_field[{i}]", e) for i, e in enumerate(self._extra or []) if e is not None]
             for where, e in named:
-                floats = {n for n in distinct_nodes(hy.to_sympy(e)) if isinstance(n, sympy.Float)}
-                for c in sorted(floats, key=float):
-                    value = float(c)  # heyoka's constants are doubles: their exact binary values
-                    if carried_bits(value) is not None:
-                        self._coarse[f"the constant {value!r} in {where}"] = 53
+                for value in binary_constants(e):
+                    self._coarse[f"the constant {value!r} in {where}"] = 53
             self._constants_checked = True
         return dict(self._coarse)
 
@@ -702,6 +697,15 @@ class PoissonSystem:
 
     def __repr__(self) -> str:
         return f"PoissonSystem({self.name!r}, variables={list(self._names)}, parameters={list(self._param_names)})"
+
+
+def binary_constants(expr) -> list:
+    """The float constants of the heyoka expression ``expr`` that are not short dyadic numbers, as the doubles
+    heyoka stores (0.1 in ``q - 0.1`` is 0.1000000000000000055...), in increasing order."""
+    import sympy
+
+    floats = {float(n) for n in distinct_nodes(hy.to_sympy(expr)) if isinstance(n, sympy.Float)}
+    return [v for v in sorted(floats) if carried_bits(v) is not None]
 
 
 def as_poisson_system(system, argname: str = "system") -> PoissonSystem:

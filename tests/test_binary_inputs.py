@@ -184,3 +184,28 @@ def test_dense_output_at_a_binary_time_says_so():
         assert _precision_warnings(lambda: sol("0.3"))[1] == []
         assert _precision_warnings(lambda: sol(Fraction(3, 10)))[1] == []
     assert _precision_warnings(lambda: double(0.3))[1] == []
+
+
+def test_a_binary_constant_in_an_event_says_so():
+    """q = sin t and the event q - 0.1: the crossing is asin of the double 0.1, 5.6e-18 after asin(1/10). A quad
+    or 30-digit run found it to its own precision without a word, where the same 0.1 in the Hamiltonian warns: one
+    PrecisionWarning naming `events[0]`, on the caller's line; none in double, none for 10 q - 1."""
+    import heyoka as hy
+
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], (q**2 + p**2) / 2, name="oscillator")
+    with mp.workdps(60):
+        binary = mp.asin(mp.mpf(0.1))
+    for run in (lambda ev: ls.integrate(osc, [0, 1], t=1, events=[ev], precision="quad"),
+                lambda ev: ls.lie_integrate(osc, [0, 1], t=1, events=[ev], dps=30)):
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            sol = run(ls.Event(q - 0.1, name="z"))
+        msgs = [str(x.message) for x in w if issubclass(x.category, ls.PrecisionWarning)]
+        assert len(msgs) == 1 and "`the constant -0.1 in events[0]`" in msgs[0], msgs
+        assert {x.filename for x in w} == {__file__}
+        with mp.workdps(60):
+            t_cross = ls.precision.to_fraction(sol.events["z"]["t"][0])
+            assert abs(mp.mpf(t_cross.numerator) / t_cross.denominator - binary) < mp.mpf(10) ** -29
+        assert _precision_warnings(lambda: run(ls.Event(10 * q - 1, name="z")))[1] == []
+    assert _precision_warnings(lambda: ls.integrate(osc, [0, 1], t=1, events=[ls.Event(q - 0.1)]))[1] == []

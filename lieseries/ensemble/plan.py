@@ -263,7 +263,7 @@ def plan_ensemble(system, Y0, t, *, tol, precision, t0, params, workers, client,
         raise ValueError(f"`atlas` needs a model with an atlas of charts (Sphere); {type(structure).__name__} has "
                          "one global chart")
     if events is not None:
-        resolve_events(events, structure, ps)  # refuse a bad event here, naming it, before any member runs
+        resolve_events(events, structure, ps, prec.bits)  # refuse a bad event here, before any member runs
     if min_step is not None and not (isinstance(min_step, numbers.Real) and min_step > 0):
         raise ValueError(f"`min_step` must be positive; got {min_step!r}")
     # rows of members with parameters of their own are checked against their own constraint surface, not the

@@ -184,7 +184,7 @@ def lie_integrate(
 
     stepper = FixedStepper(ps.program, pars, N, prec)  # the jets in fixed-point big integers
     start = _time.perf_counter()
-    user_events = resolve_events(user_events_arg, system, ps)
+    user_events = resolve_events(user_events_arg, system, ps, prec.bits)
     wdps = prec.working_dps
     with mp.workdps(wdps):
         engine = _LieEngine(stepper, N, N_auto if order is not None else None, tolm, wdps, bits, max_steps,

@@ -149,7 +149,7 @@ def _new_call(system, ps, prec, y0, z0, t, t0, tol, events, dense, compact_mode,
               stiff_steps, max_time, min_step):
     """A new :class:`~lieseries.taylor.call.Call` of checked arguments (``z0``: the exact state, the budgets
     checked), with its plan and its plain path set up."""
-    user_events = resolve_events(events, system, ps)
+    user_events = resolve_events(events, system, ps, prec.bits)
     plan = make_plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events, max_time)
     call = Call(
         system=system, y0=y0, ps=ps, prec=prec, plan=plan, user_events=user_events,
