@@ -511,6 +511,30 @@ def test_the_guard_reads_the_casimirs_of_the_bracket_too():
     assert status == "invariant_drift" and "Casimir" in message
 
 
+@pytest.mark.parametrize("precision, eps", [("double", 2.0**-52), ("quad", 2.0**-112)])
+def test_a_casimir_that_vanishes_with_its_terms_at_y0_is_measured_in_its_own_units(precision, eps):
+    """The Dirac sphere from x = (0.6, 0, 0.8) at speed 10^6: x . p and its terms x_i p_i all vanish at y0, and
+    the guard measured its change against |x|^2 (1) where its own size is |x| |p| (10^6): a run right to eps
+    (against the great circle) ended invariant_drift, "the result is wrong". Its terms at the end give its size; a
+    wrecked end state (p turned off the sphere's tangent plane) is still caught."""
+    from lieseries.energy import energy_function, energy_verdict
+    from lieseries.precision import resolve_precision
+
+    sphere = ls.SphereDirac()
+    x, v, t = ("0.6", 0, "0.8"), (0, 10**6, 0), "3e-6"
+    y0 = sphere.initial_state(x, v)
+    sol = ls.integrate(sphere, y0, t=t, precision=precision)
+    ex, _ = exact.sphere(1, x, v, t, dps=40)
+    assert sol.status == "success", sol.message
+    assert max(abs(float(a) - float(b)) for a, b in zip(sol.y[-1][:3], ex)) < 64 * eps
+    energy = energy_function(sphere.poisson, resolve_precision("double"), np.asarray(y0, dtype=float))
+    wrecked = np.array([float(c) for c in sol.y[-1]])
+    xs, ps = wrecked[:3], wrecked[3:]  # p turned by 1e-3 towards x: H kept, x . p = 1e3 (1e-3 of its size)
+    wrecked[3:] = math.cos(1e-3) * ps + math.sin(1e-3) * np.linalg.norm(ps) * xs / np.linalg.norm(xs)
+    status, message = energy_verdict(energy, 1.5e-8, wrecked, 3, "success", "Reached t = 3e-6.")
+    assert status == "invariant_drift" and "Casimir" in message
+
+
 def test_statuses_beyond_the_double_range_of_time():
     """omega ~1e-2000 to t = 2e2001 (the same motion slowed down): quad, long double and 113 bits all end without
     success (the Taylor coefficients underflow), and their messages print the time instead of failing to make a
