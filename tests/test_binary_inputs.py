@@ -125,6 +125,10 @@ def test_narrow_float_arrays_carry_their_own_bits(dtype, bits):
     assert any("`Y0`" in m and f"{bits} bits" in m for m in msgs)
     _, msgs = _precision_warnings(lambda: ls.validated_integrate(body, y, t="0.01", dps=20))
     assert any("`y0`" in m and f"{bits} bits" in m for m in msgs)
+    exact_y0 = body.initial_state(omega=(1, "0.1", "0.5"))  # output times of the narrow type, in double too
+    for t in (np.array([0.1, 0.2], dtype=dtype), dtype(0.1)):
+        _, msgs = _precision_warnings(lambda: ls.integrate(body, exact_y0, t=t))
+        assert any("`t`" in m and f"{bits} bits" in m for m in msgs), msgs
 
 
 def test_energy_check_compares_energies_in_the_working_format():

@@ -103,9 +103,10 @@ def make_plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_ev
 def warn_coarse_inputs(ps, y0, times, work_bits: int) -> bool:
     """One :class:`~lieseries.precision.PrecisionWarning` per input that carries fewer bits than the run uses
     (``times`` is ``(t, t0)``, each named on its own). True when there was one."""
-    if work_bits <= 53 and data_bits(y0) is None:
-        return False
     t, t0 = times
+    narrow = any(isinstance(v, (np.ndarray, np.generic)) and v.dtype in (np.float16, np.float32) for v in times)
+    if work_bits <= 53 and data_bits(y0) is None and not narrow:  # (a float32 t carries 24 bits in double too)
+        return False
     coarse = [(data_bits(y0), "y0"), (data_bits(t), "t"), (data_bits(t0), "t0")]
     if work_bits > 53:
         coarse += [(bits, name) for name, bits in ps.coarse_data().items()]
