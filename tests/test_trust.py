@@ -535,6 +535,32 @@ def test_a_casimir_that_vanishes_with_its_terms_at_y0_is_measured_in_its_own_uni
     assert status == "invariant_drift" and "Casimir" in message
 
 
+def test_a_span_the_run_cannot_hold_beside_a_large_t0_is_said():
+    """t0 = 10^6, t = '1000000.1' in double: the times are rounded to doubles, and the run goes 0.0999999999767
+    time units, its state 2e-11 from the closed form at 0.1, with a success: now with one PrecisionWarning naming
+    t - t0. The same from t0 = 0, or outputs at '5.1', '5.3' from t0 = 5, keep the span to the run's precision
+    and say nothing; the Lie engine, which adds its steps to times of 30 digits, says so from t0 = 10^20."""
+    body = ls.EulerPoisson(inertia=INERTIA)
+    y0 = body.initial_state(omega=OMEGA)
+
+    def run(fn):
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            sol = fn()
+        return sol, [str(x.message) for x in w if issubclass(x.category, PrecisionWarning)]
+
+    sol, msgs = run(lambda: ls.integrate(body, y0, t="1000000.1", t0=10**6))
+    assert len(msgs) == 1 and "`t` - `t0` = 0.1 " in msgs[0] and "32 bits" in msgs[0], msgs
+    assert body_error(sol.y[-1], "0.1", dps=40) > 1e-12  # the state is indeed that far from the one asked for
+    sol, msgs = run(lambda: ls.integrate(body, y0, t="0.1"))
+    assert msgs == [] and body_error(sol.y[-1], "0.1", dps=40) < 1e-15
+    assert run(lambda: ls.integrate(body, y0, t=["5.1", "5.3", "7.7"], t0=5))[1] == []
+    assert len(run(lambda: ls.integrate(body, [y0, y0], t="1000000.1", t0=10**6))[1]) == 1
+    _, msgs = run(lambda: ls.lie_integrate(body, y0, t=10**20 + 100, t0=10**20, dps=20))
+    assert len(msgs) == 1 and "30 digits" in msgs[0], msgs
+    assert run(lambda: ls.lie_integrate(body, y0, t=10**6 + 100, t0=10**6, dps=20))[1] == []
+
+
 def test_statuses_beyond_the_double_range_of_time():
     """omega ~1e-2000 to t = 2e2001 (the same motion slowed down): quad, long double and 113 bits all end without
     success (the Taylor coefficients underflow), and their messages print the time instead of failing to make a

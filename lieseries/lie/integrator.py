@@ -72,7 +72,7 @@ from ..precision import (
 )
 from ..precision import thread_mp as mp
 from ..solution import Solution, Stats
-from ..timegrid import parse_times
+from ..timegrid import parse_times, warn_span_loss
 from .crossings import UserEvents
 from .plan import radius_from_logs
 from .operator import (
@@ -178,6 +178,11 @@ def lie_integrate(
     ps, model, z0, pars = prepare(system, y0)
     grid, direction, t0f = parse_times(t, t0, max_time=max_time, values_per_time=ps.dimension,
                                        bytes_per_value=64 + prec.working_bits // 8)  # rows of mpf
+    if direction:  # a step's length is rounded to |t| 2^-working_bits as it is added to the time
+        big, span = max(abs(t0f), abs(grid[-1])), abs(grid[-1] - t0f)
+        warn_span_loss((big / span / 2**prec.working_bits, len(grid) - 1), grid, t0f, prec.bits,
+                       f"the times are carried with {prec.working_dps} digits, so each step's length is rounded to "
+                       f"{float(big):.3g} x 10^-{prec.working_dps}")
     tolm = _tolerance(tol, prec)
     N, N_auto = _series_order(order, tolm, tol, prec)
     bits = coarse_bits(ps, y0, prec.bits, times=[t, t0])
