@@ -166,8 +166,11 @@ def span_loss(grid, t0, rounded, rounded_t0):
     if (t0 == 0 and rounded_t0 == 0) or not whole:
         return Fraction(0), None
     worst, at = Fraction(0), None
+    d0 = rounded_t0 - t0
     for k, (g, r) in enumerate(zip(grid, rounded)):
-        loss = abs((r - rounded_t0) - (g - t0))
+        if r == g and not d0:
+            continue  # (a time the format holds: a grid of doubles in double)
+        loss = abs((r - g) - d0)
         if loss > worst:
             worst, at = loss, k
     return worst / whole, at
