@@ -275,7 +275,9 @@ def plan_ensemble(system, Y0, t, *, tol, precision, t0, params, workers, client,
     Ynat = member_states(model, ps, Y0, prec, foreign)
     k = Ynat.shape[0]
     pars = member_parameters(model, ps, params, members, k)
-    if params is not None:  # each member's parameters rounded to the run's format: an overflow names its entry
+    # each member's parameters rounded to the run's format: an overflow names its entry (an array of doubles, finite
+    # as read, fits every format)
+    if params is not None and not (isinstance(params, np.ndarray) and params.dtype in (np.float64, np.float32)):
         for i, row in enumerate(pars):
             for j, v in enumerate(row):
                 prec.to_native(v, f"params[{i}][{j}]")
