@@ -176,7 +176,7 @@ def _quick_start(quick, y0, pars, out, n, scale, casimirs):
     except Exception:  # noqa: BLE001 - a domain error, overflow, a name math lacks: no cheap opinion
         return None
     ref = [float(out[j]) for j in range(0, len(out), n + 1)]
-    sizes = [float(scale)] + [float(sc) for _, sc in casimirs]
+    sizes = [float(scale)] + [float(sc) for _, sc, _ in casimirs]  # (never above energy_verdict's)
     if len(vals) != len(ref) or len(sizes) != len(ref):
         return None
     for v, r, sz in zip(vals, ref, sizes):
@@ -204,11 +204,13 @@ def energy_function(ps, prec, y0, parameters=None):
     h0 = out[0]
     scale = sum((abs(g * v) for g, v in zip(out[1:n + 1], y0)), h0 * 0)  # in the working format: no float underflow
     # the declared Casimirs (R R^T of the rigid body, |x|^2 of the sphere) with the size of their terms; one that
-    # vanishes at y0 with its terms (an off-diagonal entry of R R^T at R = 1) is measured on the largest scale
+    # vanishes at y0 with its terms (an off-diagonal entry of R R^T at R = 1; x . p from x = (0.6, 0, 0.8),
+    # p = (0, 1, 0)) is measured on the largest scale, and by energy_verdict on its terms at the end too (flagged)
     cas = [(out[j], sum((abs(g * v) for g, v in zip(out[j + 1:j + n + 1], y0)), h0 * 0))
            for j in range(n + 1, len(out), n + 1)]
     top = max((max(abs(c), sc) for c, sc in cas), default=h0 * 0)
-    casimirs = [(c, max(abs(c), sc, top) if not (abs(c) > 0 or sc > 0) else max(abs(c), sc)) for c, sc in cas]
+    casimirs = [(c, max(abs(c), sc, top), True) if not (abs(c) > 0 or sc > 0) else (c, max(abs(c), sc), False)
+                for c, sc in cas]
     tiny = _smallest_normal(prec)
     beyond = None
     if tiny is not None and not abs(h0) >= tiny and not abs(scale) >= tiny:
@@ -320,7 +322,14 @@ def energy_verdict(energy, sqrt_tol, y_end, steps, status, message):
         # (the scale at the end too, as the driver's guard reads it: from rest at q = 0 under a force, H = p^2/2 -
         # q + q^3, H and its terms vanish at y0, and a run right to 1e-35 ended invariant_drift on a threshold of 0)
         return "invariant_drift", drift_message(message, h0, h1, steps)
-    for (c0, sc), c1 in zip(casimirs, out[1:]):
+    ends = None
+    for j, ((c0, sc, vanished), c1) in enumerate(zip(casimirs, out[1:])):
+        if _finite(c1) and abs(c1 - c0) > thr * max(sc, abs(c1)) and vanished:
+            # no size of its own at y0: its terms at the end give it (x . p at speed 1e6 measured against |x|^2 = 1
+            # called runs right to eps wrong)
+            ends = (scale_fn(y_end) if pars is None else scale_fn(y_end, pars=pars)) if ends is None else ends
+            k, n = (j + 1) * (len(y_end) + 1), len(y_end)
+            sc = max(sc, sum((abs(g * v) for g, v in zip(ends[k + 1:k + n + 1], y_end)), ends[0] * 0))
         if _finite(c1) and abs(c1 - c0) > thr * max(sc, abs(c1)):
             return "invariant_drift", (
                 f"{message[:-1]}, but the result is wrong: a Casimir of the bracket, which every motion conserves, "

@@ -14,6 +14,8 @@ from __future__ import annotations
 import heyoka as hy
 
 from .expr import uses_time
+from .poisson import binary_constants
+from .precision import warn_if_coarse
 
 __all__ = ["Event", "resolve_events"]
 
@@ -61,11 +63,13 @@ class Event:
         return (Event, (self.expression, self.direction, self.terminal, self.name))
 
 
-def resolve_events(events, system, ps) -> list:
+def resolve_events(events, system, ps, work_bits=None) -> list:
     """``[(name, expression, direction, terminal)]`` for a run of ``system`` (the model or PoissonSystem).
 
     Raises errors naming ``events[i]``: not an Event, an expression using variables the system does not have,
-    depending on time, or constant, a duplicated name.
+    depending on time, or constant, a duplicated name. For a run at ``work_bits`` bits, a float constant of an
+    expression that carries fewer (0.1 in ``q - 0.1``: the crossing is that of the double 0.1) gives one
+    :class:`~lieseries.precision.PrecisionWarning`, as in the system's own expressions.
     """
     if events is None:
         return []
@@ -114,6 +118,9 @@ def resolve_events(events, system, ps) -> list:
         name = ev.name or f"event{i}"
         if any(name == o[0] for o in out):
             raise ValueError(f"`events[{i}]`: the name {name!r} is used twice")
+        if work_bits is not None and work_bits > 53:
+            for value in binary_constants(expr):
+                warn_if_coarse(53, work_bits, f"the constant {value!r} in events[{i}]")
         out.append((name, expr, ev.direction, ev.terminal))
     return out
 

@@ -40,10 +40,13 @@ import numpy as np
 from . import cache
 from .precision import NamedValues, bits_to_dps, carried_bits, check_dps, state_bits, to_fraction
 
-__all__ = ["PoissonSystem", "as_poisson_system"]
+__all__ = ["PoissonSystem", "as_poisson_system", "binary_constants"]
 
 #: Largest dimension whose Jacobi identity is checked at construction by default (the check grows like n^4).
 JACOBI_AUTO_DIMENSION = 6
+
+#: The ranges (in thousandths) of the sample states' entries tried after [0.3, 1.3], where a tensor is undefined.
+WIDER_SAMPLES = ((-1300, 1300), (-130, 130), (1300, 13000), (-13000, 13000), (13000, 130000), (-130000, 130000))
 
 #: Compiled mpmath programs of vector fields, by structural key (shared by equal structures).
 _PROGRAMS = cache.region("poisson.programs", 64)
@@ -262,11 +265,37 @@ class PoissonSystem:
                 )
 
     def _sample_points(self, count: int = 3):
-        """A few fixed pseudo-random states with entries in [0.3, 1.3] (exact decimals), for numerical checks."""
+        """A few fixed pseudo-random states with entries in [0.3, 1.3] (exact decimals), for numerical checks, then
+        further ones at other signs and scales (entries in each of :data:`WIDER_SAMPLES`, four states each), for
+        expressions defined at none of the first (a root or logarithm of x1 - 2)."""
         import random
 
         rng = random.Random(20240617 + self.dimension + count)
-        return [[Fraction(rng.randint(300, 1300), 1000) for _ in range(self.dimension)] for _ in range(count)]
+        n = self.dimension
+        pts = [[Fraction(rng.randint(300, 1300), 1000) for _ in range(n)] for _ in range(count)]
+        for lo, hi in WIDER_SAMPLES:
+            pts += [[Fraction(rng.randint(lo, hi), 1000) for _ in range(n)] for _ in range(4)]
+        return pts
+
+    def _defined_samples(self, exprs, count, dps, what):
+        """Values of ``exprs`` at the first ``count`` sample states where they are defined, at ``dps`` (and
+        ``dps + 20`` digits when ``dps`` is a pair); ValueError naming ``what`` when they are defined at none: a
+        structure that cannot be checked is not taken as checked."""
+        found, tried = [], 0
+        for z in self._sample_points(count):
+            tried += 1
+            vals = [self._values_at(exprs, [z], d) for d in (dps if isinstance(dps, tuple) else (dps,))]
+            if all(vals):
+                found.append([v[0] for v in vals])
+                if len(found) == count:
+                    break
+        if not found:
+            raise ValueError(
+                f"{what} cannot be checked: its expressions are undefined (a division by zero, a root or logarithm "
+                f"of a negative number) at every one of {tried} sample states with entries from -130 to 130. "
+                "Build the system with `jacobi=False` and check it at states in its domain: "
+                "`check_jacobi(points=[...])`, `antisymmetry_residual(points)`, `check_casimirs(points=[...])`")
+        return found
 
     def _values_at(self, exprs, points, dps):
         """Values of ``exprs`` at each of ``points`` where they are defined (points where an expression is
@@ -299,10 +328,10 @@ class PoissonSystem:
             return
         exprs = [e for _i, _j, a, b in pairs for e in (a, b)]
         try:
-            samples = self._values_at(exprs, self._sample_points(2), 30)
+            samples = self._defined_samples(exprs, 2, 30, "`tensor`'s antisymmetry")
         except NotImplementedError:  # a function the mpmath compiler lacks: the engines say so when they need it
             return
-        for vals in samples:
+        for (vals,) in samples:
             for k, (i, j, _a, _b) in enumerate(pairs):
                 va, vb = vals[2 * k], vals[2 * k + 1]
                 if abs(va + vb) > mp.mpf(10) ** -20 * (abs(va) + abs(vb)) or (i == j and va != 0):
@@ -333,18 +362,13 @@ class PoissonSystem:
             Naming the first triple (i, j, k) of variables where the identity fails, with the value.
         """
         dps = check_dps(dps)
-        pts = self._sample_points() if points is None else [self._state_rows(p, "points")[0][0] for p in points]
         exprs = self.jacobi_expressions()
+        samples = (self._defined_samples(exprs, 3, (dps, dps + 20), "The Jacobi identity of `tensor`")
+                   if points is None else self._given_samples(exprs, points, dps))
         n = self.dimension
         triples = [(i, j, k) for i in range(n) for j in range(i + 1, n) for k in range(j + 1, n)]
-        checked = 0
-        for z in pts:
-            lo = self._values_at(exprs, [z], dps)
-            hi = self._values_at(exprs, [z], dps + 20)
-            if not lo or not hi:
-                continue
-            checked += 1
-            for (i, j, k), a, b in zip(triples, lo[0], hi[0]):
+        for lo, hi in samples:
+            for (i, j, k), a, b in zip(triples, lo, hi):
                 if b != 0 and abs(a - b) <= mp.mpf(10) ** -6 * abs(b):
                     names = self._names
                     raise ValueError(
@@ -355,8 +379,20 @@ class PoissonSystem:
                         f"{names[i]}, {names[j]}, {names[k]}" + (
                             "; pass `jacobi=False` to build the system anyway" if n <= JACOBI_AUTO_DIMENSION else "")
                     )
-        if not checked and points is not None:
-            raise ValueError("`points`: the Jacobiator is singular or undefined at every point given; choose others")
+
+    def _given_samples(self, exprs, points, dps):
+        """Values of ``exprs`` at ``dps`` and ``dps + 20`` digits at each of the user's ``points`` where they are
+        defined; ValueError when they are defined at none."""
+        out = []
+        for p in points:
+            z = self._state_rows(p, "points")[0][0]
+            lo, hi = self._values_at(exprs, [z], dps), self._values_at(exprs, [z], dps + 20)
+            if lo and hi:
+                out.append((lo[0], hi[0]))
+        if not out:
+            raise ValueError("`points`: the expressions checked are singular or undefined at every point given; "
+                             "choose others")
+        return out
 
     def check_casimirs(self, points=None, dps: int = 40) -> None:
         """Check that every declared Casimir C Poisson-commutes with every coordinate, {C, z_a} = 0, numerically
@@ -371,16 +407,13 @@ class PoissonSystem:
         if not self._casimirs:
             return
         dps = check_dps(dps)
-        pts = self._sample_points() if points is None else [self._state_rows(p, "points")[0][0] for p in points]
         names = list(self._casimirs)
         exprs = [self.bracket(self._casimirs[c], v) for c in names for v in self._variables]
+        samples = (self._defined_samples(exprs, 3, (dps, dps + 20), "The Casimirs' brackets")
+                   if points is None else self._given_samples(exprs, points, dps))
         n = self.dimension
-        for z in pts:
-            lo = self._values_at(exprs, [z], dps)
-            hi = self._values_at(exprs, [z], dps + 20)
-            if not lo or not hi:
-                continue
-            for idx, (a, b) in enumerate(zip(lo[0], hi[0])):
+        for lo, hi in samples:
+            for idx, (a, b) in enumerate(zip(lo, hi)):
                 if b != 0 and abs(a - b) <= mp.mpf(10) ** -6 * abs(b):
                     c, v = names[idx // n], self._names[idx % n]
                     raise ValueError(
@@ -522,18 +555,13 @@ class PoissonSystem:
         if not self._constants_checked:
             # the expressions as given (not the derived vector field: 0.1 q**4 in H is "the constant 0.1 in
             # `hamiltonian`", not the 0.4 of its derivative)
-            import sympy
-
             named = [("hamiltonian", self._hamiltonian)]
             named += [(f"tensor[{i}][{j}]", e) for i, r in enumerate(self._tensor) for j, e in enumerate(r)
                       if e is not None]
             named += [(f"extra_field[{i}]", e) for i, e in enumerate(self._extra or []) if e is not None]
             for where, e in named:
-                floats = {n for n in distinct_nodes(hy.to_sympy(e)) if isinstance(n, sympy.Float)}
-                for c in sorted(floats, key=float):
-                    value = float(c)  # heyoka's constants are doubles: their exact binary values
-                    if carried_bits(value) is not None:
-                        self._coarse[f"the constant {value!r} in {where}"] = 53
+                for value in binary_constants(e):
+                    self._coarse[f"the constant {value!r} in {where}"] = 53
             self._constants_checked = True
         return dict(self._coarse)
 
@@ -669,6 +697,15 @@ class PoissonSystem:
 
     def __repr__(self) -> str:
         return f"PoissonSystem({self.name!r}, variables={list(self._names)}, parameters={list(self._param_names)})"
+
+
+def binary_constants(expr) -> list:
+    """The float constants of the heyoka expression ``expr`` that are not short dyadic numbers, as the doubles
+    heyoka stores (0.1 in ``q - 0.1`` is 0.1000000000000000055...), in increasing order."""
+    import sympy
+
+    floats = {float(n) for n in distinct_nodes(hy.to_sympy(expr)) if isinstance(n, sympy.Float)}
+    return [v for v in sorted(floats) if carried_bits(v) is not None]
 
 
 def as_poisson_system(system, argname: str = "system") -> PoissonSystem:

@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+import decimal
+import math
 import os
 import time
+import warnings
 
 from fractions import Fraction
 
 import numpy as np
 
-from .precision import check_seconds, to_fraction
+from .caller import stacklevel
+from .precision import PrecisionWarning, check_seconds, short_decimal, to_fraction
 
-__all__ = ["parse_times", "output_bytes", "MAX_OUTPUT_BYTES"]
+__all__ = ["parse_times", "output_bytes", "MAX_OUTPUT_BYTES", "span_loss", "warn_span_loss"]
 
 
 def _half_the_memory() -> int:
@@ -152,3 +156,52 @@ def parse_times(t, t0=0, argname: str = "t", *, values_per_time: int = 1, bytes_
         )
     return grid, (1 if inc else -1), t0
 
+
+
+def span_loss(grid, t0, rounded, rounded_t0):
+    """``(loss, k)``: the largest change that rounding the times (``grid`` to ``rounded``, ``t0`` to ``rounded_t0``,
+    exact values) made to an output time's span t_k - t0, relative to the run's whole span, and its index;
+    ``(0, None)`` when t0 is 0 (each time then keeps its own relative precision, and so does its span)."""
+    whole = abs(grid[-1] - t0) if grid else 0
+    if (t0 == 0 and rounded_t0 == 0) or not whole:
+        return Fraction(0), None
+    worst, at = Fraction(0), None
+    d0 = rounded_t0 - t0
+    for k, (g, r) in enumerate(zip(grid, rounded)):
+        if r == g and not d0:
+            continue  # (a time the format holds: a grid of doubles in double)
+        loss = abs((r - g) - d0)
+        if loss > worst:
+            worst, at = loss, k
+    return worst / whole, at
+
+
+def _shown(x: Fraction) -> str:
+    """``x`` to 25 significant digits (1e20 + 100 is not 1e+20 here), trailing zeros dropped."""
+    if not x or abs(x) >= 10**300 or abs(x) < Fraction(1, 10**300):
+        return short_decimal(x)
+    d = decimal.Context(prec=25).divide(decimal.Decimal(x.numerator), decimal.Decimal(x.denominator))
+    return format(d.normalize(decimal.Context(prec=25)), "f" if abs(d) < 10**25 else "g")
+
+
+def warn_span_loss(loss, grid, t0, bits: int, where: str) -> bool:
+    """One :class:`~lieseries.precision.PrecisionWarning` when the run keeps an output time's span t - t0 only to
+    ``loss`` relative to the run's whole span (a pair from :func:`span_loss`), above 2^-(``bits`` - 8): more than
+    the roundings of t and t0 at the run's precision (an atlas run's segments start at times of their own).
+    ``where`` says how the times are held. A run of autonomous equations depends on t - t0 alone, and t0 = 1e6
+    with t = '1000000.1' in double ran 0.0999999999767 time units, its state 2e-11 from the one asked for. True
+    when it warned."""
+    worst, k = loss
+    if k is None or worst <= Fraction(1, 2 ** (bits - 8)):
+        return False
+    span = grid[k] - t0
+    kept = max(0, math.floor(-math.log2(worst))) if worst < 1 else 0
+    warnings.warn(
+        f"`t` - `t0` = {_shown(span)} (t = {_shown(grid[k])}, t0 = {_shown(t0)}) is kept only "
+        f"to {float(worst):.2g} of the run's span (about {kept} bits of its {bits}): {where}. The equations do "
+        "not depend on time itself, only on t - t0: start from t0 = 0 and pass t - t0 as the times (add t0 back to "
+        "sol.t).",
+        PrecisionWarning,
+        stacklevel=stacklevel(),
+    )
+    return True

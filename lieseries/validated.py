@@ -185,7 +185,7 @@ def _initial_balls(system, y0, n, flint):
     elif isinstance(y0, (list, tuple)):
         entries = list(y0)
     elif np.ndim(y0) == 1:
-        entries = list(np.asarray(y0, dtype=object))
+        entries = list(np.asarray(y0))  # numpy's own scalars: a float32 entry carries its 24 bits
     else:
         raise ValueError(f"`y0` must be a sequence of {n} entries (numbers, (value, radius) pairs or arb balls); "
                          f"got {type(y0).__name__} {y0!r:.60}")

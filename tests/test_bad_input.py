@@ -149,6 +149,9 @@ CASES.update({
                                           r"`Y0\[1\]` has 11 numbers"),
     "integrate: ragged Y0 names the row": (lambda: ls.integrate(BODY, [list(Y0), list(Y0)[:11]], t=1), ValueError,
                                            r"`Y0\[1\]` has 11 numbers"),
+    "ensemble: params overflowing double name the entry": (
+        lambda: _ensemble(BODY, np.stack([Y0, Y0]), t=1, params=[["1e400", 1, 1], [1, 1, 1]]), ValueError,
+        r"`params\[0\]\[0\]` = ~1e400 overflows double"),
     "ensemble: compact_mode 'yes'": (lambda: _ensemble(BODY, np.stack([Y0, Y0]), t=1, compact_mode="yes"),
                                      TypeError, "`compact_mode` must be True or False"),
     "integrate: compact_mode 'yes'": (lambda: ls.integrate(BODY, Y0, t=1, compact_mode="yes"),

@@ -111,7 +111,8 @@ def test_state_rounded_to_a_wider_format_from_binary_input_says_so():
 def test_narrow_float_arrays_carry_their_own_bits(dtype, bits):
     """A float32 (float16) array holds every number in at most 24 (11) bits, so its 0.1 is no more exact than a
     double's: lie_series carries its bits and never estimates below them (the truth, against the closed form of
-    the decimals, is about 2^-bits), and single runs and ensembles warn naming the argument, even in double."""
+    the decimals, is about 2^-bits), and single runs, validated runs and ensembles warn naming the argument, even
+    in double."""
     body = ls.EulerPoisson(BODY)
     y = np.asarray(body.initial_state(omega=(1, "0.1", "0.5")), dtype=dtype)
     series, msgs = _precision_warnings(lambda: ls.lie_series(body, y, order=30, dps=40))
@@ -122,6 +123,12 @@ def test_narrow_float_arrays_carry_their_own_bits(dtype, bits):
     assert any("`y0`" in m and f"{bits} bits" in m for m in msgs)
     _, msgs = _precision_warnings(lambda: ls.integrate(body, np.stack([y, y]), t=1, precision="quad"))
     assert any("`Y0`" in m and f"{bits} bits" in m for m in msgs)
+    _, msgs = _precision_warnings(lambda: ls.validated_integrate(body, y, t="0.01", dps=20))
+    assert any("`y0`" in m and f"{bits} bits" in m for m in msgs)
+    exact_y0 = body.initial_state(omega=(1, "0.1", "0.5"))  # output times of the narrow type, in double too
+    for t in (np.array([0.1, 0.2], dtype=dtype), dtype(0.1)):
+        _, msgs = _precision_warnings(lambda: ls.integrate(body, exact_y0, t=t))
+        assert any("`t`" in m and f"{bits} bits" in m for m in msgs), msgs
 
 
 def test_energy_check_compares_energies_in_the_working_format():
@@ -181,3 +188,28 @@ def test_dense_output_at_a_binary_time_says_so():
         assert _precision_warnings(lambda: sol("0.3"))[1] == []
         assert _precision_warnings(lambda: sol(Fraction(3, 10)))[1] == []
     assert _precision_warnings(lambda: double(0.3))[1] == []
+
+
+def test_a_binary_constant_in_an_event_says_so():
+    """q = sin t and the event q - 0.1: the crossing is asin of the double 0.1, 5.6e-18 after asin(1/10). A quad
+    or 30-digit run found it to its own precision without a word, where the same 0.1 in the Hamiltonian warns: one
+    PrecisionWarning naming `events[0]`, on the caller's line; none in double, none for 10 q - 1."""
+    import heyoka as hy
+
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], (q**2 + p**2) / 2, name="oscillator")
+    with mp.workdps(60):
+        binary = mp.asin(mp.mpf(0.1))
+    for run in (lambda ev: ls.integrate(osc, [0, 1], t=1, events=[ev], precision="quad"),
+                lambda ev: ls.lie_integrate(osc, [0, 1], t=1, events=[ev], dps=30)):
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            sol = run(ls.Event(q - 0.1, name="z"))
+        msgs = [str(x.message) for x in w if issubclass(x.category, ls.PrecisionWarning)]
+        assert len(msgs) == 1 and "`the constant -0.1 in events[0]`" in msgs[0], msgs
+        assert {x.filename for x in w} == {__file__}
+        with mp.workdps(60):
+            t_cross = ls.precision.to_fraction(sol.events["z"]["t"][0])
+            assert abs(mp.mpf(t_cross.numerator) / t_cross.denominator - binary) < mp.mpf(10) ** -29
+        assert _precision_warnings(lambda: run(ls.Event(10 * q - 1, name="z")))[1] == []
+    assert _precision_warnings(lambda: ls.integrate(osc, [0, 1], t=1, events=[ls.Event(q - 0.1)]))[1] == []

@@ -96,3 +96,17 @@ def test_the_output_memory_estimate_counts_every_value_of_a_row(engine, monkeypa
     run = ls.integrate if engine == "integrate" else lambda *a: lie_integrate(*a, dps=20)
     with pytest.raises(ValueError, match=r"`t` asks for 200 output times.*\(12 values of"):
         run(body, y0, grid)
+
+
+@pytest.mark.parametrize("max_steps", [None, 10**5])
+def test_a_time_that_does_not_advance_ends_the_run(max_steps):
+    """At 3 bits, t = 8 plus a step of 0.08 rounds to 8 (heyoka's double-length time too): the run stepped on in
+    place until the default budget of 5e7 steps (minutes), or with `max_steps` said "raise `max_steps` to go on",
+    which never would. A chunk of steps that leaves the time where it was ends the run, saying why."""
+    import heyoka as hy
+
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], (q**2 + p**2) / 2, name="oscillator")
+    sol = ls.integrate(osc, [1, 0], t=10, precision=3, max_steps=max_steps)
+    assert sol.status == "step_collapse" and "the time does not advance" in sol.message, sol.message
+    assert sol.t_reached == 8 and sol.stats.steps < 10**4

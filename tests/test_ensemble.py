@@ -225,6 +225,20 @@ def test_non_finite_member_next_to_finite_ones():
     assert es.stats["single_runs"] >= 2
 
 
+def test_non_finite_member_next_to_finite_ones_on_a_grid():
+    """On an output grid heyoka's batch stops every lane where one becomes non-finite and calls the others'
+    outcome a time limit reached: they were recorded as successes with rows of NaN, reached at t = 0."""
+    ps = blowup_system()
+    Y0 = [["1e200", 1], [-1, 1], ["0.25", 1], ["-0.5", 1]]
+    es = run(ps, Y0, [1.5, 2.0], batch_size=4)
+    assert es.status[0] == "non_finite" and list(es.status[1:]) == ["success"] * 3
+    for i, q0 in enumerate((-1, 0.25, -0.5), 1):  # q(t) = q0 / (1 - q0 t), against the closed form
+        assert es.t_reached[i] == 2 and es.rows[i] == 2
+        assert close(es.y[i, :, 0], [q0 / (1 - q0 * 1.5), q0 / (1 - q0 * 2.0)], 0) <= 8 * EPS
+        sol = ls.integrate(ps, Y0[i], [1.5, 2.0])
+        assert sol.status == es.status[i] and sol.message == es.message[i]
+
+
 def test_stiff_member_handed_to_its_single_run_and_long_runs_in_chunks():
     # damping 1e5 makes the body stiff (the single run stops with step_collapse); damping 0 is the free body
     bodies = [ls.DampedEulerPoisson((1, 2, 3), damping=d) for d in (100000, 0, 100000)]

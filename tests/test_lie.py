@@ -382,6 +382,18 @@ def test_a_lie_series_estimate_never_claims_digits_below_its_working_precision()
     assert est >= truth and est >= mp.mpf(2) ** -53
 
 
+@pytest.mark.parametrize("order", [60, 200])
+def test_lie_integrate_estimates_never_claim_digits_below_its_working_precision(order):
+    """An order far above the automatic one (36 at 30 digits) leaves a step a truncation error of 1e-45 (1e-75 ..
+    0.0 at order 200), but a step carries 30 + 10 guard digits: its estimates summed were 2500 times below the
+    error of the state reached (with its guard digits, against the closed form: 7e-42)."""
+    body = ls.EulerPoisson((1, 2, 3))
+    sol = ls.lie_integrate(body, body.initial_state(omega=OMEGA), t=1, dps=30, order=order)
+    assert sol.status == "success", sol.message
+    truth = rigid_error(sol.y_reached, 1, dps=60)
+    assert min(sol.stats.error_estimates) >= mp.mpf(10) ** -40 and sum(sol.stats.error_estimates) >= truth
+
+
 def test_lie_integrate_beyond_a_float_mantissa_matches_the_closed_form(bigint, body):
     # at 350 digits every mantissa has more bits than a float's range: the step's k-th roots must still be taken
     y0 = body.initial_state(OMEGA)
@@ -408,9 +420,9 @@ def test_the_radius_of_a_series_whose_odd_coefficients_are_small_is_that_of_its_
 
 
 def test_error_estimates_below_a_doubles_range_keep_their_size():
-    """At 400 digits a step's truncation estimate is ~1e-817: as a float it was 0.0, an estimate that claimed every
-    digit. It is an mpf there, and the report's notation keeps its exponent; the run itself is right to 400 digits
-    (against the closed form at 440)."""
+    """At 400 digits a step's truncation estimate is ~1e-817 (floored at the working digits' round-off, 1e-410): as
+    a float it was 0.0, an estimate that claimed every digit. It is an mpf there, and the report's notation keeps
+    its exponent; the run itself is right to 400 digits (against the closed form at 440)."""
     from lieseries.formatting import fmt_sci
 
     body = ls.EulerPoisson((1, 2, 3))

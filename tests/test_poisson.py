@@ -226,6 +226,28 @@ def test_jacobi_identity_is_checked_at_construction_for_small_systems():
         ps.check_jacobi()
 
 
+def test_a_structure_undefined_at_the_first_sample_states_is_checked_where_it_is_defined():
+    """A tensor defined only for a > 2 (a logarithm of a - 2) was evaluated at no sample state, so nothing was
+    checked and a bracket failing the Jacobi identity was accepted: the checks go on to states of other signs and
+    scales, and one defined at none of them is refused rather than taken as checked."""
+    a, b, c = hy.make_vars("a", "b", "c")
+    f = hy.log(a - 2.0)
+    # {a, b} = 1, {b, c} = -b f, {c, a} = -a: P_ij = eps_ijk v_k with v = (-b f, a, 1), whose Jacobiator is
+    # v . curl v = 1 + f(a) = 1 + log(a - 2): 1 at a = 3, and defined nowhere in the first sample states
+    bad = [[0, 1, -a], [-1, 0, -b * f], [a, b * f, 0]]
+    with pytest.raises(ValueError, match="does not satisfy the Jacobi identity"):
+        ls.PoissonSystem([a, b, c], bad, a * a + b * b + c * c)
+    ps = ls.PoissonSystem([a, b, c], bad, a * a + b * b + c * c, jacobi=False)
+    assert abs(abs(ps.jacobi_residual([[3, 2, 5]])) - 1) < 1e-40
+    # {a, b} = f(a) alone is a Poisson bracket wherever it is defined: accepted
+    ls.PoissonSystem([a, b, c], [[0, f, 0], [-f, 0, 0], [0, 0, 0]], a * a + b * b + c * c)
+    far = hy.log(a - 1000.0)
+    with pytest.raises(ValueError, match=r"cannot be checked.*`jacobi=False`"):
+        ls.PoissonSystem([a, b, c], [[0, c * far, -b], [-c * far, 0, a], [b, -a, 0]], a * a + b * b + c * c)
+    with pytest.raises(ValueError, match=r"`points`"):
+        ps.check_jacobi(points=[[1, 2, 5]])  # log(a - 2) undefined
+
+
 def test_builtin_brackets_pass_the_explicit_jacobi_check():
     for model in (ls.EulerPoisson((1, 2, 3)), ls.EulerPoisson((1, 2, 3), bracket="intermediate"), ls.Sphere(),
                   ls.SphereDirac()):

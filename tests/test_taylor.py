@@ -82,6 +82,16 @@ def test_dense_output_matches_grid_run():
         grid(1.0)
 
 
+@pytest.mark.parametrize("t_end, just_outside", [(10, "-1e-20"), (-10, "1e-20")])
+def test_dense_output_just_outside_the_start_reads_the_first_chunk(t_end, just_outside):
+    """``sol(t)`` takes times a rounding outside the interval; at t0's end it evaluated the last chunk of steps
+    there (t0 - 1e-20 of a 10-unit quad run: 0.39 off, at 200 bits 6e17): the chunk nearest to t is read."""
+    body = ls.EulerPoisson((1, 2, 3))
+    sol = ls.integrate(body, body.initial_state((1, "0.1", "0.5")), t=t_end, dense=True, precision="quad")
+    assert sol.success and rigid_error(sol(just_outside), just_outside, dps=50) < 1e-30
+    assert rigid_error(sol(t_end / 2), t_end / 2, dps=50) < 1e-30
+
+
 def test_second_call_reuses_the_compiled_integrator():
     body = ls.EulerPoisson((1, 2, 3))
     y0 = body.initial_state((1.0, 0.1, 0.5))

@@ -511,6 +511,56 @@ def test_the_guard_reads_the_casimirs_of_the_bracket_too():
     assert status == "invariant_drift" and "Casimir" in message
 
 
+@pytest.mark.parametrize("precision, eps", [("double", 2.0**-52), ("quad", 2.0**-112)])
+def test_a_casimir_that_vanishes_with_its_terms_at_y0_is_measured_in_its_own_units(precision, eps):
+    """The Dirac sphere from x = (0.6, 0, 0.8) at speed 10^6: x . p and its terms x_i p_i all vanish at y0, and
+    the guard measured its change against |x|^2 (1) where its own size is |x| |p| (10^6): a run right to eps
+    (against the great circle) ended invariant_drift, "the result is wrong". Its terms at the end give its size; a
+    wrecked end state (p turned off the sphere's tangent plane) is still caught."""
+    from lieseries.energy import energy_function, energy_verdict
+    from lieseries.precision import resolve_precision
+
+    sphere = ls.SphereDirac()
+    x, v, t = ("0.6", 0, "0.8"), (0, 10**6, 0), "3e-6"
+    y0 = sphere.initial_state(x, v)
+    sol = ls.integrate(sphere, y0, t=t, precision=precision)
+    ex, _ = exact.sphere(1, x, v, t, dps=40)
+    assert sol.status == "success", sol.message
+    assert max(abs(float(a) - float(b)) for a, b in zip(sol.y[-1][:3], ex)) < 64 * eps
+    energy = energy_function(sphere.poisson, resolve_precision("double"), np.asarray(y0, dtype=float))
+    wrecked = np.array([float(c) for c in sol.y[-1]])
+    xs, ps = wrecked[:3], wrecked[3:]  # p turned by 1e-3 towards x: H kept, x . p = 1e3 (1e-3 of its size)
+    wrecked[3:] = math.cos(1e-3) * ps + math.sin(1e-3) * np.linalg.norm(ps) * xs / np.linalg.norm(xs)
+    status, message = energy_verdict(energy, 1.5e-8, wrecked, 3, "success", "Reached t = 3e-6.")
+    assert status == "invariant_drift" and "Casimir" in message
+
+
+def test_a_span_the_run_cannot_hold_beside_a_large_t0_is_said():
+    """t0 = 10^6, t = '1000000.1' in double: the times are rounded to doubles, and the run goes 0.0999999999767
+    time units, its state 2e-11 from the closed form at 0.1, with a success: now with one PrecisionWarning naming
+    t - t0. The same from t0 = 0, or outputs at '5.1', '5.3' from t0 = 5, keep the span to the run's precision
+    and say nothing; the Lie engine, which adds its steps to times of 30 digits, says so from t0 = 10^20."""
+    body = ls.EulerPoisson(inertia=INERTIA)
+    y0 = body.initial_state(omega=OMEGA)
+
+    def run(fn):
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            sol = fn()
+        return sol, [str(x.message) for x in w if issubclass(x.category, PrecisionWarning)]
+
+    sol, msgs = run(lambda: ls.integrate(body, y0, t="1000000.1", t0=10**6))
+    assert len(msgs) == 1 and "`t` - `t0` = 0.1 " in msgs[0] and "32 bits" in msgs[0], msgs
+    assert body_error(sol.y[-1], "0.1", dps=40) > 1e-12  # the state is indeed that far from the one asked for
+    sol, msgs = run(lambda: ls.integrate(body, y0, t="0.1"))
+    assert msgs == [] and body_error(sol.y[-1], "0.1", dps=40) < 1e-15
+    assert run(lambda: ls.integrate(body, y0, t=["5.1", "5.3", "7.7"], t0=5))[1] == []
+    assert len(run(lambda: ls.integrate(body, [y0, y0], t="1000000.1", t0=10**6))[1]) == 1
+    _, msgs = run(lambda: ls.lie_integrate(body, y0, t=10**20 + 100, t0=10**20, dps=20))
+    assert len(msgs) == 1 and "30 digits" in msgs[0], msgs
+    assert run(lambda: ls.lie_integrate(body, y0, t=10**6 + 100, t0=10**6, dps=20))[1] == []
+
+
 def test_statuses_beyond_the_double_range_of_time():
     """omega ~1e-2000 to t = 2e2001 (the same motion slowed down): quad, long double and 113 bits all end without
     success (the Taylor coefficients underflow), and their messages print the time instead of failing to make a

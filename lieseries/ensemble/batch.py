@@ -313,6 +313,8 @@ def _record_grid_lanes(res, lo, nl, ta, out, outcomes, prs, Ynat, tgrid, t0n, di
         kind = outcome_kind(outcomes[lane], len(event_info))
         if kind == "interrupted" and ta.time[lane] == t_end:
             kind = "done"  # finished while the batch ran out of steps
+        elif kind == "done" and ta.time[lane] != t_end:
+            kind = "interrupted"  # stopped where another lane became non-finite, its outcome still a time limit
         if kind in ("interrupted", "non_finite"):
             mine.append(i)
             continue

@@ -15,7 +15,7 @@ from ..models.base import Model, state_fractions
 from ..poisson import PoissonSystem, as_poisson_system
 from ..precision import (Precision, check_flag, check_tolerance, data_bits, infer_precision, to_fraction,
                          warn_if_coarse)
-from ..timegrid import parse_times
+from ..timegrid import parse_times, span_loss, warn_span_loss
 from .build import check_batch_size
 
 __all__ = ["EnsemblePlan", "plan_ensemble", "check_count", "member_system", "is_constrained"]
@@ -263,7 +263,7 @@ def plan_ensemble(system, Y0, t, *, tol, precision, t0, params, workers, client,
         raise ValueError(f"`atlas` needs a model with an atlas of charts (Sphere); {type(structure).__name__} has "
                          "one global chart")
     if events is not None:
-        resolve_events(events, structure, ps)  # refuse a bad event here, naming it, before any member runs
+        resolve_events(events, structure, ps, prec.bits)  # refuse a bad event here, before any member runs
     if min_step is not None and not (isinstance(min_step, numbers.Real) and min_step > 0):
         raise ValueError(f"`min_step` must be positive; got {min_step!r}")
     # rows of members with parameters of their own are checked against their own constraint surface, not the
@@ -275,6 +275,12 @@ def plan_ensemble(system, Y0, t, *, tol, precision, t0, params, workers, client,
     Ynat = member_states(model, ps, Y0, prec, foreign)
     k = Ynat.shape[0]
     pars = member_parameters(model, ps, params, members, k)
+    # each member's parameters rounded to the run's format: an overflow names its entry (an array of doubles, finite
+    # as read, fits every format)
+    if params is not None and not (isinstance(params, np.ndarray) and params.dtype in (np.float64, np.float32)):
+        for i, row in enumerate(pars):
+            for j, v in enumerate(row):
+                prec.to_native(v, f"params[{i}][{j}]")
     check_member_constraints(ps, Y0, Ynat, pars, prec, members is not None)
     warn_coarse(prec, [("Y0", Y0), ("params", params), ("t", t), ("t0", t0)], members or [structure])
 
@@ -290,12 +296,15 @@ def plan_ensemble(system, Y0, t, *, tol, precision, t0, params, workers, client,
     # starts in the model's chart and never reaches that edge is exactly the atlas run's first (and only) segment;
     # the others run as single runs across the atlas.
     run_system = structure.for_chart(structure.chart, edge=structure.ATLAS_SWITCH) if atlas else structure
+    tgrid, t0n = [to_fraction(prec.time(g)) for g in grid], to_fraction(prec.time(t0f))
+    warn_span_loss(span_loss(grid, t0f, tgrid, t0n), grid, t0f, prec.bits,
+                   f"the run's times are {prec.name} numbers")
     return EnsemblePlan(
         structure=structure, members=members, ps=ps, ps_run=as_poisson_system(run_system), run_system=run_system,
         Y0=Y0, Ynat=Ynat, k=k, pars=pars, params=params, prec=prec, t=t, t0=t0, tol=tol, tolf=tolf, grid=grid,
         direction=direction, t0f=t0f,
         # heyoka's clock runs in the working precision: output times as rounded there (as in a single run)
-        tgrid=[to_fraction(prec.time(g)) for g in grid], t0n=to_fraction(prec.time(t0f)),
+        tgrid=tgrid, t0n=t0n,
         workers=workers, chunk_size=chunk_size, batch_size=batch_size, B=B, max_steps=max_steps,
         max_time=max_time, min_step=min_step, compact_mode=compact_mode, high_accuracy=high_accuracy, atlas=atlas,
         events=events, progress=progress, opts=opts)

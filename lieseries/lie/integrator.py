@@ -73,7 +73,7 @@ from ..precision import (
 )
 from ..precision import thread_mp as mp
 from ..solution import Solution, Stats
-from ..timegrid import parse_times
+from ..timegrid import parse_times, warn_span_loss
 from .crossings import UserEvents
 from .plan import radius_from_logs
 from .operator import (
@@ -151,7 +151,8 @@ def lie_integrate(
     -------
     Solution
         ``y`` rows are numpy object arrays of mpf; ``stats.error_estimates`` has one estimate per step (its
-        truncation error relative to each component's scale; the largest over the components);
+        truncation error relative to each component's scale; the largest over the components; never below the
+        round-off of the working digits, 10^-(dps + guard));
         ``stats.extra["max_step_over_radius"]`` is the largest step over the estimated radius of convergence
         (at most 1/2 by construction). When the data carry fewer bits than the run (binary floats), every
         per-step estimate is at least the relative uncertainty of the data (``stats.extra["data_bits"]``), and
@@ -178,13 +179,18 @@ def lie_integrate(
     ps, model, z0, pars = prepare(system, y0)
     grid, direction, t0f = parse_times(t, t0, max_time=max_time, values_per_time=ps.dimension,
                                        bytes_per_value=64 + prec.working_bits // 8)  # rows of mpf
+    if direction:  # a step's length is rounded to |t| 2^-working_bits as it is added to the time
+        big, span = max(abs(t0f), abs(grid[-1])), abs(grid[-1] - t0f)
+        warn_span_loss((big / span / 2**prec.working_bits, len(grid) - 1), grid, t0f, prec.bits,
+                       f"the times are carried with {prec.working_dps} digits, so each step's length is rounded to "
+                       f"{float(big):.3g} x 10^-{prec.working_dps}")
     tolm = _tolerance(tol, prec)
     N, N_auto = _series_order(order, tolm, tol, prec)
     bits = coarse_bits(ps, y0, prec.bits, times=[t, t0])
 
     stepper = FixedStepper(ps.program, pars, N, prec)  # the jets in fixed-point big integers
     start = _time.perf_counter()
-    user_events = resolve_events(user_events_arg, system, ps)
+    user_events = resolve_events(user_events_arg, system, ps, prec.bits)
     wdps = prec.working_dps
     with mp.workdps(wdps):
         engine = _LieEngine(stepper, N, N_auto if order is not None else None, tolm, wdps, bits, max_steps,
@@ -284,8 +290,12 @@ class _LieEngine:
     def __init__(self, stepper, N, N_auto, tolm, wdps, bits, max_steps, sgn, events, user, deadline, dense):
         self.stepper, self.N, self.N_auto, self.tolm, self.wdps = stepper, N, N_auto, tolm, wdps
         self.max_steps, self.steps, self.max_h, self.t_first = max_steps, 0, None, None  # (_ahead)
-        # every estimate is at least the data's own relative uncertainty (an mpf below a float's range)
-        self.floor = 0.0 if bits is None else math.ldexp(1.0, -bits) if bits < 1000 else mp.ldexp(mp.mpf(1), -bits)
+        # every estimate is at least the data's own relative uncertainty and the round-off of the numbers a step
+        # carries (10^-wdps: an order far above the automatic one gave estimates of 1e-60, or 0.0, at 40 working
+        # digits); an mpf below a float's range
+        rounding = 10.0 ** -wdps if wdps < 300 else mp.mpf(10) ** -wdps
+        self.floor = rounding if bits is None else max(
+            rounding, math.ldexp(1.0, -bits) if bits < 1000 else mp.ldexp(mp.mpf(1), -bits))
         self.log2_tol = _log2(tolm)
         self.collapse = mp.mpf(10) ** (-wdps + 2)  # a step below |t| * collapse has collapsed
         self.sgn, self.events, self.user, self.deadline = sgn, events, user, deadline

@@ -26,6 +26,7 @@ from ..events import resolve_events
 from ..heyoka_build import build_integrator, integrator_count
 from ..models.base import ExactState, Model, state_fractions
 from ..poisson import as_poisson_system
+from ..timegrid import warn_span_loss
 from ..precision import (check_callable, check_count, check_flag, check_progress, check_seconds, check_tolerance,
                          infer_precision, to_fraction)
 from .call import CALLS, DEFAULT_KEY_TAIL, KEY_SCALARS, Call, call_key
@@ -140,6 +141,9 @@ def _integrate(
         call = _new_call(system, ps, prec, y0, z0, t, t0, tol, events, dense, compact_mode, high_accuracy,
                          max_steps=max_steps, stiff_steps=min(max_steps, STIFF_STEPS) if default_budget else max_steps,
                          max_time=max_time, min_step=min_step)
+        plan = call.plan
+        warned = warn_span_loss(plan["span_loss"], plan["grid"], plan["t0f"], prec.bits,
+                                f"the run's times are {prec.name} numbers") or warned
         if key is not None and not warned:
             CALLS.put(key, call)
     return execute(call, progress)
@@ -149,7 +153,7 @@ def _new_call(system, ps, prec, y0, z0, t, t0, tol, events, dense, compact_mode,
               stiff_steps, max_time, min_step):
     """A new :class:`~lieseries.taylor.call.Call` of checked arguments (``z0``: the exact state, the budgets
     checked), with its plan and its plain path set up."""
-    user_events = resolve_events(events, system, ps)
+    user_events = resolve_events(events, system, ps, prec.bits)
     plan = make_plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events, max_time)
     call = Call(
         system=system, y0=y0, ps=ps, prec=prec, plan=plan, user_events=user_events,

@@ -107,6 +107,8 @@ class Chunks:
         self.c_outs = []  # heyoka's continuous outputs, one per chunk (dense)
         self.queue = []  # (time, row) at the output times the steps so far covered, not yet taken by the driver
         self.chunk_start = self.t0
+        self.chunk_dtime = None  # heyoka's double-length time (hi, lo) at the last chunk's start
+        self.format = call.prec.name
         # the output times after t0 whose rows come from the steps (None: only t0 and the final time); the driver
         # gives the rows at t0 (y0)
         self.pending = None
@@ -118,6 +120,9 @@ class Chunks:
         self.t_at, self.z_at = t, z
         if self.between:
             self.between = False
+            stuck = self._stuck()
+            if stuck is not None:
+                raise stuck
             if self.min_step is not None and self.min_h < self.min_step:
                 raise Stop("step_collapse", f"a step of {self.min_h:.3g} was taken, below `min_step` = "
                            f"{self.min_step:.3g}", note=self._note())
@@ -275,8 +280,19 @@ class Chunks:
             return self._collapse("step_collapse.taylor") if h < 1e-2 * h_first else self.explain("step_budget")
         return None
 
+    def _stuck(self):
+        """A Stop when the last chunk's steps left heyoka's time where it was (t + h rounds to t: 2 or 3 bits at
+        t ~ 1 stepped on for ever, the default budget being 5e7 steps), else None."""
+        if self.chunk_dtime is None or self.ta is None or tuple(self.ta.dtime) != self.chunk_dtime:
+            return None
+        return Stop("step_collapse", f"the time does not advance: a whole chunk of steps left it there, because "
+                    f"t + h rounds to t in {self.format} numbers; use more bits", note=self._note())
+
     def explain(self, status, t=None):
         """A budget stop at the last chunk's end, with the steps finishing would take (:data:`MESSAGES`)."""
+        stuck = self._stuck() if status == "step_budget" else None
+        if stuck is not None:
+            return stuck  # raising the budget would not help
         if status != "step_budget":
             return Stop(status, note=self._note())
         need, hopeless = self._need()
@@ -338,7 +354,7 @@ class Chunks:
         """A chunk of at most ``budget`` steps towards ``t_end``, each at most ``cap`` long when given."""
         ta = self.ta
         limit = {} if cap is None else {"max_delta_t": cap}
-        self.chunk_start = ta.time
+        self.chunk_start, self.chunk_dtime = ta.time, tuple(ta.dtime)
         if self.guard is not None:
             callback = self.guard if callback is None else Both(self.guard, callback)
         if self.pending is not None:

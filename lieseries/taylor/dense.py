@@ -16,12 +16,11 @@ class DenseOutput:
         self.bounds = [tuple(sorted(float(b) for b in c.bounds)) for c in self.c_outs]
 
     def at_native(self, t):
-        """The state at ``t`` (in the run's format) from the chunk that covers it."""
+        """The state at ``t`` (in the run's format) from the chunk that covers it, or the nearest one for a time a
+        rounding outside them all (the last chunk read at t0's end was read far from its steps)."""
         tv = float(t)
-        for (lo, hi), c in zip(self.bounds, self.c_outs):
-            if lo <= tv <= hi:
-                return np.array(c(t), copy=True)
-        return np.array(self.c_outs[-1](t), copy=True)
+        i = min(range(len(self.bounds)), key=lambda k: max(self.bounds[k][0] - tv, tv - self.bounds[k][1], 0.0))
+        return np.array(self.c_outs[i](t), copy=True)
 
     def __call__(self, t):
         lo = min(b[0] for b in self.bounds)

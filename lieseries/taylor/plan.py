@@ -33,7 +33,7 @@ from ..precision import (
     to_fraction,
     warn_if_coarse,
 )
-from ..timegrid import parse_times
+from ..timegrid import parse_times, span_loss
 
 #: The default step budget (``max_steps``).
 DEFAULT_MAX_STEPS = 50_000_000
@@ -87,9 +87,11 @@ def make_plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_ev
                                        else np.dtype(prec.numpy_dtype).itemsize)
     tolf = check_tolerance(tol, prec)
     grid_native = [prec.time(g) for g in grid]
+    grid_exact, t0_native = [to_fraction(g) for g in grid_native], prec.time(t0f)
     plan = dict(
         grid=grid, direction=direction, t0f=t0f, tolf=tolf, grid_native=grid_native,
-        grid_exact=[to_fraction(g) for g in grid_native], t0_native=prec.time(t0f),
+        grid_exact=grid_exact, t0_native=t0_native,
+        span_loss=span_loss(grid, t0f, grid_exact, to_fraction(t0_native)),
         reached=run_message("success", t=grid_native[-1]),
         tol_float=float(tolf), sqrt_tol=math.sqrt(float(guard_tolerance(ps, tolf, prec.bits))),
         build=build_integrator(system, prec, tolf, user_events=user_events, compact_mode=compact_mode,
@@ -103,9 +105,10 @@ def make_plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_ev
 def warn_coarse_inputs(ps, y0, times, work_bits: int) -> bool:
     """One :class:`~lieseries.precision.PrecisionWarning` per input that carries fewer bits than the run uses
     (``times`` is ``(t, t0)``, each named on its own). True when there was one."""
-    if work_bits <= 53 and data_bits(y0) is None:
-        return False
     t, t0 = times
+    narrow = any(isinstance(v, (np.ndarray, np.generic)) and v.dtype in (np.float16, np.float32) for v in times)
+    if work_bits <= 53 and data_bits(y0) is None and not narrow:  # (a float32 t carries 24 bits in double too)
+        return False
     coarse = [(data_bits(y0), "y0"), (data_bits(t), "t"), (data_bits(t0), "t0")]
     if work_bits > 53:
         coarse += [(bits, name) for name, bits in ps.coarse_data().items()]
