@@ -157,7 +157,6 @@ def parse_times(t, t0=0, argname: str = "t", *, values_per_time: int = 1, bytes_
     return grid, (1 if inc else -1), t0
 
 
-
 def span_loss(grid, t0, rounded, rounded_t0):
     """``(loss, k)``: the largest change that rounding the times (``grid`` to ``rounded``, ``t0`` to ``rounded_t0``,
     exact values) made to an output time's span t_k - t0, relative to the run's whole span, and its index;
