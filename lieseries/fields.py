@@ -41,7 +41,12 @@ def show(v) -> str:
 
 
 def fail(path: str, what: str, value):
-    raise SceneError(f"`{path}` must be {what}; got {show(value)}")
+    hint = ""
+    if isinstance(value, float) and (value == 0 or value in (float("inf"), float("-inf"))):
+        # (TOML reads a number beyond a double's range as 0.0 or inf before the scene sees it)
+        hint = ('; a TOML number beyond a double\'s range (1e-400, 1e400) reads as 0.0 or inf: write it as a string '
+                '("1e-400"), which is read exactly')
+    raise SceneError(f"`{path}` must be {what}; got {show(value)}{hint}")
 
 
 def number(value, path, *, positive=False, nonzero=False, below_one=False, what="a number"):

@@ -343,3 +343,13 @@ def test_a_binary_end_time_is_listed_with_the_binary_data():
     assert parse_scene(RIGID.replace("t = 2", "t = 2.1")).binary_inputs() == {"run.t": 53}
     assert parse_scene(RIGID.replace("t = 2", 't = "2.1"')).binary_inputs() == {}
     assert parse_scene(RIGID).binary_inputs() == {}
+
+
+def test_a_toml_number_beyond_a_doubles_range_is_said_to_need_quotes():
+    # TOML reads tol = 1e-400 as 0.0 before the scene sees it: the refusal said "got 0.0" and nothing else; as a
+    # string it is read exactly, and lie_integrate's refusal names the value asked, not 0
+    text = RIGID.replace('methods = [{ method = "taylor", precision = "double" }, { method = "taylor", '
+                         'precision = "quad" }]', 'methods = [{ method = "lie", dps = 30, tol = 1e-400 }]')
+    scene_error(text, 'got 0.0; a TOML number beyond a double\'s range (1e-400, 1e400) reads as 0.0 or inf: write it '
+                      'as a string ("1e-400")')
+    scene_error(text.replace("tol = 1e-400", 'tol = "1e-400"'), "`tol` = ~1e-400 is below what 30 digits")

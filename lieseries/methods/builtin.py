@@ -18,7 +18,7 @@ from ..models.base import state_fractions
 from ..poisson import as_poisson_system
 from ..precision import (LIE_GUARD_DIGITS, MAX_DPS, MAX_ORDER, MIN_DPS, VALIDATED_GUARD_BITS, Precision, bits_to_dps,
                          check_dps, check_tolerance, data_bits, dps_to_bits, export_mpf, mp_context, resolve_precision,
-                         to_fraction, warn_if_coarse)
+                         short_decimal, to_fraction, warn_if_coarse)
 from ..precision import thread_mp as mp
 from ..validated import certified_digits, midpoints, validated_integrate
 from .registry import Method, RunRecord, best_of, register_method, run_precision, setting, setting_number, thin
@@ -284,8 +284,8 @@ def _lie_check(spec) -> None:
     dps = spec["dps"]
     tol = Fraction(1, 10**dps) if spec.get("tol") is None else to_fraction(spec["tol"], "tol")
     if tol < Fraction(1, 10 ** (dps + GUARD_DIGITS)):
-        raise ValueError(f"`tol` = {float(tol):.3g} is below what {dps} digits (+{GUARD_DIGITS} guard) can resolve; "
-                         f"raise `dps`")
+        raise ValueError(f"`tol` = {short_decimal(tol)} is below what {dps} digits (+{GUARD_DIGITS} guard) can "
+                         f"resolve; raise `dps`")
     if spec.get("order") is None:
         n_auto = default_order(ctx.mpf(tol.numerator) / tol.denominator)
         if n_auto > MAX_ORDER:
