@@ -191,3 +191,26 @@ def test_atlas_run_to_a_final_time_that_is_not_a_double_ends_there():
     assert sol.success and sol.stats.extra["chart_switches"] == 1, sol.message
     assert len(sol.t) == 2 and sol.t[-1] == 2.001
     assert position_errors(s, sol, [0, Fraction(2001, 1000)], 40)[-1] < 1e-14
+
+
+@pytest.mark.parametrize("engine", ["double", "lie", "ensemble"])
+def test_an_event_on_a_chart_momentum_is_refused_on_the_atlas(engine):
+    """pi_c = p_c - x_c p_k / x_k is a different function in each chart (and pi2 is no variable of the chart x2):
+    an event on pi1 of the chart x3 was, after the switch to the chart x2, an event on the chart x2's pi1 (with
+    `success`), and one on pi2 raised midway, its variables not in the chart x2. Refused up front, naming the
+    event; positions are the same in every chart, and one chart (atlas=False) keeps its own momenta."""
+    import heyoka as hy
+
+    s = ls.Sphere()
+    y0 = s.initial_state(("0.6", "0", "0.8"), ("0.8", "0.6", "-0.6"))
+    for ev in (hy.make_vars("pi1"), lambda m: m.poisson.variables[4] + m.poisson.variables[0]):
+        events = [ls.Event(hy.make_vars("x1"), name="x"), ls.Event(ev, name="p")]
+        with pytest.raises(ValueError, match=r"`events\[1\]` \('p'\).*chart"):
+            if engine == "lie":
+                ls.lie_integrate(s, y0, t=8, dps=20, events=events)
+            elif engine == "ensemble":
+                ls.integrate(s, [y0, y0], t=8, events=events)
+            else:
+                ls.integrate(s, y0, t=8, events=events)
+    sol = ls.integrate(s, y0, t="0.3", events=[ls.Event(hy.make_vars("pi1"))], atlas=False)
+    assert sol.success
