@@ -16,16 +16,18 @@ import math
 import time as _time
 from dataclasses import replace
 
+import heyoka as hy
 import mpmath
 import numpy as np
 
 from .driver import Outcome, StepResult, Stop, drive
 from .energy import drift_threshold, energy_exact
+from .events import resolve_events
 from .precision import to_fraction
 from .solution import ChartRows, Solution, Stats
 from .timegrid import parse_times
 
-__all__ = ["run_atlas", "MAX_SWITCHES"]
+__all__ = ["run_atlas", "check_atlas_events", "MAX_SWITCHES"]
 
 #: A run that switches charts this many times without finishing stops (it would be cycling).
 MAX_SWITCHES = 100_000
@@ -60,6 +62,7 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, energy_
     if dense:
         raise ValueError("`dense` output is not available with `atlas=True`; pass the output times as `t` instead")
     z0 = model.check_state(y0, "y0")
+    check_atlas_events(model, kwargs.get("events"))
     max_steps, max_time = kwargs.pop("max_steps", None), kwargs.pop("max_time", None)
     grid, direction, t0f = parse_times(t, t0, max_time=max_time)
     start = _time.perf_counter()
@@ -90,6 +93,22 @@ def run_atlas(integrator, model, y0, t, *, t0=0, bits: int, dense=False, energy_
     return Solution(tarr, ChartRows(y, out.rows_chart), stats, out.status, out.message,
                     t_reached=sol.t_reached, t_requested=grid, y_reached=ChartRows(sol.y_reached, engine.chart),
                     charts=np.array(out.rows_chart, dtype=int), chart_reached=engine.chart, events=engine.events)
+
+
+def check_atlas_events(model, events):
+    """Refuse an event of an atlas run that uses a chart's momenta: pi_c = p_c - x_c p_k / x_k is another function
+    in each chart (and pi2 no variable of the chart x2), so its crossings would change meaning at a switch (a
+    callable is built again from each chart's model). The position's coordinates are the same in every chart."""
+    common = set.intersection(*(set(model.for_chart(c).poisson.names) for c in range(3)))
+    for i, (name, expr, _, _) in enumerate(resolve_events(events, model, model.poisson)):
+        own = sorted(set(hy.get_variables(expr)) - common)
+        if own:
+            raise ValueError(
+                f"`events[{i}]` ({name!r}) uses {own}, momenta of the chart x{model.chart + 1}, which every chart of "
+                f"the atlas defines differently (pi_c = p_c - x_c p_k / x_k): across a chart switch its crossings "
+                f"would be those of another function. Write the event in the position {sorted(common)}, run one "
+                "chart (`atlas=False`), or use SphereDirac, whose momenta are global")
+    return events
 
 
 class _Segments:
@@ -128,7 +147,11 @@ class _Segments:
         times = remaining if isinstance(remaining, list) else [to_fraction(v) for v in sol.t]
         rows = list(zip(times, sol.y))
         stop = None
-        if sol.status == "chart_edge":
+        if sol.status == "chart_edge" and len(sol.y) == len(times) and self.t_arg is None:
+            # the edge at the final time as the segment's numbers hold it (a Lie run's times, 40 digits: -2.1 to
+            # 2e-41): every row is given, and the run is done there, as when it succeeds
+            stop = Stop("success")
+        elif sol.status == "chart_edge":
             if sol.t_reached == t or self.switches >= MAX_SWITCHES:
                 stop = Stop("event", message=f"The atlas run made no progress at t = {float(t):.17g} after "
                             f"{self.switches} chart switches.")

@@ -246,7 +246,11 @@ def build_integrator(system, precision="double", tol=None, *, events=True, user_
         kwargs["prec"] = prec.bits
     fp = prec.fp_type if prec.name != "double" else float
     t_events = [hy.t_event(e[0], fp_type=fp) for e in evs]
-    t_events += [hy.t_event(e[1], direction=_HY_DIRECTION[e[2]], fp_type=fp) for e in user_events if e[3]]
+    # at arbitrary precision heyoka's root finding misses the crossing in a step that starts on a zero (a run
+    # starting on the surface): a one-way terminal event stopped at 3 pi for pi. It stops at every crossing, where
+    # it stopped at t0 too, and the run goes on from those of the other way (lieseries.taylor.chunks)
+    t_events += [hy.t_event(e[1], direction=_HY_DIRECTION[0 if prec.is_real else e[2]], fp_type=fp)
+                 for e in user_events if e[3]]
     nt_events = [hy.nt_event(e[1], Recorder(), direction=_HY_DIRECTION[e[2]], fp_type=fp)
                  for e in user_events if not e[3]]
     if t_events:

@@ -191,3 +191,43 @@ def test_atlas_run_to_a_final_time_that_is_not_a_double_ends_there():
     assert sol.success and sol.stats.extra["chart_switches"] == 1, sol.message
     assert len(sol.t) == 2 and sol.t[-1] == 2.001
     assert position_errors(s, sol, [0, Fraction(2001, 1000)], 40)[-1] < 1e-14
+
+
+def test_atlas_segment_that_reaches_a_chart_edge_at_the_final_time_ends_the_run():
+    """Back from t0 = 7.3 to -2.1 this great circle reaches a chart's edge within 2e-41 of -2.1 (the Lie run's times,
+    40 digits, hold -2.1 rounded): the segment gave the row at -2.1 and ended chart_edge, and the atlas ran one more
+    segment to the exact -21/10, whose row had no place (IndexError: pop from empty list). The run ends there, on
+    the great circle."""
+    s = ls.Sphere()
+    x0, v0 = ("0.36", "0.48", "0.8"), ("-0.8", "0.6", "0")
+    times = ["0.25", "-2.1"]
+    sol = ls.lie_integrate(s, s.initial_state(x0, v0), t=times, t0="7.3", dps=30)
+    assert sol.success, sol.message
+    assert len(sol.t) == 2 and sol.stats.extra["chart_switches"] == 8
+    X = s.position(sol.y, chart=sol.charts)
+    with mp.workdps(40):
+        for tk, xk in zip(times, X):
+            xe, _ = exact.sphere(1, x0, v0, to_fraction(tk) - Fraction(73, 10), dps=40)
+            assert max(abs(mpf(a) - b) for a, b in zip(xk, xe)) < 1e-26
+
+@pytest.mark.parametrize("engine", ["double", "lie", "ensemble"])
+def test_an_event_on_a_chart_momentum_is_refused_on_the_atlas(engine):
+    """pi_c = p_c - x_c p_k / x_k is a different function in each chart (and pi2 is no variable of the chart x2):
+    an event on pi1 of the chart x3 was, after the switch to the chart x2, an event on the chart x2's pi1 (with
+    `success`), and one on pi2 raised midway, its variables not in the chart x2. Refused up front, naming the
+    event; positions are the same in every chart, and one chart (atlas=False) keeps its own momenta."""
+    import heyoka as hy
+
+    s = ls.Sphere()
+    y0 = s.initial_state(("0.6", "0", "0.8"), ("0.8", "0.6", "-0.6"))
+    for ev in (hy.make_vars("pi1"), lambda m: m.poisson.variables[4] + m.poisson.variables[0]):
+        events = [ls.Event(hy.make_vars("x1"), name="x"), ls.Event(ev, name="p")]
+        with pytest.raises(ValueError, match=r"`events\[1\]` \('p'\).*chart"):
+            if engine == "lie":
+                ls.lie_integrate(s, y0, t=8, dps=20, events=events)
+            elif engine == "ensemble":
+                ls.integrate(s, [y0, y0], t=8, events=events)
+            else:
+                ls.integrate(s, y0, t=8, events=events)
+    sol = ls.integrate(s, y0, t="0.3", events=[ls.Event(hy.make_vars("pi1"))], atlas=False)
+    assert sol.success

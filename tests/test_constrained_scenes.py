@@ -57,6 +57,17 @@ def test_each_builtin_constrained_kind_builds_its_model_from_the_scene():
     assert m.parameter_values["m2"] == 2 and m.parameter_values["g"] == Fraction(981, 100)
 
 
+def test_a_binary_parameter_of_a_constrained_scene_is_listed_with_the_binary_data():
+    """parameters = { g = 9.81 } is the double 9.81 (TOML): the runs warned of it, but the scene's binary data (and
+    so its report's note on which problem its errors are measured against) left it out: the parameters table was
+    not among the kind's data. g = "9.81" and g = 10 are exact."""
+    text = HEAD + SPHERE + RUN
+    assert parse_scene(text.replace('g = "9.81"', "g = 9.81")).binary_inputs() == {"model.parameters.g": 53}
+    note = parse_scene(text.replace('g = "9.81"', "g = 9.81")).binary_note()
+    assert "`model.parameters.g`" in note and "binary data" in note
+    assert parse_scene(text).binary_inputs() == {}
+    assert parse_scene(text.replace('g = "9.81"', "g = 10")).binary_inputs() == {}
+
 def test_heavy_top_kind_reads_com_mass_g_and_the_rigid_body_initial_data():
     sc = parse_scene(HEAD + '[model]\nkind = "heavy_top"\ninertia = [2, 2, 1]\ncom = [0, 0, "0.5"]\nmass = 3\n'
                      'g = "9.81"\n[initial]\nomega = [1, "0.5", 5]\n' + RUN)

@@ -278,6 +278,28 @@ def test_long_double_members_equal_single_runs():
         assert np.array_equal(es.y[i], sol.y) and es.stats["steps"][i] == sol.stats.steps  # the same compiled code
 
 
+
+@pytest.mark.parametrize("precision", ["long double", "quad"])
+@pytest.mark.parametrize("t", ["0.1", ["1.5", "0.1"]])
+def test_scalar_members_back_to_a_time_the_format_rounds_end_there(precision, t):
+    """From t0 = 2.3 back to 0.1 heyoka's double-length time ends beside the final time as the format rounds it
+    (an ulp past it): the members on the scalar integrator raised a bare TypeError (no row at t = 0.1), and on a
+    grid reached a t_reached an ulp off their single runs'. Each member ends at 0.1 as its single run does, on the
+    closed form q = q0 cos(t - t0) + p0 sin(t - t0)."""
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], (p**2 + q**2) / 2)
+    Y0 = [[0, 1], ["0.5", "-0.25"], ["-1.5", "0.1"]]
+    es = run(osc, Y0, t, t0="2.3", precision=precision)
+    assert es.stats["path"] == "threads" and es.success
+    with mp.workdps(40):
+        for i, (q0, p0) in enumerate(Y0):
+            sol = ls.integrate(osc, Y0[i], t, t0="2.3", precision=precision)
+            assert es.t_reached[i] == sol.t_reached and es.rows[i] == len(sol.t)
+            assert np.array_equal(es.y[i], sol.y)
+            s = mp.mpf(-2.2)
+            ref = [mp.mpf(q0) * mp.cos(s) + mp.mpf(p0) * mp.sin(s), -mp.mpf(q0) * mp.sin(s) + mp.mpf(p0) * mp.cos(s)]
+            assert max(abs(mp.mpf(float(a)) - b) for a, b in zip(es.y[i, -1], ref)) < 1e-15
+
 def test_long_double_sphere_edge_and_grid():
     sphere = ls.Sphere()
     S0 = np.stack([sphere.initial_state(x=("0.6", 0, "0.8"), v=("0.8", 0, "-0.6"), precision="long double"),

@@ -321,3 +321,22 @@ def test_a_terminal_event_zero_without_a_rate_at_the_start_ends_the_run_instead_
     assert max(abs(float(a) - float(b)) for a, b in zip(sol.y_reached, exact)) < 1e-14
     lie = ls.lie_integrate(osc, [0, 0], t=3, dps=20, events=[ls.Event(q, terminal=True, name="zero")])
     assert lie.status == "success"
+
+
+@pytest.mark.parametrize("bits", [113, 200, 333])
+@pytest.mark.parametrize("p0, direction, first", [(1, "negative", 1), (-1, "positive", 1), (1, "positive", 2)])
+def test_a_one_way_terminal_event_from_a_run_starting_on_its_zero_stops_at_its_first_crossing(bits, p0, direction,
+                                                                                               first):
+    """q = p0 sin t from q = 0: a terminal event on q that takes one direction stops at the first crossing that
+    way, k pi with k = `first`. At >= 179 bits heyoka's root finding misses the crossing in a step that starts on a
+    zero, and the run stopped at 3 pi instead of pi, status `event`; lie_integrate is the reference."""
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], (p**2 + q**2) / 2)
+    ev = [ls.Event(q, direction=direction, terminal=True, name="stop")]
+    sol = ls.integrate(osc, [0, p0], t=20, precision=bits, events=ev)
+    assert sol.status == "event" and len(sol.events["stop"]["t"]) == 1
+    ctx = mp.MPContext()
+    ctx.prec = bits + 32
+    tf = to_fraction(sol.t_reached)
+    assert abs(ctx.mpf(tf.numerator) / tf.denominator - first * ctx.pi) < 2.0 ** (16 - bits)
+    assert to_fraction(sol.events["stop"]["t"][0]) == tf

@@ -10,6 +10,7 @@ import re
 
 import numpy as np
 
+from ..atlas import check_atlas_events
 from ..events import resolve_events
 from ..models.base import Model, state_fractions
 from ..poisson import PoissonSystem, as_poisson_system
@@ -264,6 +265,8 @@ def plan_ensemble(system, Y0, t, *, tol, precision, t0, params, workers, client,
                          "one global chart")
     if events is not None:
         resolve_events(events, structure, ps, prec.bits)  # refuse a bad event here, before any member runs
+        if atlas:
+            check_atlas_events(structure, events)
     if min_step is not None and not (isinstance(min_step, numbers.Real) and min_step > 0):
         raise ValueError(f"`min_step` must be positive; got {min_step!r}")
     # rows of members with parameters of their own are checked against their own constraint surface, not the

@@ -131,5 +131,5 @@ register_model_kind(ModelKind(
                         "(default: the last k)"),
           "chart": ("table name = string", "local (required): each dependent coordinate as an expression of the "
                     "others, solving the constraints")},
-    build=build_constrained, family="configuration", label="constrained system",
+    build=build_constrained, family="configuration", label="constrained system", data_fields=("parameters",),
 ))

@@ -67,11 +67,16 @@ class BinaryFraction(Fraction):
 
 
 def binary_inputs(values, argname: str) -> dict:
-    """``{"argname[i]": bits}`` for the entries of ``values`` (a number, or nested sequences/arrays of them) that
-    are binary numbers carrying finite precision (:func:`carried_bits`); empty when all are exact."""
+    """``{"argname[i]": bits}`` for the entries of ``values`` (a number, or nested sequences/arrays of them, or a
+    table of them: ``"argname.key"``) that are binary numbers carrying finite precision (:func:`carried_bits`);
+    empty when all are exact."""
     out = {}
 
     def walk(v, name):
+        if isinstance(v, dict):  # (a constrained scene's parameters = { g = 9.81 })
+            for k, x in v.items():
+                walk(x, f"{name}.{k}")
+            return
         if isinstance(v, np.ndarray) and v.ndim > 0:
             v = list(v)  # numpy scalars keep their format: tolist() made float32 entries Python floats, read exact
         if isinstance(v, (list, tuple)):

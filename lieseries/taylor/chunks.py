@@ -330,10 +330,11 @@ class Chunks:
     def _touch(self, outcome) -> bool:
         """True when heyoka stopped on a user's terminal event where its expression does not change sign (just
         before and just after the stop have the same sign): a tangency, not a crossing (what lie_integrate
-        finds)."""
+        finds); or where it crosses the other way than the event's direction (at arbitrary precision heyoka stops
+        at every crossing: :func:`lieseries.heyoka_build.build_integrator`)."""
         if self.terminal_check is None:
             return False
-        fn, uses_pars, base, bits = self.terminal_check
+        fn, uses_pars, base, bits, directions = self.terminal_check
         idx = int(outcome.value)
         j = (idx if idx >= 0 else -idx - 1) - base
         ta = self.ta
@@ -345,10 +346,11 @@ class Chunks:
             v = (fn(ta.d_output, pars=ta.pars) if uses_pars else fn(ta.d_output))[j]
             return int(v > 0) - int(v < 0)
 
-        if sign(t - delta) * sign(t + delta) > 0:
+        before, after = sign(t - delta), sign(t + delta)
+        if before * after > 0:
             self.touches += 1
             return True
-        return False
+        return bool(directions[j]) and (after - before) * directions[j] < 0  # (in time: t - delta is before t)
 
     def _propagate(self, t_end, budget, callback, cap=None, write_tc=False):
         """A chunk of at most ``budget`` steps towards ``t_end``, each at most ``cap`` long when given."""

@@ -138,7 +138,9 @@ def _start(ta, call, event_info):
         if n_user:
             # a stop where the expression does not change sign (a tangency) is not a crossing: go on
             fn, uses_pars = event_function(ps, prec, [e[1] for e in user_events if e[3]])
-            engine.terminal_check = (fn, uses_pars, len(event_info) - n_user, prec.bits)
+            # (and, at arbitrary precision, where heyoka stops at every crossing, one the other way)
+            engine.terminal_check = (fn, uses_pars, len(event_info) - n_user, prec.bits,
+                                     [e[2] if prec.is_real else 0 for e in user_events if e[3]])
     return engine, sinks
 
 
