@@ -179,6 +179,7 @@ class PoissonSystem:
         self.name = str(name)
         self._field = None
         self._ode = None
+        self._written = None  # (written_program)
         self._key = None
         self._check_expressions(extra_field)
         self._check_antisymmetry()
@@ -574,6 +575,23 @@ class PoissonSystem:
 
             prog = compile_expressions(self._variables, self.vector_field, len(self._param_values))
             _PROGRAMS[self.key] = prog
+        return prog
+
+    @property
+    def written_program(self):
+        """The vector field as heyoka evaluates it (``ode_system``'s expressions without sympy's simplification:
+        :func:`~lieseries.expr.compile_expressions` ``as_written``), for bounds of heyoka's roundings; the
+        :attr:`program` where it cannot be compiled so."""
+        prog = getattr(self, "_written", None)
+        if prog is None:
+            from .expr import compile_expressions
+
+            try:
+                prog = compile_expressions(self._variables, [e for _, e in self.ode_system], len(self._param_values),
+                                           as_written=True)
+            except (NotImplementedError, ValueError, TypeError, AttributeError):  # pragma: no cover - defensive
+                prog = self.program
+            self._written = prog
         return prog
 
     # -- invariants ----------------------------------------------------------------------------------------------

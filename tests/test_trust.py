@@ -827,6 +827,21 @@ def test_heyoka_in_double_and_long_double_warns_of_a_field_that_cancels_at_y0():
                 ls.integrate(model, y0, "0.5", precision=precision)
 
 
+def test_a_cancellation_that_sympy_would_simplify_away_is_seen_as_heyoka_computes_it():
+    # H = p^2/2 + (q + B)^2/2 - B q is the oscillator: heyoka evaluates q' as 0.5 (2 (q + B)) - B, which cancels
+    # 1e12 beside q ~ 1, and ended `success` 5e-5 off cos 3 in double; the bound read the field as sympy simplifies
+    # it (q) and did not warn. It now reads heyoka's arithmetic (PoissonSystem.written_program)
+    q, p = hy.make_vars("q", "p")
+    B = 10**12
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 + (q + B) ** 2 / 2 - B * q)
+    with pytest.warns(PrecisionWarning, match=r"cancels at `y0`: rounded to 53 bits"):
+        sol = ls.integrate(osc, [1, 0], t=3)
+    assert abs(float(sol.y[-1][0]) - math.cos(3)) > 1e-6  # as it says
+    with pytest.warns(PrecisionWarning, match=r"43 of the 113 bits"):  # the same 43 bits, of 113 here
+        quad = ls.integrate(osc, [1, 0], t=3, precision="quad")
+    assert abs(float(quad.y[-1][0]) - math.cos(3)) < 1e-15  # (its bound: 2^-70 of the state per unit time)
+
+
 def test_the_float_rounding_bound_agrees_with_the_jets_bound():
     # two bounds of the same roundings by different means: floats relative to each value (lieseries.expr.rounding,
     # heyoka's arithmetic) and the fixed-point jets' first order (lieseries.lie.fixed.cancelling_bits)

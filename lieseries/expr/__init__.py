@@ -135,7 +135,7 @@ def as_expression(e, name):
 _PROGRAMS = cache.region("expr.programs", 32)
 
 
-def compile_expressions(variables, exprs, npars=None, cse=True):
+def compile_expressions(variables, exprs, npars=None, cse=True, as_written=False):
     """Compile heyoka expressions into a :class:`Program`.
 
     The expressions are converted with :func:`heyoka.to_sympy`, their common
@@ -159,6 +159,10 @@ def compile_expressions(variables, exprs, npars=None, cse=True):
         subtrees are always shared; ``cse=False`` skips the (superlinear)
         search for common sub-sums/sub-products, which is worthwhile only for
         very large one-shot expressions.
+    as_written : bool, optional
+        Keep the expressions' arithmetic as heyoka evaluates it: converted without sympy's automatic
+        simplification (``0.5 (2 (q + 1e12)) - 1e12`` stays as it is, not ``q``) and without ``cse``. For bounds of
+        heyoka's roundings (:mod:`lieseries.expr.rounding`), not for evaluation.
 
     Returns
     -------
@@ -181,20 +185,24 @@ def compile_expressions(variables, exprs, npars=None, cse=True):
         isinstance(npars, bool) or not isinstance(npars, numbers.Integral) or npars < 0
     ):
         raise ValueError(f"`npars` must be None or an integer >= 0; got {npars!r}")
-    key = (tuple(names), tuple(exprs), npars, bool(cse))
+    key = (tuple(names), tuple(exprs), npars, bool(cse) and not as_written, bool(as_written))
     prog = _PROGRAMS.get(key)
     if prog is not None:
         _PROGRAMS.touch(key)
         return prog
     start = time.perf_counter()
-    prog = compile_program(names, exprs, npars, bool(cse))
+    prog = compile_program(names, exprs, npars, bool(cse) and not as_written, bool(as_written))
     return _PROGRAMS.put(key, prog, cost=time.perf_counter() - start)
 
 
-def compile_program(names, exprs, npars, use_cse):
+def compile_program(names, exprs, npars, use_cse, as_written=False):
     """The :class:`Program` of heyoka expressions ``exprs`` in the variables ``names`` (checked, uncached: what
-    :func:`compile_expressions` caches)."""
-    sym = [hy.to_sympy(e) for e in exprs]
+    :func:`compile_expressions` caches); ``as_written``: sympy's automatic simplification off."""
+    if as_written:
+        with sympy.evaluate(False):
+            sym = [hy.to_sympy(e) for e in exprs]
+    else:
+        sym = [hy.to_sympy(e) for e in exprs]
     if npars is None:
         used = set()
         for s in sym:

@@ -137,7 +137,7 @@ def warn_cancelling_field(ps, rows, work_bits: int, pars=None, members: bool = F
     own = list(ps.parameter_values)
     # the bound in floats, each operation rounded relative to its value as heyoka's are; the fixed-point jets' where
     # floats cannot hold it (a value beyond their range, a singular derivative)
-    got = rounding.lost_bits(ps.program, rows, own if pars is None else pars, work_bits)
+    got = rounding.lost_bits(ps.written_program, rows, own if pars is None else pars, work_bits)
     lost = [(i, b if b is not None else cancelling_bits(ps.program, list(r), own if pars is None else list(pars[i]),
                                                         work_bits))
             for i, (r, b) in enumerate(zip(rows, got))]
