@@ -14,8 +14,6 @@ two crossings 2.8e-10 apart, each to 1e-26); a tangency, no crossing."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from ..precision import export_mpf, mp_context
