@@ -57,8 +57,9 @@ def _chebyshev(values):
 
 
 class UserEvents:
-    """Crossings of the user's events on each step's polynomial (in time order), found by :meth:`resolve` and
-    :meth:`step`; ``found`` per name (time, state), ``fired`` the message of a terminal event that stopped the run."""
+    """Crossings of the user's events on each step's polynomial (in time order), found by :meth:`step`; ``found`` per
+    name (time, state), ``fired`` the message of a terminal event that stopped the run, ``unresolved`` per name the
+    steps with a piece no samples resolved (:meth:`_pieces`)."""
 
     def __init__(self, user_events, ps, pars):
         from ..expr import compile_expressions
@@ -77,7 +78,7 @@ class UserEvents:
         self.pars = pars
         self.found = {e[0]: [] for e in user_events}
         self.fired = None
-        self.unresolved = {}  # event name -> steps on which it was not resolved (resolve)
+        self.unresolved = {}
 
     def _g(self, at, tau):
         return self.prog.evaluate(at(tau), self.pars, mp.dps, mp_context())
@@ -257,33 +258,32 @@ class UserEvents:
                 for name, hits in self.found.items()}
 
 
-def _dips(c, floor):
-    """The extrema in (-1, 1) of the Chebyshev series ``c`` (normalised to g's size) within :data:`DIP` of zero and
-    not at a root of it, as floats."""
+def _trimmed(c, floor):
+    """The Chebyshev series ``c`` without its top coefficients of at most ``floor``."""
     k = len(c)
     while k > 1 and abs(c[k - 1]) <= floor:
         k -= 1
-    if k <= 2:
+    return c[:k]
+
+
+def _dips(c, floor):
+    """The extrema in (-1, 1) of the Chebyshev series ``c`` (normalised to g's size; its coefficients below ``floor``
+    at the top dropped) within :data:`DIP` of zero, as floats."""
+    c = _trimmed(c, floor)
+    if len(c) <= 2:
         return []
-    d = np.polynomial.chebyshev.chebder(c[:k])
-    out = []
-    for x in _roots(d, 0.0):
-        v = np.polynomial.chebyshev.chebval(x, c[:k])
-        if abs(v) <= DIP and -1 < x < 1:
-            out.append(x)
-    return out
+    cheb = np.polynomial.chebyshev
+    return [x for x in _roots(cheb.chebder(c), 0.0) if -1 < x < 1 and abs(cheb.chebval(x, c)) <= DIP]
 
 
 def _roots(c, floor):
     """The real roots in [-1, 1] of the Chebyshev series ``c`` (its coefficients below ``floor`` at the top
     dropped), as floats; none for a constant."""
-    k = len(c)
-    while k > 1 and abs(c[k - 1]) <= floor:
-        k -= 1
-    if k <= 1:
+    c = _trimmed(c, floor)
+    if len(c) <= 1:
         return []
     try:
-        r = np.polynomial.chebyshev.chebroots(c[:k])
+        r = np.polynomial.chebyshev.chebroots(c)
     except np.linalg.LinAlgError:  # pragma: no cover - the samples' sign changes still give brackets
         return []
     out = []
