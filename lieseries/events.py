@@ -14,7 +14,7 @@ from __future__ import annotations
 import heyoka as hy
 
 from .expr import uses_time
-from .poisson import binary_constants
+from .expr.rewrite import binary_constants
 from .precision import warn_if_coarse
 
 __all__ = ["Event", "resolve_events"]

@@ -11,7 +11,7 @@ from fractions import Fraction
 import heyoka as hy
 import sympy as sp
 
-from ..poisson import expand_integer_powers
+from ..expr.rewrite import expand_integer_powers
 
 __all__ = ["assemble_intermediate", "assemble_dirac", "HeyokaConverter", "large_field", "model_parameters",
            "heyoka_tensor", "LARGE_FIELD_NODES"]
