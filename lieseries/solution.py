@@ -252,14 +252,6 @@ def _read_only_stats(stats):
     return types.MappingProxyType({k: _read_only(v) for k, v in dict(stats).items()})
 
 
-def as_float_array(values) -> np.ndarray:
-    """A float64 copy of an array in any precision (for plotting and tables)."""
-    arr = np.asarray(values)
-    if arr.dtype == np.float64:
-        return arr
-    return np.vectorize(float, otypes=[np.float64])(arr) if arr.size else arr.astype(np.float64)
-
-
 class MemberEvents(tuple):
     """An ensemble's events: one ``{name: {"t": times, "y": states}}`` per member (``events[i]``), a tuple (the
     ensemble is immutable: a list let members be appended or replaced). Indexing it by an event's name says how

@@ -271,13 +271,6 @@ class Program:
             f"nodes={len(self.nodes)}, constants={len(self.constants)})"
         )
 
-    def op_counts(self):
-        """Number of nodes of each operation (dict op -> count)."""
-        counts = {}
-        for n in self.nodes:
-            counts[n.op] = counts.get(n.op, 0) + 1
-        return counts
-
     def describe(self):
         """Human-readable listing of the program (one line per slot)."""
         lines = []

@@ -367,15 +367,6 @@ class RationalLieOperator:
             out.append(cur)
         return out
 
-    def to_expr(self, P, e):
-        """sympy expression of ``P / q**e``."""
-        num = P.as_expr()
-        den = sympy.Integer(1)
-        for q, ej in zip(self.factors, e):
-            if ej:
-                den *= q.as_expr() ** ej
-        return num / den
-
 
 def _rational_operator(names, rhs, pars_sym):
     """RationalLieOperator with parameters replaced by `pars_sym` (or kept)."""

@@ -132,11 +132,6 @@ class Precision:
         return math.ldexp(1.0, 1 - self.bits)
 
     @property
-    def eps_mpf(self) -> mp.mpf:
-        """Machine epsilon as an exact mpmath number."""
-        return mp.mpf(2) ** (1 - self.bits)
-
-    @property
     def dps(self) -> int:
         """Decimal digits carried by this precision."""
         return self.digits if self.digits is not None else bits_to_dps(self.bits)
