@@ -50,7 +50,7 @@ JACOBI_AUTO_DIMENSION = 6
 WIDER_SAMPLES = ((-1300, 1300), (-130, 130), (1300, 13000), (-13000, 13000), (13000, 130000), (-130000, 130000))
 
 #: Compiled mpmath programs of vector fields, by structural key (shared by equal structures).
-_PROGRAMS = cache.region("poisson.programs", 64)
+_PROGRAMS = cache.region("poisson.programs", 128)  # per structure: the field as simplified and as written
 
 
 def _is_zero(e) -> bool:
@@ -584,14 +584,19 @@ class PoissonSystem:
         :func:`~lieseries.expr.compile_expressions` ``as_written``), for bounds of heyoka's roundings; the
         :attr:`program` where it cannot be compiled so."""
         prog = getattr(self, "_written", None)
-        if prog is None:
-            from .expr import compile_expressions
+        if prog is None:  # once per structure (sympy without evaluation: 1.4-1.8 s for a heavy top's intermediate
+            # form, which a model built again, or each ls.integrate of a new system object, paid anew)
+            wkey = (self.key, "as written")
+            prog = _PROGRAMS.get(wkey)
+            if prog is None:
+                from .expr import compile_expressions
 
-            try:
-                prog = compile_expressions(self._variables, [e for _, e in self.ode_system], len(self._param_values),
-                                           as_written=True)
-            except (NotImplementedError, ValueError, TypeError, AttributeError):  # pragma: no cover - defensive
-                prog = self.program
+                try:
+                    prog = compile_expressions(self._variables, [e for _, e in self.ode_system],
+                                               len(self._param_values), as_written=True)
+                except (NotImplementedError, ValueError, TypeError, AttributeError):  # pragma: no cover - defensive
+                    prog = self.program
+                prog = _PROGRAMS.put(wkey, prog)
             self._written = prog
         return prog
 
