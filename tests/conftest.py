@@ -24,11 +24,13 @@ def precision(request):
 
 @pytest.fixture(scope="session", autouse=True)
 def heyoka_cache_bound():
-    """The suite's own heyoka cache keeps its least recently used GiB (the check on opening reads it whole)."""
+    """The suite's own heyoka cache keeps its most recently used 512 MiB: the check on opening reads what it keeps
+    (measured: 0.3 s of CPU for each process of the suite that compiles with 1 GiB kept, 0.14 s with 512 MiB), and
+    a run of the default suite uses 130 MiB of it (629 compiled functions)."""
     import heyoka
 
     if str(heyoka.llvm_state.get_diskcache_path()) == SUITE_HEYOKA_CACHE:
-        heyoka.llvm_state.set_diskcache_limit(2**30)
+        heyoka.llvm_state.set_diskcache_limit(2**29)
 
 
 def rng(seed=0):

@@ -383,16 +383,22 @@ def test_rigid_body_dirac_tensor_assembled_numerically_equals_the_definition_at_
     n, m = len(q), len(chi)
     z = q + p
 
-    def canonical(f, g):
-        return sum(sp.diff(f, q[a]) * sp.diff(g, p[a]) - sp.diff(f, p[a]) * sp.diff(g, q[a]) for a in range(n))
-
     values = {sp.Symbol(f"g{i + 1}", real=True): sp.Rational(v) for i, v in enumerate(("5/2", "3/2", "1/2"))}
     R = _rotation(*(Fraction(v) for v in (3, 1, -2, 1, 1)))
     mom = [Fraction(v, 7) for v in (3, -5, 2, 9, -1, 4, -6, 8, 1)]
     point = [x for row in R for x in row] + mom
     at = {s: sp.Rational(v) for s, v in zip(z, point)}
-    C = sp.Matrix(m, m, lambda a, b: canonical(chi[a], chi[b]).xreplace(at).xreplace(values))
-    Z = sp.Matrix(2 * n, m, lambda i, a: canonical(z[i], chi[a]).xreplace(at).xreplace(values))
+
+    def gradient(f):  # (df/dq, df/dp) at the point, exact
+        return [[sp.diff(f, v).xreplace(at).xreplace(values) for v in vs] for vs in (q, p)]
+
+    def canonical(f, g):  # the canonical bracket at the point, from the gradients there
+        (fq, fp), (gq, gp) = f, g
+        return sum(fq[a] * gp[a] - fp[a] * gq[a] for a in range(n))
+
+    dchi, dz = [gradient(c) for c in chi], [gradient(v) for v in z]
+    C = sp.Matrix(m, m, lambda a, b: canonical(dchi[a], dchi[b]))
+    Z = sp.Matrix(2 * n, m, lambda i, a: canonical(dz[i], dchi[a]))
     ref = -Z * C.inv() * (-Z.T)
     for i in range(n):
         ref[i, i + n] += 1

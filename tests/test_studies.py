@@ -279,15 +279,20 @@ def test_heavy_top_is_measured_against_its_own_motion_not_the_free_body():
     assert theoretical_radius(top, y0) is None
 
 
-def test_error_against_order_above_300_digits_fits_down_to_its_own_floor():
+@pytest.fixture(scope="module")
+def rigid_error_vs_order_400():
+    """The rigid body's error against order at t = 0.1 and 400 digits (errors down to 2.5e-402), once for the
+    module."""
+    body = ls.EulerPoisson((1, 2, 3))
+    y0 = body.initial_state(omega=(1, "0.1", "0.5"))
+    return body, y0, error_vs_order(body, y0, "0.1", [40, 80, 120, 160, 200, 240, 280], dps=400)
+
+
+def test_error_against_order_above_300_digits_fits_down_to_its_own_floor(rigid_error_vs_order_400):
     """At 400 digits the floor 100 x 10^-400 and errors of 1e-352 are below a float's range: as floats they were
     0.0 (the floor) and dropped (the errors), so the fit stopped at 1e-294. Independent check: the rate of the
     rigid body's series at t = 0.1 against the distance of the closed form's nearest complex-time pole."""
-    from lieseries.studies import error_vs_order
-
-    body = ls.EulerPoisson((1, 2, 3))
-    y0 = body.initial_state(omega=(1, "0.1", "0.5"))
-    ev = error_vs_order(body, y0, "0.1", [40, 80, 120, 160, 200, 240, 280], dps=400)
+    body, y0, ev = rigid_error_vs_order_400
     assert 0 < ev.floor < mp.mpf(10) ** -397
     assert 240 in ev.fit_orders and 280 not in ev.fit_orders  # 1.1e-352 above the floor; 2.5e-402 below it
     from lieseries.studies.reference import theoretical_radius
@@ -296,13 +301,13 @@ def test_error_against_order_above_300_digits_fits_down_to_its_own_floor():
     assert abs(0.1 * 10 ** (-ev.rate) / rho - 1) < 0.01
 
 
-def test_error_against_order_plot_draws_errors_below_a_doubles_range(monkeypatch, tmp_path):
+def test_error_against_order_plot_draws_errors_below_a_doubles_range(monkeypatch, tmp_path, rigid_error_vs_order_400):
     """The plot of a 400-digit error-against-order study left out every error below 1e-308 (0.0 as a float on a
     log axis): the orders 240 and 280 (1e-352, 2.5e-402) were not drawn. The axis shows log10 there."""
-    from lieseries.studies import convergence, error_vs_order
+    from lieseries.studies import convergence
 
-    body = ls.EulerPoisson((1, 2, 3))
-    ev = error_vs_order(body, body.initial_state(omega=(1, "0.1", "0.5")), "0.1", [40, 160, 240, 280], dps=400)
+    ev = rigid_error_vs_order_400[2]
+    assert ev.errors[-2] < mp.mpf(10) ** -340 and ev.errors[-1] < mp.mpf(10) ** -400  # the orders 240 and 280
     figures = []
     monkeypatch.setattr(convergence, "save_figure", lambda plt, fig, path: figures.append(fig))
     convergence.ErrorVsOrderStudy().plot([("rigid body", ev)], tmp_path / "x.png", None)
