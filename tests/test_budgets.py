@@ -20,3 +20,18 @@ def test_lie_series_max_time():
     with pytest.raises(ValueError, match="`max_time`"):
         ls.lie_series(BODY, Y0, order=4, max_time=-1)
     assert ls.lie_series(BODY, Y0, order=4, max_time=60).order == 4
+
+
+def test_lie_integrate_dense_max_time_bounds_the_call():
+    """A dense run ~100 times beyond its budget stops `time_budget` and returns within the budget and a margin:
+    its dense output (every step's polynomial, exported) is built as the steps go, inside the budget, not after
+    (it took as long as the run itself)."""
+    budget = 0.3
+    start = time.perf_counter()
+    sol = ls.lie_integrate(BODY, Y0, 1e4, dps=30, max_time=budget, dense=True)
+    elapsed = time.perf_counter() - start
+    assert sol.status == "time_budget", sol.message
+    assert elapsed < 1.5 * budget + 0.1, elapsed
+    t_mid = sol.t_reached / 2
+    ref = ls.lie_integrate(BODY, Y0, t_mid, dps=30)
+    assert max(abs(a - b) for a, b in zip(sol(t_mid), ref.y[-1])) < 1e-20

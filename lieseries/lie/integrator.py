@@ -360,8 +360,8 @@ class _LieEngine:
             h = abs(hs)
             znew, tnew = horner(coeffs, hs), stop
             lh = _log2(h) if h else -math.inf
-        if self.segments is not None:
-            self.segments.append((tcur, tnew, coeffs))
+        if self.segments is not None:  # (exported here, inside the time budget: as long as the step itself)
+            self.segments.append((export_mpf(tcur), export_mpf(tnew), export_mpf(coeffs)))
         ratio = 2.0 ** (lh - lrho) if lrho != math.inf else 0.0
         self.max_ratio = ratio if self.max_ratio is None else max(self.max_ratio, ratio)
         if stop is not None:
@@ -603,7 +603,7 @@ class _Dense:
     """``sol(t)`` of a Lie-series run: every step's polynomial (picklable)."""
 
     def __init__(self, segments, dps, sgn):
-        self.segments = [(export_mpf(a), export_mpf(b), export_mpf(c)) for a, b, c in segments]
+        self.segments = segments  # (start, end, coefficients), plain mpmath numbers
         self.dps = dps
         self.sgn = sgn
 
