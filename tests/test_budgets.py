@@ -2,6 +2,7 @@
 
 import time
 
+import numpy as np
 import pytest
 
 import lieseries as ls
@@ -35,3 +36,18 @@ def test_lie_integrate_dense_max_time_bounds_the_call():
     t_mid = sol.t_reached / 2
     ref = ls.lie_integrate(BODY, Y0, t_mid, dps=30)
     assert max(abs(a - b) for a, b in zip(sol(t_mid), ref.y[-1])) < 1e-20
+
+
+@pytest.mark.parametrize("engine", ["integrate", "lie_integrate", "validated_integrate"])
+def test_max_time_counts_the_output_times(engine):
+    """max_time bounds the call, the conversion and checks of a long grid of output times included (they were
+    counted apart, and a run with 30001 output times returned after ~1.7 times its budget)."""
+    budget = 0.25
+    grid = np.linspace(0, 1e4, 30001)
+    if engine == "integrate":
+        ls.integrate(BODY, Y0, 1.0)  # (the one-off compilation, which max_time does not bound)
+    start = time.perf_counter()
+    sol = getattr(ls, engine)(BODY, Y0, grid, max_time=budget)
+    elapsed = time.perf_counter() - start
+    assert sol.status == "time_budget", sol.message
+    assert elapsed < 1.5 * budget + 0.1, elapsed

@@ -79,10 +79,12 @@ def execute_general(call, progress, started):
             out.status, out.message = energy_verdict(call.energy, plan["sqrt_tol"], out.z, out.steps, out.status,
                                                      out.message)
 
+    converted, call.convert_seconds = call.convert_seconds, 0.0  # (the first run's: max_time counts it)
     try:
         out = drive(engine, t0_native, y0_native, [(g, g) for g in grid_native], direction=direction,
                     max_steps=call.max_steps, max_time=call.max_time, progress=progress, kept=KEPT_ROWS,
-                    start=_time.perf_counter() - (started[2] if started is not None else 0.0), guard=energy)
+                    start=_time.perf_counter() - converted - (started[2] if started is not None else 0.0),
+                    guard=energy)
         if out.status == "event" and engine.guard is not None and engine.user_stop():
             engine.guard.at_stop(ta, direction > 0)
     finally:
