@@ -27,7 +27,7 @@ def run(system, engine, t, events):
 @pytest.mark.parametrize("engine, bound", ENGINES)
 def test_crossing_at_the_final_time(engine, bound):
     """q = t against q - 1 with t = 1: recorded, and a terminal one ends the run `event` at t = 1; the other way
-    than a one-way event's direction, nothing."""
+    than a one-way event's direction, nothing; backward to t = -1 against q + 1 alike."""
     plain = run(FREE, engine, 1, [ls.Event(q - 1, name="hit")])
     assert plain.status == "success", plain.message
     assert [to_fraction(x) for x in plain.events["hit"]["t"]] == [1]
@@ -38,6 +38,8 @@ def test_crossing_at_the_final_time(engine, bound):
     assert to_fraction(stop.t_reached) == 1
     other = run(FREE, engine, 1, [ls.Event(q - 1, direction=-1, terminal=True, name="hit")])
     assert other.status == "success" and len(other.events["hit"]["t"]) == 0, other.message
+    back = run(FREE, engine, -1, [ls.Event(q + 1, direction=1, terminal=True, name="hit")])  # (q rises in time)
+    assert back.status == "event" and [to_fraction(x) for x in back.events["hit"]["t"]] == [-1], back.message
 
 
 @pytest.mark.parametrize("engine, bound", ENGINES)
