@@ -41,13 +41,16 @@ def test_lie_integrate_dense_max_time_bounds_the_call():
 @pytest.mark.parametrize("engine", ["integrate", "lie_integrate", "validated_integrate"])
 def test_max_time_counts_the_output_times(engine):
     """max_time bounds the call, the conversion and checks of a long grid of output times included (they were
-    counted apart, and a run with 30001 output times returned after ~1.7 times its budget)."""
-    budget = 0.25
-    grid = np.linspace(0, 1e4, 30001)
+    counted apart: 60001 output times and max_time = 0.4 s returned after 0.67-0.77 s)."""
+    budget = 0.4
+    grid = np.linspace(0, 1e6, 60001)
     if engine == "integrate":
         ls.integrate(BODY, Y0, 1.0)  # (the one-off compilation, which max_time does not bound)
     start = time.perf_counter()
-    sol = getattr(ls, engine)(BODY, Y0, grid, max_time=budget)
+    try:
+        sol = getattr(ls, engine)(BODY, Y0, grid, max_time=budget)
+        assert sol.status == "time_budget", sol.message
+    except ValueError as err:  # (a loaded machine: the conversion alone is projected beyond the budget)
+        assert "`t` asks for 60001 output times" in str(err) and "`max_time`" in str(err)
     elapsed = time.perf_counter() - start
-    assert sol.status == "time_budget", sol.message
-    assert elapsed < 1.5 * budget + 0.1, elapsed
+    assert elapsed < 1.4 * budget + 0.1, elapsed
