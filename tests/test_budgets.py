@@ -1,15 +1,117 @@
-"""Budgets that bound: a job far beyond its budget stops within the budget and a small margin, saying so."""
+"""``max_time`` bounds a run even when one step would take far longer than the budget: the expansion inside the
+step reads the clock after every order, and the run ends with status ``time_budget`` and the rows it had. A job far
+beyond its budget stops within the budget and a small margin, saying so (``lie_series`` too)."""
 
 import time
+from fractions import Fraction
 
-import pytest
+import flint
 
 import lieseries as ls
-
+from lieseries.lie.integrator import lie_integrate
+from lieseries.precision import to_fraction
+from lieseries.validated import validated_integrate, working_precision
 from problems import RIGID_INERTIA, RIGID_OMEGA, rigid_error
 
-BODY = ls.EulerPoisson(RIGID_INERTIA)
-Y0 = BODY.initial_state(RIGID_OMEGA)
+# one step of the rigid body at 1000 digits (order 1153) takes ~10 s with the fixed-point jets (at 400 digits, under a
+# second); the budget is a quarter of a second, 1/40 of the step and far above what comes before it (with a budget
+# of 1e-6 s the run ends after 0.8 ms)
+DPS, BUDGET = 1000, 0.25
+
+
+def _body():
+    body = ls.EulerPoisson(RIGID_INERTIA)
+    return body, body.initial_state(omega=RIGID_OMEGA)
+
+
+def test_validated_stops_inside_a_long_step_with_the_rows_proved():
+    body, y0 = _body()
+    sol = validated_integrate(body, y0, t=[0, Fraction(1, 2)], dps=DPS, max_time=BUDGET)
+    assert sol.status == "time_budget" and "`max_time`" in sol.message
+    assert sol.t_reached == 0 and sol.stats.steps == 0  # stopped inside the first step, not after it
+    assert list(sol.t) == [0.0]
+    with working_precision(5000):
+        assert all(b.contains(flint.arb(flint.fmpq(q.numerator, q.denominator))) and b.rad() < flint.arb(10) ** -DPS
+                   for b, q in zip(sol.y[0], y0.exact))
+
+
+def test_lie_integrate_stops_inside_a_long_step_with_the_rows_it_has():
+    body, y0 = _body()
+    sol = lie_integrate(body, y0, t=[0, Fraction(1, 2)], dps=DPS, max_time=BUDGET)
+    assert sol.status == "time_budget" and "`max_time`" in sol.message
+    assert sol.t_reached == 0 and sol.stats.steps == 0
+    assert list(sol.t) == [0.0]
+    # the t0 row is y0 rounded to the run's digits
+    assert all(abs(to_fraction(v) - q) <= Fraction(1, 10**DPS) for v, q in zip(sol.y[0], y0.exact))
+
+
+# --- the exact conversion of output times is inside `max_time` --------------------------------------------------
+
+import numpy as np
+import pytest
+
+from lieseries.timegrid import CHUNK, parse_times
+
+# a grid whose exact conversion takes tenths of a second, against a budget far below it
+GRID_N, TINY_BUDGET = 5 * CHUNK, 1e-4
+
+
+@pytest.mark.parametrize("engine", ["integrate", "lie_integrate", "validated_integrate", "ensemble"])
+def test_a_grid_that_cannot_be_converted_within_max_time_is_refused_naming_t(engine):
+    body, y0 = _body()
+    grid = [Fraction(k, GRID_N) for k in range(GRID_N)]  # a list: the general, per-number path
+    kwargs = dict(max_time=TINY_BUDGET)
+    call = {
+        "integrate": lambda: ls.integrate(body, y0, grid, **kwargs),
+        "lie_integrate": lambda: lie_integrate(body, y0, grid, dps=20, **kwargs),
+        "validated_integrate": lambda: validated_integrate(body, y0, grid, dps=20, **kwargs),
+        "ensemble": lambda: ls.integrate(body, [y0, y0], grid, **kwargs),
+    }[engine]
+    with pytest.raises(ValueError, match=r"`t` asks for %d output times.*`max_time`" % GRID_N):
+        call()
+
+
+@pytest.mark.parametrize("as_array", [False, True])
+def test_a_grid_converted_within_max_time_is_whole_and_exact(as_array):
+    # the conversion goes chunk by chunk: nothing is dropped at the chunk boundaries, every time is exact
+    values = np.linspace(0, 3, 2 * CHUNK + 7)
+    grid, direction, t0 = parse_times(values if as_array else values.tolist(), max_time=600)
+    assert direction == 1 and t0 == 0 and len(grid) == values.size
+    assert all(g == Fraction(*v.as_integer_ratio()) for g, v in zip(grid, values.tolist()))
+    # a grid that turns back inside the second chunk is still refused
+    bad = values.copy()
+    bad[CHUNK + 3] = bad[CHUNK + 1]
+    with pytest.raises(ValueError, match="strictly increasing"):
+        parse_times(bad if as_array else bad.tolist(), max_time=600)
+
+
+@pytest.mark.parametrize("engine", ["integrate", "lie_integrate"])
+def test_the_output_memory_estimate_counts_every_value_of_a_row(engine, monkeypatch):
+    """A grid is sized by its rows (12 values per time for the rigid body), not by one value per time: 200 times
+    of 12 doubles are ~118 kB by the estimate's own rule (2 x 12 x 8 + 400 bytes per time), one value per time
+    would be 83 kB."""
+    from lieseries import timegrid
+
+    monkeypatch.setattr(timegrid, "MAX_OUTPUT_BYTES", 100_000)
+    body, y0 = _body()
+    grid = [Fraction(k, 200) for k in range(1, 201)]
+    run = ls.integrate if engine == "integrate" else lambda *a: lie_integrate(*a, dps=20)
+    with pytest.raises(ValueError, match=r"`t` asks for 200 output times.*\(12 values of"):
+        run(body, y0, grid)
+
+
+@pytest.mark.parametrize("max_steps", [None, 10**5])
+def test_a_time_that_does_not_advance_ends_the_run(max_steps):
+    """At 3 bits, t = 8 plus a step of 0.08 rounds to 8 (heyoka's double-length time too): the run stepped on in
+    place until the default budget of 5e7 steps (minutes), or with `max_steps` said "raise `max_steps` to go on",
+    which never would. A chunk of steps that leaves the time where it was ends the run, saying why."""
+    import heyoka as hy
+
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], (q**2 + p**2) / 2, name="oscillator")
+    sol = ls.integrate(osc, [1, 0], t=10, precision=3, max_steps=max_steps)
+    assert sol.status == "step_collapse" and "the time does not advance" in sol.message, sol.message
+    assert sol.t_reached == 8 and sol.stats.steps < 10**4
 
 
 def test_lie_series_max_time():
@@ -17,11 +119,11 @@ def test_lie_series_max_time():
     reached) within the budget and one order's work, and returns no shorter series."""
     start = time.perf_counter()
     with pytest.raises(TimeoutError, match=r"time_budget: `max_time` = 0\.2 s ran out .* at order \d+ of 2000"):
-        ls.lie_series(BODY, Y0, order=2000, dps=3000, max_time=0.2)
+        ls.lie_series(*_body(), order=2000, dps=3000, max_time=0.2)
     assert time.perf_counter() - start < 2.0
     with pytest.raises(ValueError, match="`max_time`"):
-        ls.lie_series(BODY, Y0, order=4, max_time=-1)
-    assert ls.lie_series(BODY, Y0, order=4, max_time=60).order == 4
+        ls.lie_series(*_body(), order=4, max_time=-1)
+    assert ls.lie_series(*_body(), order=4, max_time=60).order == 4
 
 
 def test_lie_integrate_dense_max_time_bounds_the_call():
@@ -30,7 +132,7 @@ def test_lie_integrate_dense_max_time_bounds_the_call():
     (it took as long as the run itself)."""
     budget = 0.3
     start = time.perf_counter()
-    sol = ls.lie_integrate(BODY, Y0, 1e4, dps=30, max_time=budget, dense=True)
+    sol = ls.lie_integrate(*_body(), 1e4, dps=30, max_time=budget, dense=True)
     elapsed = time.perf_counter() - start
     assert sol.status == "time_budget", sol.message
     assert elapsed < 1.6 * budget + 0.1, elapsed  # (it took 0.68-0.72 s: 2.3 times its budget)
