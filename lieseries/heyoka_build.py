@@ -195,6 +195,25 @@ class CrossingGuard:
         self.recovered += len(added)
 
 
+    def at_stop(self, ta, forward: bool):
+        """After a terminal event stopped the run at ``ta.time``: the crossings that happen at that very time --
+        within ``2^(-3 bits / 4)`` of the last step after it, where the roots of two expressions crossing together
+        fall on either side by rounding -- are recorded as well (heyoka's step ended at the terminal root, and
+        lie_integrate records them too)."""
+        h = abs(float(ta.last_h)) if np.isfinite(float(ta.last_h)) else 0.0
+        t_s = ta.time
+        width = h * 2.0 ** (-3 * self.bits / 4)
+        if not width:
+            return
+        t_b = t_s + (width if forward else -width)
+        for i, rec in enumerate(self.recorders):
+            if any(abs(float(t - t_s)) <= width for t, _ in rec.sink):
+                continue
+            mark = len(rec.sink)
+            before = self.recovered
+            self._search(ta, i, rec, mark, t_s, t_b)
+            self.recovered = before  # (not missed by heyoka: beyond its step)
+
 class Both:
     """Two step callbacks in turn."""
 

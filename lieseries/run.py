@@ -7,7 +7,9 @@
 from __future__ import annotations
 
 import platform
+import re
 import time as _time
+import warnings
 from dataclasses import dataclass, field
 from fractions import Fraction
 
@@ -372,13 +374,63 @@ def run_scene(scene, quick: bool = False, progress=True, max_time=None) -> Scene
     -------
     SceneResult
     """
-    from .taylor import clear_cache
-
     scene = load_scene(scene)
     if max_time is not None:
         from .cost import check_scene_budget, estimate_scene
 
         check_scene_budget(estimate_scene(scene, quick), check_seconds(max_time, "max_time"), "`max_time`")
+    # every run of the scene warns of its binary numbers at its own precision: said once per number, at the end
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            return _run_scene(scene, quick, progress)
+    finally:
+        for category, message in scene_warnings(scene, caught):
+            warnings.warn(message, category, stacklevel=2)
+
+
+#: The words of a PrecisionWarning that differ from run to run of a scene: the run's precision.
+_RUN_BITS = re.compile(r"the run works with (\d+) bits")
+
+
+def scene_warnings(scene, caught) -> list:
+    """The distinct warnings of a scene's runs, ``[(category, message)]`` in order: a
+    :class:`~lieseries.precision.PrecisionWarning` that the runs gave at several precisions is given once (the
+    precisions named as "up to" the highest), and one about a binary number the scene holds says which field
+    of the scene it is and to write it as a string."""
+    from .precision import PrecisionWarning
+
+    groups: dict = {}
+    for w in caught:
+        text = str(w.message)
+        bits = _RUN_BITS.search(text) if issubclass(w.category, PrecisionWarning) else None
+        key = (w.category, _RUN_BITS.sub("", text) if bits else text)
+        top = groups.get(key, (None, 0))[1]
+        groups[key] = (text if key not in groups else groups[key][0], max(top, int(bits.group(1)) if bits else 0))
+    binary = scene.binary_inputs() if isinstance(scene, Scene) else {}
+    out = []
+    for (category, _), (text, top) in groups.items():
+        if issubclass(category, PrecisionWarning):
+            text = _RUN_BITS.sub(f"the scene's runs work with up to {top} bits", text)
+            fields = [path for path in binary if _names_field(text, path)]
+            if fields:
+                text += (" In the scene, write " + ", ".join(f"`{p}`" for p in fields) +
+                         ' as strings ("0.1", not 0.1) to mean the decimals exactly.')
+        out.append((category, text))
+    return out
+
+
+def _names_field(text: str, path: str) -> bool:
+    """Whether a warning's ``text`` is about the scene field at the dotted ``path`` (``model.g``, ``initial.x``):
+    it names its last part as an argument or a parameter."""
+    name = path.rsplit(".", 1)[-1].split("[")[0]
+    return any(f"{a}{name}{b}" in text for a, b in (("`", "`"), ("`", "["), ("['", "']"), ("`", "'")))
+
+
+def _run_scene(scene, quick, progress) -> SceneResult:
+    """:func:`run_scene` of a loaded scene within its budget."""
+    from .taylor import clear_cache
+
     # build times in the report are this scene's: start with the whole cache empty (integrators, ensemble
     # integrators, memoised calls, compiled programs and right-hand sides; heyoka's own LLVM memory cache is left
     # alone)

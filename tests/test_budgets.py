@@ -1,6 +1,8 @@
 """``max_time`` bounds a run even when one step would take far longer than the budget: the expansion inside the
-step reads the clock after every order, and the run ends with status ``time_budget`` and the rows it had."""
+step reads the clock after every order, and the run ends with status ``time_budget`` and the rows it had. A job far
+beyond its budget stops within the budget and a small margin, saying so (``lie_series`` too)."""
 
+import time
 from fractions import Fraction
 
 import flint
@@ -9,7 +11,7 @@ import lieseries as ls
 from lieseries.lie.integrator import lie_integrate
 from lieseries.precision import to_fraction
 from lieseries.validated import validated_integrate, working_precision
-from problems import RIGID_INERTIA, RIGID_OMEGA
+from problems import RIGID_INERTIA, RIGID_OMEGA, rigid_error
 
 # one step of the rigid body at 1000 digits (order 1153) takes ~10 s with the fixed-point jets (at 400 digits, under a
 # second); the budget is a quarter of a second, 1/40 of the step and far above what comes before it (with a budget
@@ -110,3 +112,30 @@ def test_a_time_that_does_not_advance_ends_the_run(max_steps):
     sol = ls.integrate(osc, [1, 0], t=10, precision=3, max_steps=max_steps)
     assert sol.status == "step_collapse" and "the time does not advance" in sol.message, sol.message
     assert sol.t_reached == 8 and sol.stats.steps < 10**4
+
+
+def test_lie_series_max_time():
+    """Order 2000 at 3000 digits takes minutes; with max_time=0.2 it raises TimeoutError (time_budget, the order
+    reached) within the budget and one order's work, and returns no shorter series."""
+    start = time.perf_counter()
+    with pytest.raises(TimeoutError, match=r"time_budget: `max_time` = 0\.2 s ran out .* at order \d+ of 2000"):
+        ls.lie_series(*_body(), order=2000, dps=3000, max_time=0.2)
+    assert time.perf_counter() - start < 2.0
+    with pytest.raises(ValueError, match="`max_time`"):
+        ls.lie_series(*_body(), order=4, max_time=-1)
+    assert ls.lie_series(*_body(), order=4, max_time=60).order == 4
+
+
+def test_lie_integrate_dense_max_time_bounds_the_call():
+    """A dense run ~100 times beyond its budget stops `time_budget` and returns within the budget and a margin:
+    its dense output (every step's polynomial, exported) is built as the steps go, inside the budget, not after
+    (it took as long as the run itself)."""
+    budget = 0.3
+    start = time.perf_counter()
+    sol = ls.lie_integrate(*_body(), 1e4, dps=30, max_time=budget, dense=True)
+    elapsed = time.perf_counter() - start
+    assert sol.status == "time_budget", sol.message
+    assert elapsed < 1.6 * budget + 0.1, elapsed  # (it took 0.68-0.72 s: 2.3 times its budget)
+    t_mid = sol.t_reached / 2  # (the dense output against the closed form)
+    assert rigid_error(sol(t_mid), t_mid, dps=40) < 1e-20
+

@@ -436,3 +436,20 @@ def test_a_part_that_cannot_be_priced_leaves_a_lower_bound_not_an_error(monkeypa
     est = cost.estimate_scene("departure-map", quick=True)
     assert est.lower_bound and est.summary().startswith("estimated at least ")
     assert any("not estimated (RuntimeError: calibration failed)" in p.what for p in est.parts)
+
+
+def test_run_warns_of_a_binary_scene_number_once(tmp_path, recwarn):
+    """A binary float in a scene feeds every run at its own precision: one PrecisionWarning per number and CLI
+    invocation (not one per run, differing only in the bits), naming the scene field and what to write."""
+    from lieseries.precision import PrecisionWarning
+
+    path = tmp_path / "binary.toml"
+    path.write_text(
+        'name = "binary"\ntitle = "a file"\n[model]\nkind = "sphere_dirac"\n[initial]\nx = [0.6, 0.8, 0]\n'
+        'v = [0, 0, 1]\n[run]\nt = 1\nmethods = [{ method = "taylor", precision = "double" }, '
+        '{ method = "taylor", precision = "quad" }, { method = "lie", dps = 20 }]\n'
+    )
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--no-progress", "--quick"]) == 0
+    found = [str(w.message) for w in recwarn if issubclass(w.category, PrecisionWarning)]
+    assert len(found) == 1, found
+    assert "up to 113 bits" in found[0] and "write `initial.x[0]`, `initial.x[1]` as strings" in found[0], found[0]

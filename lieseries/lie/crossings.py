@@ -84,8 +84,8 @@ class UserEvents:
         return self.prog.evaluate(at(tau), self.pars, mp.dps, mp_context())
 
     def step(self, at, t0, hs, sgn):
-        """Record the crossings in (t0, t0 + hs] of the step whose polynomial ``at(tau)`` evaluates; the time of
-        the first terminal one, or None."""
+        """Record the crossings in (t0, t0 + hs] of the step whose polynomial ``at(tau)`` evaluates, up to the
+        first terminal one (the non-terminal crossings at its very time included); its time, or None."""
         pieces = self._pieces(at, mp.mpf(0), hs, 0)
         hits = []
         for i, (name, _expr, direction, terminal) in enumerate(self.events):
@@ -103,12 +103,17 @@ class UserEvents:
                         continue  # a sign change through a pole (1/M2), not a zero
                 hits.append((abs(tau), t0 + tau, name, terminal, tau))
         hits.sort(key=lambda h: h[0])
-        for _, t_hit, name, terminal, tau in hits:
+        stop = None
+        for key, t_hit, name, terminal, tau in hits:
+            # after the stop, not recorded; at the stop's own time (within 2^(-3 prec / 4) of the step, where
+            # the roots of two expressions crossing together fall by rounding, as in heyoka runs) recorded
+            if stop is not None and (terminal or key > stop[0] + abs(hs) * mp.ldexp(1, -3 * mp.prec // 4)):
+                continue
             self.found[name].append((t_hit, at(tau)))
-            if terminal:
+            if terminal and stop is None:
                 self.fired = f"the event {name!r} fired"
-                return t_hit
-        return None
+                stop = (key, t_hit)
+        return None if stop is None else stop[1]
 
     def _pieces(self, at, lo, hi, depth):
         """The pieces of [lo, hi] on which every event is resolved (halves, down to :data:`MAX_HALVINGS`): per

@@ -177,6 +177,7 @@ def lie_integrate(
                          dps=dps, tol=tol, order=order, max_steps=max_steps, max_time=max_time, guard=guard,
                          progress=progress, events=events)
     ps, model, z0, pars = prepare(system, y0)
+    tic = _time.perf_counter()
     grid, direction, t0f = parse_times(t, t0, max_time=max_time, values_per_time=ps.dimension,
                                        bytes_per_value=64 + prec.working_bits // 8)  # rows of mpf
     if direction:  # a step's length is rounded to |t| 2^-working_bits as it is added to the time
@@ -188,8 +189,10 @@ def lie_integrate(
     N, N_auto = _series_order(order, tolm, tol, prec)
     bits = coarse_bits(ps, y0, prec.bits, times=[t, t0])
 
+    built = _time.perf_counter()
     stepper = FixedStepper(ps.program, pars, N, prec)  # the jets in fixed-point big integers
-    start = _time.perf_counter()
+    # max_time bounds the call from the output times' conversion and checks on, but for the stepper's build
+    start = tic + (_time.perf_counter() - built)
     user_events = resolve_events(user_events_arg, system, ps, prec.bits)
     wdps = prec.working_dps
     with mp.workdps(wdps):
@@ -360,8 +363,8 @@ class _LieEngine:
             h = abs(hs)
             znew, tnew = horner(coeffs, hs), stop
             lh = _log2(h) if h else -math.inf
-        if self.segments is not None:
-            self.segments.append((tcur, tnew, coeffs))
+        if self.segments is not None:  # (exported here, inside the time budget: as long as the step itself)
+            self.segments.append((export_mpf(tcur), export_mpf(tnew), export_mpf(coeffs)))
         ratio = 2.0 ** (lh - lrho) if lrho != math.inf else 0.0
         self.max_ratio = ratio if self.max_ratio is None else max(self.max_ratio, ratio)
         if stop is not None:
@@ -603,7 +606,7 @@ class _Dense:
     """``sol(t)`` of a Lie-series run: every step's polynomial (picklable)."""
 
     def __init__(self, segments, dps, sgn):
-        self.segments = [(export_mpf(a), export_mpf(b), export_mpf(c)) for a, b, c in segments]
+        self.segments = segments  # (start, end, coefficients), plain mpmath numbers
         self.dps = dps
         self.sgn = sgn
 

@@ -21,16 +21,19 @@ that tolerates coefficients that vanish by symmetry). For |t| >= rho the series 
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from ..models.base import Model, state_fractions
 from .jets import taylor_coefficients
-from .plan import radius_from_logs
+from .plan import DeadlineExceeded, radius_from_logs
 from ..poisson import as_poisson_system
 from ..precision import (
     LIE_GUARD_DIGITS,
     check_dps,
     check_order,
+    check_seconds,
     data_bits,
     dps_to_bits,
     export_mpf,
@@ -202,7 +205,7 @@ class LieSeries:
         return f"LieSeries(order={self.order}, dps={self.dps}, radius~{mp.nstr(self._radius, 5)})"
 
 
-def lie_series(system, y0, order: int = 20, dps: int = 30) -> LieSeries:
+def lie_series(system, y0, order: int = 20, dps: int = 30, *, max_time: float | None = None) -> LieSeries:
     """The truncated Lie series exp(t X_H) y0 of a model or PoissonSystem, in mpmath.
 
     Parameters
@@ -217,6 +220,11 @@ def lie_series(system, y0, order: int = 20, dps: int = 30) -> LieSeries:
         Truncation order N: coefficients c_0..c_N.
     dps : int in [precision.MIN_DPS, precision.MAX_DPS]
         Decimal digits of the result (the computation carries 10 guard digits).
+    max_time : float, optional
+        Wall-time budget in seconds, as :func:`lieseries.lie_integrate`'s: the clock is read after every order,
+        and once the budget is spent a :class:`TimeoutError` (``time_budget``, with the order reached) is raised
+        -- a series of lower order than asked is never returned. The costly order 2000 at 3000 digits takes
+        minutes.
 
     Examples
     --------
@@ -226,12 +234,21 @@ def lie_series(system, y0, order: int = 20, dps: int = 30) -> LieSeries:
     >>> series.error_estimate(0.5)  # truncation error estimate
     """
 
+    start = time.perf_counter()
     order = check_order(order)
     dps = check_dps(dps)
+    max_time = check_seconds(max_time, "max_time")
     ps, _model, z0, pars = prepare(system, y0)
     bits = coarse_bits(ps, y0, dps_to_bits(dps))
-    with mp.workdps(dps + GUARD_DIGITS):
-        coeffs = taylor_coefficients(ps.program, z0, pars, order, dps + GUARD_DIGITS, mp_context())
+    deadline = None if max_time is None else start + max_time
+    try:
+        with mp.workdps(dps + GUARD_DIGITS):
+            coeffs = taylor_coefficients(ps.program, z0, pars, order, dps + GUARD_DIGITS, mp_context(),
+                                         deadline=deadline)
+    except DeadlineExceeded as exc:
+        raise DeadlineExceeded(exc.order, f"time_budget: `max_time` = {max_time:g} s ran out after "
+                               f"{time.perf_counter() - start:.3g} s, at order {exc.order} of {order} ({dps} "
+                               "digits); raise `max_time`, or ask a lower order or fewer digits") from None
     prec = dps_to_bits(dps)
     coeffs = [[export_mpf(c, prec) for c in ck] for ck in coeffs]
     return LieSeries(coeffs, order, dps, ps.names, data_bits=bits)

@@ -63,12 +63,13 @@ def _growth_radius(pts) -> float:
 MAX_GUARD_DIGITS = 1000
 
 
-class DeadlineExceeded(Exception):
+class DeadlineExceeded(TimeoutError):
     """An expansion passed its ``deadline`` (a :func:`time.perf_counter` value) before reaching its order: the
-    caller's wall-time budget ran out inside one step. ``order`` is the last order completed."""
+    caller's wall-time budget ran out inside one step. ``order`` is the last order completed. A
+    :class:`TimeoutError`: what :func:`lieseries.lie_series` raises when its ``max_time`` runs out."""
 
-    def __init__(self, order):
-        super().__init__(f"the deadline passed after order {order}")
+    def __init__(self, order, message=None):
+        super().__init__(message or f"the deadline passed after order {order}")
         self.order = order
 
 

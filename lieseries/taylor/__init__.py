@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import inspect
+import time as _time
 
 import numpy as np
 
@@ -154,7 +155,11 @@ def _new_call(system, ps, prec, y0, z0, t, t0, tol, events, dense, compact_mode,
     """A new :class:`~lieseries.taylor.call.Call` of checked arguments (``z0``: the exact state, the budgets
     checked), with its plan and its plain path set up."""
     user_events = resolve_events(events, system, ps, prec.bits)
+    tic = _time.perf_counter()
     plan = make_plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_events, max_time)
+    # the grid's conversion (a memoised plan's took place before: the time make_plan took bounds it) is part of
+    # the first run's wall-time budget
+    converted = min(plan["convert_seconds"], _time.perf_counter() - tic)
     call = Call(
         system=system, y0=y0, ps=ps, prec=prec, plan=plan, user_events=user_events,
         y0_native=y0.native(prec) if type(y0) is ExactState else prec.array(z0, "y0"),
@@ -162,6 +167,7 @@ def _new_call(system, ps, prec, y0, z0, t, t0, tol, events, dense, compact_mode,
         max_steps=max_steps, stiff_steps=stiff_steps, max_time=max_time, min_step=min_step, dense=dense,
         dtype=prec.numpy_dtype, first_chunk=FIRST_CHUNK.get(prec.name, FIRST_CHUNK_REAL),
     )
+    call.convert_seconds = converted
     call.repeat_chunk = repeat_chunk(prec, plan["build"][0], call.first_chunk)
     plain_setup(call)
     return call

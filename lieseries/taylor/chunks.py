@@ -21,7 +21,9 @@ table: how many steps finishing would take):
   again on its Taylor polynomial and the missing crossings are added (:class:`lieseries.heyoka_build.CrossingGuard`);
 - terminal events of the model (e.g. the edge of a sphere chart) end the run with their own status; a user's
   terminal event that stops the run again where it went on from (t0, a touch), without a step, ends it
-  ``step_collapse`` (heyoka's cooldown is 0 where the expression's rate vanishes too);
+  ``step_collapse`` (heyoka's cooldown is 0 where the expression's rate vanishes too); one whose zero is at
+  exactly the final time (heyoka's root finding leaves out a step's very end) ends the run ``event`` there
+  (:meth:`Chunks.end_crossing`), as in ``lie_integrate``;
 - a first step heyoka's rule cannot size (the last two orders of the series at y0 vanish in every component, or
   give a radius well above the lower orders': :func:`lieseries.heyoka_build.sparse_first_step`) is the first
   chunk, alone, bounded. The series is read from the run's own first step (its Taylor coefficients, the series at
@@ -104,6 +106,7 @@ class Chunks:
         self.between = False  # the last chunk used up its steps: the checks run before the next one
         self.user_terminal, self.terminal_check, self.touches = frozenset(), None, 0
         self.passed_at = None  # the time of the last user's terminal stop the run went on from (t0 or a touch)
+        self.end_fired = None  # the name of a user's terminal event that crossed at the final time (end_crossing)
         self.c_outs = []  # heyoka's continuous outputs, one per chunk (dense)
         self.queue = []  # (time, row) at the output times the steps so far covered, not yet taken by the driver
         self.chunk_start = self.t0
@@ -321,6 +324,10 @@ class Chunks:
         return (f"{short_decimal(left)} time units remain, about {short_decimal(steps)} steps at this step size",
                 steps > 10**15)
 
+    def user_stop(self) -> bool:
+        """The run stopped on a user's terminal event (at a root inside a step: not :meth:`end_crossing`)."""
+        return self.outcome is not None and self._at_user_event(self.outcome)
+
     def _at_user_event(self, outcome) -> bool:
         if outcome in _NOT_EVENTS:
             return False
@@ -351,6 +358,24 @@ class Chunks:
             self.touches += 1
             return True
         return bool(directions[j]) and (after - before) * directions[j] < 0  # (in time: t - delta is before t)
+
+    def end_crossing(self, directions):
+        """(index among the user's terminal events, note on the last step) of one whose expression is zero at the
+        final time, arrived at the way its ``direction`` allows (``directions``: theirs, in order), or None. heyoka's root finding
+        does not report a zero at the very end of a step that reached the final time; ``lie_integrate`` does, and
+        a crossing at exactly t_end is the user's: the run ends there ``event`` in every engine."""
+        if self.terminal_check is None or self.ta is None or not _finite(self.ta.last_h):
+            return None
+        fn, uses_pars, _base, bits, _ = self.terminal_check
+        ta = self.ta
+        at_end = fn(ta.state, pars=ta.pars) if uses_pars else fn(ta.state)
+        forward = self.direction
+        ta.update_d_output(ta.time - forward * abs(ta.last_h) * 2.0 ** (-bits / 4))
+        before = fn(ta.d_output, pars=ta.pars) if uses_pars else fn(ta.d_output)
+        for j, (v, b, d) in enumerate(zip(at_end, before, directions)):
+            if v == 0 and b != 0 and (not d or (-b if forward > 0 else b) * d > 0):
+                return j, self._note()
+        return None
 
     def _propagate(self, t_end, budget, callback, cap=None, write_tc=False):
         """A chunk of at most ``budget`` steps towards ``t_end``, each at most ``cap`` long when given."""

@@ -18,7 +18,7 @@ import time as _time
 import numpy as np
 
 from .. import cache
-from ..driver import KEPT_ROWS, drive
+from ..driver import KEPT_ROWS, drive, run_message
 from ..energy import energy_function, energy_verdict
 from ..heyoka_build import CrossingGuard, event_function
 from ..precision import to_fraction
@@ -63,17 +63,30 @@ def execute_general(call, progress, started):
         engine = Chunks(None, call, event_info)
 
     def energy(out):
+        # a terminal event's crossing at the final time ends the run `event` there (Chunks.end_crossing); else
         # the energy guard of a run that reached its final time (lieseries.energy)
+        terminal = [e for e in user_events if e[3]]
+        hit = engine.end_crossing([e[2] for e in terminal]) if terminal else None
+        if hit is not None:
+            engine.end_fired = terminal[hit[0]][0]
+            out.status = "event"
+            out.message = run_message("event", t=out.t, note=hit[1],
+                                      detail=f"the event {engine.end_fired!r} fired")
+            return
         if ps.is_hamiltonian:
             if call.energy is None:
                 call.energy = energy_function(ps, prec, y0_native)
             out.status, out.message = energy_verdict(call.energy, plan["sqrt_tol"], out.z, out.steps, out.status,
                                                      out.message)
 
+    converted, call.convert_seconds = call.convert_seconds, 0.0  # (the first run's: max_time counts it)
     try:
         out = drive(engine, t0_native, y0_native, [(g, g) for g in grid_native], direction=direction,
                     max_steps=call.max_steps, max_time=call.max_time, progress=progress, kept=KEPT_ROWS,
-                    start=_time.perf_counter() - (started[2] if started is not None else 0.0), guard=energy)
+                    start=_time.perf_counter() - converted - (started[2] if started is not None else 0.0),
+                    guard=energy)
+        if out.status == "event" and engine.guard is not None and engine.user_stop():
+            engine.guard.at_stop(ta, direction > 0)
     finally:
         if free is not None:
             _release(ta, free)
@@ -154,6 +167,8 @@ def _event_records(user_events, sinks, engine, out, event_info, prec, n) -> dict
         idx = int(engine.outcome.value)
         idx = -idx - 1 if idx < 0 else idx
         fired = event_info[idx][1] if 0 <= idx < len(event_info) else None
+    if out.status == "event" and engine.end_fired is not None:
+        fired = f"the event {engine.end_fired!r} fired"
     for name, _expr, _direction, terminal in user_events:
         if terminal:
             hit = fired == f"the event {name!r} fired"

@@ -13,6 +13,7 @@ inertia share one compiled integrator; only the parameter values are set per run
 from __future__ import annotations
 
 import math
+import time
 import warnings
 from fractions import Fraction
 
@@ -82,13 +83,16 @@ def make_plan(system, ps, prec, tol, t, t0, compact_mode, high_accuracy, user_ev
         if hit is not None and hit[0] is system:
             return hit[1]
     # a scalar t (the cached plans) has no grid; a grid's output is sized by its rows (n values per time)
+    tic = time.perf_counter()
     grid, direction, t0f = parse_times(t, t0, max_time=max_time, values_per_time=ps.dimension,
                                        bytes_per_value=48 + prec.bits // 8 if prec.is_real
                                        else np.dtype(prec.numpy_dtype).itemsize)
     tolf = check_tolerance(tol, prec)
     grid_native = [prec.time(g) for g in grid]
     grid_exact, t0_native = [to_fraction(g) for g in grid_native], prec.time(t0f)
+    converted = time.perf_counter() - tic  # (the grid's conversion: counted by the run's max_time)
     plan = dict(
+        convert_seconds=converted,
         grid=grid, direction=direction, t0f=t0f, tolf=tolf, grid_native=grid_native,
         grid_exact=grid_exact, t0_native=t0_native,
         span_loss=span_loss(grid, t0f, grid_exact, to_fraction(t0_native)),
