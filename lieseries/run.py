@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import platform
 import re
+import threading
 import time as _time
 import warnings
 from dataclasses import dataclass, field
@@ -368,7 +369,8 @@ def run_scene(scene, quick: bool = False, progress=True, max_time=None) -> Scene
     Notes
     -----
     The whole cache (:mod:`lieseries.cache`: compiled integrators, memoised calls, compiled programs) is cleared
-    first, so that the build times reported are those of this scene.
+    first, so that the build times reported are those of this scene. The runs' warnings are gathered and given
+    once each when the scene returns; scenes run one at a time in a process (calls from other threads wait).
 
     Returns
     -------
@@ -379,14 +381,22 @@ def run_scene(scene, quick: bool = False, progress=True, max_time=None) -> Scene
         from .cost import check_scene_budget, estimate_scene
 
         check_scene_budget(estimate_scene(scene, quick), check_seconds(max_time, "max_time"), "`max_time`")
-    # every run of the scene warns of its binary numbers at its own precision: said once per number, at the end
-    try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            return _run_scene(scene, quick, progress)
-    finally:
-        for category, message in scene_warnings(scene, caught):
-            warnings.warn(message, category, stacklevel=2)
+    # every run of the scene warns of its binary numbers at its own precision: said once per number, at the end.
+    # Python's warning capture is one for the whole process (two threads that overlap restore each other's and the
+    # later warnings of the process went to a finished scene's list, never shown), and a scene empties the whole
+    # cache as it starts: scenes run one at a time
+    caught = []
+    with _ONE_SCENE:
+        try:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                return _run_scene(scene, quick, progress)
+        finally:
+            for category, message in scene_warnings(scene, caught):
+                warnings.warn(message, category, stacklevel=2)
+
+
+_ONE_SCENE = threading.RLock()
 
 
 #: The words of a PrecisionWarning that differ from run to run of a scene: the run's precision.

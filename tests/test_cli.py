@@ -4,6 +4,7 @@ import io
 import math
 import subprocess
 import sys
+import warnings
 
 import pytest
 
@@ -453,3 +454,26 @@ def test_run_warns_of_a_binary_scene_number_once(tmp_path, recwarn):
     found = [str(w.message) for w in recwarn if issubclass(w.category, PrecisionWarning)]
     assert len(found) == 1, found
     assert "up to 113 bits" in found[0] and "write `initial.x[0]`, `initial.x[1]` as strings" in found[0], found[0]
+
+
+def test_scenes_in_two_threads_keep_the_process_warnings():
+    """run_scene gathers its runs' warnings through Python's one capture per process: two scenes that overlapped in
+    threads restored each other's capture, and every later warning of the process went to a finished scene's list,
+    never shown. Scenes now run one at a time; both give their results and the warnings after them are seen."""
+    import threading
+
+    from lieseries.run import run_scene
+    from lieseries.scenes import parse_scene
+
+    text = ('name = "x"\ntitle = "x"\ndescription = "x"\n[model]\nkind = "sphere_dirac"\n[initial]\n'
+            'x = [0.6, 0.8, 0]\nv = [0, 0, 1]\n[run]\nt = "0.5"\nmethods = [{ method = "taylor", precision = "double" }]\n')
+    results = []
+    shown, filters = warnings.showwarning, list(warnings.filters)
+    threads = [threading.Thread(target=lambda: results.append(run_scene(parse_scene(text), quick=True,
+                                                                          progress=False))) for _ in range(2)]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    assert len(results) == 2 and all(row.status == "success" for r in results for row in r.run["rows"])
+    assert warnings.showwarning is shown and warnings.filters == filters
