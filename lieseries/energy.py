@@ -3,7 +3,7 @@
 heyoka's error control can be fooled (a motion much slower than the time span makes the Taylor coefficients
 underflow, and one huge step "succeeds"; components whose sizes differ by orders of magnitude keep only tol times
 the largest one, so the small ones lose digits); the equations conserve H, so a run that changed H by more than
-:func:`drift_threshold` (``DRIFT_PER_STEP`` tol per step, at most sqrt(tol)) times the motion's energy scale is
+:func:`drift_threshold` (:func:`drift_per_step` tol per step, at most sqrt(tol)) times the motion's energy scale is
 reported as ``invariant_drift``. Single runs (:mod:`lieseries.taylor`) and the
 members of an ensemble's batches (:mod:`lieseries.ensemble`) both end through :func:`energy_check`.
 """
@@ -23,30 +23,40 @@ from . import cache
 from .expr import compile_expressions
 from .precision import bits_to_dps, resolve_precision, to_fraction
 
-__all__ = ["drift_threshold", "guard_tolerance", "DRIFT_PER_STEP", "energy_check", "energy_drift", "energy_function", "energy_verdict",
+__all__ = ["drift_threshold", "drift_per_step", "guard_tolerance", "DRIFT_PER_STEP", "DRIFT_PER_STEP_HIGH_ORDER", "energy_check", "energy_drift", "energy_function", "energy_verdict",
            "energy_quick", "quick_check",
            "drift_message", "clear_energy_cache", "energy_exact", "exact_energy_verdict"]
 
 _LOCK = threading.Lock()
 
 #: A sound run changes H by a few tol per step at most (measured: below 0.05 tol per step for the rigid body,
-#: the quartic oscillator and the unit sphere); the guard allows this many tol per step, and never more than
-#: sqrt(tol) in all.
-DRIFT_PER_STEP = 1000
+#: the quartic oscillator and the unit sphere in double, below 1 from long double to 200 bits); the guard allows
+#: this many tol per step, and never more than sqrt(tol) in all. (1000 let a sphere of radius 1e3 at speed 1 end
+#: ``success`` in double 226 eps off its great circle over 3 radians: its energy moved 90 tol per step.)
+DRIFT_PER_STEP = 10
+#: Below quad's epsilon (2^-112: heyoka's reals, orders above ~40) the per-step allowance: the error estimate of
+#: such orders is looser (the harmonic oscillator over 30 time units at 512 bits, 4 steps of order 179, moved H
+#: 244 tol per step, its orbit off by ~1700 units of 2^-512).
+DRIFT_PER_STEP_HIGH_ORDER = 1000
+
+
+def drift_per_step(tol):
+    """How many ``tol`` per step the energy guard lets H move (relative to its scale) at tolerance ``tol``."""
+    return DRIFT_PER_STEP if float(tol) >= 2.0 ** -112 else DRIFT_PER_STEP_HIGH_ORDER
 
 
 def drift_threshold(tol, steps):
     """The largest relative change of H a run of ``steps`` steps at tolerance ``tol`` may make:
-    min(sqrt(tol), DRIFT_PER_STEP * tol * steps). A float, or an mpf for a tolerance below a float's range (a
+    min(sqrt(tol), :func:`drift_per_step` * tol * steps). A float, or an mpf for a tolerance below a float's range (a
     Lie-series run above ~300 digits: a threshold of 0.0 called every such run ``invariant_drift``)."""
     n = max(int(steps), 1)
     f = float(tol)
     if f > 1e-280 or isinstance(tol, float):
         # a float stays a float (heyoka's reals multiply with floats, not with mpf): the square of a 1024-bit
         # run's sqrt(tol) is 5.6e-309, and its threshold, at least 1000 times that, is a normal double
-        return min(math.sqrt(f), DRIFT_PER_STEP * f * n)
+        return min(math.sqrt(f), drift_per_step(f) * f * n)
     t = mpmath.mpf(tol) if hasattr(tol, "_mpf_") else mpmath.mpf(tol.numerator) / tol.denominator
-    return min(mpmath.sqrt(t), DRIFT_PER_STEP * t * n)
+    return min(mpmath.sqrt(t), DRIFT_PER_STEP_HIGH_ORDER * t * n)
 
 def guard_tolerance(ps, tol, work_bits: int):
     """The tolerance the energy guard reads for a run of ``ps`` at ``tol`` and ``work_bits``: ``tol``, or
@@ -352,14 +362,15 @@ def quick_check(energy, sqrt_tol):
     :func:`energy_verdict`: H and every declared Casimir changed by at most half of the allowed amount
     (:func:`drift_threshold`), measured with the plain Python function of :func:`energy_function` (a few float
     operations, several times cheaper than a compiled-function call). False, or an exception (overflow, a domain
-    error), means "ask :func:`energy_verdict`", which alone reports a drift: the half margin dwarfs the rounding
-    differences of the two evaluations (a few ulps against at least 1000 tol), so the cheap opinion never passes a
+    error), means "ask :func:`energy_verdict`", which alone reports a drift: the half margin exceeds the rounding
+    differences of the two evaluations (a few ulps against at least 5 tol), so the cheap opinion never passes a
     run the compiled check would stop. Made once per call and called on each of its runs."""
     quick = energy[6]
     if quick is None:
         return None
     make, consts = quick
-    return make(*consts, 0.5 * DRIFT_PER_STEP * sqrt_tol * sqrt_tol, 0.5 * sqrt_tol)
+    tol = sqrt_tol * sqrt_tol
+    return make(*consts, 0.5 * drift_per_step(tol) * tol, 0.5 * sqrt_tol)
 
 
 def energy_quick(energy, sqrt_tol, y_end, steps) -> bool:

@@ -135,6 +135,20 @@ def test_atlas_run_is_checked_against_the_initial_energy(R, t):
         assert st == "invariant_drift" or err < 1e-11, st
 
 
+@pytest.mark.parametrize("R", ["3e2", "1e3"])
+def test_a_sphere_a_few_hundred_times_its_speed_is_right_or_drifts(R):
+    """Positions ~ R, momenta ~ 1: heyoka's tolerance is relative to the largest component, so the momenta keep
+    about R eps. Over 3 radians (14 steps) R = 3e2 ended ``success`` 100 eps off the great circle and R = 1e3
+    226 eps off (the unit sphere: 3 eps): its energy moved 13 and 90 tol per step, under the guard's 1000 (a sound
+    run moves it by under 1). A run a double calls a success is right to a few eps per step."""
+    s = ls.Sphere(mass=1, radius=R)
+    y0 = s.initial_state([f"{0.6 * float(R):.17g}", 0, f"{0.8 * float(R):.17g}"], V0)
+    t = 3 * int(float(R))
+    sol = ls.integrate(s, y0, t=t)
+    err = _scaled_position_error(R, sol, t)
+    assert sol.status == "invariant_drift" or err < 3 * sol.stats.steps * 2.0 ** -52, (sol.status, float(err))
+
+
 def test_ensemble_batch_members_get_the_same_energy_verdict_as_single_runs():
     """Members that stay in one chart run in heyoka's batch mode; their energy check allows the same few tol per
     step as a single run's (it allowed sqrt(tol): R = 1e5 over one radian passed with 1.4e-10, 6 digits lost)."""

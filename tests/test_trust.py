@@ -827,6 +827,23 @@ def test_heyoka_in_double_and_long_double_warns_of_a_field_that_cancels_at_y0():
                 ls.integrate(model, y0, "0.5", precision=precision)
 
 
+def test_a_field_that_comes_to_cancel_on_the_way_warns_at_the_end():
+    """u' = u, w' = (u^2 + 1) - u^2 (= 1) from (1, 0): nothing cancels at y0, but by t = 20 u^2 = 2.4e17 and
+    double ended ``success`` with w = 20.685 (the exact 20; 6e6 eps of the largest state), silent: no energy check
+    guards a non-Hamiltonian field. The cancellation check runs at the end state too, on the first run and on a
+    repeated one."""
+    u, w = hy.make_vars("u", "w")
+    sy = ls.PoissonSystem([u, w], [[0, 0], [0, 0]], 0 * u, extra_field=[u, (u * u + 1.0) - u * u])
+    y0 = [1, 0]
+    for _ in range(2):
+        with pytest.warns(PrecisionWarning, match="cancels at the end state: rounded to 53 bits"):
+            sol = ls.integrate(sy, y0, 20)
+        assert abs(float(sol.y_reached[1]) - 20) > 0.5  # as it says
+    with warnings.catch_warnings():  # till t = 10 (u^2 = 4.9e8) it holds: no warning, w right
+        warnings.simplefilter("error", PrecisionWarning)
+        assert ls.integrate(sy, y0, 10).y_reached[1] == 10
+
+
 def test_a_cancellation_that_sympy_would_simplify_away_is_seen_as_heyoka_computes_it():
     # H = p^2/2 + (q + B)^2/2 - B q is the oscillator: heyoka evaluates q' as 0.5 (2 (q + B)) - B, which cancels
     # 1e12 beside q ~ 1, and ended `success` 5e-5 off cos 3 in double; the bound read the field as sympy simplifies

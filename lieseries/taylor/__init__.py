@@ -138,10 +138,12 @@ def _integrate(
         model = system if isinstance(system, Model) else None
         z0 = model.check_state(y0, "y0") if model is not None else state_fractions(y0, ps.dimension, "y0")
         warned = warn_coarse_inputs(ps, y0, [t, t0], prec.bits)
-        warned = warn_cancelling_field(ps, [z0], prec.bits) or warned
+        cancels = warn_cancelling_field(ps, [z0], prec.bits)
+        warned = cancels or warned
         call = _new_call(system, ps, prec, y0, z0, t, t0, tol, events, dense, compact_mode, high_accuracy,
                          max_steps=max_steps, stiff_steps=min(max_steps, STIFF_STEPS) if default_budget else max_steps,
                          max_time=max_time, min_step=min_step)
+        call.end_check = not cancels
         plan = call.plan
         warned = warn_span_loss(plan["span_loss"], plan["grid"], plan["t0f"], prec.bits,
                                 f"the run's times are {prec.name} numbers") or warned

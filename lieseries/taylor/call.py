@@ -19,7 +19,7 @@ class Call:
                  "stiff_steps", "max_time", "min_step", "dense", "energy", "dtype", "first_chunk", "plain", "t_out",
                  "t_requested", "t0_native", "t_end_native", "budget", "free", "repeat_chunk", "grid", "sqrt_tol",
                  "reached", "t_exact", "views", "quick", "report", "events", "head", "passed", "first_h",
-                 "first_known", "convert_seconds")
+                 "first_known", "convert_seconds", "end_check")
 
     def __init__(self, **kw):
         self.energy = None  # (compiled H, parameters, H(y0)) once a run needs the energy check
@@ -32,6 +32,8 @@ class Call:
         self.passed = None  # (end state's bytes, steps) of its last double run that passed the energy check
         self.report = None  # (build time, cached) its next run reports, once known (next_report)
         self.convert_seconds = 0.0  # the grid's conversion, counted by the first run's max_time
+        # a run no energy check guards checks its field's cancellation at its end state, unless y0's check warned
+        self.end_check = True
         self.views = (None, None, None)  # (integrator, its state's view, its parameters' view) of the last plain run
         for k, v in kw.items():
             setattr(self, k, v)

@@ -31,7 +31,7 @@ table: how many steps finishing would take):
   (the first chunk then goes on when there is no bound), one beyond it is taken back (time, state, cooldowns,
   crossings, rows, output) and taken again bounded. The bound is kept on the call for its repeated runs;
 - ``invariant_drift``: after a run that reached its final time, the Hamiltonian (conserved by every Hamiltonian
-  system) is evaluated at both ends; a change beyond min(sqrt(tol), 1000 tol per step) of its energy scale
+  system) is evaluated at both ends; a change beyond min(sqrt(tol), 10 tol per step; 1000 below 2^-112) of its energy scale
   (:func:`lieseries.energy.drift_threshold`) means the result is wrong, whatever the error control believed --
   typically a motion much slower or faster than its time span (Taylor coefficients underflow), fixed by
   rescaling time, or components of very different sizes (the tolerance is relative to the largest), fixed by

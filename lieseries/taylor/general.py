@@ -26,7 +26,7 @@ from ..solution import Solution, Stats
 from .call import next_report, succeeded
 from .chunks import Chunks
 from .dense import DenseOutput
-from .plan import time_array
+from .plan import time_array, warn_cancelling_field
 
 #: An integrator of the same key as ``template`` that no other run is using, and the list to return it to (the
 #: shared pool, :func:`lieseries.cache.checkout`). The template itself (what :func:`build_integrator` returns) is
@@ -78,6 +78,8 @@ def execute_general(call, progress, started):
                 call.energy = energy_function(ps, prec, y0_native)
             out.status, out.message = energy_verdict(call.energy, plan["sqrt_tol"], out.z, out.steps, out.status,
                                                      out.message)
+        elif out.status == "success" and call.end_check:
+            end_cancellation(ps, out.z, prec.bits)
 
     converted, call.convert_seconds = call.convert_seconds, 0.0  # (the first run's: max_time counts it)
     try:
@@ -93,6 +95,13 @@ def execute_general(call, progress, started):
     if out.status == "success" and call.first_chunk < call.repeat_chunk:
         succeeded(call)
     return _solution(call, engine, out, sinks, build, cached)
+
+
+def end_cancellation(ps, y_end, bits) -> None:
+    """The cancellation check of ``y0`` (:func:`~lieseries.taylor.plan.warn_cancelling_field`) at the end state of
+    a run no energy check guards (a non-Hamiltonian ``extra_field``): a field that cancels only once the state has
+    grown (w' = (u^2 + 1) - u^2 while u' = u) left w off by 0.7 at t = 20 in double, ``success`` and silent."""
+    warn_cancelling_field(ps, [[to_fraction(v) for v in y_end]], bits, where="the end state")
 
 
 def _solution(call, engine, out, sinks, build, cached):

@@ -128,11 +128,12 @@ def warn_coarse_inputs(ps, y0, times, work_bits: int) -> bool:
 CANCELLING_BITS = 32
 
 
-def warn_cancelling_field(ps, rows, work_bits: int, pars=None, members: bool = False) -> bool:
+def warn_cancelling_field(ps, rows, work_bits: int, pars=None, members: bool = False, where: str = "`y0`") -> bool:
     """A :class:`~lieseries.precision.PrecisionWarning` when, rounded to ``work_bits`` as heyoka rounds, the vector
     field's expression cancels far below its terms (:data:`CANCELLING_BITS`) at one of the exact states ``rows``
     (a single run's ``y0``, or an ensemble's members when ``members``: ``pars`` their parameter rows, or None for the
-    system's own), one warning naming those it concerns; True when there was one. The bound is taken in floats (a
+    system's own), one warning naming those it concerns (``where`` names a single state: the end state of a run
+    that no energy check guards, whose field may come to cancel only on the way); True when there was one. The bound is taken in floats (a
     generated function per program, ~25 us a state, ~3-4 ms for 4096 at once); where a value leaves a float's range,
     by the Lie engine's fixed-point jets (which compile the field once per system, ~0.7 s for a heavy top's
     intermediate form)."""
@@ -153,7 +154,7 @@ def warn_cancelling_field(ps, rows, work_bits: int, pars=None, members: bool = F
         shown = ", ".join(f"`Y0[{i}]`" for i, _ in lost[:6]) + (", ..." if len(lost) > 6 else "")
         at = f"{shown} ({len(lost)} of the {len(rows)} members)"
     else:
-        at = "`y0`"
+        at = where
     warnings.warn(PrecisionWarning(
         f"the vector field's expression cancels at {at}: rounded to {work_bits} bits, as heyoka computes it, its "
         f"terms may leave a state's rate off by up to 2^{worst - work_bits} of the state per unit time (a bound; "
