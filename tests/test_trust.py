@@ -844,6 +844,16 @@ def test_a_field_that_comes_to_cancel_on_the_way_warns_at_the_end():
         assert ls.integrate(sy, y0, 10).y_reached[1] == 10
 
 
+def test_an_ensemble_whose_field_comes_to_cancel_warns_at_the_members_end_states():
+    """The field above as an ensemble (heyoka's batch mode): its members ended ``success`` with w 0.685 off, no
+    warning; the members' end states are checked as a single run's is, the warning naming them."""
+    u, w = hy.make_vars("u", "w")
+    sy = ls.PoissonSystem([u, w], [[0, 0], [0, 0]], 0 * u, extra_field=[u, (u * u + 1.0) - u * u])
+    with pytest.warns(PrecisionWarning, match=r"cancels at the end states of the members 0, 1 \(2 of the 3 checked\)"):
+        es = ls.integrate(sy, [[1, 0], [1, 0], ["1e-6", 0]], 20)
+    assert abs(float(es.y_reached[0][1]) - 20) > 0.5 and abs(float(es.y_reached[2][1]) - 20) < 1e-13  # as it says
+
+
 def test_a_cancellation_that_sympy_would_simplify_away_is_seen_as_heyoka_computes_it():
     # H = p^2/2 + (q + B)^2/2 - B q is the oscillator: heyoka evaluates q' as 0.5 (2 (q + B)) - B, which cancels
     # 1e12 beside q ~ 1, and ended `success` 5e-5 off cos 3 in double; the bound read the field as sympy simplifies

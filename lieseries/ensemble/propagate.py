@@ -110,17 +110,18 @@ def integrate_ensemble(
     path = _run_path(plan, res, progress)
     _hand_over(plan, res, path, progress)
     _check_energy(plan, res, path)
+    _check_end_cancellation(plan, res, path)
     return assemble(plan, res, path, _time.perf_counter() - start)
 
 
 class PathRun:
     """How the members ran here: the path's ``name`` ("batch", "threads", "single", "none"), its ``workers``,
-    the Taylor ``order``, the ``build`` time, the members ``handed`` to single runs and the model's terminal
-    events (``event_info``)."""
+    the Taylor ``order``, the ``build`` time, the members ``handed`` to single runs, the model's terminal
+    events (``event_info``) and whether the field's cancellation check at ``Y0`` warned (``cancels``)."""
 
-    def __init__(self, name, workers, order=0, build=0.0, handed=(), event_info=()):
+    def __init__(self, name, workers, order=0, build=0.0, handed=(), event_info=(), cancels=False):
         self.name, self.workers, self.order, self.build = name, workers, order, build
-        self.handed, self.event_info = list(handed), list(event_info)
+        self.handed, self.event_info, self.cancels = list(handed), list(event_info), cancels
 
 
 def _run_path(plan, res, progress) -> PathRun:
@@ -138,9 +139,10 @@ def _run_path(plan, res, progress) -> PathRun:
         return PathRun("none", 1)
     if plan.atlas and plan.pars is not None:  # per-member parameters across an atlas: single runs
         return PathRun("single", 1, handed=range(k))
+    cancels = False
     if prec.name == "double" and scalar_ok:
         if plan.members is None:  # (single runs warn themselves; models of their own each are not checked here)
-            warn_cancelling_field(plan.ps, plan.Ynat, prec.bits, plan.pars, members=True)
+            cancels = warn_cancelling_field(plan.ps, plan.Ynat, prec.bits, plan.pars, members=True)
         ta, build, event_info = build_batch_integrator(plan.run_system, plan.tolf, plan.B,
                                                        compact_mode=plan.compact_mode,
                                                        high_accuracy=plan.high_accuracy)
@@ -150,17 +152,17 @@ def _run_path(plan, res, progress) -> PathRun:
                    else max(1, min(os.cpu_count() or 1, n_batches // 2)))
         handed = run_batches(ta, event_info, plan.Ynat, plan.pars, plan.ps_run, plan.tgrid, plan.t0n,
                              plan.direction, plan.B, cap, workers, res, progress)
-        path = PathRun("batch", workers, int(ta.order), build, handed, event_info)
+        path = PathRun("batch", workers, int(ta.order), build, handed, event_info, cancels)
     elif prec.name in ("long double", "quad") and scalar_ok:
         if plan.members is None:  # (single runs warn themselves; models of their own each are not checked here)
-            warn_cancelling_field(plan.ps, plan.Ynat, prec.bits, plan.pars, members=True)
+            cancels = warn_cancelling_field(plan.ps, plan.Ynat, prec.bits, plan.pars, members=True)
         ta, build, event_info = build_scalar_integrator(plan.run_system, prec, plan.tolf,
                                                         compact_mode=plan.compact_mode,
                                                         high_accuracy=plan.high_accuracy)
         workers = min(plan.workers, k) if plan.workers else max(1, min(os.cpu_count() or 1, k // 2))
         handed = run_scalar(ta, event_info, plan.Ynat, plan.pars, plan.ps_run, prec, plan.tgrid, plan.t0n,
                             plan.direction, cap, workers, res, progress)
-        path = PathRun("threads", workers, int(ta.order), build, handed, event_info)
+        path = PathRun("threads", workers, int(ta.order), build, handed, event_info, cancels)
     else:
         return PathRun("single", plan.workers or 1, handed=range(k))
     if plan.atlas:
@@ -186,6 +188,20 @@ def _hand_over(plan, res, path, progress) -> None:
         res.take(i, sol, plan.tgrid)
         path.order = max(path.order, int(sol.stats.order))
         path.build += float(sol.stats.build_time)
+
+
+def _check_end_cancellation(plan, res, path) -> None:
+    """For a field no energy check guards (a non-Hamiltonian ``extra_field``), the single run's cancellation check at
+    the end states of the members the batch or the scalar threads finished (u' = u, w' = (u^2 + 1) - u^2 to t = 20:
+    w 0.685 off, ``success`` and silent), unless the check at their ``Y0`` warned (single runs check their own)."""
+    if path.name not in ("batch", "threads") or plan.ps.is_hamiltonian or plan.members is not None or path.cancels:
+        return
+    handed = set(path.handed)
+    done = [i for i in range(plan.k) if i not in handed and res.status[i] == "success"]
+    if done:
+        warn_cancelling_field(plan.ps, res.y_reached[done], plan.prec.bits,
+                              None if plan.pars is None else [plan.pars[i] for i in done], members=done,
+                              where="the end states")
 
 
 def _check_energy(plan, res, path) -> None:

@@ -128,12 +128,13 @@ def warn_coarse_inputs(ps, y0, times, work_bits: int) -> bool:
 CANCELLING_BITS = 32
 
 
-def warn_cancelling_field(ps, rows, work_bits: int, pars=None, members: bool = False, where: str = "`y0`") -> bool:
+def warn_cancelling_field(ps, rows, work_bits: int, pars=None, members=None, where: str = "`y0`") -> bool:
     """A :class:`~lieseries.precision.PrecisionWarning` when, rounded to ``work_bits`` as heyoka rounds, the vector
     field's expression cancels far below its terms (:data:`CANCELLING_BITS`) at one of the exact states ``rows``
-    (a single run's ``y0``, or an ensemble's members when ``members``: ``pars`` their parameter rows, or None for the
-    system's own), one warning naming those it concerns (``where`` names a single state: the end state of a run
-    that no energy check guards, whose field may come to cancel only on the way); True when there was one. The bound is taken in floats (a
+    (a single run's ``y0``, or an ensemble's members when ``members`` -- True, or the members' indices when
+    ``rows`` hold some of them: ``pars`` their parameter rows, or None for the system's own), one warning naming those
+    it concerns (``where`` names the states: the end state(s) of a run that no energy check guards, whose field may
+    come to cancel only on the way); True when there was one. The bound is taken in floats (a
     generated function per program, ~25 us a state, ~3-4 ms for 4096 at once); where a value leaves a float's range,
     by the Lie engine's fixed-point jets (which compile the field once per system, ~0.7 s for a heavy top's
     intermediate form)."""
@@ -150,9 +151,14 @@ def warn_cancelling_field(ps, rows, work_bits: int, pars=None, members: bool = F
     if not lost:
         return False
     worst = max(b for _, b in lost)
-    if members:
-        shown = ", ".join(f"`Y0[{i}]`" for i, _ in lost[:6]) + (", ..." if len(lost) > 6 else "")
-        at = f"{shown} ({len(lost)} of the {len(rows)} members)"
+    if members is not None and members is not False:
+        index = range(len(rows)) if members is True else members
+        if where == "`y0`":
+            shown = ", ".join(f"`Y0[{index[i]}]`" for i, _ in lost[:6]) + (", ..." if len(lost) > 6 else "")
+            at = f"{shown} ({len(lost)} of the {len(rows)} members)"
+        else:
+            shown = ", ".join(str(index[i]) for i, _ in lost[:6]) + (", ..." if len(lost) > 6 else "")
+            at = f"{where} of the members {shown} ({len(lost)} of the {len(rows)} checked)"
     else:
         at = where
     warnings.warn(PrecisionWarning(
