@@ -56,7 +56,7 @@ def drift_threshold(tol, steps):
         # run's sqrt(tol) is 5.6e-309, and its threshold, at least 1000 times that, is a normal double
         return min(math.sqrt(f), drift_per_step(f) * f * n)
     t = mpmath.mpf(tol) if hasattr(tol, "_mpf_") else mpmath.mpf(tol.numerator) / tol.denominator
-    return min(mpmath.sqrt(t), DRIFT_PER_STEP_HIGH_ORDER * t * n)
+    return min(mpmath.sqrt(t), drift_per_step(f) * t * n)
 
 def guard_tolerance(ps, tol, work_bits: int):
     """The tolerance the energy guard reads for a run of ``ps`` at ``tol`` and ``work_bits``: ``tol``, or

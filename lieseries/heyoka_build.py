@@ -194,7 +194,6 @@ class CrossingGuard:
         rec.sink[mark:] = sorted(rec.sink[mark:], key=lambda r: float(r[0] - t_a) * (1 if forward else -1))
         self.recovered += len(added)
 
-
     def at_stop(self, ta, forward: bool):
         """After a terminal event stopped the run at ``ta.time``: the crossings that happen at that very time --
         within ``2^(-3 bits / 4)`` of the last step after it, where the roots of two expressions crossing together
@@ -213,6 +212,7 @@ class CrossingGuard:
             before = self.recovered
             self._search(ta, i, rec, mark, t_s, t_b)
             self.recovered = before  # (not missed by heyoka: beyond its step)
+
 
 class Both:
     """Two step callbacks in turn."""

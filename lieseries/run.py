@@ -415,8 +415,8 @@ def scene_warnings(scene, caught) -> list:
         text = str(w.message)
         bits = _RUN_BITS.search(text) if issubclass(w.category, PrecisionWarning) else None
         key = (w.category, _RUN_BITS.sub("", text) if bits else text)
-        top = groups.get(key, (None, 0))[1]
-        groups[key] = (text if key not in groups else groups[key][0], max(top, int(bits.group(1)) if bits else 0))
+        first, top = groups.get(key, (text, 0))
+        groups[key] = (first, max(top, int(bits.group(1)) if bits else 0))
     binary = scene.binary_inputs() if isinstance(scene, Scene) else {}
     out = []
     for (category, _), (text, top) in groups.items():

@@ -138,4 +138,3 @@ def test_lie_integrate_dense_max_time_bounds_the_call():
     assert elapsed < 1.6 * budget + 0.1, elapsed  # (it took 0.68-0.72 s: 2.3 times its budget)
     t_mid = sol.t_reached / 2  # (the dense output against the closed form)
     assert rigid_error(sol(t_mid), t_mid, dps=40) < 1e-20
-

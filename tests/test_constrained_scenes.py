@@ -68,6 +68,7 @@ def test_a_binary_parameter_of_a_constrained_scene_is_listed_with_the_binary_dat
     assert parse_scene(text).binary_inputs() == {}
     assert parse_scene(text.replace('g = "9.81"', "g = 10")).binary_inputs() == {}
 
+
 def test_heavy_top_kind_reads_com_mass_g_and_the_rigid_body_initial_data():
     sc = parse_scene(HEAD + '[model]\nkind = "heavy_top"\ninertia = [2, 2, 1]\ncom = [0, 0, "0.5"]\nmass = 3\n'
                      'g = "9.81"\n[initial]\nomega = [1, "0.5", 5]\n' + RUN)

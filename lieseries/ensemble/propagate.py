@@ -142,7 +142,7 @@ def _run_path(plan, res, progress) -> PathRun:
     cancels = False
     if prec.name == "double" and scalar_ok:
         if plan.members is None:  # (single runs warn themselves; models of their own each are not checked here)
-            cancels = warn_cancelling_field(plan.ps, plan.Ynat, prec.bits, plan.pars, members=True)
+            cancels = warn_cancelling_field(plan.ps, plan.Ynat, prec.bits, plan.pars, members=range(k))
         ta, build, event_info = build_batch_integrator(plan.run_system, plan.tolf, plan.B,
                                                        compact_mode=plan.compact_mode,
                                                        high_accuracy=plan.high_accuracy)
@@ -155,7 +155,7 @@ def _run_path(plan, res, progress) -> PathRun:
         path = PathRun("batch", workers, int(ta.order), build, handed, event_info, cancels)
     elif prec.name in ("long double", "quad") and scalar_ok:
         if plan.members is None:  # (single runs warn themselves; models of their own each are not checked here)
-            cancels = warn_cancelling_field(plan.ps, plan.Ynat, prec.bits, plan.pars, members=True)
+            cancels = warn_cancelling_field(plan.ps, plan.Ynat, prec.bits, plan.pars, members=range(k))
         ta, build, event_info = build_scalar_integrator(plan.run_system, prec, plan.tolf,
                                                         compact_mode=plan.compact_mode,
                                                         high_accuracy=plan.high_accuracy)

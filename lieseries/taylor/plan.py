@@ -131,8 +131,8 @@ CANCELLING_BITS = 32
 def warn_cancelling_field(ps, rows, work_bits: int, pars=None, members=None, where: str = "`y0`") -> bool:
     """A :class:`~lieseries.precision.PrecisionWarning` when, rounded to ``work_bits`` as heyoka rounds, the vector
     field's expression cancels far below its terms (:data:`CANCELLING_BITS`) at one of the exact states ``rows``
-    (a single run's ``y0``, or an ensemble's members when ``members`` -- True, or the members' indices when
-    ``rows`` hold some of them: ``pars`` their parameter rows, or None for the system's own), one warning naming those
+    (a single run's ``y0``, or an ensemble's members when ``members`` gives their indices, one per row: ``pars``
+    their parameter rows, or None for the system's own), one warning naming those
     it concerns (``where`` names the states: the end state(s) of a run that no energy check guards, whose field may
     come to cancel only on the way); True when there was one. The bound is taken in floats (a
     generated function per program, ~25 us a state, ~3-4 ms for 4096 at once); where a value leaves a float's range,
@@ -151,14 +151,11 @@ def warn_cancelling_field(ps, rows, work_bits: int, pars=None, members=None, whe
     if not lost:
         return False
     worst = max(b for _, b in lost)
-    if members is not None and members is not False:
-        index = range(len(rows)) if members is True else members
-        if where == "`y0`":
-            shown = ", ".join(f"`Y0[{index[i]}]`" for i, _ in lost[:6]) + (", ..." if len(lost) > 6 else "")
-            at = f"{shown} ({len(lost)} of the {len(rows)} members)"
-        else:
-            shown = ", ".join(str(index[i]) for i, _ in lost[:6]) + (", ..." if len(lost) > 6 else "")
-            at = f"{where} of the members {shown} ({len(lost)} of the {len(rows)} checked)"
+    if members is not None:
+        name = "`Y0[{}]`" if where == "`y0`" else "{}"
+        shown = ", ".join(name.format(members[i]) for i, _ in lost[:6]) + (", ..." if len(lost) > 6 else "")
+        at = (f"{shown} ({len(lost)} of the {len(rows)} members)" if where == "`y0`"
+              else f"{where} of the members {shown} ({len(lost)} of the {len(rows)} checked)")
     else:
         at = where
     warnings.warn(PrecisionWarning(
