@@ -494,7 +494,7 @@ class PoissonSystem:
         component gets ``+ (par[k] - par[k])``, exactly 0, so the integrator takes every declared value."""
         if self._ode is not None:
             return list(self._ode)
-        pairs = list(zip(self._variables, [powers_as_products(e) for e in self.vector_field]))
+        pairs = list(zip(self._variables, powers_as_products(self.vector_field)))
         k = len(self._param_values) - 1
         if k >= 0 and pairs and 1 + max((int(str(p)[1:]) for p in hy.get_params([e for _, e in pairs])),
                                          default=-1) <= k:

@@ -305,14 +305,14 @@ def test_powers_as_products_keeps_parameters_and_refuses_to_round_a_constant():
 
     q = hy.make_vars("q")
     e = hy.par[0] * q**3 - 0.1 * q**-4
-    out = powers_as_products(e)
+    out, = powers_as_products([e])
     assert "**" not in str(out) and "p0" in str(out)
     # evaluated at q = 0.7, par = 3: the same number
     f_in, f_out = (hy.cfunc([x], [q]) for x in (e, out))
     assert f_in([0.7], pars=[3.0])[0] == pytest.approx(f_out([0.7], pars=[3.0])[0], rel=1e-15)
     # a long double constant would be read back as a double: the expression is kept as it is
     ld = hy.expression(np.longdouble(1) / 3) * q**3
-    assert str(powers_as_products(ld)) == str(ld)
+    assert str(powers_as_products([ld])[0]) == str(ld)
 
 
 def test_coarse_constants_of_a_field_with_shared_subexpressions_are_found_by_walking_the_graph():

@@ -52,7 +52,7 @@ import heyoka as hy
 import sympy
 
 from .. import cache
-from .builder import PAR_RE, Builder
+from .builder import PAR_RE, Builder, sympy_forms
 from .program import (EVAL_GUARD_BITS, POINTWISE, RND, SUPPORTED_OPS, Constant, Node, Program, convert_vector,
                       eval_nodes, rounded_mpf, to_raw)
 
@@ -198,11 +198,7 @@ def compile_expressions(variables, exprs, npars=None, cse=True, as_written=False
 def compile_program(names, exprs, npars, use_cse, as_written=False):
     """The :class:`Program` of heyoka expressions ``exprs`` in the variables ``names`` (checked, uncached: what
     :func:`compile_expressions` caches); ``as_written``: sympy's automatic simplification off."""
-    if as_written:
-        with sympy.evaluate(False):
-            sym = [hy.to_sympy(e) for e in exprs]
-    else:
-        sym = [hy.to_sympy(e) for e in exprs]
+    sym = sympy_forms(exprs, as_written)
     if npars is None:
         used = set()
         for s in sym:

@@ -6,8 +6,10 @@ from __future__ import annotations
 import re
 from fractions import Fraction
 
+import heyoka as hy
 import mpmath
 import sympy
+from sympy.core.cache import clear_cache
 
 from .program import Constant, Node
 
@@ -26,6 +28,37 @@ def _raw_to_fraction(raw, name):
     man = int(man)  # an mpz under the gmpy2 backend: Fractions (and sympy Rationals) get Python ints
     v = Fraction(man << exp) if exp >= 0 else Fraction(man, 1 << -exp)
     return -v if sign else v
+
+
+def sympy_forms(exprs, as_written=False) -> list:
+    """The sympy trees of heyoka expressions (:func:`heyoka.to_sympy`; ``as_written``: without sympy's automatic
+    simplification), sympy's cache emptied first.
+
+    sympy keeps what it builds in a process-wide cache and compares each new object with an equal one it holds node
+    by node, with no shortcut but identity: once a derived field's trees are held twice (converted again, or as
+    written beside evaluated, or rebuilt by ``cse``), every lookup walks a whole tree. The Dirac form of a heavy top
+    took 2.4 s to convert after its program had been compiled (0.36 s the first time); emptying the cache costs ~10
+    us and changes nothing but what sympy has to build again."""
+    clear_cache()
+    if as_written:
+        with sympy.evaluate(False):
+            return [hy.to_sympy(e) for e in exprs]
+    return [hy.to_sympy(e) for e in exprs]
+
+
+def _coeff_add(e):
+    """``e.as_coeff_add()`` of a sympy ``Add`` without sympy's cache (:func:`sympy_forms`: a lookup that walks a
+    whole tree; 30 s of the 44 s the heavy top's Dirac form took to compile as written)."""
+    first = e.args[0]
+    if isinstance(first, sympy.Add):
+        coeff, rest = _coeff_add(first)
+    elif first.is_Rational:
+        coeff, rest = first, ()
+    else:
+        coeff, rest = sympy.S.Zero, (first,)
+    if coeff is not sympy.S.Zero:
+        return coeff, rest + e.args[1:]
+    return sympy.S.Zero, e.args
 
 
 # --------------------------------------------------------------------------
@@ -185,11 +218,13 @@ class Builder:
         )
 
     def build(self, e):
-        slot = self.memo.get(e)
-        if slot is not None:
-            return slot
+        # by identity (the object kept beside its slot), not by sympy's equality, which walks a tree that an equal
+        # twin of it ends: a twin is walked again and meets the same nodes (``node`` shares them by their slots)
+        hit = self.memo.get(id(e))
+        if hit is not None:
+            return hit[0]
         slot = self._build(e)
-        self.memo[e] = slot
+        self.memo[id(e)] = (slot, e)
         return slot
 
     def _build(self, e):
@@ -198,7 +233,7 @@ class Builder:
         if isinstance(e, sympy.Number) or e is sympy.pi or e is sympy.E:
             return self.number(e)
         if isinstance(e, sympy.Add):
-            coeff, terms = e.as_coeff_add()
+            coeff, terms = _coeff_add(e)
             pos, neg = [], []
             for t in terms:
                 c, rest = t.as_coeff_Mul()

@@ -10,6 +10,7 @@ import heyoka as hy
 import mpmath as mp
 
 from ..precision import carried_bits
+from .builder import sympy_forms
 
 __all__ = ["binary_constants", "powers_as_products", "distinct_nodes", "expand_integer_powers"]
 
@@ -24,8 +25,15 @@ def binary_constants(expr) -> list:
 
 
 
-def powers_as_products(expr):
-    """``expr`` with every integer power ``b**n``, ``|n| >= 3``, written as a product of ``|n|`` factors ``b``.
+def powers_as_products(exprs) -> list:
+    """The heyoka expressions ``exprs``, each with its integer powers ``b**n``, ``|n| >= 3``, written as products
+    (:func:`_power_as_products`), converted to sympy together (shared subexpressions built once)."""
+    return [_power_as_products(e, s) for e, s in zip(exprs, sympy_forms(exprs))]
+
+
+def _power_as_products(expr, s):
+    """``expr`` (its sympy form ``s``) with every integer power ``b**n``, ``|n| >= 3``, written as a product of
+    ``|n|`` factors ``b``.
 
     heyoka's Taylor recurrence for ``pow`` divides by the base, so ``q**3`` (the force of a quartic potential) is
     NaN from the first step wherever ``q`` starts at 0; ``q*q*q`` is not. The rewrite goes through sympy and is kept
@@ -33,7 +41,6 @@ def powers_as_products(expr):
     is returned as it is. Every walk over the sympy form visits each distinct subexpression once: a large field
     (a derived rigid body's) shares subexpressions that a tree walk visits millions of times.
     """
-    s = hy.to_sympy(expr)
     has_power, free = _scan(s)
     if not has_power:
         return expr
