@@ -584,8 +584,8 @@ class PoissonSystem:
         :func:`~lieseries.expr.compile_expressions` ``as_written``), for bounds of heyoka's roundings; the
         :attr:`program` where it cannot be compiled so."""
         prog = getattr(self, "_written", None)
-        if prog is None:  # once per structure (sympy without evaluation: 1.4-1.8 s for a heavy top's intermediate
-            # form, which a model built again, or each ls.integrate of a new system object, paid anew)
+        if prog is None:  # once per structure (sympy without evaluation: 0.9 s for a heavy top's Dirac form,
+            # which a model built again, or each ls.integrate of a new system object, would pay anew)
             wkey = (self.key, "as written")
             prog = _PROGRAMS.get(wkey)
             if prog is None:
