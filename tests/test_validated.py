@@ -183,6 +183,7 @@ def test_a_scene_reports_the_invariant_drift_of_a_validated_run_at_its_own_digit
     path = tmp_path / "v60.toml"
     path.write_text('name = "v60"\ntitle = "validated at 60 digits"\n[model]\nkind = "euler_poisson"\n'
                     'inertia = [1, 2, 3]\n[initial]\nomega = [1, "0.1", "0.5"]\n[run]\nt = "0.5"\nsamples = 2\n'
+                    'repeat = 1\n'
                     'methods = [{ method = "validated", dps = 60 }]\n')
     result = run_scene(load_scene(str(path)), progress=False)
     row = result.run["rows"][0]
