@@ -43,28 +43,6 @@ def check(prog, y0, pars, order, dps, s, scale=None, rows=None, ref=None):
     return got, ref
 
 
-@pytest.fixture(scope="module")
-def heavy_top_intermediate():
-    """(program, state, parameters, mpf jets to order 36 at 60 digits) of a heavy top's intermediate form, built
-    once for both big-integer backends."""
-    from lieseries.poisson import as_poisson_system
-
-    top = ls.HeavyTop((2, 2, 1), com=(0, 0, "0.5"), g="9.81")
-    inter = top.constrained_system().intermediate()
-    q, qdot = top.surface_point(top.initial_state(omega=(1, "0.5", 5)))
-    ps = as_poisson_system(inter)
-    y0, pars = list(inter.initial_state(q=q, qdot=qdot)), list(ps.parameter_values)
-    return ps.program, y0, pars, taylor_coefficients(ps.program, y0, pars, 36, 60)
-
-
-def test_heavy_top_intermediate_field_to_the_working_precision(bigint, heavy_top_intermediate):
-    """The intermediate form of a heavy top (12 variables; ~1500 products, 260 constant factors, 5 divisions,
-    constraint residuals that are zero): scales propagated through its products lie up to 40 bits above what the
-    nodes carry, and rounding at them lost 20 digits (c_5 to 6e-21 of the state's scale sigma^-5 at 30 digits)."""
-    prog, y0, pars, ref = heavy_top_intermediate
-    check(prog, y0, pars, 36, 30, -4, scale=5, ref=ref)
-
-
 def test_backend_switch():
     before = fixed.backend()
     try:

@@ -194,16 +194,40 @@ def test_kovalevskaya_integral_is_conserved_to_epsilon(precision):
     assert max(abs(m - M2[0]) for m in M2) > 1e-2
 
 
-def test_intermediate_form_at_30_digits_is_right_with_few_guard_digits():
+@pytest.fixture(scope="module")
+def heavy_top_intermediate():
+    """(intermediate form, its state, program, parameters, mpf jets to order 36 at 60 digits) of a heavy top, built
+    once for the module: compiling the form's ~1500 products takes most of a second."""
+    from lieseries.lie import taylor_coefficients
+    from lieseries.poisson import as_poisson_system
+
+    top = ls.HeavyTop((2, 2, 1), com=(0, 0, "0.5"), g="9.81")
+    inter = top.constrained_system().intermediate()
+    q, qdot = top.surface_point(top.initial_state(omega=(1, "0.5", 5)))
+    z0 = inter.initial_state(q=q, qdot=qdot)
+    ps = as_poisson_system(inter)
+    y0, pars = list(z0), list(ps.parameter_values)
+    return inter, z0, ps.program, y0, pars, taylor_coefficients(ps.program, y0, pars, 36, 60)
+
+
+def test_heavy_top_intermediate_field_to_the_working_precision(bigint, heavy_top_intermediate):
+    """The fixed-point jets on the intermediate form of a heavy top (12 variables; ~1500 products, 260 constant
+    factors, 5 divisions, constraint residuals that are zero): scales propagated through its products lie up to 40
+    bits above what the nodes carry, and rounding at them lost 20 digits (c_5 to 6e-21 of the state's scale
+    sigma^-5 at 30 digits)."""
+    from test_fixed_jets import check
+
+    _, _, prog, y0, pars, ref = heavy_top_intermediate
+    check(prog, y0, pars, 36, 30, -4, scale=5, ref=ref)
+
+
+def test_intermediate_form_at_30_digits_is_right_with_few_guard_digits(heavy_top_intermediate):
     """The intermediate form of a heavy top (12 variables; a field of ~1500 products whose constraint residuals are
     zero, so that scales propagated through the products lie up to 40 bits above what the nodes carry) integrated
     at 30 digits with 5 and with no guard digits, against a run at 45 (5e-57 from a run at 60): within the
     tolerance 1e-30 (the fixed-point jets rounded every node at its propagated scale, and a run with 5 guard digits
     reported a `success` 2e-28 off; without guard digits, `invariant_drift` 3e-23 off)."""
-    top = ls.HeavyTop((2, 2, 1), com=(0, 0, "0.5"), g="9.81")
-    inter = top.constrained_system().intermediate()
-    q, qdot = top.surface_point(top.initial_state(omega=(1, "0.5", 5)))
-    z0 = inter.initial_state(q=q, qdot=qdot)
+    inter, z0 = heavy_top_intermediate[:2]
     ref = ls.lie_integrate(inter, z0, t="0.05", dps=45)
     c = private_ctx(70)
     for guard in (5, 0):

@@ -458,6 +458,7 @@ def test_scenes_and_studies_never_set_mpmath_global_precision(tmp_path, monkeypa
     path = tmp_path / "g.toml"
     path.write_text('name = "g"\ntitle = "global precision guard"\n[model]\nkind = "euler_poisson"\n'
                     'inertia = [1, 2, 3]\n[initial]\nomega = [1, "0.1", "0.5"]\n[run]\nt = "1/2"\nsamples = 3\n'
+                    'repeat = 1\n'
                     'methods = [{ method = "lie", dps = 30 }, { method = "mpmath", dps = 30, t_max = "1/2" }]\n'
                     '[studies.error_vs_order]\nt_fraction = 0.1\nmax_order = 40\ndps = 40\n'
                     '[studies.work_precision]\nt = "1/2"\nrepeat = 1\nmethods = [{ method = "lie", dps = 25, '
@@ -585,6 +586,7 @@ def test_a_run_at_400_digits_is_a_success_with_its_error_and_drift_at_400_digits
 
     scene = parse_scene('name = "x"\ntitle = "x"\ndescription = "x"\n[model]\nkind = "euler_poisson"\n'
                         'inertia = [1, 2, 3]\n[initial]\nomega = [1, "0.5", 2]\n[run]\nt = "0.125"\nsamples = 3\n'
+                        'repeat = 1\n'
                         'methods = [{ method = "lie", dps = 400 }]\n')  # dyadic data: short mpf significands; one step
     res = run_scene(scene, progress=False)
     row, = res.run["rows"]
