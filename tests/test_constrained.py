@@ -324,6 +324,14 @@ BAD = {
     "bad coordinate": (lambda: ls.ConstrainedSystem("x_dot**2", ["x y"], ["x"]), "`coordinates[0]`"),
     "parameter named like a coordinate": (lambda: ls.ConstrainedSystem(SPHERE_L, SPHERE_Q, SPHERE_G,
                                                                        parameters={"x1": 1}), "`parameters`"),
+    # a Python keyword passed the identifier check and failed later as "SyntaxError: invalid syntax" or
+    # "TokenError: Starred arguments in lambda not supported" under `lagrangian` or `constraints[0]`
+    "keyword as a parameter": (lambda: ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - lambda*y", ["x", "y"],
+                                                            ["x**2 + y**2 - 1"], parameters={"lambda": 2}),
+                               "`parameters` key 'lambda' is a Python keyword"),
+    "keyword as a coordinate": (lambda: ls.ConstrainedSystem("(lambda_dot**2 + y_dot**2)/2", ["lambda", "y"],
+                                                             ["lambda**2 + y**2 - 1"]),
+                                "`coordinates[0]` = 'lambda' is a Python keyword"),
 }
 
 

@@ -42,6 +42,7 @@ exact and are rounded once to each working precision; a float is its binary valu
 from __future__ import annotations
 
 import io
+import keyword
 import tokenize
 from fractions import Fraction
 
@@ -65,7 +66,7 @@ FUNCTIONS = {
 CONSTANTS = {"pi": sp.pi}
 
 def _is_name(s) -> bool:
-    return isinstance(s, str) and s.isidentifier() and not s.startswith("_")
+    return isinstance(s, str) and s.isidentifier() and not keyword.iskeyword(s) and not s.startswith("_")
 
 
 class ConstrainedSystem:
@@ -159,6 +160,9 @@ class ConstrainedSystem:
         names = []
         for i, c in enumerate(coordinates):
             c = str(c) if isinstance(c, sp.Symbol) else c
+            if keyword.iskeyword(c):
+                raise ValueError(f"`coordinates[{i}]` = {c!r} is a Python keyword, which no expression can use; "
+                                 "choose another name")
             if not _is_name(c):
                 raise ValueError(f"`coordinates[{i}]` must be a Python identifier such as 'x1'; got {c!r}")
             if c in FUNCTIONS or c in CONSTANTS or c.endswith("_dot"):
@@ -184,6 +188,8 @@ class ConstrainedSystem:
         out = {}
         taken = set(self.coordinates) | set(self.velocities)
         for k, v in parameters.items():
+            if isinstance(k, str) and keyword.iskeyword(k):
+                raise ValueError(f"`parameters` key {k!r} is a Python keyword, which no expression can use; rename it")
             if not _is_name(k) or k in FUNCTIONS or k in CONSTANTS:
                 raise ValueError(f"`parameters` key {k!r} must be a Python identifier and not a function name")
             if k in taken:
