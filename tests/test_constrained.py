@@ -332,6 +332,14 @@ BAD = {
     "keyword as a coordinate": (lambda: ls.ConstrainedSystem("(lambda_dot**2 + y_dot**2)/2", ["lambda", "y"],
                                                              ["lambda**2 + y**2 - 1"]),
                                 "`coordinates[0]` = 'lambda' is a Python keyword"),
+    # a time-dependent (rheonomic) constraint or Lagrangian: `t` was called an unknown name to add to `parameters`,
+    # which would freeze the time at one value
+    "time-dependent constraint": (lambda: ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - y", ["x", "y"],
+                                                               ["x**2 + y**2 - (1 + t/10)**2"]),
+                                  "`constraints[0]` uses `t`: time-dependent"),
+    "time-dependent lagrangian": (lambda: ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - cos(t)*y", ["x", "y"],
+                                                               ["x**2 + y**2 - 1"]),
+                                  "`lagrangian` uses `t`: time-dependent"),
 }
 
 

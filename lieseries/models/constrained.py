@@ -269,6 +269,11 @@ class ConstrainedSystem:
         return out
 
     def _unknown(self, argname, unknown):
+        if "t" in unknown:
+            raise ValueError(
+                f"`{argname}` uses `t`: time-dependent (rheonomic) Lagrangians and constraints are not supported; "
+                "the method needs L(q, qdot) and G(q) without the time (a pendulum of varying length is outside "
+                "it). If `t` is a constant, give it in `parameters`")
         shown = ", ".join(f"`{u}`" for u in dict.fromkeys(unknown))
         raise ValueError(
             f"`{argname}` uses {shown}, which is neither a coordinate {list(self.coordinates)}, a velocity "
