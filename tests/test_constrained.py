@@ -551,6 +551,20 @@ def test_lie_steps_a_lagrangian_scaled_beyond_a_doubles_range():
     assert max(abs(a - b) for a, b in zip(*ends)) < 1e-18
 
 
+def test_a_sympy_function_outside_the_supported_ones_is_refused_naming_the_argument():
+    """A sympy expression with Abs(y), or an undefined V(y), was accepted; dirac() then failed with heyoka's
+    "TypeError: Unable to convert the sympy object V(y)", naming neither the argument nor what to do."""
+    x, y, xd, yd = sp.symbols("x y x_dot y_dot")
+    for f in (sp.Abs(y), sp.Function("V")(y)):
+        with pytest.raises(ValueError, match=rf"`lagrangian` uses {re.escape(str(f.func))}\(\), which is not one of "
+                                             r"the functions"):
+            ls.ConstrainedSystem((xd**2 + yd**2)/2 - f, ["x", "y"], [x**2 + y**2 - 1])
+    with pytest.raises(ValueError, match=r"`constraints\[0\]` uses Max\(\)"):
+        ls.ConstrainedSystem((xd**2 + yd**2)/2, ["x", "y"], [sp.Max(x, y)**2 + y**2 - 1])
+    cs = ls.ConstrainedSystem((xd**2 + yd**2)/2 - sp.cos(y) + sp.sqrt(2 + sp.exp(x)), ["x", "y"], [x**2 + y**2 - 1])
+    assert cs.dirac().dimension == 4
+
+
 def test_a_coordinate_named_like_a_momentum_is_refused_at_once():
     """Coordinates x and p_x (or pi_x) were accepted; dirac() (or intermediate()) then failed with "`variables`
     must have distinct names", which does not say what to rename."""

@@ -48,6 +48,7 @@ from fractions import Fraction
 
 import numpy as np
 import sympy as sp
+from sympy.core.function import Application
 
 from ..precision import data_bits, to_fraction
 from .constrained_checks import RESIDUAL_DPS, check_chart, check_frame
@@ -257,6 +258,11 @@ class ConstrainedSystem:
             raise TypeError(f"`{argname}` must be a string or a sympy expression; got {type(expr).__name__}")
         if not isinstance(out, sp.Expr):
             raise ValueError(f"`{argname}` must be a scalar expression; got {type(out).__name__} {out!r}")
+        supported = tuple(f for f in FUNCTIONS.values() if isinstance(f, type))  # sqrt is a power
+        other = sorted({str(f.func) for f in out.atoms(Application) if not isinstance(f, supported)})
+        if other:
+            raise ValueError(f"`{argname}` uses {', '.join(f + '()' for f in other)}, which is not one of the functions "
+                             f"the vector field can be built from ({', '.join(sorted(FUNCTIONS))}): write it with those")
         if out.has(sp.I) or out.has(sp.zoo) or out.has(sp.nan) or out.has(sp.oo):
             raise ValueError(f"`{argname}` = {out} is not a finite real expression (it has I, oo or nan)")
         if not velocities:
