@@ -17,6 +17,7 @@ import sympy as sp
 
 import lieseries as ls
 from lieseries.expr import compile_expressions
+from lieseries.models.constrained_checks import check_chart
 from lieseries.precision import resolve_precision
 from problems import ctx_mpf, private_ctx
 
@@ -143,6 +144,18 @@ def test_a_valid_chart_sympy_cannot_simplify_is_accepted_and_a_nearly_right_one_
         pend.local(chart={"y": "sqrt(r**2 - x**2) + 10**-30"})
     with pytest.raises(ValueError, match="`chart`: found no point where the chart is real"):
         pend.local(chart={"y": "sqrt(-r**2 - x**2)"})
+
+def test_a_chart_real_on_a_ring_only_is_accepted():
+    """The upper half of a torus (R = 2, r = 1) is real only where 1 <= sqrt(x^2 + y^2) <= 3: of the sample points
+    few fall there, and this valid chart was refused with "found no point where the chart is real". (The check
+    local() makes, called alone: the derivation takes 2 s.)"""
+    x, y, z = sp.symbols("x y z")
+    torus = [(x**2 + y**2 + z**2 + 3)**2 - 16*(x**2 + y**2)]
+    upper = sp.sqrt(1 - (sp.sqrt(x**2 + y**2) - 2)**2)
+    check_chart(torus, [x, y, z], {}, {z: upper})
+    with pytest.raises(ValueError, match=r"`chart` does not solve the constraints"):
+        check_chart(torus, [x, y, z], {}, {z: upper + sp.Integer(10)**-30})
+
 
 # -- the great circle in all four formulations, by both engines -----------------------------------------------------
 X0, V0 = ("0.6", "0", "0.8"), ("0", "1", "0")
