@@ -157,6 +157,21 @@ def test_a_chart_real_on_a_ring_only_is_accepted():
         check_chart(torus, [x, y, z], {}, {z: upper + sp.Integer(10)**-30})
 
 
+def test_a_point_in_doubles_near_the_charts_edge_is_held_by_it():
+    """y = -sqrt(1 - x^2) at x = cos 0.06 amplifies x's rounding 280-fold: the point in doubles, which dirac()
+    accepts, was refused as "not in this chart ... (another branch of the solution)", showing y equal to the chart's
+    value to every printed digit. The other branch is still refused."""
+    pend = ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - y", ["x", "y"], ["x**2 + y**2 - 1"])
+    lower = pend.local(chart={"y": "-sqrt(1 - x**2)"})
+    th = 0.06
+    q, v = (np.cos(th), -np.sin(th)), (-np.sin(th), -np.cos(th))
+    pend.dirac().initial_state(q=q, qdot=v)
+    y0 = lower.initial_state(q=q, qdot=v)
+    assert y0[0] == q[0]
+    with pytest.raises(ValueError, match=r"`q` is not in this chart: y = 0.059964006 but the chart gives"):
+        lower.initial_state(q=(q[0], -q[1]), qdot=(v[0], -v[1]))
+
+
 # -- the great circle in all four formulations, by both engines -----------------------------------------------------
 X0, V0 = ("0.6", "0", "0.8"), ("0", "1", "0")
 FORMS = {

@@ -520,11 +520,14 @@ class ConstrainedLocal(ConstrainedDirac):
         xf = [qf[i] for i in self.free]
         point = xf + [0] * len(self.free)
         got = self._eval(self._dependent_exprs, point)
+        # another branch differs by O(1); the chart amplifies the relative rounding of the free coordinates
+        # (x^2/y^2-fold for y = -sqrt(1 - x^2): 1/edge^2 at most), so branches are told apart at the square root
+        # of the surface's tolerance
         tol = residual_tolerance(bits)
         for a, g in zip(self.dependent, got):
             with mp.workdps(RESIDUAL_DPS):
                 want = mp.mpf(qf[a].numerator) / qf[a].denominator
-                off = abs(g - want) > (mp.mpf(tol.numerator) / tol.denominator) * max(abs(want), abs(g))
+                off = abs(g - want) > mp.sqrt(mp.mpf(tol.numerator) / tol.denominator) * max(abs(want), abs(g))
             if off:
                 raise ValueError(
                     f"`q` is not in this chart: {cs.coordinates[a]} = {mp.nstr(want, 8)} but the chart gives "
