@@ -220,6 +220,16 @@ def test_chart_forms_stop_at_their_edge(sphere, form):
     assert lie.stats.steps < 40
 
 
+def test_a_lie_step_over_a_thin_edge_band_still_stops_there(sphere):
+    """With edge = 0.001 the band |x3| < 0.001 of the reduced chart is thinner than a Lie step: the run stepped from
+    x3 > 0 to x3 < 0 (the edge expression det D^2 - edge^2 det W W^T positive at both ends) and ended `success` at
+    t = 3 in 3 steps, past the edge heyoka stops at (t = 1.5695)."""
+    model = sphere.reduced(edge="0.001")
+    lie = ls.lie_integrate(model, model.initial_state(q=X0, qdot=V0), t=3, dps=20)
+    assert lie.status == "chart_edge"
+    assert 1.5695 <= float(lie.t_reached) < 3  # the end of the step that crossed (2.88)
+
+
 # -- the rigid body (paper, section "Rotating asymmetric body") ------------------------------------------------------
 def _eps(i, j, k):
     return (i - j) * (j - k) * (k - i) // 2
