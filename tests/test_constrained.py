@@ -362,6 +362,20 @@ def test_off_surface_point_and_normal_velocity_are_refused_with_the_residual(sph
         ls.integrate(model, [1, 1, 1, 0, 0, 0], t=1)
 
 
+def test_an_irrational_point_in_decimals_is_told_how_to_pass():
+    """A point on x^2 + y^2 = 1 at 45 digits, cos(1) and sin(1), is 1e-46 off: the refusal asked for G = 0
+    exactly, impossible for most points of a surface a user writes; it now says how such a point passes."""
+    cs = ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2", ["x", "y"], ["x**2 + y**2 - 1"])
+    with mpmath.workdps(60):
+        c, s, minus_s = mpmath.cos(1), mpmath.sin(1), -mpmath.sin(1)
+    with pytest.raises(ValueError, match=r"`q` is not on the constraint surface: .* to 55 digits or more, or as "
+                                         r"binary numbers"):
+        cs.dirac().initial_state(q=(mpmath.nstr(c, 45), mpmath.nstr(s, 45)), qdot=(0, 0))
+    cs.dirac().initial_state(q=(mpmath.nstr(c, 55), mpmath.nstr(s, 55)), qdot=(0, 0))
+    cs.dirac().initial_state(q=(c, s), qdot=(minus_s, c))
+    cs.dirac().initial_state(q=(float(c), float(s)), qdot=(float(minus_s), float(c)))
+
+
 def test_hessian_depending_on_q_is_checked_at_the_initial_point():
     """M = diag(1, x): positive only for x > 0; the derivation goes through, a state at x < 0 is refused."""
     cs = ls.ConstrainedSystem("(x_dot**2 + x*y_dot**2)/2", ["x", "y"], ["x - y**2 - 1/2"])

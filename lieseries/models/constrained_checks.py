@@ -63,7 +63,9 @@ def check_surface_residuals(terms, gradients, qdot, bits, labels, qname="q", vna
                 raise ValueError(
                     f"`{qname}` is not on the constraint surface: {labels[a]} = {mp.nstr(res, 6)} at it (relative "
                     f"{mp.nstr(abs(res) / scale, 3)} > {mp.nstr(tol, 3)}). Give a point with G = 0 exactly (strings "
-                    "or Fractions: '3/5', '0.6')" + note)
+                    "or Fractions: '3/5', '0.6')" + (note or "; a point known to finite precision only (an irrational "
+                    "one): to 55 digits or more, or as binary numbers (floats, heyoka.real128, heyoka.real), checked "
+                    "to the bits they carry"))
         if qdot is None:
             return
         for a, grad in enumerate(gradients):
