@@ -324,6 +324,22 @@ BAD = {
     "bad coordinate": (lambda: ls.ConstrainedSystem("x_dot**2", ["x y"], ["x"]), "`coordinates[0]`"),
     "parameter named like a coordinate": (lambda: ls.ConstrainedSystem(SPHERE_L, SPHERE_Q, SPHERE_G,
                                                                        parameters={"x1": 1}), "`parameters`"),
+    # a Python keyword passed the identifier check and failed later as "SyntaxError: invalid syntax" or
+    # "TokenError: Starred arguments in lambda not supported" under `lagrangian` or `constraints[0]`
+    "keyword as a parameter": (lambda: ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - lambda*y", ["x", "y"],
+                                                            ["x**2 + y**2 - 1"], parameters={"lambda": 2}),
+                               "`parameters` key 'lambda' is a Python keyword"),
+    "keyword as a coordinate": (lambda: ls.ConstrainedSystem("(lambda_dot**2 + y_dot**2)/2", ["lambda", "y"],
+                                                             ["lambda**2 + y**2 - 1"]),
+                                "`coordinates[0]` = 'lambda' is a Python keyword"),
+    # a time-dependent (rheonomic) constraint or Lagrangian: `t` was called an unknown name to add to `parameters`,
+    # which would freeze the time at one value
+    "time-dependent constraint": (lambda: ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - y", ["x", "y"],
+                                                               ["x**2 + y**2 - (1 + t/10)**2"]),
+                                  "`constraints[0]` uses `t`: time-dependent"),
+    "time-dependent lagrangian": (lambda: ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - cos(t)*y", ["x", "y"],
+                                                               ["x**2 + y**2 - 1"]),
+                                  "`lagrangian` uses `t`: time-dependent"),
 }
 
 
@@ -344,6 +360,20 @@ def test_off_surface_point_and_normal_velocity_are_refused_with_the_residual(sph
         model.initial_state(q=(1, 0), qdot=(0, 1, 0))
     with pytest.raises(ValueError, match=r"`y0` is not on the constraint surface"):
         ls.integrate(model, [1, 1, 1, 0, 0, 0], t=1)
+
+
+def test_an_irrational_point_in_decimals_is_told_how_to_pass():
+    """A point on x^2 + y^2 = 1 at 45 digits, cos(1) and sin(1), is 1e-46 off: the refusal asked for G = 0
+    exactly, impossible for most points of a surface a user writes; it now says how such a point passes."""
+    cs = ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2", ["x", "y"], ["x**2 + y**2 - 1"])
+    with mpmath.workdps(60):
+        c, s, minus_s = mpmath.cos(1), mpmath.sin(1), -mpmath.sin(1)
+    with pytest.raises(ValueError, match=r"`q` is not on the constraint surface: .* to 55 digits or more, or as "
+                                         r"binary numbers"):
+        cs.dirac().initial_state(q=(mpmath.nstr(c, 45), mpmath.nstr(s, 45)), qdot=(0, 0))
+    cs.dirac().initial_state(q=(mpmath.nstr(c, 55), mpmath.nstr(s, 55)), qdot=(0, 0))
+    cs.dirac().initial_state(q=(c, s), qdot=(minus_s, c))
+    cs.dirac().initial_state(q=(float(c), float(s)), qdot=(float(minus_s), float(c)))
 
 
 def test_hessian_depending_on_q_is_checked_at_the_initial_point():
@@ -533,6 +563,20 @@ def test_lie_steps_a_lagrangian_scaled_beyond_a_doubles_range():
         assert sol.status == "success", sol.message
         ends.append([ctx_mpf(c, v) for v in model.configuration(sol)[-1]])
     assert max(abs(a - b) for a, b in zip(*ends)) < 1e-18
+
+
+def test_a_sympy_function_outside_the_supported_ones_is_refused_naming_the_argument():
+    """A sympy expression with Abs(y), or an undefined V(y), was accepted; dirac() then failed with heyoka's
+    "TypeError: Unable to convert the sympy object V(y)", naming neither the argument nor what to do."""
+    x, y, xd, yd = sp.symbols("x y x_dot y_dot")
+    for f in (sp.Abs(y), sp.Function("V")(y)):
+        with pytest.raises(ValueError, match=rf"`lagrangian` uses {re.escape(str(f.func))}\(\), which is not one of "
+                                             r"the functions"):
+            ls.ConstrainedSystem((xd**2 + yd**2)/2 - f, ["x", "y"], [x**2 + y**2 - 1])
+    with pytest.raises(ValueError, match=r"`constraints\[0\]` uses Max\(\)"):
+        ls.ConstrainedSystem((xd**2 + yd**2)/2, ["x", "y"], [sp.Max(x, y)**2 + y**2 - 1])
+    cs = ls.ConstrainedSystem((xd**2 + yd**2)/2 - sp.cos(y) + sp.sqrt(2 + sp.exp(x)), ["x", "y"], [x**2 + y**2 - 1])
+    assert cs.dirac().dimension == 4
 
 
 def test_a_coordinate_named_like_a_momentum_is_refused_at_once():

@@ -17,6 +17,7 @@ import sympy as sp
 
 import lieseries as ls
 from lieseries.expr import compile_expressions
+from lieseries.models.constrained_checks import check_chart
 from lieseries.precision import resolve_precision
 from problems import ctx_mpf, private_ctx
 
@@ -144,6 +145,33 @@ def test_a_valid_chart_sympy_cannot_simplify_is_accepted_and_a_nearly_right_one_
     with pytest.raises(ValueError, match="`chart`: found no point where the chart is real"):
         pend.local(chart={"y": "sqrt(-r**2 - x**2)"})
 
+def test_a_chart_real_on_a_ring_only_is_accepted():
+    """The upper half of a torus (R = 2, r = 1) is real only where 1 <= sqrt(x^2 + y^2) <= 3: of the sample points
+    few fall there, and this valid chart was refused with "found no point where the chart is real". (The check
+    local() makes, called alone: the derivation takes 2 s.)"""
+    x, y, z = sp.symbols("x y z")
+    torus = [(x**2 + y**2 + z**2 + 3)**2 - 16*(x**2 + y**2)]
+    upper = sp.sqrt(1 - (sp.sqrt(x**2 + y**2) - 2)**2)
+    check_chart(torus, [x, y, z], {}, {z: upper})
+    with pytest.raises(ValueError, match=r"`chart` does not solve the constraints"):
+        check_chart(torus, [x, y, z], {}, {z: upper + sp.Integer(10)**-30})
+
+
+def test_a_point_in_doubles_near_the_charts_edge_is_held_by_it():
+    """y = -sqrt(1 - x^2) at x = cos 0.06 amplifies x's rounding 280-fold: the point in doubles, which dirac()
+    accepts, was refused as "not in this chart ... (another branch of the solution)", showing y equal to the chart's
+    value to every printed digit. The other branch is still refused."""
+    pend = ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - y", ["x", "y"], ["x**2 + y**2 - 1"])
+    lower = pend.local(chart={"y": "-sqrt(1 - x**2)"})
+    th = 0.06
+    q, v = (np.cos(th), -np.sin(th)), (-np.sin(th), -np.cos(th))
+    pend.dirac().initial_state(q=q, qdot=v)
+    y0 = lower.initial_state(q=q, qdot=v)
+    assert y0[0] == q[0]
+    with pytest.raises(ValueError, match=r"`q` is not in this chart: y = 0.059964006 but the chart gives"):
+        lower.initial_state(q=(q[0], -q[1]), qdot=(v[0], -v[1]))
+
+
 # -- the great circle in all four formulations, by both engines -----------------------------------------------------
 X0, V0 = ("0.6", "0", "0.8"), ("0", "1", "0")
 FORMS = {
@@ -190,6 +218,16 @@ def test_chart_forms_stop_at_their_edge(sphere, form):
     # the intermediate form's momentum along x1 is zero but for the roundings (1e-45 against 1.5): held to its own
     # scale, it took 1048 steps (the local chart and heyoka 21-23)
     assert lie.stats.steps < 40
+
+
+def test_a_lie_step_over_a_thin_edge_band_still_stops_there(sphere):
+    """With edge = 0.001 the band |x3| < 0.001 of the reduced chart is thinner than a Lie step: the run stepped from
+    x3 > 0 to x3 < 0 (the edge expression det D^2 - edge^2 det W W^T positive at both ends) and ended `success` at
+    t = 3 in 3 steps, past the edge heyoka stops at (t = 1.5695)."""
+    model = sphere.reduced(edge="0.001")
+    lie = ls.lie_integrate(model, model.initial_state(q=X0, qdot=V0), t=3, dps=20)
+    assert lie.status == "chart_edge"
+    assert 1.5695 <= float(lie.t_reached) < 3  # the end of the step that crossed (2.88)
 
 
 # -- the rigid body (paper, section "Rotating asymmetric body") ------------------------------------------------------

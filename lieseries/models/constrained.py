@@ -42,11 +42,13 @@ exact and are rounded once to each working precision; a float is its binary valu
 from __future__ import annotations
 
 import io
+import keyword
 import tokenize
 from fractions import Fraction
 
 import numpy as np
 import sympy as sp
+from sympy.core.function import Application
 
 from ..precision import data_bits, to_fraction
 from .constrained_checks import RESIDUAL_DPS, check_chart, check_frame
@@ -65,7 +67,7 @@ FUNCTIONS = {
 CONSTANTS = {"pi": sp.pi}
 
 def _is_name(s) -> bool:
-    return isinstance(s, str) and s.isidentifier() and not s.startswith("_")
+    return isinstance(s, str) and s.isidentifier() and not keyword.iskeyword(s) and not s.startswith("_")
 
 
 class ConstrainedSystem:
@@ -159,6 +161,9 @@ class ConstrainedSystem:
         names = []
         for i, c in enumerate(coordinates):
             c = str(c) if isinstance(c, sp.Symbol) else c
+            if keyword.iskeyword(c):
+                raise ValueError(f"`coordinates[{i}]` = {c!r} is a Python keyword, which no expression can use; "
+                                 "choose another name")
             if not _is_name(c):
                 raise ValueError(f"`coordinates[{i}]` must be a Python identifier such as 'x1'; got {c!r}")
             if c in FUNCTIONS or c in CONSTANTS or c.endswith("_dot"):
@@ -184,6 +189,8 @@ class ConstrainedSystem:
         out = {}
         taken = set(self.coordinates) | set(self.velocities)
         for k, v in parameters.items():
+            if isinstance(k, str) and keyword.iskeyword(k):
+                raise ValueError(f"`parameters` key {k!r} is a Python keyword, which no expression can use; rename it")
             if not _is_name(k) or k in FUNCTIONS or k in CONSTANTS:
                 raise ValueError(f"`parameters` key {k!r} must be a Python identifier and not a function name")
             if k in taken:
@@ -251,6 +258,11 @@ class ConstrainedSystem:
             raise TypeError(f"`{argname}` must be a string or a sympy expression; got {type(expr).__name__}")
         if not isinstance(out, sp.Expr):
             raise ValueError(f"`{argname}` must be a scalar expression; got {type(out).__name__} {out!r}")
+        supported = tuple(f for f in FUNCTIONS.values() if isinstance(f, type))  # sqrt is a power
+        other = sorted({str(f.func) for f in out.atoms(Application) if not isinstance(f, supported)})
+        if other:
+            raise ValueError(f"`{argname}` uses {', '.join(f + '()' for f in other)}, which is not one of the functions "
+                             f"the vector field can be built from ({', '.join(sorted(FUNCTIONS))}): write it with those")
         if out.has(sp.I) or out.has(sp.zoo) or out.has(sp.nan) or out.has(sp.oo):
             raise ValueError(f"`{argname}` = {out} is not a finite real expression (it has I, oo or nan)")
         if not velocities:
@@ -263,6 +275,11 @@ class ConstrainedSystem:
         return out
 
     def _unknown(self, argname, unknown):
+        if "t" in unknown:
+            raise ValueError(
+                f"`{argname}` uses `t`: time-dependent (rheonomic) Lagrangians and constraints are not supported; "
+                "the method needs L(q, qdot) and G(q) without the time (a pendulum of varying length is outside "
+                "it). If `t` is a constant, give it in `parameters`")
         shown = ", ".join(f"`{u}`" for u in dict.fromkeys(unknown))
         raise ValueError(
             f"`{argname}` uses {shown}, which is neither a coordinate {list(self.coordinates)}, a velocity "
