@@ -18,6 +18,7 @@ import sympy as sp
 import lieseries as ls
 from lieseries.expr import compile_expressions
 from lieseries.models.constrained_checks import check_chart
+from problems import ctx_mpf, private_ctx
 from lieseries.precision import resolve_precision
 from problems import ctx_mpf, private_ctx
 
@@ -228,6 +229,12 @@ def test_a_lie_step_over_a_thin_edge_band_still_stops_there(sphere):
     lie = ls.lie_integrate(model, model.initial_state(q=X0, qdot=V0), t=3, dps=20)
     assert lie.status == "chart_edge"
     assert 1.5695 <= float(lie.t_reached) < 3  # the end of the step that crossed (2.88)
+    # where it stopped, the state is right (the Dirac form, which needs no chart, at 30 digits)
+    dirac = sphere.dirac()
+    ref = ls.lie_integrate(dirac, dirac.initial_state(q=X0, qdot=V0), t=lie.t_reached, dps=30)
+    got, want = model.configuration(lie.y_reached), dirac.configuration(ref.y_reached)
+    c = private_ctx(40)
+    assert max(abs(ctx_mpf(c, a) - ctx_mpf(c, b)) for a, b in zip(got, want)) < c.mpf(10) ** -18
 
 
 # -- the rigid body (paper, section "Rotating asymmetric body") ------------------------------------------------------
