@@ -340,6 +340,14 @@ BAD = {
     "time-dependent lagrangian": (lambda: ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - cos(t)*y", ["x", "y"],
                                                                ["x**2 + y**2 - 1"]),
                                   "`lagrangian` uses `t`: time-dependent"),
+    # an equation where the constraint G (for G = 0) was meant: "must be a scalar expression; got BooleanFalse"
+    # for `==`, a SyntaxError for `=`
+    "equation as a constraint": (lambda: ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - y", ["x", "y"],
+                                                              ["x**2 + y**2 == 1"]),
+                                 "`constraints[0]` = 'x**2 + y**2 == 1' is an equation"),
+    "assignment as a constraint": (lambda: ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - y", ["x", "y"],
+                                                                ["x**2 + y**2 = 1"]),
+                                   "is an equation or a comparison: give the expression alone"),
 }
 
 

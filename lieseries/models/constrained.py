@@ -215,6 +215,10 @@ class ConstrainedSystem:
             except (tokenize.TokenError, IndentationError, SyntaxError) as err:
                 raise ValueError(f"`{argname}` could not be read ({err}); write it as a Python/sympy expression "
                                  f"such as 'm/2*x_dot**2 - m*g*x'") from None
+            if any(tok.type == tokenize.OP and tok.string in ("=", "==", "<", ">", "<=", ">=", "!=") for tok in toks):
+                raise ValueError(f"`{argname}` = {expr!r} is an equation or a comparison: give the expression alone "
+                                 "(a constraint G for G = 0, such as 'x**2 + y**2 - 1'; a Lagrangian such as "
+                                 "'m/2*x_dot**2 - m*g*x')")
             for i, tok in enumerate(toks):
                 if tok.type == tokenize.NAME and tok.string not in table and tok.string not in CONSTANTS:
                     nxt = toks[i + 1].string if i + 1 < len(toks) else ""
