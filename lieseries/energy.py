@@ -53,7 +53,8 @@ def drift_threshold(tol, steps):
     f = float(tol)
     if f > 1e-280 or isinstance(tol, float):
         # a float stays a float (heyoka's reals multiply with floats, not with mpf): the square of a 1024-bit
-        # run's sqrt(tol) is 5.6e-309, and its threshold, at least 1000 times that, is a normal double
+        # run's sqrt(tol) is 5.6e-309, and its threshold, at least 1000 times that (the allowance below 2^-112),
+        # is a normal double
         return min(math.sqrt(f), drift_per_step(f) * f * n)
     t = mpmath.mpf(tol) if hasattr(tol, "_mpf_") else mpmath.mpf(tol.numerator) / tol.denominator
     return min(mpmath.sqrt(t), drift_per_step(f) * t * n)
