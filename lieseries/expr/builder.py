@@ -30,16 +30,31 @@ def _raw_to_fraction(raw, name):
     return -v if sign else v
 
 
+#: Characters of the expressions' text (or one expression printed cut short) above which :func:`sympy_forms`
+#: empties sympy's cache first. A small field (the rigid body's ~1600, the sphere's ~2000) converts 3.5 times
+#: faster from a warm cache (sympy's assumptions on names and numbers are kept there); the heavy top's Dirac form
+#: (18000) walks whole trees in it.
+LARGE_TEXT = 8000
+
+
 def sympy_forms(exprs, as_written=False) -> list:
     """The sympy trees of heyoka expressions (:func:`heyoka.to_sympy`; ``as_written``: without sympy's automatic
-    simplification), sympy's cache emptied first.
+    simplification), sympy's cache emptied first when the expressions are large (:data:`LARGE_TEXT`).
 
     sympy keeps what it builds in a process-wide cache and compares each new object with an equal one it holds node
     by node, with no shortcut but identity: once a derived field's trees are held twice (converted again, or as
     written beside evaluated, or rebuilt by ``cse``), every lookup walks a whole tree. The Dirac form of a heavy top
     took 2.4 s to convert after its program had been compiled (0.36 s the first time); emptying the cache costs ~10
-    us and changes nothing but what sympy has to build again."""
-    clear_cache()
+    us and changes nothing but what sympy has to build again -- which for a small field is most of its
+    conversion (6 ms from a warm cache, 20 ms from an empty one, for the rigid body)."""
+    exprs = list(exprs)
+    size = 0
+    for e in exprs:
+        text = str(e)
+        size += len(text)
+        if size > LARGE_TEXT or text.endswith("..."):  # (heyoka prints ~1000 characters of an expression at most)
+            clear_cache()
+            break
     if as_written:
         with sympy.evaluate(False):
             return [hy.to_sympy(e) for e in exprs]
