@@ -368,9 +368,10 @@ def run_scene(scene, quick: bool = False, progress=True, max_time=None) -> Scene
 
     Notes
     -----
-    The whole cache (:mod:`lieseries.cache`: compiled integrators, memoised calls, compiled programs) is cleared
-    first, so that the build times reported are those of this scene. The runs' warnings are gathered and given
-    once each when the scene returns; scenes run one at a time in a process (calls from other threads wait).
+    What the process has compiled already (:mod:`lieseries.cache`: integrators, programs) is used as it is: a run
+    whose integrator was built earlier in the process, by this scene or another, reports a build time of 0 (the
+    report says so). The runs' warnings are gathered and given once each when the scene returns; scenes run one at
+    a time in a process (calls from other threads wait).
 
     Returns
     -------
@@ -383,8 +384,7 @@ def run_scene(scene, quick: bool = False, progress=True, max_time=None) -> Scene
         check_scene_budget(estimate_scene(scene, quick), check_seconds(max_time, "max_time"), "`max_time`")
     # every run of the scene warns of its binary numbers at its own precision: said once per number, at the end.
     # Python's warning capture is one for the whole process (two threads that overlap restore each other's and the
-    # later warnings of the process went to a finished scene's list, never shown), and a scene empties the whole
-    # cache as it starts: scenes run one at a time
+    # later warnings of the process went to a finished scene's list, never shown): scenes run one at a time
     caught = []
     with _ONE_SCENE:
         try:
@@ -439,12 +439,6 @@ def _names_field(text: str, path: str) -> bool:
 
 def _run_scene(scene, quick, progress) -> SceneResult:
     """:func:`run_scene` of a loaded scene within its budget."""
-    from .taylor import clear_cache
-
-    # build times in the report are this scene's: start with the whole cache empty (integrators, ensemble
-    # integrators, memoised calls, compiled programs and right-hand sides; heyoka's own LLVM memory cache is left
-    # alone)
-    clear_cache()
     start = _time.perf_counter()
     runp, studies = effective_plan(scene, quick)
     built = scene.build_models()

@@ -25,8 +25,8 @@ def _exact(y0, t):
 
 
 def test_a_repeated_call_after_clear_cache_reports_its_own_build():
-    # a scene run clears the cache so that the build times it reports are its own: a call repeated from earlier
-    # work (memoised) must build again, not report the earlier build as cached
+    # who times builds empties the cache first: a call repeated from earlier work (memoised) must build again,
+    # not report the earlier build as cached
     osc = _oscillator()
     y0 = np.array([1.0, 0.5])
     first = ls.integrate(osc, y0, 2.0)
@@ -53,22 +53,22 @@ def test_clear_cache_forgets_the_ensemble_integrators_too():
         np.testing.assert_allclose(np.asarray(sol.y_reached[i], dtype=float), _exact(Y0[i], 1.5), rtol=0, atol=1e-13)
 
 
-def test_run_scene_starts_from_an_empty_cache(monkeypatch):
+def test_run_scene_keeps_what_the_process_built_and_reports_it_as_built_earlier(tmp_path):
+    # a scene uses the integrators the process holds (no rebuild); a run whose integrator was built before reports
+    # a build time of 0, and the report says what 0 means
     from lieseries import cache, run
 
-    seen = []
-    def plan(scene, quick):  # what run_scene does first after clearing: record the cache, stop
-        seen.append(dict(cache.info()))
-        raise RuntimeError("stop")
+    first = run.run_scene("default", quick=True, progress=False)
+    held = cache.info()["taylor.integrators"]
+    assert held >= 1
+    second = run.run_scene("default", quick=True, progress=False)
+    assert cache.info()["taylor.integrators"] == held
+    heyoka_rows = [r for r in second.run["rows"] if r.build_time is not None and r.method == "taylor"]
+    assert heyoka_rows and all(r.build_time == 0 for r in heyoka_rows)
+    assert [r.error for r in first.run["rows"]] == [r.error for r in second.run["rows"]]
+    from lieseries.report import write_report
 
-    monkeypatch.setattr(run, "load_scene", lambda scene: scene)
-    monkeypatch.setattr(run, "effective_plan", plan)
-    ls.integrate(_oscillator(), np.array([1.0, 0.0]), 1.0)  # something cached
-    assert cache.info()["taylor.integrators"] >= 1
-    with pytest.raises(RuntimeError, match="stop"):
-        run.run_scene("unused")
-    assert seen  # the plan was asked for, after the clear
-    assert all(v == 0 for k, v in seen[0].items() if k != "cost") and seen[0]["cost"] == 0
+    assert "0 when it had been built earlier in the process" in write_report(second, tmp_path / "r").read_text()
 
 
 def test_a_region_is_bounded_and_evicts_the_least_recently_used():

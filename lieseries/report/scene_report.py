@@ -97,7 +97,8 @@ def _section_run(result, lines, csvs):
                  f"(every {fmt_num(run['t'] / (n - 1))}). Reference: "
                  f"{run['reference']}. *final error*: max-abs error at the final time; *max error*: the largest "
                  "over the output times (when a trajectory is asked for). Errors compare the state (rigid body) "
-                 "or position and velocity (sphere)."
+                 "or position and velocity (sphere). *build time*: compiling the run's heyoka integrator; 0 when "
+                 "it had been built earlier in the process (by an earlier row, or an earlier scene)."
                  + (" *relative error*: the final error of each quantity over its natural scale (R against 1, M "
                     "against |M|; x against |x|, v against |v|), the largest of them."
                     if getattr(result.scene, "stability", None) is not None else ""))
