@@ -86,7 +86,7 @@ PYTHON_CHECK_CHARS = 4000
 
 def _compiled(ps, prec):
     """(H alone, H and its gradient, number of parameters H reads), compiled once per structure and precision."""
-    key = (ps.key, prec.name)
+    key = (ps.invariants_key, prec.name)
     entry = _ENERGY.get(key)
     if entry is None:
         kwargs = {} if prec.name == "double" else {"fp_type": prec.fp_type}
@@ -421,7 +421,7 @@ def energy_exact(ps, y, bits: int, remember: bool = False):
 
     prog = _EXACT_PROGRAMS.get(ps)
     if prog is None:  # (the gradient and the compiled-program lookup cost a third of a call: once per system)
-        skey = (ps.key, str(ps.hamiltonian))  # and compiled once per structure and H (0.25 s for a heavy top's
+        skey = ps.invariants_key  # and compiled once per structure and H (0.25 s for a heavy top's
         prog = _EXACT_BY_STRUCTURE.get(skey)  # intermediate form: a model built again, or with other parameters)
         if prog is None:
             exprs = [ps.hamiltonian] + [hy.diff(ps.hamiltonian, v) for v in ps.variables]

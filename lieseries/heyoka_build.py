@@ -16,13 +16,50 @@ from .models.base import Model
 from .poisson import as_poisson_system
 from .precision import check_tolerance, resolve_precision, to_fraction
 
-__all__ = ["build_integrator", "integrator_count", "event_function", "Recorder", "CrossingGuard", "Both",
+__all__ = ["build_integrator", "compact_by_default", "integrator_count", "event_function", "Recorder", "CrossingGuard", "Both",
            "sparse_first_step", "first_step_bound", "top_orders", "norm_bounds"]
 
 #: Compiled integrators (the templates runs copy, :func:`lieseries.cache.checkout`) by structure, precision,
 #: tolerance, events and options, in the shared cache (:mod:`lieseries.cache`); an evicted template takes its pooled
 #: copies with it.
 INTEGRATORS = cache.region("taylor.integrators", 64, on_evict=cache.drop_template)
+
+
+#: Above this many elementary operations in its Taylor decomposition a field is compiled in compact mode in double
+#: too. Unrolled, LLVM's time grows about as the square of it (heyoka 7.13 on the 2-core machine: 57 operations, the
+#: rigid body, 0.5 s; 110, a spherical pendulum's reduced form, 2.5 s; 247 12.7 s; 1377, a torus in a local chart,
+#: 248 s; 2380, the heavy top's Dirac form, 575 s), compact 0.02-0.9 s; a compact run in double takes ~1.5 times as
+#: long (the 110-operation field).
+UNROLLED_OPERATIONS = 150
+#: Fields whose printed components together are shorter than this (none cut short: heyoka prints ~1000 characters
+#: of an expression at most) are compiled unrolled in double without counting their decomposition (the rigid body
+#: ~1600 characters, the sphere ~1900, the heavy top ~1700: ~30 characters an operation).
+SMALL_TEXT = 2500
+#: Whether a field's decomposition is above :data:`UNROLLED_OPERATIONS`, by structure.
+_LARGE_DECOMPOSITION = cache.region("taylor.decomposition_size", 256)
+
+
+def compact_by_default(system, precision) -> bool:
+    """Whether heyoka compiles ``system`` in compact mode when the caller does not say: always above double
+    (LLVM is slow on unrolled long-double, quad and real code), above 20 variables, for a model that knows its
+    field is large, and for a field whose Taylor decomposition has more than :data:`UNROLLED_OPERATIONS`
+    elementary operations (counted once per structure on a compact build, which costs a fraction of a second)."""
+    ps = as_poisson_system(system)
+    if resolve_precision(precision).name != "double" or ps.dimension > 20:
+        return True
+    if getattr(system, "large_field", False):
+        return True
+    text = [str(e) for e in ps.vector_field]
+    if sum(map(len, text)) <= SMALL_TEXT and not any(t.endswith("...") for t in text):
+        return False
+    large = _LARGE_DECOMPOSITION.get(ps.key)
+    if large is None:
+        start = _time.perf_counter()
+        pars = [0.0] * len(ps.parameter_values)
+        probe = hy.taylor_adaptive(ps.ode_system, [0.0] * ps.dimension, pars=pars, compact_mode=True)
+        large = len(probe.decomposition) - 2 * ps.dimension > UNROLLED_OPERATIONS
+        large = _LARGE_DECOMPOSITION.put(ps.key, large, cost=_time.perf_counter() - start)
+    return large
 
 
 def integrator_count() -> int:
@@ -53,7 +90,7 @@ EVENT_FUNCTIONS = cache.region("taylor.event_functions", 64)
 def event_function(ps, prec, exprs):
     """The non-terminal events' expressions as one compiled function of the state (and parameters), in the run's
     format: the sign checks of :class:`CrossingGuard`."""
-    key = (ps.key, prec.name, tuple(str(e) for e in exprs))
+    key = (ps.key, prec.name, tuple(exprs))  # the expressions (heyoka hashes and compares them whole), not their text
     hit = EVENT_FUNCTIONS.get(key)
     if hit is None:
         kwargs = {} if prec.name == "double" else {"fp_type": prec.fp_type}
@@ -246,10 +283,9 @@ def build_integrator(system, precision="double", tol=None, *, events=True, user_
     evs = model.events() if (model is not None and events) else []
     n = ps.dimension
     if compact_mode is None:
-        # compact mode keeps compilation fast: LLVM is slow on unrolled long-double, quad and real code
-        compact_mode = prec.name != "double" or n > 20 or bool(getattr(model, "large_field", False))
-    user = tuple((str(e[1]), e[2], e[3]) for e in user_events)
-    key = (ps.key, prec.name, tolf, tuple(str(e[0]) for e in evs), user, bool(compact_mode), bool(high_accuracy))
+        compact_mode = compact_by_default(system, prec)
+    user = tuple((e[1], e[2], e[3]) for e in user_events)
+    key = (ps.key, prec.name, tolf, tuple(e[0] for e in evs), user, bool(compact_mode), bool(high_accuracy))
     info = [(e[1], e[2]) for e in evs]  # messages from this model, never from the cached one
     info += [("event", f"the event {e[0]!r} fired") for e in user_events if e[3]]
     hit = INTEGRATORS.get(key)

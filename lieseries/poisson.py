@@ -182,6 +182,7 @@ class PoissonSystem:
         self._ode = None
         self._written = None  # (written_program)
         self._key = None
+        self._invariants_key = None
         self._check_expressions(extra_field)
         self._check_antisymmetry()
         self._check_structure(jacobi)
@@ -505,10 +506,26 @@ class PoissonSystem:
 
     @property
     def key(self) -> str:
-        """A structural key: systems with equal keys compile to the same heyoka integrator."""
+        """A structural key: systems with equal keys have the same vector field (the parameters' values apart) and
+        compile to the same heyoka integrator. The expressions enter whole (:func:`lieseries.expr.expressions_digest`),
+        not as printed: heyoka prints ~1000 characters of an expression at most."""
         if self._key is None:
-            self._key = repr((self._names, [str(e) for e in self.vector_field], len(self._param_values)))
+            from .expr import expressions_digest
+
+            self._key = repr((self._names, len(self._param_values), expressions_digest(self.vector_field)))
         return self._key
+
+    @property
+    def invariants_key(self) -> str:
+        """:attr:`key` with the Hamiltonian and the Casimirs: systems with equal ones have the same energy check
+        (a Hamiltonian that differs by a constant has the same field, not the same energy)."""
+        if self._invariants_key is None:
+            from .expr import expressions_digest
+
+            names = list(self._casimirs)
+            digest = expressions_digest([self._hamiltonian] + [self._casimirs[c] for c in names])
+            self._invariants_key = repr((self.key, names, digest))
+        return self._invariants_key
 
     def bracket(self, f, g) -> hy.expression:
         """The Poisson bracket ``{f, g} = sum_ij df/dz_i P_ij dg/dz_j`` as a heyoka expression."""

@@ -150,3 +150,40 @@ def test_threads_share_the_pool_and_get_the_serial_answer():
     for i, y in enumerate(rows):
         assert np.array_equal(out[i], serial[i])  # bit for bit: the same compiled code, a private copy each
         np.testing.assert_allclose(out[i], _exact(y, 3.0), rtol=0, atol=1e-13)
+
+
+def _harmonics(c):
+    """A pendulum of amplitude ``c`` with 29 small dyadic harmonics written before it: ~210 operations, and a field
+    that heyoka prints cut short, so that fields with other ``c`` print the same."""
+    q, p = hy.make_vars("q", "p")
+    H = p * p / 2 - sum(hy.cos(k * q) / 2 ** (k // 4 + 4) for k in range(2, 31)) - c * hy.cos(q)
+    return ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], H, name=f"harmonics ({c})")
+
+
+def test_fields_that_print_the_same_are_not_taken_for_one_another():
+    # heyoka prints ~1000 characters of an expression: a cache keyed by the printed field ran the second system with
+    # the first one's integrator (status success, p off by 0.37 at t = 2). Each run against the Lie engine at 30
+    # digits.
+    a, b = _harmonics(1), _harmonics(2)
+    assert [str(e) for e in a.vector_field] == [str(e) for e in b.vector_field]  # what fooled the text key
+    assert a.key != b.key
+    for system in (a, b, a):
+        sol = ls.integrate(system, np.array([0.5, 0.0]), 2.0)
+        ref = ls.lie_integrate(system, ["0.5", 0], t=2, dps=30)
+        assert sol.status == "success" and ref.status == "success"
+        np.testing.assert_allclose(np.asarray(sol.y_final, dtype=float), np.asarray(ref.y_final, dtype=float),
+                                   rtol=0, atol=1e-13)
+
+
+def test_a_field_with_a_large_decomposition_compiles_in_compact_mode_in_double():
+    # unrolled, LLVM's time grows as the square of the field's operations (a torus in a local chart, ~1400: 248 s);
+    # compact it takes a fraction of a second. The harmonics (~210 operations) are compiled compact for a single run
+    # and for an ensemble, the rigid body (57) unrolled.
+    from lieseries.heyoka_build import compact_by_default
+
+    many = _harmonics(1)
+    assert compact_by_default(many, "double")
+    assert build_integrator(many)[0].compact_mode
+    assert build_batch_integrator(many, batch_size=2)[0].compact_mode
+    body = ls.EulerPoisson((1, 2, 3))
+    assert not compact_by_default(body, "double") and not build_integrator(body)[0].compact_mode

@@ -46,9 +46,9 @@ def split_structure(system):
             if type(system[i]) is not type(system[0]):
                 raise ValueError(f"`system[{i}]` is a {type(system[i]).__name__}, `system[0]` a "
                                  f"{type(system[0]).__name__}: pass models of one kind")
-        ev0 = [str(e[0]) for e in system[0].events()] if isinstance(system[0], Model) else []
+        ev0 = [e[0] for e in system[0].events()] if isinstance(system[0], Model) else []
         for i, s in enumerate(system):
-            evi = [str(e[0]) for e in s.events()] if isinstance(s, Model) else []
+            evi = [e[0] for e in s.events()] if isinstance(s, Model) else []
             if evi != ev0:
                 raise ValueError(f"`system[{i}]` watches other events than `system[0]`; pass models of one kind")
         return system[0], list(system)

@@ -45,7 +45,9 @@ and pointwise operations on raw numbers).
 
 from __future__ import annotations
 
+import hashlib
 import numbers
+import pickle
 import time
 
 import heyoka as hy
@@ -62,6 +64,7 @@ __all__ = [
     "Constant",
     "compile_expressions",
     "compile_system",
+    "expressions_digest",
     "SUPPORTED_OPS",
     "uses_time",
     # used across the package
@@ -77,6 +80,21 @@ __all__ = [
     "to_raw",
     "variable_names",
 ]
+
+def expressions_digest(exprs) -> str:
+    """A text that tells heyoka expressions apart in full: the SHA-256 of their pickled forms, in order.
+
+    ``str`` of a heyoka expression stops after ~1000 characters (``... * ...``): two fields that differ only further
+    on print the same, and a cache keyed by that text would run one system with the other's compiled code. Equal
+    expressions built with other sharing of their subexpressions may get different digests (a cache miss, never a
+    wrong hit)."""
+    h = hashlib.sha256()
+    for e in exprs:
+        data = pickle.dumps(e, protocol=pickle.HIGHEST_PROTOCOL)
+        h.update(len(data).to_bytes(8, "little"))
+        h.update(data)
+    return h.hexdigest()
+
 
 #: A variable name no system uses: heyoka's time is substituted by it to find out whether an expression uses time.
 _TIME_PROBE = "__lieseries_time_probe__"
