@@ -69,7 +69,7 @@ def guard_tolerance(ps, tol, work_bits: int):
     constants carry its own 53 bits, and the look walks every expression once.)"""
     if work_bits <= 53:
         return tol
-    bits = [b for name, b in ps.coarse_data().items() if name.startswith("the constant ") and b < work_bits]
+    bits = [b for name, b in ps.coarse_data().items() if name.startswith("the constant") and b < work_bits]
     if not bits:
         return tol
     floor = Fraction(1, 2 ** min(bits))

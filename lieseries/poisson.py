@@ -579,8 +579,13 @@ class PoissonSystem:
                       if e is not None]
             named += [(f"extra_field[{i}]", e) for i, e in enumerate(self._extra or []) if e is not None]
             for where, e in named:
-                for value in binary_constants(e):
-                    self._coarse[f"the constant {value!r} in {where}"] = 53
+                values = binary_constants(e)  # one entry (one warning) per expression, however many it holds
+                if len(values) == 1:
+                    self._coarse[f"the constant {values[0]!r} in {where}"] = 53
+                elif values:
+                    shown = ", ".join(map(repr, values[:4])) + (f" and {len(values) - 4} more" if len(values) > 4
+                                                                  else "")
+                    self._coarse[f"the constants {shown} in {where}"] = 53
             self._constants_checked = True
         return dict(self._coarse)
 

@@ -69,6 +69,14 @@ def test_float_parameters_and_constants_warn_by_name_above_double():
         ls.integrate(osc, [1, 0], t=1, precision=113)
     quartic = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 + 0.1 * q**4)
     assert quartic.coarse_data() == {"the constant 0.1 in hamiltonian": 53}
+    # many constants in one expression: one warning naming the first four and how many more
+    many = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 + sum(hy.cos(k * q) / (10 * k) for k in range(1, 8)))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        ls.integrate(many, [1, 0], t=1, precision=113)
+    said = [str(w.message) for w in caught if issubclass(w.category, PrecisionWarning)]
+    assert len(said) == 1 and "`the constants 0.014285714285714285, 0.016666666666666666, 0.02, 0.025 and 3 more " \
+        "in hamiltonian` carry only 53 bits" in said[0] and "Make each a runtime parameter" in said[0], said
     # short dyadic constants are exact: no warning
     exact_osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p**2 / 2 + 0.25 * q**2)
     with warnings.catch_warnings():

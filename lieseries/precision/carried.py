@@ -252,11 +252,12 @@ def warn_if_coarse(bits, work_bits: int, argname: str) -> None:
                 f"({bits_to_dps(bits)} digits: the double 0.1 is 0.1000000000000000055511151231257827...)")
         how = (f"Pass the exact values to the function that built it: {shown} as strings ('0.1'), ints or "
                "Fractions (Fraction(1, 10)).")
-    elif argname.startswith("the constant "):
-        what = (f"`{argname}` carries only {bits} bits (heyoka stores a number written in an expression as the "
-                "nearest double)")
-        how = ("Make it a runtime parameter: `hy.par[i]` in the expression and its exact value (a string such as "
-               "'0.1', or a Fraction) in `parameters`.")
+    elif argname.startswith("the constant"):
+        several = argname.startswith("the constants ")
+        what = (f"`{argname}` carr{'y' if several else 'ies'} only {bits} bits (heyoka stores a number written in "
+                "an expression as the nearest double)")
+        how = (f"Make {'each' if several else 'it'} a runtime parameter: `hy.par[i]` in the expression and its "
+               "exact value (a string such as '0.1', or a Fraction) in `parameters`.")
     else:
         what = (f"`{argname}` carries only {bits} bits ({bits_to_dps(bits)} digits: binary numbers such as the "
                 "double 0.1 are roundings of what was typed)")
