@@ -103,12 +103,30 @@ def _compiled(ps, prec):
         scale_fn = hy.cfunc(grad, ps.variables, compact_mode=compact, **kwargs)
         if compact:
             h_fn = _Values(scale_fn, len(ps.variables) + 1)
-        else:
-            h_fn = hy.cfunc([ps.hamiltonian] + cas, ps.variables, compact_mode=compact, **kwargs)
+        else:  # compiled when first called: a double run whose plain Python check decides never needs it
+            h_fn = _OnFirstCall(lambda: hy.cfunc([ps.hamiltonian] + cas, ps.variables, compact_mode=False))
         quick = _python_function(ps, [ps.hamiltonian] + cas, npar) if prec.name == "double" else None
         with _LOCK:
             entry = _ENERGY.setdefault(key, (h_fn, scale_fn, npar, quick))
     return entry
+
+
+class _OnFirstCall:
+    """A compiled function made by ``make()`` when it is first called (once, whichever thread calls first)."""
+
+    __slots__ = ("make", "fn", "lock")
+
+    def __init__(self, make):
+        self.make, self.fn, self.lock = make, None, threading.Lock()
+
+    def __call__(self, *args, **kwargs):
+        fn = self.fn
+        if fn is None:
+            with self.lock:
+                if self.fn is None:
+                    self.fn = self.make()
+                fn = self.fn
+        return fn(*args, **kwargs)
 
 
 class _Values:
