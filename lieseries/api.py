@@ -10,8 +10,9 @@ import numpy as np
 
 from .ensemble import integrate_ensemble
 from .models.base import ExactState
-from .precision import check_flag, check_progress
+from .precision import check_flag, check_progress, infer_precision
 from .taylor import integrate as run_single
+from .timegrid import refuse_lost_span
 
 __all__ = ["integrate"]
 
@@ -75,6 +76,9 @@ def integrate(system, y0, t, **options):
     """
     if not options and type(y0) is ExactState and type(system) is not list and type(system) is not tuple:
         return run_single(system, y0, t)  # the usual call: one exact state, the options at their defaults
+    t0 = options.get("t0")
+    if t0 is not None and not (type(t0) in (int, float) and t0 == 0):
+        refuse_lost_span(t, t0, infer_precision(options.get("precision"), y0))
     if _is_ensemble(system, y0, options):
         return _ensemble(system, y0, t, **options)
     if options:

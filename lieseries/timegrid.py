@@ -15,7 +15,8 @@ import numpy as np
 from .caller import stacklevel
 from .precision import PrecisionWarning, check_seconds, short_decimal, to_fraction
 
-__all__ = ["parse_times", "output_bytes", "MAX_OUTPUT_BYTES", "span_loss", "warn_span_loss"]
+__all__ = ["parse_times", "output_bytes", "MAX_OUTPUT_BYTES", "span_loss", "warn_span_loss", "refuse_lost_span",
+           "MIN_SPAN_BITS"]
 
 
 def _half_the_memory() -> int:
@@ -189,7 +190,7 @@ def warn_span_loss(loss, grid, t0, bits: int, where: str) -> bool:
     the roundings of t and t0 at the run's precision (an atlas run's segments start at times of their own).
     ``where`` says how the times are held. A run of autonomous equations depends on t - t0 alone, and t0 = 1e6
     with t = '1000000.1' in double ran 0.0999999999767 time units, its state 2e-11 from the one asked for. True
-    when it warned."""
+    when it warned (:func:`refuse_lost_span` refuses the calls that would keep almost nothing)."""
     worst, k = loss
     if k is None or worst <= Fraction(1, 2 ** (bits - 8)):
         return False
@@ -204,3 +205,28 @@ def warn_span_loss(loss, grid, t0, bits: int, where: str) -> bool:
         stacklevel=stacklevel(),
     )
     return True
+
+
+#: A call that would keep fewer bits than this of its span t - t0 is refused (its result would be wrong from its first
+#: digits) rather than run with a warning.
+MIN_SPAN_BITS = 8
+
+
+def refuse_lost_span(t, t0, prec) -> None:
+    """A ValueError naming `t0` when the times of a run at the precision ``prec`` (a
+    :class:`~lieseries.precision.Precision`) would keep its span t - t0 to fewer than :data:`MIN_SPAN_BITS` bits: from
+    t0 = 10^20 to t = 10^20 + 1 in double the times round to one value, and the run took no step and ended `success`
+    at its initial state. For the caller's own times (an atlas run's segments start at times of their own, where
+    :func:`warn_span_loss` speaks)."""
+    grid, direction, t0f = parse_times(t, t0)
+    if not direction or t0f == 0:
+        return
+    worst, k = span_loss(grid, t0f, [to_fraction(prec.time(g)) for g in grid], to_fraction(prec.time(t0f)))
+    if k is None or worst < Fraction(1, 2 ** MIN_SPAN_BITS):
+        return
+    span = grid[k] - t0f
+    raise ValueError(
+        f"`t0` = {_shown(t0f)} is too large beside `t` - `t0` = {_shown(span)} (t = {_shown(grid[k])}): the run's "
+        f"times are {prec.name} numbers, which would keep t - t0 only to {float(worst):.2g} of the run's span, and "
+        "the result would be wrong from its first digits. The equations do not depend on time itself, only on "
+        "t - t0: start from t0 = 0 and pass t - t0 as the times (add t0 back to sol.t).")

@@ -548,7 +548,8 @@ def test_a_span_the_run_cannot_hold_beside_a_large_t0_is_said():
     """t0 = 10^6, t = '1000000.1' in double: the times are rounded to doubles, and the run goes 0.0999999999767
     time units, its state 2e-11 from the closed form at 0.1, with a success: now with one PrecisionWarning naming
     t - t0. The same from t0 = 0, or outputs at '5.1', '5.3' from t0 = 5, keep the span to the run's precision
-    and say nothing; the Lie engine, which adds its steps to times of 30 digits, says so from t0 = 10^20."""
+    and say nothing; the Lie engine, which adds its steps to times of 30 digits, says so from t0 = 10^20. A span
+    heyoka would keep to fewer than 8 bits is refused."""
     body = ls.EulerPoisson(inertia=INERTIA)
     y0 = body.initial_state(omega=OMEGA)
 
@@ -568,6 +569,15 @@ def test_a_span_the_run_cannot_hold_beside_a_large_t0_is_said():
     _, msgs = run(lambda: ls.lie_integrate(body, y0, t=10**20 + 100, t0=10**20, dps=20))
     assert len(msgs) == 1 and "30 digits" in msgs[0], msgs
     assert run(lambda: ls.lie_integrate(body, y0, t=10**6 + 100, t0=10**6, dps=20))[1] == []
+    # a span heyoka's times cannot hold at all (t0 = 10^20, t - t0 = 1 in double: no step, `success` at y0) is
+    # refused, naming `t0`, for a single run and an ensemble
+    for call in (lambda: ls.integrate(body, y0, t=10**20 + 1, t0=10**20),
+                 lambda: ls.integrate(body, [y0, y0], t=10**20 + 1, t0=10**20)):
+        with pytest.raises(ValueError, match=r"`t0` = .* too large beside `t` - `t0` = 1 .*start from t0 = 0"):
+            call()
+    # at 113 bits the same times are exact: no warning, and the state at t - t0 = 1
+    sol, msgs = run(lambda: ls.integrate(body, y0, t=10**20 + 1, t0=10**20, precision=113))
+    assert msgs == [] and body_error(sol.y[-1], "1", dps=40) < 1e-30
 
 
 def test_statuses_beyond_the_double_range_of_time():
