@@ -18,7 +18,8 @@ import sympy as sp
 from ..precision import thread_mp as mp
 
 __all__ = ["derive_dirac", "derive_intermediate", "memoized", "exact_number", "to_mp", "show_number",
-           "numeric_rank", "canonical_bracket", "tidy", "symbolic_inverse", "lie_bracket"]
+           "numeric_rank", "canonical_bracket", "tidy", "symbolic_inverse", "written_inverse",
+           "lie_bracket"]
 
 
 def exact_number(expr, dps):
@@ -320,6 +321,16 @@ def lie_bracket(Fi, Fj, q):
     """[G_i, G_j]^D = G_iE d_E G_jD - G_jE d_E G_iD (paper, p13)."""
     n = len(q)
     return [sum(Fi[E] * sp.diff(Fj[D], q[E]) - Fj[E] * sp.diff(Fi[D], q[E]) for E in range(n)) for D in range(n)]
+
+
+def written_inverse(K):
+    """Inverse of a small symbolic matrix as its adjugate over its determinant, nothing expanded or cancelled."""
+    d = K.shape[0]
+    if d == 1:
+        return sp.Matrix([[1 / K[0, 0]]])
+    gen = sp.Matrix(d, d, lambda i, j: sp.Symbol(f"__k{i}_{j}"))
+    sub = {gen[i, j]: K[i, j] for i in range(d) for j in range(d)}
+    return gen.adjugate(method="berkowitz").xreplace(sub) / gen.det(method="berkowitz").xreplace(sub)
 
 
 def symbolic_inverse(K):

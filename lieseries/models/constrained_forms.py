@@ -20,7 +20,8 @@ from ..precision import BinaryFraction, binary_inputs, bits_to_dps, data_bits, s
 from ..precision import thread_mp as mp
 from .base import Model, make_state
 from .constrained_checks import RESIDUAL_DPS, check_surface_residuals, residual_tolerance
-from .constrained_derive import exact_number, numeric_rank, solve_linear, substitute, symbolic_inverse, tidy
+from .constrained_derive import (exact_number, numeric_rank, solve_linear, substitute, symbolic_inverse, tidy,
+                                 written_inverse)
 from .constrained_heyoka import (HeyokaConverter, assemble_dirac, assemble_intermediate, heyoka_tensor, large_field,
                                  model_parameters)
 
@@ -449,17 +450,11 @@ class ConstrainedLocal(ConstrainedDirac):
         M = system.mass_matrix.xreplace(solution)
         A = system.linear_term.xreplace(solution)
         U = system.potential.xreplace(solution)
-        Ml = (J.T * M * J).applyfunc(tidy)
-        Al = (J.T * A).applyfunc(tidy)
         psyms = [sp.Symbol(f"p_{system.coordinates[i]}", real=True) for i in free]
-        Minv = symbolic_inverse(Ml)
-        w = sp.Matrix(psyms) - Al
-        xdot = (Minv * w).applyfunc(tidy)
-        H = tidy((w.T * Minv * w)[0, 0] / 2 + U)
+        Ml, Al, H, qdot = self._local_form(J, M, A, U, psyms)
         self._sym_hamiltonian = H
         self._sym_mass = Ml
         self._sym_linear = Al
-        qdot = [tidy(e) for e in (J * xdot)]
         qvars = hy.make_vars(*system.coordinates)
         qvars = qvars if isinstance(qvars, list) else [qvars]
         pvars = hy.make_vars(*[str(s) for s in psyms])
@@ -500,6 +495,31 @@ class ConstrainedLocal(ConstrainedDirac):
         shown = ", ".join(f"{k} = {v}" for k, v in solution.items())
         self.poisson = PoissonSystem(z, tensor, Hh, parameters=params, name=f"{system.name} (local chart {shown})",
                                      input_bits=bits, parameter_sources=sources)
+
+    #: The cancelled (expanded) local form is kept unless cancelling the mass matrix J^T M J gives it this many
+    #: times its operations as written: an expansion that large is one whose terms cancel (a torus in the chart z =
+    #: sqrt(r^2 - (sqrt(x^2 + y^2) - R)^2): its mass matrix 94 -> 264 operations, H a degree-8 polynomial fraction,
+    #: and heyoka's runs lost ~5 digits, double and quad ending `invariant_drift`; the sphere's 26 -> 28, an
+    #: ellipsoid's 62 -> 98).
+    EXPANSION_RATIO = 2
+
+    @staticmethod
+    def _local_form(J, M, A, U, psyms):
+        """(mass matrix, linear term, H, qdot) of the local chart: the pieces cancelled (:func:`tidy`: exact,
+        and compact for charts such as the sphere's, whose H becomes a polynomial in p beside sqrt(1 - x^2 - y^2)),
+        or as written (J^T M J and its adjugate over its determinant, nothing expanded) when cancelling expands the
+        mass matrix :data:`EXPANSION_RATIO` times or more."""
+        Ml = J.T * M * J
+        cancelled = Ml.applyfunc(tidy)
+        written = sp.count_ops(cancelled) >= ConstrainedLocal.EXPANSION_RATIO * sp.count_ops(Ml)
+        simplify, inverse = ((lambda e: e), written_inverse) if written else (tidy, symbolic_inverse)
+        Ml = Ml if written else cancelled
+        Al = (J.T * A).applyfunc(simplify)
+        Minv = inverse(Ml)
+        w = sp.Matrix(psyms) - Al
+        xdot = (Minv * w).applyfunc(simplify)
+        H = simplify((w.T * Minv * w)[0, 0] / 2 + U)
+        return Ml, Al, H, [simplify(e) for e in (J * xdot)]
 
     @property
     def _q_variables(self):
