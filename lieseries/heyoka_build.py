@@ -16,8 +16,8 @@ from .models.base import Model
 from .poisson import as_poisson_system
 from .precision import check_tolerance, resolve_precision, to_fraction
 
-__all__ = ["build_integrator", "compact_by_default", "integrator_count", "event_function", "Recorder", "CrossingGuard", "Both",
-           "sparse_first_step", "first_step_bound", "top_orders", "norm_bounds"]
+__all__ = ["build_integrator", "compact_by_default", "integrator_count", "event_function", "Recorder", "CrossingGuard",
+           "Both", "sparse_first_step", "first_step_bound", "top_orders", "norm_bounds"]
 
 #: Compiled integrators (the templates runs copy, :func:`lieseries.cache.checkout`) by structure, precision,
 #: tolerance, events and options, in the shared cache (:mod:`lieseries.cache`); an evicted template takes its pooled
