@@ -90,11 +90,13 @@ def _cmd_run(args, out) -> int:
     with held():  # Ctrl-C while an extension module initialises would surface as an unrelated ImportError
         from .cost import PRINT_ABOVE, check_scene_budget, estimate_scene
         from .folder import ReportFolder
+        from .heyoka_build import use_own_disk_cache
         from .report import report_names, summary_text, write_report
         from .run import run_scene
         from .scenes import load_scene
 
         _check_requirements()  # before the work: a missing package must not cost the computation
+    use_own_disk_cache()  # before anything is compiled: heyoka's shared cache may be gigabytes, read whole
     scene = load_scene(args.scene)
     out_dir = Path(args.out) if args.out else Path("reports") / scene.name
     # lock and check the folder before the work, not after it; the report is moved into place only when whole

@@ -187,3 +187,29 @@ def test_a_field_with_a_large_decomposition_compiles_in_compact_mode_in_double()
     assert build_batch_integrator(many, batch_size=2)[0].compact_mode
     body = ls.EulerPoisson((1, 2, 3))
     assert not compact_by_default(body, "double") and not build_integrator(body)[0].compact_mode
+
+
+def test_the_command_line_keeps_its_own_bounded_heyoka_cache(tmp_path, monkeypatch):
+    # heyoka's default disk cache is one for every program of the user, up to 20 GiB, read whole the first time a
+    # process compiles (at 11 GB the default scene's first build took 26 s): the command line uses its own, bounded,
+    # unless HEYOKA_CACHE_DIR says where; a library call never moves it
+    from lieseries import cli
+    from lieseries.heyoka_build import OWN_CACHE_BYTES, use_own_disk_cache
+
+    state = hy.llvm_state
+    before = (str(state.get_diskcache_path()), state.get_diskcache_limit())
+    try:
+        monkeypatch.setenv("HEYOKA_CACHE_DIR", before[0])
+        assert use_own_disk_cache() is None and str(state.get_diskcache_path()) == before[0]
+        monkeypatch.delenv("HEYOKA_CACHE_DIR")
+        monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+        own = tmp_path / "lieseries" / "heyoka"
+        assert use_own_disk_cache() == str(own) and str(state.get_diskcache_path()) == str(own)
+        assert state.get_diskcache_limit() == OWN_CACHE_BYTES and own.is_dir()
+        state.set_diskcache_path(before[0])
+        calls = []
+        monkeypatch.setattr("lieseries.heyoka_build.use_own_disk_cache", lambda: calls.append(1))
+        assert cli.main(["run", "missing-scene-name", "--no-progress"]) == 2 and calls == [1]
+    finally:
+        state.set_diskcache_path(before[0])
+        state.set_diskcache_limit(before[1])

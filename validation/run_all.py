@@ -16,6 +16,7 @@ import time
 import traceback
 from pathlib import Path
 
+from lieseries.heyoka_build import use_own_disk_cache
 from lieseries.report import summary_text, write_report
 from lieseries.run import run_scene
 from lieseries.scenes import SceneError, builtin_scenes, load_scene
@@ -31,6 +32,7 @@ def main(argv=None) -> int:
     parser.add_argument("--no-progress", action="store_true")
     parser.add_argument("--summary", action="store_true", help="print each scene's summary table")
     args = parser.parse_args(argv)
+    use_own_disk_cache()  # the command line's heyoka cache, not the user's shared one (read whole by each process)
 
     names = args.names or [name for name, _ in builtin_scenes()]
     try:

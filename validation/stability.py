@@ -17,6 +17,7 @@ import sys
 import time
 from pathlib import Path
 
+from lieseries.heyoka_build import use_own_disk_cache
 from lieseries.progress import ProgressBar
 from lieseries.report import write_stability_report
 from lieseries.scenes import SceneError, extreme_scenes, load_scene
@@ -41,6 +42,7 @@ def main(argv=None) -> int:
     parser.add_argument("--no-progress", action="store_true")
     parser.add_argument("--no-scene-reports", action="store_true", help="skip the per-case scene reports")
     args = parser.parse_args(argv)
+    use_own_disk_cache()  # the command line's heyoka cache, not the user's shared one (read whole by each process)
 
     names = args.names or [name for name, _ in extreme_scenes()]
     try:
