@@ -15,6 +15,7 @@ import numpy as np
 
 from . import cache
 from .models.base import Model
+from .expr import expressions_digest
 from .poisson import as_poisson_system
 from .precision import check_tolerance, resolve_precision, to_fraction
 
@@ -117,7 +118,7 @@ EVENT_FUNCTIONS = cache.region("taylor.event_functions", 64)
 def event_function(ps, prec, exprs):
     """The non-terminal events' expressions as one compiled function of the state (and parameters), in the run's
     format: the sign checks of :class:`CrossingGuard`."""
-    key = (ps.key, prec.name, tuple(exprs))  # the expressions (heyoka hashes and compares them whole), not their text
+    key = (ps.key, prec.name, expressions_digest(exprs))  # (not their text: heyoka prints ~1000 characters)
     hit = EVENT_FUNCTIONS.get(key)
     if hit is None:
         kwargs = {} if prec.name == "double" else {"fp_type": prec.fp_type}
@@ -311,8 +312,12 @@ def build_integrator(system, precision="double", tol=None, *, events=True, user_
     n = ps.dimension
     if compact_mode is None:
         compact_mode = compact_by_default(system, prec)
-    user = tuple((e[1], e[2], e[3]) for e in user_events)
-    key = (ps.key, prec.name, tolf, tuple(e[0] for e in evs), user, bool(compact_mode), bool(high_accuracy))
+    # the events by the digests of their expressions: not their text (cut short past ~1000 characters), nor the
+    # expressions (heyoka's == walks a shared subexpression once per path: 1.2 s for a Chebyshev polynomial of degree
+    # 34 built by its recurrence, doubling every two degrees)
+    user = (expressions_digest([e[1] for e in user_events]), tuple((e[2], e[3]) for e in user_events))
+    key = (ps.key, prec.name, tolf, expressions_digest([e[0] for e in evs]), user, bool(compact_mode),
+           bool(high_accuracy))
     info = [(e[1], e[2]) for e in evs]  # messages from this model, never from the cached one
     info += [("event", f"the event {e[0]!r} fired") for e in user_events if e[3]]
     hit = INTEGRATORS.get(key)

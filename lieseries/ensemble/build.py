@@ -11,6 +11,7 @@ import heyoka as hy
 import numpy as np
 
 from .. import cache
+from ..expr import expressions_digest
 from ..heyoka_build import compact_by_default
 from ..models.base import Model
 from ..poisson import as_poisson_system
@@ -73,7 +74,7 @@ def build_batch_integrator(system, tol=None, batch_size=None, *, compact_mode=No
     n = ps.dimension
     if compact_mode is None:
         compact_mode = compact_by_default(system, prec)
-    key = (ps.key, prec.name, tolf, tuple(e[0] for e in evs), B, bool(compact_mode), bool(high_accuracy))
+    key = (ps.key, prec.name, tolf, expressions_digest([e[0] for e in evs]), B, bool(compact_mode), bool(high_accuracy))
 
     def make():
         kwargs = dict(tol=float(tolf), compact_mode=bool(compact_mode), high_accuracy=bool(high_accuracy))
@@ -101,7 +102,7 @@ def build_scalar_integrator(system, precision, tol=None, *, compact_mode=None, h
     evs = system.events() if isinstance(system, Model) else []
     if compact_mode is None:
         compact_mode = True  # as a single run: LLVM is slow on unrolled long-double and quad code
-    key = ("scalar", ps.key, prec.name, tolf, tuple(e[0] for e in evs), bool(compact_mode),
+    key = ("scalar", ps.key, prec.name, tolf, expressions_digest([e[0] for e in evs]), bool(compact_mode),
            bool(high_accuracy))
 
     def make():

@@ -12,6 +12,7 @@ import numpy as np
 
 from ..atlas import check_atlas_events
 from ..events import resolve_events
+from ..expr import expressions_digest
 from ..models.base import Model, state_fractions
 from ..poisson import PoissonSystem, as_poisson_system
 from ..precision import (Precision, check_flag, check_tolerance, data_bits, infer_precision, to_fraction,
@@ -46,9 +47,9 @@ def split_structure(system):
             if type(system[i]) is not type(system[0]):
                 raise ValueError(f"`system[{i}]` is a {type(system[i]).__name__}, `system[0]` a "
                                  f"{type(system[0]).__name__}: pass models of one kind")
-        ev0 = [e[0] for e in system[0].events()] if isinstance(system[0], Model) else []
+        ev0 = expressions_digest([e[0] for e in system[0].events()]) if isinstance(system[0], Model) else None
         for i, s in enumerate(system):
-            evi = [e[0] for e in s.events()] if isinstance(s, Model) else []
+            evi = expressions_digest([e[0] for e in s.events()]) if isinstance(s, Model) else None
             if evi != ev0:
                 raise ValueError(f"`system[{i}]` watches other events than `system[0]`; pass models of one kind")
         return system[0], list(system)

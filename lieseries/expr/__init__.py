@@ -203,7 +203,7 @@ def compile_expressions(variables, exprs, npars=None, cse=True, as_written=False
         isinstance(npars, bool) or not isinstance(npars, numbers.Integral) or npars < 0
     ):
         raise ValueError(f"`npars` must be None or an integer >= 0; got {npars!r}")
-    key = (tuple(names), tuple(exprs), npars, bool(cse) and not as_written, bool(as_written))
+    key = (tuple(names), expressions_digest(exprs), npars, bool(cse) and not as_written, bool(as_written))
     prog = _PROGRAMS.get(key)
     if prog is not None:
         _PROGRAMS.touch(key)
