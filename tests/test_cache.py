@@ -213,3 +213,21 @@ def test_the_command_line_keeps_its_own_bounded_heyoka_cache(tmp_path, monkeypat
     finally:
         state.set_diskcache_path(before[0])
         state.set_diskcache_limit(before[1])
+
+
+def test_an_ensemble_takes_equal_fields_written_with_other_sharing():
+    # the key is a digest of the field as built: q2 * q2 with q2 = q * q beside (q * q) * (q * q) gets another one,
+    # and the ensemble refused the pair as "another structure"; each member against its own single run
+    q, p = hy.make_vars("q", "p")
+    q2 = q * q
+    a = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p * p / 2 + hy.par[0] * q2 * q2, parameters=["0.1"])
+    b = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p * p / 2 + hy.par[0] * (q * q) * (q * q), parameters=["0.2"])
+    assert a.key != b.key
+    ens = ls.integrate([a, b], [np.array([0.5, 0.0])] * 2, 1.0)
+    for i, system in enumerate((a, b)):
+        single = ls.integrate(system, np.array([0.5, 0.0]), 1.0)
+        assert ens.status[i] == "success" == single.status
+        np.testing.assert_allclose(np.asarray(ens.y_reached[i], dtype=float), single.y_final, rtol=0, atol=1e-15)
+    other = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p * p / 2 + hy.par[0] * q2 * q, parameters=["0.1"])
+    with pytest.raises(ValueError, match=r"`system\[1\]` has another structure"):
+        ls.integrate([a, other], [np.array([0.5, 0.0])] * 2, 1.0)

@@ -39,7 +39,7 @@ def split_structure(system):
         pss = [as_poisson_system(s, f"system[{i}]") for i, s in enumerate(system)]
         key = pss[0].key
         for i, p in enumerate(pss):
-            if p.key != key:
+            if p.key != key and not _same_field(p, pss[0]):
                 raise ValueError(
                     f"`system[{i}]` has another structure than `system[0]` ({p.name} vs {pss[0].name}): every "
                     "member of an ensemble must be the same model with other parameter values (e.g. inertia)"
@@ -55,6 +55,15 @@ def split_structure(system):
         return system[0], list(system)
     as_poisson_system(system)
     return system, None
+
+
+def _same_field(a, b) -> bool:
+    """Whether two systems whose keys differ have the same field all the same: the key is a digest of the field as
+    built, and an equal field written with other sharing of its subexpressions (``q2 * q2`` with ``q2 = q * q``
+    beside ``(q * q) * (q * q)``) gets another one."""
+    return (a.dimension == b.dimension and len(a.parameter_values) == len(b.parameter_values)
+            and [str(v) for v in a.variables] == [str(v) for v in b.variables]
+            and all(x == y for x, y in zip(a.vector_field, b.vector_field)))
 
 
 def member_states(model, ps, Y0, prec: Precision, foreign=frozenset()):
