@@ -575,6 +575,19 @@ def test_a_span_the_run_cannot_hold_beside_a_large_t0_is_said():
                  lambda: ls.integrate(body, [y0, y0], t=10**20 + 1, t0=10**20)):
         with pytest.raises(ValueError, match=r"`t0` = .* too large beside `t` - `t0` = 1 .*start from t0 = 0"):
             call()
+    # an atlas run restarts at each chart switch from a time rounded near t0: the Sphere from t0 = 10^12 to t0 + 10
+    # ended `success` 2e-4 off with no warning; refused, alone and in an ensemble. From t0 = 1000 it runs, on the
+    # motion from t0 = 0
+    sphere = ls.Sphere()
+    x0 = sphere.initial_state(x=("0.6", "0", "0.8"), v=(0, 1, 0))
+    for call in (lambda: ls.integrate(sphere, x0, t=10**12 + 10, t0=10**12),
+                 lambda: ls.integrate(sphere, [x0, x0], t=10**12 + 10, t0=10**12)):
+        with pytest.raises(ValueError, match=r"`t0` = 1000000000000 is too large .* for a run across charts"):
+            call()
+    later, first = ls.integrate(sphere, x0, t=1010, t0=1000), ls.integrate(sphere, x0, t=10)
+    assert later.status == first.status == "success"
+    np.testing.assert_allclose(np.asarray(sphere.position(later)[-1], dtype=float),
+                               np.asarray(sphere.position(first)[-1], dtype=float), rtol=0, atol=1e-12)
     # at 113 bits the same times are exact: no warning, and the state at t - t0 = 1
     sol, msgs = run(lambda: ls.integrate(body, y0, t=10**20 + 1, t0=10**20, precision=113))
     assert msgs == [] and body_error(sol.y[-1], "1", dps=40) < 1e-30
