@@ -320,11 +320,13 @@ def energy_check(ps, prec, tol, y0, y_end, steps, status, message, parameters=No
     """(status, message) of a run from ``y0`` that ended at ``y_end`` with ``status``: ``invariant_drift`` when a
     ``success`` changed the Hamiltonian of ``ps`` beyond sqrt(tol) times its scale (what a single run checks; the
     ensemble applies it to its batch members). ``parameters``: the run's exact parameter values (default the
-    system's)."""
+    system's). The tolerance is the single run's, :func:`guard_tolerance`'s: loosened to the bits of the constants
+    written in the expressions."""
     if status != "success" or not ps.is_hamiltonian:
         return status, message
     energy = energy_function(ps, prec, y0, parameters)
-    return energy_verdict(energy, math.sqrt(float(tol)), y_end, steps, status, message)
+    return energy_verdict(energy, math.sqrt(float(guard_tolerance(ps, tol, prec.bits))), y_end, steps, status,
+                          message)
 
 
 def energy_verdict(energy, sqrt_tol, y_end, steps, status, message):

@@ -579,3 +579,19 @@ def test_a_single_worker_that_dies_mid_run_is_restarted_and_its_chunks_rerun():
     finally:
         cl.close()
         cluster.close()
+
+
+def test_a_quad_ensemble_of_a_field_with_binary_constants_checks_energy_as_a_single_run_does():
+    # a single quad run loosens its energy guard to the 53 bits of the constants written in H (heyoka folds their
+    # derivatives in double); the ensemble's members did not, and ended `invariant_drift` ("went from 0.08525390625
+    # to 0.08525390625") where the single runs succeed. Each member against its single run.
+    q, p = hy.make_vars("q", "p")
+    H = p**2 / 2 + 0.1 * q**2 + 0.3 * q**4 + 0.7 * q**6 + 1.1 * q**8 + 1.3 * q**10 + 0.2 * q**3
+    system = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], H)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ls.PrecisionWarning)  # the constants' bits, said and tested elsewhere
+        ens = ls.integrate(system, [["0.5", "0"], ["0.4", "0"]], t=1, precision="quad")
+        singles = [ls.integrate(system, y, t=1, precision="quad") for y in (["0.5", "0"], ["0.4", "0"])]
+    assert list(ens.status) == ["success", "success"] and all(s.status == "success" for s in singles)
+    for i, s in enumerate(singles):
+        assert max(abs(float(a - b)) for a, b in zip(ens.y_reached[i], s.y_final)) < 1e-30
