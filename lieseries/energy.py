@@ -104,7 +104,8 @@ def _compiled(ps, prec):
         if compact:
             h_fn = _Values(scale_fn, len(ps.variables) + 1)
         else:  # compiled when first called: a double run whose plain Python check decides never needs it
-            h_fn = _OnFirstCall(lambda: hy.cfunc([ps.hamiltonian] + cas, ps.variables, compact_mode=False))
+            exprs, variables = [ps.hamiltonian] + cas, ps.variables  # (the expressions, not the system, are kept)
+            h_fn = _OnFirstCall(lambda: hy.cfunc(exprs, variables, compact_mode=False))
         quick = _python_function(ps, [ps.hamiltonian] + cas, npar) if prec.name == "double" else None
         with _LOCK:
             entry = _ENERGY.setdefault(key, (h_fn, scale_fn, npar, quick))
