@@ -152,9 +152,13 @@ class _Segments:
             # 2e-41): every row is given, and the run is done there, as when it succeeds
             stop = Stop("success")
         elif sol.status == "chart_edge":
-            if sol.t_reached == t or self.switches >= MAX_SWITCHES:
+            if sol.t_reached == t:
                 stop = Stop("event", message=f"The atlas run made no progress at t = {float(t):.17g} after "
                             f"{self.switches} chart switches.")
+            elif self.switches >= MAX_SWITCHES:  # a run that was advancing, stopped by the guard against cycling
+                stop = Stop("event", message=f"The atlas run stopped at t = {float(sol.t_reached):.17g} after its "
+                            f"limit of {MAX_SWITCHES} chart switches (a guard against a run cycling between charts); "
+                            "it was advancing: go on from sol.t_reached and sol.y_reached, or split the run.")
             else:
                 stop = Stop("chart_edge", message=sol.message)
         elif (sol.status == "step_budget" and self.max_steps is not None

@@ -245,3 +245,15 @@ def test_an_event_on_a_chart_momentum_is_refused_on_the_atlas(engine):
                 ls.integrate(s, y0, t=8, events=events)
     sol = ls.integrate(s, y0, t="0.3", events=[ls.Event(hy.make_vars("pi1"))], atlas=False)
     assert sol.success
+
+
+def test_a_run_stopped_by_the_limit_of_chart_switches_says_it_was_advancing(monkeypatch):
+    # the guard against cycling between charts stopped long runs with "made no progress", which they had made
+    import lieseries.atlas as atlas
+
+    monkeypatch.setattr(atlas, "MAX_SWITCHES", 6)
+    s = ls.Sphere()
+    sol = ls.integrate(s, s.initial_state(x=("0.6", "0", "0.8"), v=(0, 1, 0)), t=100)
+    assert sol.status == "event" and sol.stats.extra["chart_switches"] == 6
+    assert "limit of 6 chart switches" in sol.message and "it was advancing" in sol.message
+    assert "no progress" not in sol.message and 0 < float(sol.t_reached) < 100
