@@ -12,7 +12,7 @@ from .ensemble import integrate_ensemble
 from .models.base import ExactState
 from .precision import check_flag, check_progress, infer_precision
 from .taylor import integrate as run_single
-from .timegrid import refuse_atlas_span, refuse_lost_span
+from .timegrid import refuse_lost_span
 
 __all__ = ["integrate"]
 
@@ -78,12 +78,10 @@ def integrate(system, y0, t, **options):
         return run_single(system, y0, t)  # the usual call: one exact state, the options at their defaults
     t0 = options.get("t0")
     if t0 is not None and not (type(t0) in (int, float) and t0 == 0):
-        prec = infer_precision(options.get("precision"), y0)
-        refuse_lost_span(t, t0, prec)
         atlas = options.get("atlas")
         members = system if isinstance(system, (list, tuple)) else [system]
-        if atlas or (atlas is None and any(getattr(m, "atlas", False) for m in members)):
-            refuse_atlas_span(t, t0, prec)
+        refuse_lost_span(t, t0, infer_precision(options.get("precision"), y0),
+                         atlas=bool(atlas or (atlas is None and any(getattr(m, "atlas", False) for m in members))))
     if _is_ensemble(system, y0, options):
         return _ensemble(system, y0, t, **options)
     if options:

@@ -39,7 +39,7 @@ UNROLLED_OPERATIONS = 150
 #: of an expression at most) are compiled unrolled in double without counting their decomposition (the rigid body
 #: ~1600 characters, the sphere ~1900, the heavy top ~1700: ~30 characters an operation).
 SMALL_TEXT = 2500
-#: Whether a field's decomposition is above :data:`UNROLLED_OPERATIONS`, by structure.
+#: Whether a field's decomposition is above :data:`UNROLLED_OPERATIONS` (counted or not), by structure.
 _LARGE_DECOMPOSITION = cache.region("taylor.decomposition_size", 256)
 
 
@@ -53,15 +53,15 @@ def compact_by_default(system, precision) -> bool:
         return True
     if getattr(system, "large_field", False):
         return True
-    text = [str(e) for e in ps.vector_field]
-    if sum(map(len, text)) <= SMALL_TEXT and not any(t.endswith("...") for t in text):
-        return False
     large = _LARGE_DECOMPOSITION.get(ps.key)
-    if large is None:
+    if large is None:  # once per structure (every build asks, the cached ones too)
         start = _time.perf_counter()
-        pars = [0.0] * len(ps.parameter_values)
-        probe = hy.taylor_adaptive(ps.ode_system, [0.0] * ps.dimension, pars=pars, compact_mode=True)
-        large = len(probe.decomposition) - 2 * ps.dimension > UNROLLED_OPERATIONS
+        text = [str(e) for e in ps.vector_field]
+        large = False
+        if sum(map(len, text)) > SMALL_TEXT or any(t.endswith("...") for t in text):
+            pars = [0.0] * len(ps.parameter_values)
+            probe = hy.taylor_adaptive(ps.ode_system, [0.0] * ps.dimension, pars=pars, compact_mode=True)
+            large = len(probe.decomposition) - 2 * ps.dimension > UNROLLED_OPERATIONS
         large = _LARGE_DECOMPOSITION.put(ps.key, large, cost=_time.perf_counter() - start)
     return large
 

@@ -16,7 +16,7 @@ from .caller import stacklevel
 from .precision import PrecisionWarning, check_seconds, short_decimal, to_fraction
 
 __all__ = ["parse_times", "output_bytes", "MAX_OUTPUT_BYTES", "span_loss", "warn_span_loss", "refuse_lost_span",
-           "refuse_atlas_span", "MIN_SPAN_BITS"]
+           "MIN_SPAN_BITS"]
 
 
 def _half_the_memory() -> int:
@@ -212,41 +212,33 @@ def warn_span_loss(loss, grid, t0, bits: int, where: str) -> bool:
 MIN_SPAN_BITS = 8
 
 
-def refuse_lost_span(t, t0, prec) -> None:
+def refuse_lost_span(t, t0, prec, atlas: bool = False) -> None:
     """A ValueError naming `t0` when the times of a run at the precision ``prec`` (a
     :class:`~lieseries.precision.Precision`) would keep its span t - t0 to fewer than :data:`MIN_SPAN_BITS` bits: from
     t0 = 10^20 to t = 10^20 + 1 in double the times round to one value, and the run took no step and ended `success`
     at its initial state. For the caller's own times (an atlas run's segments start at times of their own, where
-    :func:`warn_span_loss` speaks)."""
+    :func:`warn_span_loss` speaks). ``atlas``: a run across charts, which restarts at every chart switch from the time
+    the last segment reached, rounded to the run's numbers: refused as well when their spacing near t0 is more than
+    2^-(bits - 8) of the span, since those roundings add up (a Sphere from t0 = 10^15 to t0 + 100 in double ended
+    `success` 0.48 off, from 10^12 2e-4 off, with no warning)."""
     grid, direction, t0f = parse_times(t, t0)
     if not direction or t0f == 0:
         return
     worst, k = span_loss(grid, t0f, [to_fraction(prec.time(g)) for g in grid], to_fraction(prec.time(t0f)))
-    if k is None or worst < Fraction(1, 2 ** MIN_SPAN_BITS):
-        return
-    span = grid[k] - t0f
-    raise ValueError(
-        f"`t0` = {_shown(t0f)} is too large beside `t` - `t0` = {_shown(span)} (t = {_shown(grid[k])}): the run's "
-        f"times are {prec.name} numbers, which would keep t - t0 only to {float(worst):.2g} of the run's span, and "
-        "the result would be wrong from its first digits. The equations do not depend on time itself, only on "
-        "t - t0: start from t0 = 0 and pass t - t0 as the times (add t0 back to sol.t).")
-
-
-def refuse_atlas_span(t, t0, prec) -> None:
-    """A ValueError naming `t0` when an atlas run at the precision ``prec`` would restart, at its chart switches, from
-    times whose spacing near t0 is more than 2^-(bits - 8) of its span t - t0: each segment starts at the time the
-    last one reached, rounded to the run's numbers, and the roundings add up (a Sphere from t0 = 10^15 to t0 + 100 in
-    double ended `success` 0.48 off, from 10^12 2e-4 off, with no warning)."""
-    grid, direction, t0f = parse_times(t, t0)
-    if not direction or t0f == 0:
-        return
-    big, span = max(abs(t0f), abs(grid[-1])), abs(grid[-1] - t0f)
-    loss = big / span / 2 ** (prec.bits - 1)
-    if loss <= Fraction(1, 2 ** (prec.bits - 8)):
+    if k is not None and worst >= Fraction(1, 2 ** MIN_SPAN_BITS):
+        span = grid[k] - t0f
+        what = (f"(t = {_shown(grid[k])}): the run's times are {prec.name} numbers, which would keep t - t0 only to "
+                f"{float(worst):.2g} of the run's span, and the result would be wrong from its first digits")
+    elif atlas:
+        big, span = max(abs(t0f), abs(grid[-1])), abs(grid[-1] - t0f)
+        loss = big / span / 2 ** (prec.bits - 1)
+        if loss <= Fraction(1, 2 ** (prec.bits - 8)):
+            return
+        what = (f"for a run across charts: it restarts at each chart switch from the time reached, rounded to "
+                f"{prec.name} numbers, which near t0 are {float(big / 2 ** (prec.bits - 1)):.2g} apart "
+                f"({float(loss):.2g} of the span at each switch, adding up)")
+    else:
         return
     raise ValueError(
-        f"`t0` = {_shown(t0f)} is too large beside `t` - `t0` = {_shown(span)} for a run across charts: it restarts "
-        f"at each chart switch from the time reached, rounded to {prec.name} numbers, which near t0 are "
-        f"{float(big / 2 ** (prec.bits - 1)):.2g} apart ({float(loss):.2g} of the span at each switch, adding up). "
-        "The equations do not depend on time itself, only on t - t0: start from t0 = 0 and pass t - t0 as the times "
-        "(add t0 back to sol.t).")
+        f"`t0` = {_shown(t0f)} is too large beside `t` - `t0` = {_shown(span)} {what}. The equations do not depend on "
+        "time itself, only on t - t0: start from t0 = 0 and pass t - t0 as the times (add t0 back to sol.t).")

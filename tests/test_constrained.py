@@ -295,6 +295,11 @@ def test_float_parameter_is_reported_as_binary_data():
 
 
 # -- refusals ------------------------------------------------------------------------------------------------------
+def _plane(lagrangian, constraint, **kwargs):
+    """A system in (x, y) with one constraint, made when called."""
+    return lambda: ls.ConstrainedSystem(lagrangian, ["x", "y"], [constraint], **kwargs)
+
+
 BAD = {
     "singular Lagrangian": (lambda: ls.ConstrainedSystem("x_dot**2/2 - y", ["x", "y"], ["x - y**3"]),
                             "`lagrangian` is singular"),
@@ -326,27 +331,22 @@ BAD = {
                                                                        parameters={"x1": 1}), "`parameters`"),
     # a Python keyword passed the identifier check and failed later as "SyntaxError: invalid syntax" or
     # "TokenError: Starred arguments in lambda not supported" under `lagrangian` or `constraints[0]`
-    "keyword as a parameter": (lambda: ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - lambda*y", ["x", "y"],
-                                                            ["x**2 + y**2 - 1"], parameters={"lambda": 2}),
-                               "`parameters` key 'lambda' is a Python keyword"),
+    "keyword as a parameter": (_plane("(x_dot**2 + y_dot**2)/2 - lambda*y", "x**2 + y**2 - 1",
+                                      parameters={"lambda": 2}), "`parameters` key 'lambda' is a Python keyword"),
     "keyword as a coordinate": (lambda: ls.ConstrainedSystem("(lambda_dot**2 + y_dot**2)/2", ["lambda", "y"],
                                                              ["lambda**2 + y**2 - 1"]),
                                 "`coordinates[0]` = 'lambda' is a Python keyword"),
     # a time-dependent (rheonomic) constraint or Lagrangian: `t` was called an unknown name to add to `parameters`,
     # which would freeze the time at one value
-    "time-dependent constraint": (lambda: ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - y", ["x", "y"],
-                                                               ["x**2 + y**2 - (1 + t/10)**2"]),
+    "time-dependent constraint": (_plane("(x_dot**2 + y_dot**2)/2 - y", "x**2 + y**2 - (1 + t/10)**2"),
                                   "`constraints[0]` uses `t`: time-dependent"),
-    "time-dependent lagrangian": (lambda: ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - cos(t)*y", ["x", "y"],
-                                                               ["x**2 + y**2 - 1"]),
+    "time-dependent lagrangian": (_plane("(x_dot**2 + y_dot**2)/2 - cos(t)*y", "x**2 + y**2 - 1"),
                                   "`lagrangian` uses `t`: time-dependent"),
     # an equation where the constraint G (for G = 0) was meant: "must be a scalar expression; got BooleanFalse"
     # for `==`, a SyntaxError for `=`
-    "equation as a constraint": (lambda: ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - y", ["x", "y"],
-                                                              ["x**2 + y**2 == 1"]),
+    "equation as a constraint": (_plane("(x_dot**2 + y_dot**2)/2 - y", "x**2 + y**2 == 1"),
                                  "`constraints[0]` = 'x**2 + y**2 == 1' is an equation"),
-    "assignment as a constraint": (lambda: ls.ConstrainedSystem("(x_dot**2 + y_dot**2)/2 - y", ["x", "y"],
-                                                                ["x**2 + y**2 = 1"]),
+    "assignment as a constraint": (_plane("(x_dot**2 + y_dot**2)/2 - y", "x**2 + y**2 = 1"),
                                    "is an equation or a comparison: give the expression alone"),
 }
 

@@ -74,7 +74,8 @@ def build_batch_integrator(system, tol=None, batch_size=None, *, compact_mode=No
     n = ps.dimension
     if compact_mode is None:
         compact_mode = compact_by_default(system, prec)
-    key = (ps.key, prec.name, tolf, expressions_digest([e[0] for e in evs]), B, bool(compact_mode), bool(high_accuracy))
+    key = (ps.key, prec.name, tolf, expressions_digest([e[0] for e in evs]), B, bool(compact_mode),
+           bool(high_accuracy))
 
     def make():
         kwargs = dict(tol=float(tolf), compact_mode=bool(compact_mode), high_accuracy=bool(high_accuracy))

@@ -81,6 +81,7 @@ __all__ = [
     "variable_names",
 ]
 
+
 def expressions_digest(exprs) -> str:
     """A text that tells heyoka expressions apart in full: the SHA-256 of their pickled forms, in order.
 

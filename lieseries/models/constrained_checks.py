@@ -83,11 +83,11 @@ def check_surface_residuals(terms, gradients, qdot, bits, labels, qname="q", vna
 def check_chart(constraints, q_symbols, vals, sol):
     """Refuse a chart ``sol`` ({dependent coordinate's symbol: expression of the free ones}) that does not solve
     the constraints (``vals``: the parameters' exact values). Each G_alpha must vanish identically once the chart
-    is substituted. A nonzero analytic residual vanishes
-    only on a thin set, so it is evaluated at pseudo-random rational points where the chart is real (at
-    ``RESIDUAL_DPS`` digits, relative to the size of G's terms there), at scales from 1e-3 to 1e3 so that
-    charts of small or large surfaces are sampled inside their domain (four points, or those found); sympy's ``simplify`` is not asked to
-    prove the identity (it fails on true ones, e.g. nested radicals, and refused valid charts)."""
+    is substituted. A nonzero analytic residual vanishes only on a thin set, so it is evaluated at pseudo-random
+    rational points where the chart is real (at ``RESIDUAL_DPS`` digits, relative to the size of G's terms there), at
+    scales from 1e-3 to 1e3 so that charts of small or large surfaces are sampled inside their domain (four points,
+    or those found); sympy's ``simplify`` is not asked to prove the identity (it fails on true ones, e.g. nested
+    radicals, and refused valid charts)."""
     free = [q for q in q_symbols if q not in sol]
     chart = {s: e.xreplace(vals) for s, e in sol.items()}
     terms = [[t.xreplace(chart) for t in sp.Add.make_args(g.xreplace(vals))] for g in constraints]

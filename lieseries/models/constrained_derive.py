@@ -18,8 +18,7 @@ import sympy as sp
 from ..precision import thread_mp as mp
 
 __all__ = ["derive_dirac", "derive_intermediate", "memoized", "exact_number", "to_mp", "show_number",
-           "numeric_rank", "canonical_bracket", "tidy", "symbolic_inverse", "written_inverse",
-           "lie_bracket"]
+           "numeric_rank", "canonical_bracket", "tidy", "symbolic_inverse", "lie_bracket"]
 
 
 def exact_number(expr, dps):
@@ -323,18 +322,9 @@ def lie_bracket(Fi, Fj, q):
     return [sum(Fi[E] * sp.diff(Fj[D], q[E]) - Fj[E] * sp.diff(Fi[D], q[E]) for E in range(n)) for D in range(n)]
 
 
-def written_inverse(K):
-    """Inverse of a small symbolic matrix as its adjugate over its determinant, nothing expanded or cancelled."""
-    d = K.shape[0]
-    if d == 1:
-        return sp.Matrix([[1 / K[0, 0]]])
-    gen = sp.Matrix(d, d, lambda i, j: sp.Symbol(f"__k{i}_{j}"))
-    sub = {gen[i, j]: K[i, j] for i in range(d) for j in range(d)}
-    return gen.adjugate(method="berkowitz").xreplace(sub) / gen.det(method="berkowitz").xreplace(sub)
-
-
-def symbolic_inverse(K):
-    """Inverse of a small symbolic matrix, entries simplified when that is cheap."""
+def symbolic_inverse(K, cancel: bool = True):
+    """Inverse of a small symbolic matrix, entries simplified when that is cheap (``cancel=False``: never; the
+    adjugate over the determinant as written)."""
     d = K.shape[0]
     if d == 1:
         return sp.Matrix([[1 / K[0, 0]]])
@@ -345,7 +335,7 @@ def symbolic_inverse(K):
     sub = {gen[i, j]: K[i, j] for i in range(d) for j in range(d)}
     det = gen.det(method="berkowitz").xreplace(sub)
     adj = gen.adjugate(method="berkowitz").xreplace(sub)
-    if _small(det) and all(_small(e) for e in adj):
+    if cancel and _small(det) and all(_small(e) for e in adj):
         det = sp.cancel(det)
         return adj.applyfunc(lambda e: sp.cancel(e / det))
     return adj / det

@@ -20,8 +20,7 @@ from ..precision import BinaryFraction, binary_inputs, bits_to_dps, data_bits, s
 from ..precision import thread_mp as mp
 from .base import Model, make_state
 from .constrained_checks import RESIDUAL_DPS, check_surface_residuals, residual_tolerance
-from .constrained_derive import (exact_number, numeric_rank, solve_linear, substitute, symbolic_inverse, tidy,
-                                 written_inverse)
+from .constrained_derive import exact_number, numeric_rank, solve_linear, substitute, symbolic_inverse, tidy
 from .constrained_heyoka import (HeyokaConverter, assemble_dirac, assemble_intermediate, heyoka_tensor, large_field,
                                  model_parameters)
 
@@ -512,10 +511,10 @@ class ConstrainedLocal(ConstrainedDirac):
         Ml = J.T * M * J
         cancelled = Ml.applyfunc(tidy)
         written = sp.count_ops(cancelled) >= ConstrainedLocal.EXPANSION_RATIO * sp.count_ops(Ml)
-        simplify, inverse = ((lambda e: e), written_inverse) if written else (tidy, symbolic_inverse)
+        simplify = (lambda e: e) if written else tidy
         Ml = Ml if written else cancelled
         Al = (J.T * A).applyfunc(simplify)
-        Minv = inverse(Ml)
+        Minv = symbolic_inverse(Ml, cancel=not written)
         w = sp.Matrix(psyms) - Al
         xdot = (Minv * w).applyfunc(simplify)
         H = simplify((w.T * Minv * w)[0, 0] / 2 + U)
