@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import time as _time
 from fractions import Fraction
 from pathlib import Path
@@ -35,10 +36,22 @@ INTEGRATORS = cache.region("taylor.integrators", 64, on_evict=cache.drop_templat
 #: 248 s; 2380, the heavy top's Dirac form, 575 s), compact 0.02-0.9 s; a compact run in double takes ~1.5 times as
 #: long (the 110-operation field).
 UNROLLED_OPERATIONS = 150
-#: Fields whose printed components together are shorter than this (none cut short: heyoka prints ~1000 characters
-#: of an expression at most) are compiled unrolled in double without counting their decomposition (the rigid body
-#: ~1600 characters, the sphere ~1900, the heavy top ~1700: ~30 characters an operation).
-SMALL_TEXT = 2500
+#: A function call in heyoka's printed form (``sin(``, ``atan(``; a variable is never followed by a parenthesis).
+_CALL = re.compile(r"[A-Za-z_]\w*\(")
+
+
+def operations_bound(text: str) -> int:
+    """An upper bound on the elementary operations in the Taylor decomposition of an expression printed whole as
+    ``text`` (heyoka's ``str``, not cut short): every binary operator of the printed tree counts one, every
+    negation one, every power and function call three (a sine brings its cosine, an arctangent its 1 + x^2).  The
+    printed tree repeats what the expression shares, so the bound is loose (the rigid body: 108 against 57, the
+    sphere 163 against 57) and above the count for every field measured (the models, fields of every function heyoka
+    knows, nested calls): what decides is what the text holds, not its length (120 nested sines and cosines print in
+    ~1250 characters and decompose into ~480 operations)."""
+    return (sum(text.count(o) for o in (" * ", " + ", " - ", " / ")) + text.count("-(")
+            + 3 * (text.count("**") + len(_CALL.findall(text))))
+
+
 #: Whether a field's decomposition is above :data:`UNROLLED_OPERATIONS` (counted or not), by structure.
 _LARGE_DECOMPOSITION = cache.region("taylor.decomposition_size", 256)
 
@@ -47,7 +60,8 @@ def compact_by_default(system, precision) -> bool:
     """Whether heyoka compiles ``system`` in compact mode when the caller does not say: always above double
     (LLVM is slow on unrolled long-double, quad and real code), above 20 variables, for a model that knows its
     field is large, and for a field whose Taylor decomposition has more than :data:`UNROLLED_OPERATIONS`
-    elementary operations (counted once per structure on a compact build, which costs a fraction of a second)."""
+    elementary operations (counted once per structure on a compact build, which costs a fraction of a second, for
+    a field that prints cut short or whose printed form allows more: :func:`operations_bound`)."""
     ps = as_poisson_system(system)
     if resolve_precision(precision).name != "double" or ps.dimension > 20:
         return True
@@ -58,9 +72,10 @@ def compact_by_default(system, precision) -> bool:
         start = _time.perf_counter()
         text = [str(e) for e in ps.vector_field]
         large = False
-        if sum(map(len, text)) > SMALL_TEXT or any(t.endswith("...") for t in text):
-            pars = [0.0] * len(ps.parameter_values)
-            probe = hy.taylor_adaptive(ps.ode_system, [0.0] * ps.dimension, pars=pars, compact_mode=True)
+        # (heyoka prints ~1000 characters of an expression at most, and "..." where it stops)
+        if any("..." in t for t in text) or sum(map(operations_bound, text)) > UNROLLED_OPERATIONS:
+            pars = [0.0] * len(ps.parameter_values)  # (an order-3 build: the decomposition is the same, quicker)
+            probe = hy.taylor_adaptive(ps.ode_system, [0.0] * ps.dimension, pars=pars, compact_mode=True, tol=0.1)
             large = len(probe.decomposition) - 2 * ps.dimension > UNROLLED_OPERATIONS
         large = _LARGE_DECOMPOSITION.put(ps.key, large, cost=_time.perf_counter() - start)
     return large

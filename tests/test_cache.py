@@ -11,6 +11,7 @@ import pytest
 import lieseries as ls
 from lieseries.ensemble import build_batch_integrator
 from lieseries.taylor import build_integrator, clear_cache
+from lieseries.poisson import as_poisson_system
 
 
 def _oscillator():
@@ -187,6 +188,47 @@ def test_a_field_with_a_large_decomposition_compiles_in_compact_mode_in_double()
     assert build_batch_integrator(many, batch_size=2)[0].compact_mode
     body = ls.EulerPoisson((1, 2, 3))
     assert not compact_by_default(body, "double") and not build_integrator(body)[0].compact_mode
+
+
+def _nested(depth):
+    """q' = p, p' = sin(cos(sin(...cos(q)))) with ``depth`` calls, as an extra field: printed whole in ~5 characters
+    a call, two operations a call in heyoka's decomposition (each sine brings its cosine)."""
+    q, p = hy.make_vars("q", "p")
+    e = q
+    for i in range(depth):
+        e = hy.sin(e) if i % 2 else hy.cos(e)
+    return ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p * p / 2, extra_field=[0, e], name=f"nested {depth}")
+
+
+def _decomposition_size(system):
+    """heyoka's own count of a field's elementary operations (a compact build)."""
+    ps = as_poisson_system(system)
+    probe = hy.taylor_adaptive(ps.ode_system, [0.0] * ps.dimension, pars=[0.0] * len(ps.parameter_values),
+                               compact_mode=True, tol=0.1)
+    return len(probe.decomposition) - 2 * ps.dimension
+
+
+def test_a_field_that_prints_short_but_decomposes_large_is_compiled_compact():
+    # 100 nested calls print in ~500 characters (the text's length had let it compile unrolled, LLVM's time growing
+    # as the square of its ~200 operations); the printed operators bound the count, whatever the text's length
+    from lieseries.heyoka_build import UNROLLED_OPERATIONS, compact_by_default, operations_bound
+
+    deep = _nested(100)
+    text = [str(e) for e in deep.vector_field]
+    assert sum(map(len, text)) < 1000 and not any("..." in t for t in text)  # the premise: short, printed whole
+    assert _decomposition_size(deep) > UNROLLED_OPERATIONS
+    assert compact_by_default(deep, "double") and build_integrator(deep)[0].compact_mode
+    # the bound is at least heyoka's count, from every kind of call to the models
+    q, p = hy.make_vars("q", "p")
+    calls = (hy.atan(q) * hy.tan(p) + hy.sinh(q) * hy.exp(-q) + q ** hy.expression(2.5) + hy.log(1 + q * q)
+             + hy.sqrt(1 + p ** 4) + hy.cosh(p) / (2 + hy.tanh(q)) - q * p * q * p * q * p * q + hy.cos(3 * q) ** 3)
+    fields = [_nested(10), _nested(60), ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p * p / 2 + calls),
+              ls.EulerPoisson((1, 2, 3)), ls.Sphere(), ls.SphericalPendulum(), ls.PlanarPendulum()]
+    for system in fields:
+        ps = as_poisson_system(system)
+        bound = sum(operations_bound(str(e)) for e in ps.vector_field)
+        assert bound >= _decomposition_size(ps), system
+    assert not compact_by_default(_nested(60), "double")  # 122 operations: unrolled, as the rigid body
 
 
 def test_the_command_line_keeps_its_own_bounded_heyoka_cache(tmp_path, monkeypatch):
