@@ -138,3 +138,26 @@ def test_lie_integrate_dense_max_time_bounds_the_call():
     assert elapsed < 1.6 * budget + 0.1, elapsed  # (it took 0.68-0.72 s: 2.3 times its budget)
     t_mid = sol.t_reached / 2  # (the dense output against the closed form)
     assert rigid_error(sol(t_mid), t_mid, dps=40) < 1e-20
+
+
+# --- an ensemble's max_time bounds the whole call -----------------------------------------------------------------
+
+def test_an_ensembles_max_time_bounds_all_its_members_together():
+    # each member's single run once had the whole budget: 8 members far beyond it took 8 budgets. The members
+    # share it now: the first runs until it is spent, the others end time_budget at y0 without a step
+    body, y0 = _body()
+    Y0 = [y0] * 8
+    ls.integrate(body, y0, t=Fraction(1, 1000), precision=256)  # (compiled beforehand: the budget is the runs')
+    sol = ls.integrate(body, Y0, t=[0, 10**5], precision=256, max_time=0.3)
+    assert set(sol.status) == {"time_budget"}
+    steps = [int(s) for s in sol.stats["steps"]]
+    assert steps[0] > 0 and sol.t_reached[0] > 0
+    assert "bounds the whole ensemble" in sol.message[0]
+    idle = [i for i in range(8) if steps[i] == 0]
+    assert len(idle) >= 6  # (at most one more started before the budget was spent)
+    for i in idle:
+        assert sol.t_reached[i] == 0 and "before this member started" in sol.message[i]
+        assert sol.rows[i] == 1 and all(np.isnan(float(v)) for v in sol.y[i][1])
+        assert rigid_error(sol.y_reached[i], 0) < 1e-75 and rigid_error(sol.y[i][0], 0) < 1e-75
+    # what the first member reached is the motion: against the closed form at its time, to 1e-60
+    assert rigid_error(sol.y_reached[0], sol.t_reached[0], dps=100) < 1e-60

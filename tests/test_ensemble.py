@@ -530,6 +530,18 @@ def test_dask_equals_local(client):
     assert np.array_equal(a.y, b.y, equal_nan=True)
 
 
+def test_max_time_bounds_the_whole_ensemble_on_the_cluster(client):
+    # the deadline travels with the chunks: members not started on a worker before it end time_budget at y0, not run
+    # (each chunk once had the whole budget for each of its members)
+    body = ls.EulerPoisson(inertia=(1, 2, 3))
+    y0 = body.initial_state(omega=(1, "0.1", "0.5"))
+    sol = run(body, [y0] * 8, [0, 10**5], precision=256, max_time=0.5, client=client, chunk_size=2)
+    assert set(sol.status) == {"time_budget"}
+    idle = [i for i in range(8) if sol.stats["steps"][i] == 0]
+    assert len(idle) >= 4 and all(sol.t_reached[i] == 0 and "before this member started" in sol.message[i]
+                                  for i in idle)
+
+
 def test_a_closed_client_is_named_with_what_to_do():
     distributed = pytest.importorskip("distributed")
     cluster = distributed.LocalCluster(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=None)

@@ -52,9 +52,10 @@ def is_dask_error(err) -> bool:
                             OSError))
 
 
-def run_dask(client, task, system, Ynat, pars, t, t0, opts, chunk_size, progress, k):
-    """The members on the cluster of ``client``: ``task(system, rows, pars, t, t0, opts)`` (a module-level function,
-    pickled by reference) runs one chunk on a worker and returns its EnsembleSolution."""
+def run_dask(client, task, system, Ynat, pars, t, t0, opts, chunk_size, progress, k, until=None):
+    """The members on the cluster of ``client``: ``task(system, rows, pars, t, t0, opts, until)`` (a module-level
+    function, pickled by reference) runs one chunk on a worker and returns its EnsembleSolution; ``until`` is the
+    ensemble's deadline (a ``time.time()`` reading: the workers' clocks are taken to agree with this one's)."""
     Client = dask_client_class()
     if not isinstance(client, Client):
         raise TypeError(f"`client` must be a dask.distributed.Client; got {type(client).__name__}")
@@ -81,7 +82,7 @@ def run_dask(client, task, system, Ynat, pars, t, t0, opts, chunk_size, progress
         for lo in range(0, k, chunk_size):
             hi = min(k, lo + chunk_size)
             p = None if pars is None else [list(r) for r in pars[lo:hi]]
-            f = client.submit(task, system, Ynat[lo:hi], p, t, t0, opts, pure=False, retries=DASK_RETRIES)
+            f = client.submit(task, system, Ynat[lo:hi], p, t, t0, opts, until, pure=False, retries=DASK_RETRIES)
             futures[f] = lo
     except Exception as err:
         raise dask_failure(err, "sending the chunks") from err

@@ -59,8 +59,12 @@ def integrate_ensemble(
         precision; float64 entries are their binary values.
     t : float or sequence
         Final time or output times, as for :func:`lieseries.integrate` (the same for every member).
-    tol, t0, max_steps, max_time
+    tol, t0, max_steps
         As for :func:`lieseries.integrate`, per member.
+    max_time : float, optional
+        Wall-time budget in seconds of the whole call (checking the inputs, every member, on every worker): each
+        member runs as a single run with the time left when it starts as its budget, and the members not started
+        when it runs out end ``time_budget`` at their initial state, not run.
     precision : "double" | "long double" | "quad" | int bits, optional
         Default: the precision of ``Y0`` (the dtype of a numeric array; double for exact input and floats).
     params : array-like, shape (k, npar), optional
@@ -96,6 +100,7 @@ def integrate_ensemble(
     -------
     EnsembleSolution
     """
+    called = _time.perf_counter()
     plan = plan_ensemble(system, Y0, t, tol=tol, precision=precision, t0=t0, params=params, workers=workers,
                          client=client, max_steps=max_steps, max_time=max_time, chunk_size=chunk_size,
                          batch_size=batch_size, progress=progress, min_step=min_step,
@@ -103,12 +108,19 @@ def integrate_ensemble(
                          events=events)
     progress = None if progress is None else Monotone(progress)
     if client is not None:
-        return _on_cluster(client, plan, progress)
+        return _on_cluster(client, plan, progress, None if max_time is None else _time.time() + max_time - (
+            _time.perf_counter() - called))
+    return _run_here(plan, progress, None if max_time is None else called + max_time)
+
+
+def _run_here(plan, progress, deadline) -> EnsembleSolution:
+    """The members here, on the path their precision and options allow; ``deadline`` (a ``time.perf_counter()``
+    reading, or None) bounds them all together."""
     res = Result(plan.k, len(plan.grid), plan.ps.dimension, plan.prec,
                  chart=plan.structure.chart if plan.atlas else None)  # across an atlas every state knows its chart
     start = _time.perf_counter()
     path = _run_path(plan, res, progress)
-    _hand_over(plan, res, path, progress)
+    _hand_over(plan, res, path, progress, deadline)
     _check_energy(plan, res, path)
     _check_end_cancellation(plan, res, path)
     return assemble(plan, res, path, _time.perf_counter() - start)
@@ -174,18 +186,31 @@ def _run_path(plan, res, progress) -> PathRun:
     return path
 
 
-def _hand_over(plan, res, path, progress) -> None:
-    """The members the path handed over, each as its single run (:func:`lieseries.taylor.integrate`)."""
+def _hand_over(plan, res, path, progress, deadline) -> None:
+    """The members the path handed over, each as its single run (:func:`lieseries.taylor.integrate`), each with the
+    time left before ``deadline`` as its ``max_time``; a member not started before it ends ``time_budget`` at its
+    initial state (its rows at times up to t0 are that state, the others NaN)."""
     handed = path.handed
     if not handed:
         return
     members, pars = plan.members, plan.pars
     systems = [member_system(members[i] if members else plan.structure, plan.ps, None if pars is None else pars[i])
                for i in handed]
-    sols = run_singles(run_single, systems, [plan.Ynat[i] for i in handed], plan.t, plan.opts,
-                       plan.workers if path.name == "single" else 1, progress, plan.k, plan.k - len(handed))
-    for i, sol in zip(handed, sols):
+    sols, budgets = run_singles(run_single, systems, [plan.Ynat[i] for i in handed], plan.t, plan.opts,
+                                plan.workers if path.name == "single" else 1, progress, plan.k,
+                                plan.k - len(handed), deadline)
+    whole = f"`max_time` = {plan.max_time:g} s bounds the whole ensemble" if plan.max_time is not None else ""
+    for i, sol, left in zip(handed, sols, budgets):
+        if sol is None:
+            at_t0 = sum(1 for g in plan.tgrid if (g - plan.t0n) * plan.direction <= 0)
+            res.y[i, :at_t0] = plan.Ynat[i]
+            res.rows[i] = at_t0
+            res.finish(i, "time_budget", f"{whole} and ran out before this member started: it was not run. Raise "
+                       "`max_time`, or run fewer members per call.", plan.t0n, plan.Ynat[i], 0)
+            continue
         res.take(i, sol, plan.tgrid)
+        if sol.status == "time_budget" and left is not None:
+            res.message[i] = f"{sol.message} ({whole}: this member started with {left:.3g} s of it left)"
         path.order = max(path.order, int(sol.stats.order))
         path.build += float(sol.stats.build_time)
 
@@ -232,15 +257,19 @@ def _check_energy(plan, res, path) -> None:
         single_check(done_here[j])
 
 
-def _on_cluster(client, plan, progress) -> EnsembleSolution:
+def _on_cluster(client, plan, progress, until) -> EnsembleSolution:
     opts = dict(tol=plan.tol, precision=plan.prec, max_steps=plan.max_steps, max_time=plan.max_time,
                 batch_size=plan.batch_size, min_step=plan.min_step,
                 compact_mode=plan.compact_mode, high_accuracy=plan.high_accuracy, atlas=plan.atlas,
                 events=plan.events)
     return run_dask(client, chunk_task, plan.structure, plan.Ynat, plan.pars, plan.t, plan.t0, opts,
-                    plan.chunk_size, progress, plan.k)
+                    plan.chunk_size, progress, plan.k, until)
 
 
-def chunk_task(system, rows, pars, t, t0, opts):
-    """One Dask task: an ensemble of a chunk of members, run on the worker (its own integrator cache)."""
-    return integrate_ensemble(system, rows, t, t0=t0, params=pars, workers=1, **opts)
+def chunk_task(system, rows, pars, t, t0, opts, until=None):
+    """One Dask task: an ensemble of a chunk of members, run on the worker (its own integrator cache); ``until``
+    (a ``time.time()`` reading, or None) is the deadline of the whole ensemble's ``max_time``."""
+    start = _time.perf_counter()
+    plan = plan_ensemble(system, rows, t, t0=t0, params=pars, workers=1, client=None, chunk_size=None,
+                         progress=None, dense=False, **opts)
+    return _run_here(plan, None, None if until is None else start + (until - _time.time()))

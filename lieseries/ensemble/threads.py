@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time as _time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -170,27 +171,41 @@ class _Member:
         return outcome, nsteps
 
 
-def run_singles(single_run, systems, rows, t, opts, workers, progress, k, done0):
+def run_singles(single_run, systems, rows, t, opts, workers, progress, k, done0, deadline=None):
     """Single runs, one after another or over ``workers`` threads (a single run is thread-safe: each takes its
-    own copy of the cached integrator, and heyoka releases the GIL while it integrates)."""
+    own copy of the cached integrator, and heyoka releases the GIL while it integrates).  With ``deadline`` (a
+    ``time.perf_counter()`` reading: the ensemble's ``max_time`` bounds all its members together) each run gets the
+    time left when it starts as its ``max_time``, and a member not started before the deadline is not run: its
+    entry is None.  Returns (solutions, the budget each run was given: None without a deadline)."""
+    budgets = [None] * len(rows)
+
+    def one(j):
+        if deadline is None:
+            return single_run(systems[j], rows[j], t, **opts)
+        left = deadline - _time.perf_counter()
+        if left <= 0:
+            return None
+        budgets[j] = left
+        return single_run(systems[j], rows[j], t, **dict(opts, max_time=left))
+
     if workers is None or workers <= 1 or len(rows) <= 1:
         out = []
-        for j, (s, y0) in enumerate(zip(systems, rows)):
-            out.append(single_run(s, y0, t, **opts))
+        for j in range(len(rows)):
+            out.append(one(j))
             if progress is not None:
                 progress(done0 + j + 1, k)
-        return out
+        return out, budgets
     out = [None] * len(rows)
     lock = threading.Lock()
     done = [0]
 
-    def one(j):
-        out[j] = single_run(systems[j], rows[j], t, **opts)
+    def run(j):
+        out[j] = one(j)
         with lock:
             done[0] += 1
             if progress is not None:
                 progress(done0 + done[0], k)
 
     with ThreadPoolExecutor(max_workers=min(workers, len(rows))) as pool:
-        list(pool.map(one, range(len(rows))))
-    return out
+        list(pool.map(run, range(len(rows))))
+    return out, budgets
