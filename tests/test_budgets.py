@@ -50,6 +50,7 @@ def test_lie_integrate_stops_inside_a_long_step_with_the_rows_it_has():
 import numpy as np
 import pytest
 
+from lieseries.taylor.plan import CHUNK_SECONDS
 from lieseries.timegrid import CHUNK, parse_times
 
 # a grid whose exact conversion takes tenths of a second, against a budget far below it
@@ -161,3 +162,20 @@ def test_an_ensembles_max_time_bounds_all_its_members_together():
         assert rigid_error(sol.y_reached[i], 0) < 1e-75 and rigid_error(sol.y[i][0], 0) < 1e-75
     # what the first member reached is the motion: against the closed form at its time, to 1e-60
     assert rigid_error(sol.y_reached[0], sol.t_reached[0], dps=100) < 1e-60
+
+
+def test_a_heyoka_run_whose_steps_are_slow_stops_within_a_step_or_two_of_its_budget():
+    # at 512 bits a step of the rigid body takes ~0.1 s: chunks of at least 16 steps (2 for the first) were read
+    # against max_time only at their ends, seconds beyond the budget; a chunk is now one step where a step takes
+    # longer than a chunk's ~0.1 s
+    body, y0 = _body()
+    ls.integrate(body, y0, t=Fraction(1, 100), precision=512)  # (compiled beforehand: the budget is the run's)
+    tic = time.perf_counter()
+    one = ls.integrate(body, y0, t=10**4, precision=512, max_steps=1)
+    step = time.perf_counter() - tic
+    assert one.status == "step_budget" and one.stats.steps == 1
+    budget = 1.5 * step
+    sol = ls.integrate(body, y0, t=10**4, precision=512, max_time=budget)
+    assert sol.status == "time_budget" and "`max_time`" in sol.message
+    # the steps the budget and one chunk beyond it hold, and one more for the clock's noise (the old chunks: 18)
+    assert 1 <= sol.stats.steps <= (budget + CHUNK_SECONDS) / step + 2, (sol.stats.steps, step)

@@ -200,7 +200,7 @@ class Chunks:
         self.t_at, self.z_at = _reached(res, ta.time, t_end), np.array(ta.state, copy=True)
         if res[0] == _OUTCOME.step_limit:  # the next chunk: about CHUNK_SECONDS of work
             per_step = elapsed / max(int(res[3]), 1)
-            self.chunk = int(min(4 * self.chunk, max(16, CHUNK_SECONDS / max(per_step, 1e-9)), 1 << 20))
+            self.chunk = int(min(4 * self.chunk, max(1, CHUNK_SECONDS / max(per_step, 1e-9)), 1 << 20))
         return res[0]
 
     def _read_first(self, t_end, budget, marks):

@@ -47,9 +47,11 @@ STIFF_CHANGE = 1e-2
 
 
 #: Steps in the first chunk of a run, by precision (later chunks grow fourfold, up to about CHUNK_SECONDS of work
-#: each): a step of the rigid body costs ~2 us in double and ~0.4 s at 1024 bits.
+#: each, down to one step where a step takes longer): a step of the rigid body costs ~2 us in double and ~0.3 s at
+#: 1024 bits. heyoka cannot stop inside a step: ``max_time`` is read between chunks, so that a run overruns it by
+#: at most about one step beyond CHUNK_SECONDS.
 FIRST_CHUNK = {"double": 64, "long double": 32, "quad": 8}
-FIRST_CHUNK_REAL = 2
+FIRST_CHUNK_REAL = 1
 CHUNK_SECONDS = 0.1
 #: The first chunk in double of a call repeated after it succeeded (the same system, exact state and options: the
 #: same steps again): a run of up to 1024 steps is then one heyoka call (a few ms for the rigid body). A larger
