@@ -195,6 +195,29 @@ def test_rigid_body_series_bad_input():
         ls.rigid_body_series(ls.Sphere(), 3)
     with pytest.raises(ValueError, match="`order`"):
         ls.rigid_body_series(ls.EulerPoisson((1, 2, 3)), 0)
+    with pytest.raises(ValueError, match="`omega` must be three numbers"):
+        ls.rigid_body_series(ls.EulerPoisson((1, 2, 3)), 3, omega=1.0)
+
+
+def test_rigid_body_series_of_binary_data_warns_and_of_the_intermediate_bracket_is_the_motion():
+    # omega = (1, 0.1, 0.5) as doubles made "exact" rational C_k of the binary 0.1, silently (2.7e-18 off the decimal
+    # problem at t = 1/2); a body with the intermediate bracket raised a TypeError from inside sympy
+    import sympy
+
+    from lieseries import PrecisionWarning
+
+    body = ls.EulerPoisson((1, 2, 3))
+    with pytest.warns(PrecisionWarning, match="`omega` carries only 53 bits"):
+        ls.rigid_body_series(body, 2, omega=(1, 0.1, 0.5))
+    with pytest.warns(PrecisionWarning, match="the body's `inertia` carries only 53 bits"):
+        ls.rigid_body_series(ls.EulerPoisson((1.1, 2, 3)), 2, omega=OMEGA)
+    C = ls.rigid_body_series(ls.EulerPoisson((1, 2, 3), bracket="intermediate"), 8, omega=OMEGA)
+    t = sympy.Rational(1, 4)
+    R = sum((Ck * t**k for k, Ck in enumerate(C)), sympy.zeros(3))
+    ref = exact.euler_poisson((1, 2, 3), OMEGA, "0.25", dps=40)
+    with mp.workdps(40):  # the order-8 sum against the closed form: its truncation error, ~(0.25 / 2.9)^9
+        assert max(abs(mp.mpf(sympy.N(R[i, j], 40)) - ref[3 * i + j]) for i in range(3) for j in range(3)) < 1e-8
+    assert all((a - b).is_zero_matrix for a, b in zip(C, ls.rigid_body_series(body, 8, omega=OMEGA)))
 
 
 def test_lie_tolerance_holds_for_each_component_of_a_badly_scaled_sphere():
