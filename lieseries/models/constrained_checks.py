@@ -42,17 +42,25 @@ def _mpf(v):
     return mp.mpf(v.numerator) / v.denominator if isinstance(v, Fraction) else mp.mpf(v)
 
 
-def check_surface_residuals(terms, gradients, qdot, bits, labels, qname="q", vname="qdot", loose=False):
+def check_surface_residuals(terms, gradients, qdot, bits, labels, qname="q", vname="qdot", loose=False,
+                            coarse_model=None):
     """Refuse (ValueError naming ``qname`` or ``vname``) a point off the constraints or a velocity not tangent.
 
     ``terms[a]``: the values of the terms of G_a at the point (Fractions or mpf); ``gradients[a]``: dG_a/dq^A at
     the point; ``qdot``: the velocity (Fractions), or None to check the point only; ``bits``: the bits binary data
-    carry (None: exact data); ``labels[a]``: how a message shows G_a (``"G1 = x**2 + y**2 - 1"``)."""
+    carry (None: exact data); ``labels[a]``: how a message shows G_a (``"G1 = x**2 + y**2 - 1"``);
+    ``coarse_model``: the model's inputs given as binary numbers, ``{argument: bits}`` (the surface is that of their
+    binary values: a message names them)."""
     tol_exact = residual_tolerance(bits, loose)
     note = "" if bits is None else f"; binary floats carry {int(bits)} bits only" + (
         "" if loose else " (a point read from a run's state has drifted off by the run's rounding: continue from "
         "that state itself, whose check allows the square root of its precision, or from a body's "
         "surface_point(state))")
+    if coarse_model:
+        shown = ", ".join(f"`{k}` ({int(b)} bits)" for k, b in coarse_model.items())
+        note += (f"; the model was built from binary numbers, {shown}: its surface is that of their binary values "
+                 "(the double 0.7 is 0.6999999999999999555...), which a point exact for the decimals misses. Build "
+                 "the model from exact values (strings such as '0.7', Fractions)")
     with mp.workdps(RESIDUAL_DPS):
         tol = _mpf(tol_exact)
         for a, ts in enumerate(terms):

@@ -123,7 +123,8 @@ class ConstrainedDirac(Model):
             grads.append(vals[pos:pos + n])
             pos += n
         labels = [f"G{a + 1} = {g}" for a, g in enumerate(self.system.constraints)]
-        check_surface_residuals(terms, grads, qdot, bits, labels, qname, vname, loose)
+        check_surface_residuals(terms, grads, qdot, bits, labels, qname, vname, loose,
+                                coarse_model=self.poisson.coarse_data())
 
     def _surface_inputs(self, q, qdot):
         """(q, qdot as exact vectors, the bits their binary floats carry or None), refused unless q lies on the

@@ -387,7 +387,8 @@ class DoubleSphericalPendulum(Model):
         terms = [[t(*args) for t in ts] for ts in self._built["terms"]]
         grads = [[gr(*args) for gr in row] for row in self._built["grad"]]
         labels = ["G1 = |r1|^2 - l1^2", "G2 = |r2 - r1|^2 - l2^2"]
-        check_surface_residuals(terms, grads, qdot, bits, labels, qname, vname, loose)
+        check_surface_residuals(terms, grads, qdot, bits, labels, qname, vname, loose,
+                                coarse_model=self.poisson.coarse_data())
 
     def initial_state(self, q, qdot, precision=None) -> np.ndarray:
         """The state (q, p), p = m qdot, from a point with |r1| = l1, |r2 - r1| = l2 and a velocity tangent to
