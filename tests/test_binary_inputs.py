@@ -4,6 +4,7 @@ import pickle
 import warnings
 from fractions import Fraction
 
+import heyoka as hy
 import mpmath as mp
 import numpy as np
 import pytest
@@ -188,6 +189,23 @@ def test_dense_output_at_a_binary_time_says_so():
         assert _precision_warnings(lambda: sol("0.3"))[1] == []
         assert _precision_warnings(lambda: sol(Fraction(3, 10)))[1] == []
     assert _precision_warnings(lambda: double(0.3))[1] == []
+
+
+def test_dense_output_beside_a_large_t0_says_what_its_times_keep_of_t_minus_t0():
+    # from t0 = 1e6, sol('1000000.1') in double read the state 0.0999999999767 after t0 (2.3e-11 off the oscillator's
+    # closed form) without a word, where the same time in the grid warns; at times the format holds exactly, and
+    # from t0 = 0, no warning
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], (p * p + q * q) / 2, name="osc")
+    for prec, off in (("double", 1e-12), ("quad", 1e-30)):
+        sol = ls.integrate(osc, [1, 0], "1000010", t0="1e6", dense=True, precision=prec)
+        y, msgs = _precision_warnings(lambda: sol("1000000.1"))
+        assert len(msgs) == 1 and "`t` - `t0` = 0.1" in msgs[0] and "dense output" in msgs[0], msgs
+        with mp.workdps(40):  # the warning's premise: the state is that of another time
+            assert abs(mp.mpf(str(y[0])) - mp.cos(mp.mpf("0.1"))) > off
+        assert _precision_warnings(lambda: sol(1000001))[1] == []
+    sol = ls.integrate(osc, [1, 0], "10", dense=True)
+    assert _precision_warnings(lambda: sol("0.1"))[1] == []
 
 
 def test_a_binary_constant_in_an_event_says_so():

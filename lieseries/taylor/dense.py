@@ -5,14 +5,18 @@ from __future__ import annotations
 import numpy as np
 
 from ..precision import Precision, data_bits, to_fraction, warn_if_coarse
+from ..timegrid import span_loss, warn_span_loss
 
 
 class DenseOutput:
-    """``sol(t)`` of a heyoka run: its continuous outputs (one per chunk of steps), picklable."""
+    """``sol(t)`` of a heyoka run: its continuous outputs (one per chunk of steps), picklable. ``t0`` is the run's
+    start (exact) and ``t0_native`` as the run held it: a time whose span t - t0 the run's format keeps to fewer
+    bits than its own gives the grid's :class:`~lieseries.precision.PrecisionWarning`."""
 
-    def __init__(self, c_outs, prec: Precision | None):
+    def __init__(self, c_outs, prec: Precision | None, t0=0, t0_native=0):
         self.c_outs = list(c_outs)
         self.prec = prec
+        self.t0, self.t0_native = to_fraction(t0), to_fraction(t0_native)
         self.bounds = [tuple(sorted(float(b) for b in c.bounds)) for c in self.c_outs]
 
     def at_native(self, t):
@@ -29,11 +33,19 @@ class DenseOutput:
         ts = [t] if scalar else list(np.asarray(t, dtype=object).ravel())
         if self.prec is not None:  # the double 0.1 asked of a quad run: the state at 0.1000000000000000055...
             warn_if_coarse(data_bits(ts), self.prec.bits, "t")
-        out = []
+        out, exact, held = [], [], []
         for tk in ts:
             tf = to_fraction(tk, "t")
             tv = float(tf)
             if not (lo - 1e-15 * max(1.0, abs(lo)) <= tv <= hi + 1e-15 * max(1.0, abs(hi))):
                 raise ValueError(f"`t` = {tv} is outside the integrated interval [{lo}, {hi}]")
-            out.append(self.at_native(self.prec.time(tf)))
+            tn = self.prec.time(tf)
+            exact.append(tf)
+            held.append(to_fraction(tn))
+            out.append(self.at_native(tn))
+        # (as for a grid: the run depends on t - t0, which times beside a large t0 keep to few bits)
+        for k in range(len(exact)):
+            if warn_span_loss(span_loss(exact[k:k + 1], self.t0, held[k:k + 1], self.t0_native), exact[k:k + 1],
+                              self.t0, self.prec.bits, f"dense output reads {self.prec.name} times"):
+                break
         return out[0] if scalar else np.stack(out)

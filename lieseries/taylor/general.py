@@ -122,7 +122,7 @@ def _solution(call, engine, out, sinks, build, cached):
     rows_y = out.rows_y
     y = np.array(rows_y, dtype=call.dtype) if rows_y else np.empty((0, ps.dimension), dtype=call.dtype)
     tarr = time_array(out.rows_t, prec) if prec.is_real else np.array(out.rows_t, dtype=call.dtype)
-    dense_fn = DenseOutput(engine.c_outs, prec) if engine.c_outs else None
+    dense_fn = DenseOutput(engine.c_outs, prec, plan["t0f"], plan["t0_native"]) if engine.c_outs else None
     return Solution(tarr, y, stats, out.status, out.message, t_reached=t_reached, dense=dense_fn, t_requested=grid,
                     y_reached=np.array(out.z, copy=True) if out.z is call.y0_native else out.z,
                     events=_event_records(user_events, sinks, engine, out, event_info, prec, ps.dimension)
