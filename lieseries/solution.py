@@ -81,7 +81,8 @@ class Solution:
     Attributes
     ----------
     t : ndarray, shape (k,)
-        Output times actually reached (a run that stops early has fewer rows than asked for).
+        Output times actually reached (a run that stops early has fewer rows than asked for), in the run's format
+        as heyoka held them, or for the Lie and validated engines as mpf rounded once to the rows' digits.
     y : ndarray, shape (k, n)
         The state at each output time, in the run's precision (float64, longdouble, real128 or real).
     stats : Stats

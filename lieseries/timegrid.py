@@ -10,12 +10,14 @@ import warnings
 
 from fractions import Fraction
 
+import mpmath
 import numpy as np
+from mpmath.libmp import from_rational, round_nearest
 
 from .caller import stacklevel
 from .precision import PrecisionWarning, check_seconds, short_decimal, to_fraction
 
-__all__ = ["parse_times", "output_bytes", "MAX_OUTPUT_BYTES", "span_loss", "warn_span_loss", "refuse_lost_span",
+__all__ = ["parse_times", "time_rows", "output_bytes", "MAX_OUTPUT_BYTES", "span_loss", "warn_span_loss", "refuse_lost_span",
            "MIN_SPAN_BITS"]
 
 
@@ -242,3 +244,14 @@ def refuse_lost_span(t, t0, prec, atlas: bool = False) -> None:
     raise ValueError(
         f"`t0` = {_shown(t0f)} is too large beside `t` - `t0` = {_shown(span)} {what}. The equations do not depend on "
         "time itself, only on t - t0: start from t0 = 0 and pass t - t0 as the times (add t0 back to sol.t).")
+
+
+def time_rows(times, bits: int) -> np.ndarray:
+    """The output times of an mpmath engine's rows (exact values) as an object array of mpf rounded once to ``bits``
+    (its rows' precision): float64 labels made distinct times beside t0 = 1e20 one (1e20 + 1, + 2 and + 3 all
+    1e20) and put the double 0.1 beside the row at 0.1."""
+    out = np.empty(len(times), dtype=object)
+    for i, v in enumerate(times):
+        f = to_fraction(v)
+        out[i] = mpmath.make_mpf(from_rational(f.numerator, f.denominator, bits, round_nearest))
+    return out

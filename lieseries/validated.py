@@ -62,7 +62,7 @@ from .driver import StepResult, Stop, drive
 from .formatting import fmt_sci
 from .lie.plan import DeadlineExceeded
 from .solution import ChartRows, Solution, Stats
-from .timegrid import parse_times
+from .timegrid import parse_times, time_rows
 from .validated_step import (DEFECT_EXTRA, centre_polynomial, defect_coefficients, defect_terms,
                              exact_data, flow_jacobian, jacobian_pieces, jacobian_program, jet_stepper, nth_root,
                              prove_step, step_estimate)
@@ -334,7 +334,7 @@ def validated_integrate(system, y0, t, *, dps: int = 30, order: int | None = Non
     with _run_precision(dps, N):
         stats = _run_stats(out, engine, N, dps)
         y, y_reached = _ball_arrays(out.rows_y, out.z, engine.ps.dimension)
-    tarr = np.array([float(v) for v in out.rows_t])
+    tarr = time_rows(out.rows_t, dps_to_bits(dps))
     if atlas:
         return Solution(tarr, ChartRows(y, out.rows_chart), stats, out.status, out.message, t_reached=out.t,
                         t_requested=grid, y_reached=ChartRows(y_reached, engine.chart),

@@ -483,3 +483,20 @@ def test_a_run_that_slows_down_for_a_while_is_not_stopped_early():
     sol = ls.lie_integrate(kepler, [1, 0, 0, "0.1"], 20, dps=20, max_steps=1500)
     assert sol.status == "success", sol.message
     assert sol.stats.steps < 1500
+
+
+def test_the_mpmath_engines_output_times_carry_the_rows_digits():
+    # sol.t was float64: beside t0 = 1e20 the rows at 1e20 + 1, + 2, + 3 were all labelled 1e20 (sol(sol.t[1]) gave
+    # the state at t0), and at 40 digits the row at '0.1' was labelled with the double 0.1 (5.6e-18 off)
+    q, p = hy.make_vars("q", "p")
+    osc = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], (p * p + q * q) / 2, name="osc")
+    t0 = 10**20
+    grid = [t0 + 1, t0 + 2, t0 + 3]
+    sol = ls.lie_integrate(osc, [1, 0], grid, t0=t0, dps=30, dense=True)
+    val = ls.validated_integrate(osc, [1, 0], grid, t0=t0, dps=30)
+    for s in (sol, val):
+        assert [int(v) for v in s.t] == grid  # distinct, exact labels
+    with mp.workdps(40):
+        assert abs(sol(sol.t[1])[0] - mp.cos(2)) < 1e-28 and abs(sol.y[1][0] - mp.cos(2)) < 1e-28
+        fine = ls.lie_integrate(osc, [1, 0], ["0.1", "0.2"], dps=40)
+        assert abs(fine.t[0] - mp.mpf(1) / 10) < mp.mpf(10) ** -40

@@ -73,7 +73,7 @@ from ..precision import (
 )
 from ..precision import thread_mp as mp
 from ..solution import Solution, Stats
-from ..timegrid import parse_times, warn_span_loss
+from ..timegrid import parse_times, time_rows, warn_span_loss
 from .crossings import UserEvents
 from .plan import radius_from_logs
 from .operator import (
@@ -226,7 +226,7 @@ def _solution(out, engine, prec, tolm, N, bits, grid, n, dense) -> Solution:
                   max_step=float(out.hmax) if nsteps else float("nan"), error_estimates=tuple(out.estimates),
                   extra=extra)
     y = np.stack(y_rows) if y_rows else np.empty((0, n), dtype=object)
-    tarr = np.array([float(v) for v in out.rows_t])
+    tarr = time_rows(out.rows_t, prec.bits)
     dense_fn = _Dense(engine.segments, prec.dps, engine.sgn) if dense else None
     user = engine.user
     if user is not None and user.unresolved:
