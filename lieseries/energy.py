@@ -310,7 +310,7 @@ def drift_message(message, e0, e1, steps) -> str:
     """The message of a run that reached its final time with H changed from ``e0`` to ``e1``."""
     return (
         f"{message[:-1]}, but the result is wrong: the energy H, which the equations conserve, went from "
-        f"{_short(e0)} to {_short(e1)} in {steps} steps. The error control was fooled, usually because the motion is much "
+        f"{_short(e0)} to {_short(e1)} (a change of {_change(e0, e1)}) in {steps} steps. The error control was fooled, usually because the motion is much "
         "slower (or faster) than the time span, so that the Taylor coefficients underflow, or because the state's "
         "components differ in size by orders of magnitude (heyoka's tolerance is relative to the largest, so the "
         "small ones lose digits): rescale time and units so that the motion and the components are of order one."
@@ -413,6 +413,13 @@ def _finite(x) -> bool:
 def _short(x) -> str:
     """A number of any format (double, long double, real128, heyoka.real) to 10 significant digits."""
     return mpmath.nstr(mpmath.mpf(str(x)), 10)
+
+
+def _change(e0, e1) -> str:
+    """``e1 - e0`` of numbers of any format, to 3 digits (the two may agree to the 10 digits shown)."""
+    ctx = mpmath.MPContext()
+    ctx.dps = 60
+    return ctx.nstr(ctx.mpf(str(e1)) - ctx.mpf(str(e0)), 3)
 
 
 def clear_energy_cache() -> None:

@@ -10,7 +10,8 @@ table: how many steps finishing would take):
   new integrator, which happens once per structure and precision);
 - ``step_budget``: ``max_steps`` steps were taken;
 - ``step_collapse``: the step size has collapsed so far that finishing would need more than the step budget (a
-  singularity ahead), or the problem is stiff: its steps are tiny (finishing needs more than 1e5 steps with the
+  singularity ahead: the steps went on shrinking over as many steps again as the run had taken, at least 64, a
+  close approach's grow back), or the problem is stiff: its steps are tiny (finishing needs more than 1e5 steps with the
   default budget, or more than ``max_steps`` when given) while no component of the state changes by more than
   1e-2 of its own size (at least 1/100 of the state's max-norm) per step -- the step is then limited by
   stability, not accuracy;
@@ -58,6 +59,11 @@ _OUTCOME = hy.taylor_outcome
 _NOT_EVENTS = frozenset(_OUTCOME.__members__.values())
 
 
+#: The fewest steps a run takes on after its steps seem to collapse before it is stopped ``step_collapse``
+#: (:meth:`Chunks._still_shrinking`).
+SHRINK_STEPS = 64
+
+
 def step_range(steps, lo, hi, t_end, t_start):
     """(smallest, largest) step of a chunk of ``steps`` steps from heyoka's answer (as :meth:`Chunks._account`)."""
     if not steps:
@@ -103,6 +109,7 @@ class Chunks:
         self.steps, self.min_h, self.max_h = 0, math.inf, 0.0
         self.outcome = None
         self.change = self.h_last = math.nan
+        self.suspect = None  # (steps, step size) at the first probe that found the steps collapsing (_still_shrinking)
         self.between = False  # the last chunk used up its steps: the checks run before the next one
         self.user_terminal, self.terminal_check, self.touches = frozenset(), None, 0
         self.passed_at = None  # the time of the last user's terminal stop the run went on from (t0 or a touch)
@@ -275,13 +282,29 @@ class Chunks:
         h_first = self.max_h  # the largest step of the run so far
         left = abs(float(t_end) - float(self.t_at))
         need = left / h if h > 0 else math.inf
-        if need > self.stiff_steps and h < 1e-2 * h_first:
-            return self._collapse("step_collapse.taylor")  # shrinking towards a singularity
+        shrunk = h < 1e-2 * h_first
+        if need > self.stiff_steps and shrunk:
+            # shrinking towards a singularity, once the steps went on shrinking (a close approach: they grow back)
+            return self._collapse("step_collapse.taylor") if self._still_shrinking(h) else None
         if need > self.stiff_steps and self.change < STIFF_CHANGE and h < 1e-2 * left:
             return self._collapse("step_collapse.stiff")  # tiny steps over which no component changes
         if need > self.max_steps - self.steps:
-            return self._collapse("step_collapse.taylor") if h < 1e-2 * h_first else self.explain("step_budget")
+            if not shrunk:
+                return self.explain("step_budget")
+            return self._collapse("step_collapse.taylor") if self._still_shrinking(h) else None
+        self.suspect = None
         return None
+
+    def _still_shrinking(self, h) -> bool:
+        """Whether a step below 1/100 of the run's largest, too small to finish within the budget, is a collapse:
+        the steps that followed the first such probe (as many as the run had taken before it, at least
+        :data:`SHRINK_STEPS`) shrank it further. A comet at its pericentre (a Kepler orbit of eccentricity 0.9992)
+        shrinks the steps 10^4-fold for a moment and they grow back: stopped at its first such probe, the run was
+        told it was singular or stiff."""
+        if self.suspect is None or h > self.suspect[1]:  # (steps growing back: wait again from here)
+            self.suspect = (self.steps, h)
+            return False
+        return self.steps - self.suspect[0] >= max(self.suspect[0], SHRINK_STEPS)
 
     def _stuck(self):
         """A Stop when the last chunk's steps left heyoka's time where it was (t + h rounds to t: 2 or 3 bits at
