@@ -17,8 +17,8 @@ from mpmath.libmp import from_rational, round_nearest
 from .caller import stacklevel
 from .precision import PrecisionWarning, check_seconds, short_decimal, to_fraction
 
-__all__ = ["parse_times", "time_rows", "output_bytes", "MAX_OUTPUT_BYTES", "span_loss", "warn_span_loss", "refuse_lost_span",
-           "MIN_SPAN_BITS"]
+__all__ = ["parse_times", "time_rows", "output_bytes", "MAX_OUTPUT_BYTES", "span_loss", "warn_span_loss",
+           "refuse_lost_span", "MIN_SPAN_BITS"]
 
 
 def _half_the_memory() -> int:
