@@ -293,8 +293,11 @@ def _beyond(ps, z0, pars, order, coeffs):
         return None
     scale = int(mp.floor(mp.log(rho, 2)))
     with mp.workdps(PROBE_DIGITS + GUARD_DIGITS):
-        more = fixed_taylor_coefficients(ps.program, z0, pars, order + max(8, order // 2), PROBE_DIGITS,
-                                         time_scale=scale, ctx=mp_context())[order + 1:]
+        try:
+            more = fixed_taylor_coefficients(ps.program, z0, pars, order + max(8, order // 2), PROBE_DIGITS,
+                                             time_scale=scale, ctx=mp_context())[order + 1:]
+        except (ValueError, ArithmeticError):  # (a field whose roundings cost these digits all they carry: the
+            return None  # estimate is the order-N tail's, as the series' own orders show it)
         return export_mpf(norms(more))
 
 
