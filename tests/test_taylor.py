@@ -164,6 +164,10 @@ def test_step_collapse_is_diagnosed_not_hung():
     assert sol.status == "non_finite" and "blows up" in sol.message
     assert 1 - 1e-12 < float(sol.t_reached) < 1.0 and sol.stats.steps < 10_000
     assert np.all(np.isfinite(sol.y_reached))
+    # a budget that runs out while the steps go on shrinking towards the pole: a collapse, not "raise max_steps"
+    for kw in ({"precision": 256, "max_steps": 300}, {"max_steps": 200}):
+        sol = ls.integrate(sys, ["1", "0"], t=2, **kw)
+        assert sol.status == "step_collapse" and "collapsed" in sol.message, (kw, sol.message)
 
 
 def test_a_comets_pericentre_is_not_taken_for_a_collapse():
@@ -177,6 +181,11 @@ def test_a_comets_pericentre_is_not_taken_for_a_collapse():
     y0 = [-(1 + e), 0, 0, -s / (1 + e)]
     sol = ls.integrate(kepler, y0, t=4, precision=200)
     assert sol.status == "success", sol.message
+    # in double over two periods (two pericentres, chunks' ends at either): never a collapse; the energy check says
+    # what double keeps of such an orbit
+    e9 = Fraction(9999, 10000)
+    far = ls.integrate(kepler, [-(1 + e9), 0, 0, -(1 - e9 * e9) ** 0.5 / (1 + e9)], t=4 * math.pi)
+    assert far.status in ("success", "invariant_drift") and float(far.t_reached) == pytest.approx(4 * math.pi)
     with mp.workdps(80):
         em, sm = mp.mpf(e.numerator) / e.denominator, mp.mpf(s.numerator) / s.denominator
         M = mp.mpf(4) + mp.pi  # the mean anomaly (period 2 pi, from the apocentre)

@@ -110,6 +110,7 @@ class Chunks:
         self.outcome = None
         self.change = self.h_last = math.nan
         self.suspect = None  # (steps, step size) at the first probe that found the steps collapsing (_still_shrinking)
+        self.since_max = 0.0  # the largest step since then
         self.between = False  # the last chunk used up its steps: the checks run before the next one
         self.user_terminal, self.terminal_check, self.touches = frozenset(), None, 0
         self.passed_at = None  # the time of the last user's terminal stop the run went on from (t0 or a touch)
@@ -142,6 +143,8 @@ class Chunks:
             stop = self._too_slow(t_end)
             if stop is not None:
                 return self._result(before, stop)
+            if self.chunk <= 1:  # steps slower than a chunk's time: the probe's step is this one's work (max_time)
+                return self._result(before, self._end(outcome))
         return self._result(before, self._end(self._chunk(t_end)))
 
     def _result(self, before, stop):
@@ -298,11 +301,13 @@ class Chunks:
     def _still_shrinking(self, h) -> bool:
         """Whether a step below 1/100 of the run's largest, too small to finish within the budget, is a collapse:
         the steps that followed the first such probe (as many as the run had taken before it, at least
-        :data:`SHRINK_STEPS`) shrank it further. A comet at its pericentre (a Kepler orbit of eccentricity 0.9992)
-        shrinks the steps 10^4-fold for a moment and they grow back: stopped at its first such probe, the run was
-        told it was singular or stiff."""
-        if self.suspect is None or h > self.suspect[1]:  # (steps growing back: wait again from here)
-            self.suspect = (self.steps, h)
+        :data:`SHRINK_STEPS`) shrank it further, none of them growing back above 4 times it in between. A comet at
+        its pericentre (a Kepler orbit of eccentricity 0.9992) shrinks the steps 10^4-fold for a moment and they
+        grow back: stopped at its first such probe, the run was told it was singular or stiff (and a probe that
+        read the step sizes at chunks' ends alone took the next pericentre for the same approach)."""
+        if self.suspect is None or h > self.suspect[1] or self.since_max > 4 * self.suspect[1]:
+            self.suspect = (self.steps, h)  # (the first such probe, or the steps grew back: wait again from here)
+            self.since_max = h
             return False
         return self.steps - self.suspect[0] >= max(self.suspect[0], SHRINK_STEPS)
 
@@ -321,8 +326,18 @@ class Chunks:
             return stuck  # raising the budget would not help
         if status != "step_budget":
             return Stop(status, note=self._note())
+        if self._collapsing():  # (the budget ran out while the steps went on shrinking: more would not help)
+            return self._collapse("step_collapse.taylor")
         need, hopeless = self._need()
         return Stop(status, need, note=self._note(), reason="step_budget.hopeless" if hopeless else "step_budget.ahead")
+
+    def _collapsing(self) -> bool:
+        """Whether the steps have gone on shrinking since a probe found them collapsing (:meth:`_still_shrinking`):
+        the last step at most the one then, none growing back above 4 times it in between."""
+        if self.suspect is None or self.ta is None or not _finite(self.ta.last_h):
+            return False
+        h0 = self.suspect[1]
+        return abs(float(self.ta.last_h)) <= h0 and self.since_max <= 4 * h0
 
     def _collapse(self, reason):
         need, _ = self._need()
@@ -428,6 +443,7 @@ class Chunks:
             lo, hi = step_range(n, res[1], res[2], t_end, self.chunk_start)
             self.min_h = min(self.min_h, lo)
             self.max_h = max(self.max_h, hi)
+            self.since_max = max(self.since_max, hi)
         pending = self.pending
         if pending is not None:
             out = res[-1][1:]  # the first row is the chunk's start
