@@ -6,6 +6,7 @@ import time
 from fractions import Fraction
 
 import flint
+import heyoka as hy
 
 import lieseries as ls
 from lieseries.lie.integrator import lie_integrate
@@ -153,7 +154,7 @@ def test_an_ensembles_max_time_bounds_all_its_members_together():
     assert set(sol.status) == {"time_budget"}
     steps = [int(s) for s in sol.stats["steps"]]
     assert steps[0] > 0 and sol.t_reached[0] > 0
-    assert "bounds the whole ensemble" in sol.message[0]
+    assert "bounds the ensemble's members together" in sol.message[0]
     idle = [i for i in range(8) if steps[i] == 0]
     assert len(idle) >= 6  # (at most one more started before the budget was spent)
     for i in idle:
@@ -162,6 +163,22 @@ def test_an_ensembles_max_time_bounds_all_its_members_together():
         assert rigid_error(sol.y_reached[i], 0) < 1e-75 and rigid_error(sol.y[i][0], 0) < 1e-75
     # what the first member reached is the motion: against the closed form at its time, to 1e-60
     assert rigid_error(sol.y_reached[0], sol.t_reached[0], dps=100) < 1e-60
+    # with events, a member not run has a record with no crossings, as a run that met none
+    m2 = hy.make_vars("M2")
+    ev = ls.integrate(body, Y0, t=[0, 10**5], precision=256, max_time=0.3, events=[ls.Event(m2, name="m2")])
+    idle = [i for i in range(8) if ev.stats["steps"][i] == 0]
+    assert idle and all(len(ev.events[i]["m2"]["t"]) == 0 and ev.events[i]["m2"]["y"].shape == (0, 12) for i in idle)
+
+
+def test_an_ensembles_budget_does_not_count_the_one_off_compilation():
+    # the first member's compilation (a new structure: ~0.1-0.5 s) took the whole budget of a short ensemble, and
+    # the other members ended time_budget without running; it moves the deadline on, as it is not counted in a
+    # single run's max_time
+    q, p = hy.make_vars("q", "p")
+    fresh = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p * p / 2 + q**4 / 4 - q * q * hy.par[0] + p * q**3 / 1024,
+                             parameters=[Fraction(1, 7)], name="a structure of this test's own")
+    sol = ls.integrate(fresh, [["0.5", 0]] * 6, t=[0, 1], max_time=0.02)  # (each run ~0.4 ms, its first 0.26 s)
+    assert list(sol.status) == ["success"] * 6, sol.message
 
 
 def test_a_heyoka_run_whose_steps_are_slow_stops_within_a_step_or_two_of_its_budget():

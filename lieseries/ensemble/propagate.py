@@ -19,7 +19,7 @@ from .batch import BATCH_STEPS, run_batches
 from .build import build_batch_integrator, build_scalar_integrator
 from .cluster import run_dask
 from .plan import member_system, plan_ensemble
-from .result import Monotone, Result, assemble
+from .result import Monotone, Result, assemble, no_crossings
 from .threads import run_scalar, run_singles
 
 __all__ = ["integrate_ensemble", "PathRun"]
@@ -62,9 +62,10 @@ def integrate_ensemble(
     tol, t0, max_steps
         As for :func:`lieseries.integrate`, per member.
     max_time : float, optional
-        Wall-time budget in seconds of the whole call (checking the inputs, every member, on every worker): each
-        member runs as a single run with the time left when it starts as its budget, and the members not started
-        when it runs out end ``time_budget`` at their initial state, not run.
+        Wall-time budget in seconds of all the members together (on every worker): each member runs as a single run
+        with the time left when it starts as its budget, and the members not started when it runs out end
+        ``time_budget`` at their initial state, not run. As for a single run, it does not bound the one-off
+        compilation of the integrator and its checks: what the runs spend outside their integration moves it on.
     precision : "double" | "long double" | "quad" | int bits, optional
         Default: the precision of ``Y0`` (the dtype of a numeric array; double for exact input and floats).
     params : array-like, shape (k, npar), optional
@@ -100,7 +101,6 @@ def integrate_ensemble(
     -------
     EnsembleSolution
     """
-    called = _time.perf_counter()
     plan = plan_ensemble(system, Y0, t, tol=tol, precision=precision, t0=t0, params=params, workers=workers,
                          client=client, max_steps=max_steps, max_time=max_time, chunk_size=chunk_size,
                          batch_size=batch_size, progress=progress, min_step=min_step,
@@ -108,17 +108,18 @@ def integrate_ensemble(
                          events=events)
     progress = None if progress is None else Monotone(progress)
     if client is not None:
-        return _on_cluster(client, plan, progress, None if max_time is None else _time.time() + max_time - (
-            _time.perf_counter() - called))
-    return _run_here(plan, progress, None if max_time is None else called + max_time)
+        return _on_cluster(client, plan, progress, None if max_time is None else _time.time() + max_time)
+    return _run_here(plan, progress, max_time)
 
 
-def _run_here(plan, progress, deadline) -> EnsembleSolution:
-    """The members here, on the path their precision and options allow; ``deadline`` (a ``time.perf_counter()``
-    reading, or None) bounds them all together."""
+def _run_here(plan, progress, budget, until=None) -> EnsembleSolution:
+    """The members here, on the path their precision and options allow, with ``budget`` seconds (or None) for all
+    of them together from now, or until ``until`` (a ``time.time()`` reading: a Dask chunk's share of its
+    ensemble's budget)."""
     res = Result(plan.k, len(plan.grid), plan.ps.dimension, plan.prec,
                  chart=plan.structure.chart if plan.atlas else None)  # across an atlas every state knows its chart
     start = _time.perf_counter()
+    deadline = None if budget is None else start + (budget if until is None else until - _time.time())
     path = _run_path(plan, res, progress)
     _hand_over(plan, res, path, progress, deadline)
     _check_energy(plan, res, path)
@@ -199,7 +200,8 @@ def _hand_over(plan, res, path, progress, deadline) -> None:
     sols, budgets = run_singles(run_single, systems, [plan.Ynat[i] for i in handed], plan.t, plan.opts,
                                 plan.workers if path.name == "single" else 1, progress, plan.k,
                                 plan.k - len(handed), deadline)
-    whole = f"`max_time` = {plan.max_time:g} s bounds the whole ensemble" if plan.max_time is not None else ""
+    whole = (f"`max_time` = {plan.max_time:g} s bounds the ensemble's members together" if plan.max_time is not None
+             else "")
     for i, sol, left in zip(handed, sols, budgets):
         if sol is None:
             at_t0 = sum(1 for g in plan.tgrid if (g - plan.t0n) * plan.direction <= 0)
@@ -207,6 +209,10 @@ def _hand_over(plan, res, path, progress, deadline) -> None:
             res.rows[i] = at_t0
             res.finish(i, "time_budget", f"{whole} and ran out before this member started: it was not run. Raise "
                        "`max_time`, or run fewer members per call.", plan.t0n, plan.Ynat[i], 0)
+            if plan.events is not None:
+                if res.events is None:
+                    res.events = [None] * plan.k
+                res.events[i] = no_crossings(plan.events, plan.ps.dimension, plan.prec)
             continue
         res.take(i, sol, plan.tgrid)
         if sol.status == "time_budget" and left is not None:
@@ -269,7 +275,6 @@ def _on_cluster(client, plan, progress, until) -> EnsembleSolution:
 def chunk_task(system, rows, pars, t, t0, opts, until=None):
     """One Dask task: an ensemble of a chunk of members, run on the worker (its own integrator cache); ``until``
     (a ``time.time()`` reading, or None) is the deadline of the whole ensemble's ``max_time``."""
-    start = _time.perf_counter()
     plan = plan_ensemble(system, rows, t, t0=t0, params=pars, workers=1, client=None, chunk_size=None,
                          progress=None, dense=False, **opts)
-    return _run_here(plan, None, None if until is None else start + (until - _time.time()))
+    return _run_here(plan, None, opts.get("max_time"), until)

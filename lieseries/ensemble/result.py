@@ -9,7 +9,7 @@ import numpy as np
 from ..precision import Precision
 from ..solution import EnsembleSolution
 
-__all__ = ["Monotone", "Result", "nan_array", "outcome_kind", "TIME_LIMIT", "STEP_LIMIT", "assemble"]
+__all__ = ["Monotone", "Result", "nan_array", "no_crossings", "outcome_kind", "TIME_LIMIT", "STEP_LIMIT", "assemble"]
 
 TIME_LIMIT = hy.taylor_outcome.time_limit
 STEP_LIMIT = hy.taylor_outcome.step_limit
@@ -68,6 +68,15 @@ class Result:
                 self.events = [None] * len(self.status)
             self.events[i] = sol.events
         self.finish(i, sol.status, sol.message, sol.t_reached, sol.y_reached, sol.stats.steps)
+
+
+def no_crossings(events, n, prec: Precision) -> dict:
+    """A member's ``events`` record when it recorded nothing (not run): ``{name: {"t": [], "y": [] x n}}`` in the
+    run's format, the names as a single run gives them (``event0``, ``event1``, ... by position)."""
+    dtype = hy.real if prec.is_real else prec.numpy_dtype
+    return {ev.name if ev.name is not None else f"event{i}": {"t": np.empty(0, dtype=dtype),
+                                                              "y": np.empty((0, n), dtype=dtype)}
+            for i, ev in enumerate(events)}
 
 
 def nan_array(shape, prec: Precision):

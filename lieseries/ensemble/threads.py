@@ -176,17 +176,27 @@ def run_singles(single_run, systems, rows, t, opts, workers, progress, k, done0,
     own copy of the cached integrator, and heyoka releases the GIL while it integrates).  With ``deadline`` (a
     ``time.perf_counter()`` reading: the ensemble's ``max_time`` bounds all its members together) each run gets the
     time left when it starts as its ``max_time``, and a member not started before the deadline is not run: its
-    entry is None.  Returns (solutions, the budget each run was given: None without a deadline)."""
+    entry is None. What a run spends outside its integration (the one-off compilation of an integrator and of its
+    checks, which ``max_time`` does not bound) moves the deadline on by as much.  Returns (solutions, the budget
+    each run was given: None without a deadline)."""
     budgets = [None] * len(rows)
+    limit = [deadline]
+    moved = threading.Lock()
 
     def one(j):
         if deadline is None:
             return single_run(systems[j], rows[j], t, **opts)
-        left = deadline - _time.perf_counter()
+        start = _time.perf_counter()
+        left = limit[0] - start
         if left <= 0:
             return None
         budgets[j] = left
-        return single_run(systems[j], rows[j], t, **dict(opts, max_time=left))
+        sol = single_run(systems[j], rows[j], t, **dict(opts, max_time=left))
+        besides = _time.perf_counter() - start - float(sol.stats.run_time or 0.0)
+        if besides > 0:
+            with moved:
+                limit[0] += besides
+        return sol
 
     if workers is None or workers <= 1 or len(rows) <= 1:
         out = []
