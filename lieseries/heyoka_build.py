@@ -38,18 +38,27 @@ INTEGRATORS = cache.region("taylor.integrators", 64, on_evict=cache.drop_templat
 UNROLLED_OPERATIONS = 150
 #: A function call in heyoka's printed form (``sin(``, ``atan(``; a variable is never followed by a parenthesis).
 _CALL = re.compile(r"[A-Za-z_]\w*\(")
+#: A negative exponent of a printed number (``1.0e-05``): not a negation.
+_EXPONENT = re.compile(r"\de-\d")
 
 
 def operations_bound(text: str) -> int:
-    """An upper bound on the elementary operations in the Taylor decomposition of an expression printed whole as
-    ``text`` (heyoka's ``str``, not cut short): every binary operator of the printed tree counts one, every
-    negation one, every power and function call three (a sine brings its cosine, an arctangent its 1 + x^2).  The
-    printed tree repeats what the expression shares, so the bound is loose (the rigid body: 108 against 57, the
-    sphere 163 against 57) and above the count for every field measured (the models, fields of every function heyoka
-    knows, nested calls): what decides is what the text holds, not its length (120 nested sines and cosines print in
-    ~1250 characters and decompose into ~480 operations)."""
-    return (sum(text.count(o) for o in (" * ", " + ", " - ", " / ")) + text.count("-(")
-            + 3 * (text.count("**") + len(_CALL.findall(text))))
+    """An estimate, from above, of the elementary operations in the Taylor decomposition of an expression printed
+    whole as ``text`` (heyoka's ``str`` of what is compiled, not cut short): every binary operator of the printed
+    tree counts one, every negation one, every power three and every function call four (a sine brings its cosine,
+    an arctangent its 1 + x^2). The printed tree repeats what the expression shares, so it is loose (the rigid body:
+    120 against 57, the sphere 247 against 57); what decides is what the text holds, not its length (120 nested
+    sines and cosines print in ~1250 characters and decompose into ~480 operations). :func:`compact_by_default`
+    counts a field whose estimate exceeds :data:`SURE_SMALL`."""
+    negations = text.count("-") - text.count(" - ") - len(_EXPONENT.findall(text))
+    return (sum(text.count(o) for o in (" * ", " + ", " - ", " / ")) + negations + 3 * text.count("**")
+            + 4 * len(_CALL.findall(text)))
+
+
+#: A field whose :func:`operations_bound` is at most this is compiled unrolled without counting (a margin below
+#: :data:`UNROLLED_OPERATIONS` for what the printed form does not show: a constant such as pi, a product heyoka
+#: splits).
+SURE_SMALL = 100
 
 
 #: Whether a field's decomposition is above :data:`UNROLLED_OPERATIONS` (counted or not), by structure.
@@ -61,7 +70,8 @@ def compact_by_default(system, precision) -> bool:
     (LLVM is slow on unrolled long-double, quad and real code), above 20 variables, for a model that knows its
     field is large, and for a field whose Taylor decomposition has more than :data:`UNROLLED_OPERATIONS`
     elementary operations (counted once per structure on a compact build, which costs a fraction of a second, for
-    a field that prints cut short or whose printed form allows more: :func:`operations_bound`)."""
+    a field that prints cut short or whose printed form may hold more than :data:`SURE_SMALL`:
+    :func:`operations_bound`)."""
     ps = as_poisson_system(system)
     if resolve_precision(precision).name != "double" or ps.dimension > 20:
         return True
@@ -70,10 +80,10 @@ def compact_by_default(system, precision) -> bool:
     large = _LARGE_DECOMPOSITION.get(ps.key)
     if large is None:  # once per structure (every build asks, the cached ones too)
         start = _time.perf_counter()
-        text = [str(e) for e in ps.vector_field]
+        text = [str(e) for _, e in ps.ode_system]  # (what heyoka compiles: integer powers written as products)
         large = False
         # (heyoka prints ~1000 characters of an expression at most, and "..." where it stops)
-        if any("..." in t for t in text) or sum(map(operations_bound, text)) > UNROLLED_OPERATIONS:
+        if any("..." in t for t in text) or sum(map(operations_bound, text)) > SURE_SMALL:
             pars = [0.0] * len(ps.parameter_values)  # (an order-3 build: the decomposition is the same, quicker)
             probe = hy.taylor_adaptive(ps.ode_system, [0.0] * ps.dimension, pars=pars, compact_mode=True, tol=0.1)
             large = len(probe.decomposition) - 2 * ps.dimension > UNROLLED_OPERATIONS
