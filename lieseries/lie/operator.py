@@ -23,7 +23,7 @@ No finite number of coefficients shows what comes after them: a pendulum started
 and the estimate from orders up to 10 was 6-8 times below the error. :func:`lie_series` therefore also computes
 the orders N+1..N+m (m = max(8, N/2)) at :data:`PROBE_DIGITS` digits by the fixed-point jets (a small part of the
 series' own cost), whose magnitudes suffice: the estimate is the sum of their terms and the geometric tail beyond
-them (never below the order-N tail estimate), and ``rho`` is fitted to all N+m orders.
+them (never below the order-N tail estimate); ``rho`` stays the series' own orders' fit.
 """
 
 from __future__ import annotations
@@ -180,7 +180,7 @@ class LieSeries:
             nrm = norms(_local(coefficients))
             # the norms of the orders after the series' own (``beyond``: computed at fewer digits, module docstring)
             more = [] if beyond is None else [mp.make_mpf(v._mpf_) for v in beyond]
-            radius = estimate_radius(nrm + more)
+            radius = estimate_radius(nrm)
             # never below what the data carry, nor below the rounding of the result to `dps` digits
             floor = mp.mpf(2) ** (-min(data_bits or prec, prec)) * max(mp.mpf(1), nrm[0])
         # plain mpmath numbers (not the thread's private context), so a LieSeries pickles

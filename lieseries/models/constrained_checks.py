@@ -42,6 +42,13 @@ def _mpf(v):
     return mp.mpf(v.numerator) / v.denominator if isinstance(v, Fraction) else mp.mpf(v)
 
 
+def _argument(key: str) -> str:
+    """A model input's name as its constructor takes it (``parameters['length']`` is the argument ``length``)."""
+    if key.startswith("parameters['") and key.endswith("']"):
+        return key[len("parameters['"):-2]
+    return key
+
+
 def check_surface_residuals(terms, gradients, qdot, bits, labels, qname="q", vname="qdot", loose=False,
                             coarse_model=None):
     """Refuse (ValueError naming ``qname`` or ``vname``) a point off the constraints or a velocity not tangent.
@@ -56,9 +63,11 @@ def check_surface_residuals(terms, gradients, qdot, bits, labels, qname="q", vna
         "" if loose else " (a point read from a run's state has drifted off by the run's rounding: continue from "
         "that state itself, whose check allows the square root of its precision, or from a body's "
         "surface_point(state))")
+    model_bits = min(coarse_model.values()) if coarse_model else None
+    blame = ""
     if coarse_model:
-        shown = ", ".join(f"`{k}` ({int(b)} bits)" for k, b in coarse_model.items())
-        note += (f"; the model was built from binary numbers, {shown}: its surface is that of their binary values "
+        shown = ", ".join(f"`{_argument(k)}` ({int(b)} bits)" for k, b in coarse_model.items())
+        blame = (f"the model was built from binary numbers, {shown}: its surface is that of their binary values "
                  "(the double 0.7 is 0.6999999999999999555...), which a point exact for the decimals misses. Build "
                  "the model from exact values (strings such as '0.7', Fractions)")
     with mp.workdps(RESIDUAL_DPS):
@@ -68,12 +77,15 @@ def check_surface_residuals(terms, gradients, qdot, bits, labels, qname="q", vna
             res = mp.fsum(vals)
             scale = mp.fsum(abs(t) for t in vals)
             if abs(res) > tol * scale:
+                head = (f"`{qname}` is not on the constraint surface: {labels[a]} = {mp.nstr(res, 6)} at it (relative "
+                        f"{mp.nstr(abs(res) / scale, 3)} > {mp.nstr(tol, 3)}). ")
+                if blame and abs(res) <= scale * mp.mpf(2) ** (8 - int(model_bits)):  # as far off as the model's data
+                    raise ValueError(head + blame[0].upper() + blame[1:] + note)
                 raise ValueError(
-                    f"`{qname}` is not on the constraint surface: {labels[a]} = {mp.nstr(res, 6)} at it (relative "
-                    f"{mp.nstr(abs(res) / scale, 3)} > {mp.nstr(tol, 3)}). Give a point with G = 0 exactly (strings "
-                    "or Fractions: '3/5', '0.6')" + (note or "; a point known to finite precision only (an irrational "
-                    "one): to 55 digits or more, or as binary numbers (floats, heyoka.real128, heyoka.real), checked "
-                    "to the bits they carry"))
+                    head + "Give a point with G = 0 exactly (strings or Fractions: '3/5', '0.6')" + (
+                        note or "; a point known to finite precision only (an irrational one): to 55 digits or more, "
+                        "or as binary numbers (floats, heyoka.real128, heyoka.real), checked to the bits they carry")
+                    + (f"; {blame}" if blame else ""))
         if qdot is None:
             return
         for a, grad in enumerate(gradients):
