@@ -516,3 +516,16 @@ def test_the_series_error_estimate_sees_the_orders_after_its_own():
                 actual = max(abs(a - b) for a, b in zip(series(t), ref))
                 estimate = series.error_estimate(t)
                 assert actual <= estimate < 10 * actual, (order, t, estimate, actual)
+
+
+def test_a_series_whose_even_coefficients_stay_small_does_not_claim_convergence_beyond_its_radius():
+    # H = p^2/2 + q^4/4 - sin q from q = 2: the odd orders' norms grow (radius ~0.9), the even ones stay far below;
+    # the last order, even, made the envelope's last segment steep and the radius 40 (the order), and converges(1.6)
+    # said True where the order-40 sum is 2.4e11 off
+    q, p = hy.make_vars("q", "p")
+    quartic = ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p * p / 2 + q**4 / 4 - hy.sin(q), name="quartic")
+    series = ls.lie_series(quartic, ["2", 0], order=40, dps=30)
+    assert series.radius() < 1.6 and not series.converges("1.6") and series.error_estimate("1.6") == mp.inf
+    ref = ls.lie_integrate(quartic, ["2", 0], "0.5", dps=50).y_final
+    with mp.workdps(50):
+        assert max(abs(a - b) for a, b in zip(series("0.5"), ref)) <= series.error_estimate("0.5")
