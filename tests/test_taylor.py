@@ -164,6 +164,13 @@ def test_step_collapse_is_diagnosed_not_hung():
     assert sol.status == "non_finite" and "blows up" in sol.message
     assert 1 - 1e-12 < float(sol.t_reached) < 1.0 and sol.stats.steps < 10_000
     assert np.all(np.isfinite(sol.y_reached))
+    # a step budget's message counts the steps at the last step size, the one it names (it counted at an older
+    # probe's: 'about 23.6 steps at this step size, more than max_steps = 40')
+    sol = ls.integrate(sys, ["1", "0"], t=2, precision="quad", max_steps=40)
+    if sol.status == "step_budget":
+        need = float(sol.message.split("about ")[1].split(" steps")[0])
+        h = float(sol.message.split("last step size ")[1].split(")")[0])
+        assert need > 40 and need == pytest.approx((2 - float(sol.t_reached)) / h, rel=0.02), sol.message
     # a budget that runs out while the steps go on shrinking towards the pole: a collapse, not "raise max_steps"
     for kw in ({"precision": 256, "max_steps": 300}, {"max_steps": 200}):
         sol = ls.integrate(sys, ["1", "0"], t=2, **kw)
@@ -178,14 +185,8 @@ def test_a_comets_pericentre_is_not_taken_for_a_collapse():
     kepler = ls.PoissonSystem([x, y, px, py], [[0, 0, 1, 0], [0, 0, 0, 1], [-1, 0, 0, 0], [0, -1, 0, 0]],
                               (px**2 + py**2) / 2 - 1 / hy.sqrt(x**2 + y**2), name="kepler")
     e, s = Fraction(2499, 2501), Fraction(100, 2501)
-    y0 = [-(1 + e), 0, 0, -s / (1 + e)]
-    sol = ls.integrate(kepler, y0, t=4, precision=200)
+    sol = ls.integrate(kepler, [-(1 + e), 0, 0, -s / (1 + e)], t=4, precision=200)
     assert sol.status == "success", sol.message
-    # in double over two periods (two pericentres, chunks' ends at either): never a collapse; the energy check says
-    # what double keeps of such an orbit
-    e9 = Fraction(9999, 10000)
-    far = ls.integrate(kepler, [-(1 + e9), 0, 0, -(1 - e9 * e9) ** 0.5 / (1 + e9)], t=4 * math.pi)
-    assert far.status in ("success", "invariant_drift") and float(far.t_reached) == pytest.approx(4 * math.pi)
     with mp.workdps(80):
         em, sm = mp.mpf(e.numerator) / e.denominator, mp.mpf(s.numerator) / s.denominator
         M = mp.mpf(4) + mp.pi  # the mean anomaly (period 2 pi, from the apocentre)
@@ -193,6 +194,20 @@ def test_a_comets_pericentre_is_not_taken_for_a_collapse():
         den = 1 - em * mp.cos(E)
         ref = [mp.cos(E) - em, sm * mp.sin(E), -mp.sin(E) / den, sm * mp.cos(E) / den]
         assert max(abs(mp.mpf(str(a)) - b) for a, b in zip(sol.y_final, ref)) < 1e-50
+    # in double over two periods (two pericentres, chunks' ends at either): never a collapse; the energy check says
+    # what double keeps of such an orbit
+    e9 = Fraction(9999, 10000)
+    far = ls.integrate(kepler, [-(1 + e9), 0, 0, -(1 - e9 * e9) ** 0.5 / (1 + e9)], t=4 * math.pi)
+    assert far.status in ("success", "invariant_drift") and float(far.t_reached) == pytest.approx(4 * math.pi)
+    # a pericentre passed inside a chunk: the next probe's step, grown back 5000-fold from the chunk's smallest, was
+    # below the probe's before it and read as still shrinking (quad, e = 0.999899, stopped at t = 3.1468)
+    e, s = Fraction(9999, 10001), Fraction(200, 10001)
+    y0 = [-(1 + e), 0, 0, -s / (1 + e)]
+    quad = ls.integrate(kepler, y0, t=100, precision="quad")
+    assert quad.status in ("success", "invariant_drift") and float(quad.t_reached) == 100, quad.message
+    # and a budget spent just after it is a budget, not a collapse
+    short = ls.integrate(kepler, y0, t=6 * math.pi, precision="quad", max_steps=150)
+    assert short.status == "step_budget" and "raise `max_steps`" in short.message, short.message
 
 
 def test_time_budget_stops_a_long_run():

@@ -176,9 +176,9 @@ def run_singles(single_run, systems, rows, t, opts, workers, progress, k, done0,
     own copy of the cached integrator, and heyoka releases the GIL while it integrates).  With ``deadline`` (a
     ``time.perf_counter()`` reading: the ensemble's ``max_time`` bounds all its members together) each run gets the
     time left when it starts as its ``max_time``, and a member not started before the deadline is not run: its
-    entry is None. What a run spends outside its integration (the one-off compilation of an integrator and of its
-    checks, which ``max_time`` does not bound) moves the deadline on by as much.  Returns (solutions, the budget
-    each run was given: None without a deadline)."""
+    entry is None. What a run that compiled its integrator spends outside its integration (the one-off
+    compilation of the integrator and of its checks, which ``max_time`` does not bound) moves the deadline on by as
+    much.  Returns (solutions, the budget each run was given: None without a deadline)."""
     budgets = [None] * len(rows)
     limit = [deadline]
     moved = threading.Lock()
@@ -193,7 +193,7 @@ def run_singles(single_run, systems, rows, t, opts, workers, progress, k, done0,
         budgets[j] = left
         sol = single_run(systems[j], rows[j], t, **dict(opts, max_time=left))
         besides = _time.perf_counter() - start - float(sol.stats.run_time or 0.0)
-        if besides > 0:
+        if besides > 0 and not sol.stats.cached:  # (a run of an integrator built earlier pays no one-off cost)
             with moved:
                 limit[0] += besides
         return sol

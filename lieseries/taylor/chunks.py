@@ -110,7 +110,7 @@ class Chunks:
         self.outcome = None
         self.change = self.h_last = math.nan
         self.suspect = None  # (steps, step size) at the first probe that found the steps collapsing (_still_shrinking)
-        self.since_max = 0.0  # the largest step since then
+        self.since_max, self.since_min = 0.0, math.inf  # the largest and smallest steps since then
         self.between = False  # the last chunk used up its steps: the checks run before the next one
         self.user_terminal, self.terminal_check, self.touches = frozenset(), None, 0
         self.passed_at = None  # the time of the last user's terminal stop the run went on from (t0 or a touch)
@@ -305,9 +305,9 @@ class Chunks:
         its pericentre (a Kepler orbit of eccentricity 0.9992) shrinks the steps 10^4-fold for a moment and they
         grow back: stopped at its first such probe, the run was told it was singular or stiff (and a probe that
         read the step sizes at chunks' ends alone took the next pericentre for the same approach)."""
-        if self.suspect is None or h > self.suspect[1] or self.since_max > 4 * self.suspect[1]:
+        if self.suspect is None or not self._collapsing(h):
             self.suspect = (self.steps, h)  # (the first such probe, or the steps grew back: wait again from here)
-            self.since_max = h
+            self.since_max = self.since_min = h
             return False
         return self.steps - self.suspect[0] >= max(self.suspect[0], SHRINK_STEPS)
 
@@ -331,13 +331,19 @@ class Chunks:
         need, hopeless = self._need()
         return Stop(status, need, note=self._note(), reason="step_budget.hopeless" if hopeless else "step_budget.ahead")
 
-    def _collapsing(self) -> bool:
+    def _collapsing(self, h=None) -> bool:
         """Whether the steps have gone on shrinking since a probe found them collapsing (:meth:`_still_shrinking`):
-        the last step at most the one then, none growing back above 4 times it in between."""
-        if self.suspect is None or self.ta is None or not _finite(self.ta.last_h):
+        the last step ``h`` (default heyoka's) at most the one then and at most 4 times the smallest since (a
+        pericentre passed inside a chunk: the smallest step 1.3e-7, the next probe's 6.6e-4, below the 7.4e-4
+        of the probe before it), none growing back above 4 times it in between."""
+        if h is None:
+            if self.ta is None or not _finite(self.ta.last_h):
+                return False
+            h = abs(float(self.ta.last_h))
+        if self.suspect is None:
             return False
         h0 = self.suspect[1]
-        return abs(float(self.ta.last_h)) <= h0 and self.since_max <= 4 * h0
+        return h <= h0 and h <= 4 * self.since_min and self.since_max <= 4 * h0
 
     def _collapse(self, reason):
         need, _ = self._need()
@@ -352,10 +358,8 @@ class Chunks:
         """The time left and the steps it takes at the last step size (exactly: the time left may be beyond the
         double range, t = 1e400 in quad), and whether that is beyond any step budget."""
         left = abs(to_fraction(self.t_end) - to_fraction(self.t_at))
-        hh = self.h_last
-        if hh != hh:
-            last = self.ta.last_h if self.ta is not None else math.nan
-            hh = abs(float(last)) if _finite(last) else math.nan
+        last = self.ta.last_h if self.ta is not None else math.nan  # (the step the note names, not an older probe's)
+        hh = abs(float(last)) if _finite(last) and float(last) else self.h_last
         if not 0 < hh < math.inf:
             return f"{short_decimal(left)} time units remain", False
         steps = left / Fraction(hh)
@@ -444,6 +448,7 @@ class Chunks:
             self.min_h = min(self.min_h, lo)
             self.max_h = max(self.max_h, hi)
             self.since_max = max(self.since_max, hi)
+            self.since_min = min(self.since_min, lo)
         pending = self.pending
         if pending is not None:
             out = res[-1][1:]  # the first row is the chunk's start

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from fractions import Fraction
+
 import numpy as np
 
 from ..precision import Precision, data_bits, to_fraction, warn_if_coarse
@@ -45,9 +47,13 @@ class DenseOutput:
                 exact.append(tf)
                 held.append(to_fraction(tn))
             out.append(self.at_native(tn))
-        # (as for a grid: the run depends on t - t0, which times beside a large t0 keep to few bits; relative to the
-        # span of the times asked)
+        # (as for a grid: the run depends on t - t0, which times beside a large t0 keep to few bits; each time
+        # relative to its own span t - t0, whatever else the call asks)
         if beside:
-            warn_span_loss(span_loss(exact, self.t0, held, self.t0_native), exact, self.t0, self.prec.bits,
-                           f"dense output reads {self.prec.name} times")
+            worst = (Fraction(0), None)
+            for k, (tf, tn) in enumerate(zip(exact, held)):
+                loss = span_loss([tf], self.t0, [tn], self.t0_native)[0]
+                if loss > worst[0]:
+                    worst = (loss, k)
+            warn_span_loss(worst, exact, self.t0, self.prec.bits, f"dense output reads {self.prec.name} times")
         return out[0] if scalar else np.stack(out)
