@@ -72,7 +72,8 @@ def main(argv=None):
                                                                                  **extra))
             sols = {name: run() for name, run in runs.items()}  # warm-up
             end = {name: sol.y[-1] for name, sol in sols.items()}
-            same = all(a == b for a, b in zip(end["rev"], end["this"])) and float(sols["rev"].t[-1]) == float(sols["this"].t[-1])
+            same = (all(a == b for a, b in zip(end["rev"], end["this"]))
+                    and float(sols["rev"].t[-1]) == float(sols["this"].t[-1]))
             errors = "" if same or args.model != "rigid-body" else "; errors " + ", ".join(
                 f"{name} {mp.nstr(_error(end[name], dps, sols[name].t[-1]), 3)} at t = {mp.nstr(sols[name].t[-1], 6)}"
                 for name in ("rev", "this"))

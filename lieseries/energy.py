@@ -311,9 +311,9 @@ def drift_message(message, e0, e1, steps) -> str:
     return (
         f"{message[:-1]}, but the result is wrong: the energy H, which the equations conserve, went from "
         f"{_short(e0)} to {_short(e1)} (a change of {_change(e0, e1)}) in {steps} steps. The error control was "
-        "fooled, usually because the motion is much slower (or faster) than the time span, so that the Taylor coefficients underflow, or because the state's "
-        "components differ in size by orders of magnitude (heyoka's tolerance is relative to the largest, so the "
-        "small ones lose digits): rescale time and units so that the motion and the components are of order one."
+        "fooled, usually because the motion is much slower (or faster) than the time span, so that the Taylor "
+        "coefficients underflow, or because the state's components differ in size by orders of magnitude (heyoka's "
+        "tolerance is relative to the largest, so the small ones lose digits): rescale time and units so that the motion and the components are of order one."
     )
 
 

@@ -10,10 +10,10 @@ table: how many steps finishing would take):
   new integrator, which happens once per structure and precision);
 - ``step_budget``: ``max_steps`` steps were taken;
 - ``step_collapse``: the step size has collapsed so far that finishing would need more than the step budget (a
-  singularity ahead: the steps went on shrinking over as many steps again as the run had taken, at least 64, a
-  close approach's grow back), or the problem is stiff: its steps are tiny (finishing needs more than 1e5 steps with the
-  default budget, or more than ``max_steps`` when given) while no component of the state changes by more than
-  1e-2 of its own size (at least 1/100 of the state's max-norm) per step -- the step is then limited by
+  singularity ahead: the steps went on shrinking over as many steps again as the run had taken, at least 64; a
+  close approach's steps grow back), or the problem is stiff: its steps are tiny (finishing needs more than 1e5 steps
+  with the default budget, or more than ``max_steps`` when given) while no component of the state changes by more
+  than 1e-2 of its own size (at least 1/100 of the state's max-norm) per step -- the step is then limited by
   stability, not accuracy;
 - ``non_finite``: heyoka stopped on a non-finite state (it overwrites the state with NaN); the last chunk is run
   again from its start with a per-step copy of the state, so the last finite state is kept;
