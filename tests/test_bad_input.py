@@ -141,6 +141,14 @@ CASES.update({
                                       r"`t` asks for 10000000000 output times"),
 })
 
+def _select_field():
+    """An extra field with heyoka's ``select``, which has no sympy form (it raised a TypeError from the converter)."""
+    import heyoka as hy
+
+    q, p = hy.make_vars("q", "p")
+    return ls.PoissonSystem([q, p], [[0, 1], [-1, 0]], p * p / 2, extra_field=[0, hy.select(hy.gt(q, 0.0), q, 0.5 * q)])
+
+
 # messages that name the user's argument (not an internal value, not numpy's or heyoka's words)
 CASES.update({
     "lie_series: dps above the limit names the user's dps": (lambda: ls.lie_series(BODY, Y0, order=3, dps=10001),
@@ -158,6 +166,9 @@ CASES.update({
                                       TypeError, "`compact_mode` must be True or False"),
     "integrate: high_accuracy 1": (lambda: ls.integrate(BODY, Y0, t=1, high_accuracy=1),
                                    TypeError, "`high_accuracy` must be True or False"),
+    "integrate: a field heyoka cannot give sympy says what to write": (lambda: ls.integrate(_select_field(), ["0.3", 0],
+                                                                                        t=1),
+                                                                         ValueError, r"select.*`extra_field`"),
     "validated: max_width -1": (lambda: ls.validated_integrate(BODY, Y0, t=1, max_width=-1), ValueError,
                                 "`max_width` must be a positive radius"),
     "validated: max_width 0": (lambda: ls.validated_integrate(BODY, Y0, t=1, max_width=0), ValueError,

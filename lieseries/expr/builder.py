@@ -57,8 +57,20 @@ def sympy_forms(exprs, as_written=False) -> list:
             break
     if as_written:
         with sympy.evaluate(False):
-            return [hy.to_sympy(e) for e in exprs]
-    return [hy.to_sympy(e) for e in exprs]
+            return [_to_sympy(e) for e in exprs]
+    return [_to_sympy(e) for e in exprs]
+
+
+def _to_sympy(e):
+    """:func:`heyoka.to_sympy`, a function it cannot convert (``select``, a comparison) refused with what to do."""
+    try:
+        return hy.to_sympy(e)
+    except TypeError as err:
+        raise ValueError(
+            f"{err}: lieseries reads every expression of a system (its `hamiltonian`, `tensor` and `extra_field`, "
+            "and the events') in sympy, for its checks and its Lie engine; write it with the functions both know "
+            "(arithmetic, powers, exp, log, sqrt, the trigonometric and hyperbolic functions and their inverses)"
+        ) from None
 
 
 def _coeff_add(e):
