@@ -51,8 +51,8 @@ def integrate(system, y0, t, **options):
         Wall-time budget in seconds for the integration (status ``time_budget``), checked between chunks of steps
         that take about 0.1 s each, or one step where a step takes longer (heyoka cannot stop inside a step: a run
         overruns it by at most about that). It does not bound the one-off compilation of a new integrator. For an
-        ensemble it bounds all the members together: members not started when it runs out end ``time_budget``
-        without running.
+        ensemble it bounds the call, all the members together: members not started when it runs out end
+        ``time_budget`` without running.
     min_step : float, optional
         Stop with ``step_collapse`` when a step smaller than this was taken (checked between chunks of steps).
     atlas : bool, optional

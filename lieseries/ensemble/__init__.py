@@ -37,10 +37,10 @@ budgets). A lane may take at most ``max_steps`` steps in a batch (default :data:
 threshold for a stiff run): the batch runs in chunks of steps, and a lane that at its current step size would need
 more is handed to a single run early, which decides between success, ``step_collapse`` and ``step_budget`` exactly
 as for one run (a healthy run longer than :data:`BATCH_STEPS` steps thus runs as a single run unless ``max_steps``
-is given). With ``max_time`` or ``min_step``, every member runs as a single run. ``max_time`` bounds all the
-members together (not the one-off compilation of the integrator and its checks): each member's single run gets the
-time left when it starts, and members not started when it runs out end ``time_budget`` at their initial state without
-running (on a Dask cluster too, against the workers' clocks).
+is given). With ``max_time`` or ``min_step``, every member runs as a single run. ``max_time`` bounds the call,
+its inputs' checks and all the members (not the one-off compilation of the integrator and its checks): each member's
+single run gets the time left when it starts, and members not started when it runs out end ``time_budget`` at their
+initial state without running (on a Dask cluster too, against the workers' clocks).
 
 A member that stops early has NaN in the output rows after its stop; ``t_reached``/``y_reached`` give the last
 time and state it reached.

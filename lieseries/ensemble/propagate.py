@@ -62,10 +62,11 @@ def integrate_ensemble(
     tol, t0, max_steps
         As for :func:`lieseries.integrate`, per member.
     max_time : float, optional
-        Wall-time budget in seconds of all the members together (on every worker): each member runs as a single run
-        with the time left when it starts as its budget, and the members not started when it runs out end
-        ``time_budget`` at their initial state, not run. As for a single run, it does not bound the one-off
-        compilation of the integrator and its checks: what the runs spend outside their integration moves it on.
+        Wall-time budget in seconds of the call (the inputs' checks and every member, on every worker): each member
+        runs as a single run with the time left when it starts as its budget, and the members not started when it
+        runs out end ``time_budget`` at their initial state, not run. As for a single run, it does not bound the
+        one-off compilation of the integrator and its checks: what the run that compiled spends outside its
+        integration moves it on.
     precision : "double" | "long double" | "quad" | int bits, optional
         Default: the precision of ``Y0`` (the dtype of a numeric array; double for exact input and floats).
     params : array-like, shape (k, npar), optional
@@ -101,15 +102,18 @@ def integrate_ensemble(
     -------
     EnsembleSolution
     """
+    called = _time.perf_counter()
     plan = plan_ensemble(system, Y0, t, tol=tol, precision=precision, t0=t0, params=params, workers=workers,
                          client=client, max_steps=max_steps, max_time=max_time, chunk_size=chunk_size,
                          batch_size=batch_size, progress=progress, min_step=min_step,
                          compact_mode=compact_mode, high_accuracy=high_accuracy, dense=dense, atlas=atlas,
                          events=events)
     progress = None if progress is None else Monotone(progress)
+    # (the budget counts the checks and exact conversions of the inputs, as a single run's counts its grid's)
+    left = None if max_time is None else max_time - (_time.perf_counter() - called)
     if client is not None:
-        return _on_cluster(client, plan, progress, None if max_time is None else _time.time() + max_time)
-    return _run_here(plan, progress, max_time)
+        return _on_cluster(client, plan, progress, None if left is None else _time.time() + left)
+    return _run_here(plan, progress, left)
 
 
 def _run_here(plan, progress, budget, until=None) -> EnsembleSolution:
