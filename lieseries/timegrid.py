@@ -12,10 +12,9 @@ from fractions import Fraction
 
 import mpmath
 import numpy as np
-from mpmath.libmp import from_rational, round_nearest
 
 from .caller import stacklevel
-from .precision import PrecisionWarning, check_seconds, short_decimal, to_fraction
+from .precision import PrecisionWarning, check_seconds, short_decimal, to_fraction, to_raw
 
 __all__ = ["parse_times", "time_rows", "output_bytes", "MAX_OUTPUT_BYTES", "span_loss", "warn_span_loss",
            "refuse_lost_span", "MIN_SPAN_BITS"]
@@ -252,6 +251,5 @@ def time_rows(times, bits: int) -> np.ndarray:
     1e20) and put the double 0.1 beside the row at 0.1."""
     out = np.empty(len(times), dtype=object)
     for i, v in enumerate(times):
-        f = to_fraction(v)
-        out[i] = mpmath.make_mpf(from_rational(f.numerator, f.denominator, bits, round_nearest))
+        out[i] = mpmath.make_mpf(to_raw(v, bits, "t"))
     return out

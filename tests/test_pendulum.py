@@ -143,7 +143,8 @@ def test_pendulum_states_off_the_surface_are_refused():
         dbl.initial_state(q=("0.6", 0, "-0.8", "0.6", "0.6", "-1.6"), qdot=(0, 1, 0, 0, 0, 0))
     # an exact point of the decimal surface against a model of binary length: the refusal names the length (it
     # named the point alone, and told to give it exactly, which it was)
-    with pytest.raises(ValueError, match=r"`q` is not on[^G]*G1[^G]*The model was built from binary numbers, `length`"):
+    with pytest.raises(ValueError,
+                       match=r"`q` is not on[^G]*G1[^G]*The model was built from binary numbers, `parameters\['length'\]`"):
         ls.SphericalPendulum(length=0.7).initial_state(q=("0.42", 0, "-0.56"), qdot=(0, 1, 0))
     with pytest.raises(ValueError, match="built from binary numbers, `l1`"):
         ls.DoubleSphericalPendulum(l1=0.7).initial_state(q=("0.42", 0, "-0.56", "0.42", 0, "-1.56"),

@@ -116,14 +116,13 @@ def integrate_ensemble(
     return _run_here(plan, progress, left)
 
 
-def _run_here(plan, progress, budget, until=None) -> EnsembleSolution:
+def _run_here(plan, progress, budget) -> EnsembleSolution:
     """The members here, on the path their precision and options allow, with ``budget`` seconds (or None) for all
-    of them together from now, or until ``until`` (a ``time.time()`` reading: a Dask chunk's share of its
-    ensemble's budget)."""
+    of them together from now."""
     res = Result(plan.k, len(plan.grid), plan.ps.dimension, plan.prec,
                  chart=plan.structure.chart if plan.atlas else None)  # across an atlas every state knows its chart
     start = _time.perf_counter()
-    deadline = None if budget is None else start + (budget if until is None else until - _time.time())
+    deadline = None if budget is None else start + budget
     path = _run_path(plan, res, progress)
     _hand_over(plan, res, path, progress, deadline)
     _check_energy(plan, res, path)
@@ -281,4 +280,4 @@ def chunk_task(system, rows, pars, t, t0, opts, until=None):
     (a ``time.time()`` reading, or None) is the deadline of the whole ensemble's ``max_time``."""
     plan = plan_ensemble(system, rows, t, t0=t0, params=pars, workers=1, client=None, chunk_size=None,
                          progress=None, dense=False, **opts)
-    return _run_here(plan, None, opts.get("max_time"), until)
+    return _run_here(plan, None, None if until is None else until - _time.time())

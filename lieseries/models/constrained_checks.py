@@ -42,13 +42,6 @@ def _mpf(v):
     return mp.mpf(v.numerator) / v.denominator if isinstance(v, Fraction) else mp.mpf(v)
 
 
-def _argument(key: str) -> str:
-    """A model input's name as its constructor takes it (``parameters['length']`` is the argument ``length``)."""
-    if key.startswith("parameters['") and key.endswith("']"):
-        return key[len("parameters['"):-2]
-    return key
-
-
 def check_surface_residuals(terms, gradients, qdot, bits, labels, qname="q", vname="qdot", loose=False,
                             coarse_model=None):
     """Refuse (ValueError naming ``qname`` or ``vname``) a point off the constraints or a velocity not tangent.
@@ -66,7 +59,7 @@ def check_surface_residuals(terms, gradients, qdot, bits, labels, qname="q", vna
     model_bits = min(coarse_model.values()) if coarse_model else None
     blame = ""
     if coarse_model:
-        shown = ", ".join(f"`{_argument(k)}` ({int(b)} bits)" for k, b in coarse_model.items())
+        shown = ", ".join(f"`{k}` ({int(b)} bits)" for k, b in coarse_model.items())
         blame = (f"the model was built from binary numbers, {shown}: its surface is that of their binary values "
                  "(the double 0.7 is 0.6999999999999999555...), which a point exact for the decimals misses. Build "
                  "the model from exact values (strings such as '0.7', Fractions)")
